@@ -1,0 +1,1 @@
+"""Camera intrinsics, undistortion and eye calibration (issue 4)."""

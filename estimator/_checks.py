@@ -1,0 +1,48 @@
+"""Input checks shared by the libraries: convert to float64 and raise ``ValueError`` naming the
+shape that was received and the shape that was expected."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def check_points(points, name: str = "points", dim: int = 3) -> np.ndarray:
+    """Return ``points`` as a float64 array of shape (N, dim); a single (dim,) point becomes (1, dim)."""
+    a = np.asarray(points, dtype=np.float64)
+    if a.ndim == 1 and a.shape[0] == dim:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != dim:
+        raise ValueError(f"{name} must have shape (N, {dim}), got {a.shape}")
+    return a
+
+
+def check_vector(v, name: str = "vector", dim: int = 3) -> np.ndarray:
+    """Return ``v`` as a float64 array of shape (dim,)."""
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (dim,):
+        raise ValueError(f"{name} must have shape ({dim},), got {a.shape}")
+    return a
+
+
+def check_transform(T, name: str = "transform") -> np.ndarray:
+    """Return ``T`` as a (4, 4) float64 rigid transform; the rotation block must be orthonormal."""
+    a = np.asarray(T, dtype=np.float64)
+    if a.shape != (4, 4):
+        raise ValueError(f"{name} must have shape (4, 4), got {a.shape}")
+    R = a[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise ValueError(f"{name} must hold a proper rotation in its upper-left 3x3 block")
+    if not np.allclose(a[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"{name} must have [0, 0, 0, 1] as its last row, got {a[3].tolist()}")
+    return a
+
+
+def normalize_directions(directions, name: str = "directions", min_norm: float = 1e-12) -> np.ndarray:
+    """Return (N, 3) unit vectors; a zero or non-finite direction raises ``ValueError`` naming its row."""
+    d = check_points(directions, name)
+    n = np.linalg.norm(d, axis=1)
+    bad = ~np.isfinite(n) | (n <= min_norm)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name}[{i}] is {d[i].tolist()}: a direction must be finite and non-zero")
+    return d / n[:, None]

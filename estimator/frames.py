@@ -1,0 +1,89 @@
+"""Frames, units and rigid transforms: the one place they are defined.
+
+Units
+    Millimetres for lengths, seconds for time, radians inside the maths (degrees only at the
+    user-facing boundary, always in names ending ``_deg``).
+
+Camera axes
+    OpenCV's: x right, y down, z forward (the viewing direction).
+
+Frames
+    ``world``  the marker map's frame (or the simulation's); fixed in the room.
+    ``cam``    the scene (view) camera, between the eyes; the head frame of the paper.
+    ``eye``    not a frame: eye rotation centres are points given in ``cam``.
+
+Transforms
+    A transform is a (4, 4) float64 matrix named by both frames, ``T_b_from_a``, mapping points in
+    frame ``a`` to frame ``b``: ``p_b = T_b_from_a @ p_a``. They compose left to right:
+    ``T_world_from_cam = T_world_from_head @ T_head_from_cam``. The paper's ``(R, T)`` with
+    ``x_c = R x_g + T`` is ``T_cam_from_world``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._checks import check_points, check_transform
+
+
+def transform_from_rotation_translation(R, t_mm) -> np.ndarray:
+    """Build ``T_b_from_a`` (4, 4) from a rotation (3, 3) and a translation (3,) in mm."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(R, dtype=np.float64)
+    T[:3, 3] = np.asarray(t_mm, dtype=np.float64)
+    return check_transform(T, "transform")
+
+
+def invert(T_b_from_a) -> np.ndarray:
+    """Return ``T_a_from_b`` (4, 4), the inverse of a rigid transform ``T_b_from_a`` (4, 4)."""
+    T = check_transform(T_b_from_a, "T_b_from_a")
+    R = T[:3, :3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ T[:3, 3]
+    return out
+
+
+def _stack_transforms(T, n: int, name: str) -> np.ndarray:
+    a = np.asarray(T, dtype=np.float64)
+    if a.shape == (4, 4):
+        check_transform(a, name)
+        return np.broadcast_to(a, (n, 4, 4))
+    if a.shape != (n, 4, 4):
+        raise ValueError(f"{name} must have shape (4, 4) or ({n}, 4, 4), got {a.shape}")
+    return a
+
+
+def transform_points(T_b_from_a, pts_a) -> np.ndarray:
+    """Map points (N, 3) from frame a to frame b with one (4, 4) transform or one per point (N, 4, 4)."""
+    p = check_points(pts_a, "pts_a")
+    T = _stack_transforms(T_b_from_a, len(p), "T_b_from_a")
+    return np.einsum("nij,nj->ni", T[:, :3, :3], p) + T[:, :3, 3]
+
+
+def rotate_directions(T_b_from_a, dirs_a) -> np.ndarray:
+    """Rotate directions (N, 3) from frame a to frame b (translation ignored)."""
+    d = check_points(dirs_a, "dirs_a")
+    T = _stack_transforms(T_b_from_a, len(d), "T_b_from_a")
+    return np.einsum("nij,nj->ni", T[:, :3, :3], d)
+
+
+def rotation_about_axis(axis, angle_rad: float) -> np.ndarray:
+    """Rotation matrix (3, 3) for a right-handed rotation of ``angle_rad`` about a unit ``axis`` (3,)."""
+    k = np.asarray(axis, dtype=np.float64)
+    k = k / np.linalg.norm(k)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle_rad) * K + (1 - np.cos(angle_rad)) * (K @ K)
+
+
+def tangent_basis(directions) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (N, 3) each, orthogonal to each unit direction (N, 3) and to each other.
+
+    ``(b1, b2, d)`` is right-handed; used to express angular residuals as two tangent components.
+    """
+    d = check_points(directions, "directions")
+    helper = np.where(np.abs(d[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    b1 = np.cross(helper, d)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    b2 = np.cross(d, b1)
+    return b1, b2

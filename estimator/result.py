@@ -1,0 +1,98 @@
+"""The result every estimator returns: a point with its uncertainty, or an explicit failure."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from scipy.stats import chi2
+
+
+class Status(str, Enum):
+    """Why an estimate is (or is not) usable."""
+
+    OK = "ok"
+    INSUFFICIENT = "insufficient-data"   # too few lines or samples yet
+    DEGENERATE = "degenerate"            # lines (nearly) parallel: the point is not determined
+    BEHIND = "behind"                    # the best point lies behind the eyes
+
+
+@dataclass(frozen=True)
+class Ellipsoid:
+    """A confidence or credible ellipsoid.
+
+    Attributes:
+        center_mm: (3,) centre, mm.
+        radii_mm: (3,) semi-axis lengths, mm, ascending.
+        axes: (3, 3) unit semi-axis directions as columns, matching ``radii_mm``.
+        probability: the probability mass it holds (e.g. 0.95).
+    """
+
+    center_mm: np.ndarray
+    radii_mm: np.ndarray
+    axes: np.ndarray
+    probability: float
+
+
+@dataclass(frozen=True)
+class GazeEstimate:
+    """A 3D gazed-point estimate.
+
+    Attributes:
+        method: estimator name (``lse``, ``geometric``, ``ml``, ``voxel``, ``paper``).
+        status: ``Status.OK`` or the reason there is no usable point.
+        position_mm: (3,) the estimate in the lines' frame, mm; ``None`` unless a point was found.
+        covariance_mm2: (3, 3) covariance, mm^2, where the method gives one, else ``None``.
+        n_samples: binocular samples used.
+        n_lines: view lines used.
+        reason: a sentence for people when ``status`` is not OK (empty otherwise).
+        info: method-specific diagnostics (iterations, residual RMS in degrees, voxel size...).
+    """
+
+    method: str
+    status: Status
+    position_mm: np.ndarray | None
+    covariance_mm2: np.ndarray | None
+    n_samples: int
+    n_lines: int
+    reason: str = ""
+    info: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status is Status.OK
+
+    def ellipsoid(self, probability: float = 0.95) -> Ellipsoid | None:
+        """The ``probability`` confidence ellipsoid of the Gaussian ``N(position, covariance)``."""
+        if self.position_mm is None or self.covariance_mm2 is None:
+            return None
+        return covariance_ellipsoid(self.position_mm, self.covariance_mm2, probability)
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (lists, not arrays)."""
+        ell = self.ellipsoid()
+        return {
+            "method": self.method,
+            "status": self.status.value,
+            "reason": self.reason,
+            "position_mm": None if self.position_mm is None else [float(v) for v in self.position_mm],
+            "covariance_mm2": None if self.covariance_mm2 is None else self.covariance_mm2.tolist(),
+            "ellipsoid95_radii_mm": None if ell is None else ell.radii_mm.tolist(),
+            "n_samples": int(self.n_samples),
+            "n_lines": int(self.n_lines),
+        }
+
+
+def failed(method: str, status: Status, reason: str, n_samples: int, n_lines: int,
+           info: dict | None = None) -> GazeEstimate:
+    """A ``GazeEstimate`` with no point and a reason."""
+    return GazeEstimate(method, status, None, None, n_samples, n_lines, reason, info or {})
+
+
+def covariance_ellipsoid(center_mm, covariance_mm2, probability: float = 0.95) -> Ellipsoid:
+    """Ellipsoid holding ``probability`` of ``N(center, covariance)`` (3 degrees of freedom)."""
+    C = np.asarray(covariance_mm2, dtype=np.float64)
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    k2 = chi2.ppf(probability, df=3)
+    return Ellipsoid(np.asarray(center_mm, float), np.sqrt(np.clip(w, 0, None) * k2), V, probability)
