@@ -60,19 +60,31 @@ def cramer_rao_bound(origins_mm, point_mm, sigma_deg: float) -> np.ndarray:
 def angular_residuals(point_mm, lines: ViewLines) -> np.ndarray:
     """Gnomonic residuals (N, 2), radians for small angles, of each line at ``point_mm`` (3,).
 
-    Lines for which the point lies behind the origin get a residual of 1e6 (far outside any
-    sensible noise level), never NaN.
+    Lines for which the point lies behind the origin (or within 0.06 deg of perpendicular to it)
+    get a residual of norm 1e3, far outside any sensible noise level; never NaN.
     """
     b1, b2 = tangent_basis(lines.directions)
     return _residuals(check_vector(point_mm, "point_mm"), lines.origins_mm, lines.directions, b1, b2)[0]
 
 
+_BEHIND_RESIDUAL = 1e3   # |r| = tan(angle) for a point behind a line's origin (the grid's bound too)
+
+
 def _residuals(X, e, d, b1, b2):
+    """Residuals (N, 2) and ``d . u`` (N,), floored; behind an origin the residual is the
+    constant ``_BEHIND_RESIDUAL`` (its Jacobian rows are zeroed by the caller via ``a``)."""
     w = X - e
     a = np.einsum("ij,ij->i", w, d)
     norm = np.linalg.norm(w, axis=1)
-    a_safe = np.maximum(a, 1e-6 * np.maximum(norm, 1e-9))
-    r = np.column_stack([np.einsum("ij,ij->i", w, b1), np.einsum("ij,ij->i", w, b2)]) / a_safe[:, None]
+    floor = 1e-3 * np.maximum(norm, 1e-9)
+    behind = a <= floor
+    a_safe = np.where(behind, np.inf, a)
+    t = np.column_stack([np.einsum("ij,ij->i", w, b1), np.einsum("ij,ij->i", w, b2)])
+    r = t / np.where(behind, 1.0, a)[:, None]
+    if np.any(behind):
+        tn = np.linalg.norm(t[behind], axis=1, keepdims=True)
+        unit = np.where(tn > 0, t[behind] / np.maximum(tn, 1e-300), [[1.0, 0.0]])
+        r[behind] = _BEHIND_RESIDUAL * unit
     return r, a_safe
 
 

@@ -306,7 +306,7 @@ class VoxelConfig:
 
     sigma_deg: float = 1.0
     grid_size: int = 12
-    coverage_sigmas: float = 4.0
+    coverage_sigmas: float = 3.0
     refine_factor: float = 2.0
     seed_samples: int = 10
     seed_method: str = "ml"
@@ -415,7 +415,10 @@ class VoxelEstimator:
         cfg = self.config
         lines = self._buf.view_lines()
         if x0 is not None or cfg.seed_method == "ml":
-            est = ml_point(lines, MLConfig(sigma_deg=cfg.sigma_deg), x0_mm=x0)
+            # the same model as the grid's: Gaussian inliers, and blinks or saccades as a mixture
+            loss = "mixture" if cfg.outlier_prob > 0 else "gaussian"
+            est = ml_point(lines, MLConfig(sigma_deg=cfg.sigma_deg, loss=loss,
+                                           outlier_prob=max(cfg.outlier_prob, 1e-9)), x0_mm=x0)
         else:
             est = lse_point(lines)
         if not est.ok:
@@ -578,7 +581,7 @@ class PaperVoxelConfig:
 
     sigma_deg: float = 1.0
     voxel_mm: float = 10.0
-    grid_size: int = 48
+    grid_size: int = 32
     seed_samples: int = 20
     sphere_sigma_mm: float | None = None
     update: str = "add"
@@ -644,8 +647,10 @@ class PaperVoxelEstimator:
         if not seed.ok:
             return False
         c = self.config
-        # snap the space to the voxel lattice so the estimate comes in voxel steps, as in the paper
-        center = np.round(seed.position_mm / c.voxel_mm) * c.voxel_mm
+        # snap the space so that voxel centres sit on multiples of voxel_mm, as the paper's
+        # estimates do (1010, 2010, ...)
+        half = 0.5 * c.voxel_mm if c.grid_size % 2 == 0 else 0.0
+        center = np.round((seed.position_mm - half) / c.voxel_mm) * c.voxel_mm + half
         self.grid = DensityGrid(center, np.eye(3), c.voxel_mm, c.grid_size)
         if c.sphere_sigma_mm is None:
             o = allv.lines().origins_mm

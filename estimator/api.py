@@ -1,0 +1,127 @@
+"""One entry point per use: ``estimate`` over a batch, ``make_estimator`` for a stream.
+
+Methods:
+    ``lse``        the paper's LSE (eq. 12 stacked); biased toward the head at depth.
+    ``geometric``  least squares on perpendicular distances.
+    ``ml``         maximum likelihood on angular residuals, with covariance (at the Cramér-Rao bound).
+    ``voxel``      the Bayesian voxel estimator (default): likelihood on an adaptive grid.
+    ``paper``      the paper's stochastic voxel method, as written.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .likelihood import MLConfig, ml_point
+from .lines import BinocularSample, BinocularSamples, samples_from_stream
+from .result import GazeEstimate, Status, failed
+from .triangulation import lse_point, nearest_point_to_lines
+from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEstimator
+
+METHODS = ("lse", "geometric", "ml", "voxel", "paper")
+DEFAULT_METHOD = "voxel"
+
+
+class LinesEstimator:
+    """Streaming wrapper for the closed-form and ML methods: keeps the samples and re-solves over
+    all of them on each update (O(N) per update; for ML warm-started from the last point)."""
+
+    def __init__(self, method: str, sigma_deg: float = 1.0, ml_config: MLConfig | None = None):
+        if method not in ("lse", "geometric", "ml"):
+            raise ValueError(f"LinesEstimator handles lse, geometric and ml, not {method!r}")
+        self.method = method
+        self.ml_config = ml_config or MLConfig(sigma_deg=sigma_deg)
+        self._samples: list[BinocularSample] = []
+        self._batches: list[BinocularSamples] = []
+        self._last: GazeEstimate | None = None
+
+    def update(self, sample: BinocularSample) -> GazeEstimate:
+        self._samples.append(sample)
+        return self._solve()
+
+    def add(self, samples: BinocularSamples) -> GazeEstimate:
+        self._flush()
+        self._batches.append(samples)
+        return self._solve()
+
+    def estimate(self) -> GazeEstimate:
+        return self._last or failed(self.method, Status.INSUFFICIENT, "no samples yet", 0, 0)
+
+    def _flush(self):
+        if self._samples:
+            self._batches.append(samples_from_stream(self._samples))
+            self._samples = []
+
+    def _solve(self) -> GazeEstimate:
+        self._flush()
+        if len(self._batches) > 1:
+            b = self._batches
+            self._batches = [BinocularSamples(*(np.concatenate([getattr(x, f) for x in b]) for f in (
+                "t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction",
+                "left_valid", "right_valid")))]
+        lines = self._batches[0].lines()
+        if self.method == "lse":
+            self._last = lse_point(lines)
+        elif self.method == "geometric":
+            self._last = nearest_point_to_lines(lines)
+        else:
+            x0 = self._last.position_mm if self._last is not None and self._last.ok else None
+            self._last = ml_point(lines, self.ml_config, x0_mm=x0)
+        return self._last
+
+
+def make_estimator(method: str = DEFAULT_METHOD, sigma_deg: float = 1.0, **options):
+    """A streaming estimator: ``est.update(BinocularSample) -> GazeEstimate``, ``est.add(batch)``.
+
+    Args:
+        method: one of ``METHODS``.
+        sigma_deg: angular noise std per tangent axis, degrees.
+        **options: fields of ``VoxelConfig`` (voxel), ``PaperVoxelConfig`` (paper) or ``MLConfig`` (ml).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}: choose one of {', '.join(METHODS)}")
+    if method == "voxel":
+        return VoxelEstimator(VoxelConfig(sigma_deg=sigma_deg, **options))
+    if method == "paper":
+        return PaperVoxelEstimator(PaperVoxelConfig(sigma_deg=sigma_deg, **options))
+    if method == "ml":
+        return LinesEstimator("ml", ml_config=MLConfig(sigma_deg=sigma_deg, **options))
+    if options:
+        raise ValueError(f"method {method!r} takes no options, got {sorted(options)}")
+    return LinesEstimator(method)
+
+
+def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,
+                  **options):
+    """Feed a batch of binocular samples (world frame) to a new estimator; return
+    ``(estimator, GazeEstimate)`` so that its density can be exported.
+
+    ``voxel`` and ``paper`` take the samples in time order, as they would stream: the seed comes
+    from the first samples, as in a live session.
+    """
+    if samples.frame != "world":
+        raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
+    est = make_estimator(method, sigma_deg, **options)
+    if method == "voxel":
+        seed = est.config.seed_samples
+        result = est.add(samples.select(slice(0, seed)))
+        for i in range(seed, len(samples)):
+            result = est.update(samples.sample(i))
+        return est, result
+    return est, est.add(samples)
+
+
+def estimate(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,
+             **options) -> GazeEstimate:
+    """Estimate the gazed point from a batch of binocular samples (world frame); see ``run_estimator``."""
+    return run_estimator(samples, method, sigma_deg, **options)[1]
+
+
+def density_point_cloud(estimator):
+    """The density of a ``voxel`` or ``paper`` estimator as an Open3D point cloud (voxel centres,
+    world frame, mm) with per-point ``density`` (probability mass) and ``log_density``."""
+    grid = getattr(estimator, "grid", None)
+    if grid is None:
+        raise ValueError("this estimator has no density grid yet (too few samples, or not voxel/paper)")
+    log_values = isinstance(estimator, VoxelEstimator) or estimator.config.update == "multiply"
+    return grid.to_point_cloud(log_values=log_values)

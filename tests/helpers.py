@@ -1,0 +1,43 @@
+"""Synthetic ground truth shared by the tests."""
+
+import numpy as np
+
+from estimator import BinocularSamples, ViewLines, perturb_directions
+
+
+def random_rotation(rng):
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def random_transform(rng, scale_mm=500.0):
+    T = np.eye(4)
+    T[:3, :3] = random_rotation(rng)
+    T[:3, 3] = rng.normal(scale=scale_mm, size=3)
+    return T
+
+
+def lines_toward(target, origins, sigma_rad=0.0, rng=None, sample_index=None):
+    d = np.asarray(target, float) - origins
+    if sigma_rad > 0:
+        d = perturb_directions(d, sigma_rad, rng)
+    return ViewLines(origins, d, "world", sample_index)
+
+
+def walkabout_samples(target, rng, n=300, sigma_deg=1.0, ipd=64.0):
+    """A wider, irregular geometry than the paper's: head swaying over +-150 mm in x, +-80 mm
+    in y and +-100 mm in z, head yawing so the eye baseline turns."""
+    t = np.arange(n) / 60.0
+    heads = np.column_stack([150 * np.sin(0.7 * t), 80 * np.sin(1.3 * t + 1), 100 * np.sin(0.4 * t)])
+    yaw = 0.3 * np.sin(0.5 * t)
+    half = np.column_stack([np.cos(yaw), np.zeros(n), -np.sin(yaw)]) * ipd / 2
+    lo, ro = heads - half, heads + half
+    s = np.deg2rad(sigma_deg)
+    X = np.asarray(target, float)
+    ld = perturb_directions(X - lo, s, rng) if s > 0 else X - lo
+    rd = perturb_directions(X - ro, s, rng) if s > 0 else X - ro
+    return BinocularSamples.from_arrays(t, lo, ld, ro, rd)

@@ -1,0 +1,156 @@
+"""The ``wearable-gaze`` command line: each command parses, calls one library function, prints.
+
+Bad input at any boundary gets one line on stderr and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from .errors import UserError
+
+log = logging.getLogger("wearable_gaze")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line naming the fix, exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: {message} (see `{self.prog} --help`)\n")
+
+
+def _positive_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return v
+
+
+def _positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text}")
+    return v
+
+
+# --- estimate ---------------------------------------------------------------------------------
+
+def cmd_estimate(args) -> int:
+    from estimator import METHODS  # noqa: PLC0415
+
+    from .estimate_cmd import estimate_file, format_table  # noqa: PLC0415
+
+    if args.export_density and args.method not in ("voxel", "paper"):
+        raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no density)")
+    assert args.method in METHODS
+    results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density)
+    if args.json:
+        for r in results:
+            print(json.dumps(r))
+    else:
+        print(format_table(results))
+    return 0
+
+
+# --- reproduce --------------------------------------------------------------------------------
+
+def cmd_reproduce(args) -> int:
+    from .progress import progress_bar  # noqa: PLC0415
+    from .reproduce import reproduce_figure5, reproduce_table1  # noqa: PLC0415
+
+    out = Path(args.out)
+    if args.what == "table1":
+        with progress_bar("table 1 trials", args.trials * 5) as cb:
+            result, paths = reproduce_table1(out, args.trials, args.seed, progress=cb)
+        print(result.format())
+    else:
+        result, paths = reproduce_figure5(out, args.seed)
+        print(result.format())
+    print()
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
+
+
+# --- demo -------------------------------------------------------------------------------------
+
+def cmd_demo(args) -> int:
+    from .progress import progress_bar  # noqa: PLC0415
+    from .reproduce import reproduce_table1  # noqa: PLC0415
+
+    out = Path(args.out)
+    print("wearable-gaze demo: the paper's simulation (head moving 20 cm, 1 deg eye noise), "
+          f"{args.trials} trials per depth, every estimator against the Cramér-Rao bound.\n")
+    with progress_bar("demo trials", args.trials * 5) as cb:
+        result, paths = reproduce_table1(out, args.trials, args.seed, progress=cb)
+    print(result.format())
+    print()
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from estimator import METHODS  # noqa: PLC0415
+
+    p = _Parser(prog="wearable-gaze",
+                description="Where in 3D a person looks, from a head-worn binocular eye tracker.")
+    p.add_argument("-v", "--verbose", action="store_true", help="log what each step does")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    e = sub.add_parser("estimate", help="estimate gazed points from a view-line CSV")
+    e.add_argument("viewlines", metavar="VIEWLINES.csv", help="view-line CSV (docs/formats.md)")
+    e.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")
+    e.add_argument("--json", action="store_true", help="one JSON object per segment per line")
+    e.add_argument("--sigma-deg", type=_positive_float, default=1.0, metavar="S",
+                   help="angular noise of a view line, degrees per axis (default: 1.0)")
+    e.add_argument("--export-density", metavar="OUT.ply",
+                   help="write the voxel density as a PLY point cloud (voxel and paper methods)")
+    e.set_defaults(func=cmd_estimate)
+
+    r = sub.add_parser("reproduce", help="reproduce the paper's simulation results")
+    r.add_argument("what", choices=("table1", "figure5"), help="table1: Table 1 with Fig. 11 and 13; "
+                   "figure5: depth from single binocular pairs")
+    r.add_argument("--trials", type=_positive_int, default=20, metavar="N", help="trials per depth (default: 20)")
+    r.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    r.add_argument("--out", default="reproduce-out", metavar="DIR", help="output folder (default: reproduce-out)")
+    r.set_defaults(func=cmd_reproduce)
+
+    d = sub.add_parser("demo", help="run the main job on the embedded default")
+    d.add_argument("--trials", type=_positive_int, default=10, metavar="N", help="trials per depth (default: 10)")
+    d.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    d.add_argument("--out", default="wearable-gaze-demo", metavar="DIR", help="output folder")
+    d.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except UserError as exc:
+        print(f"wearable-gaze {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"wearable-gaze {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Synthetic stand-ins for the hardware: simulated view lines, and (issue 3) rendered sessions."""

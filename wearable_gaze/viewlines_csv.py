@@ -1,0 +1,139 @@
+"""The view-line CSV: what ``wearable-gaze estimate`` reads and ``viewlines`` writes.
+
+Format (documented in docs/formats.md): a header line, then one binocular sample per row.
+Columns, in any order (extra columns ignored):
+
+    t                                   sample time, seconds
+    left_ox, left_oy, left_oz           left eye rotation centre, world frame, mm
+    left_dx, left_dy, left_dz           left view direction, world frame (need not be unit)
+    right_ox ... right_dz               the same for the right eye
+    segment (optional)                  rows with equal values form one independent estimate
+
+One eye's six cells may all be empty (a monocular sample); partly empty is an error.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator import BinocularSamples
+
+from .atomic import atomic_path
+from .errors import UserError
+
+EYE_COLUMNS = {side: [f"{side}_{k}" for k in ("ox", "oy", "oz", "dx", "dy", "dz")] for side in ("left", "right")}
+REQUIRED = ["t", *EYE_COLUMNS["left"], *EYE_COLUMNS["right"]]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """The samples of one segment (``key`` is None when the file has no ``segment`` column)."""
+
+    key: object
+    samples: BinocularSamples
+    first_line: int
+
+
+def _segment_value(text: str):
+    try:
+        return int(text)
+    except ValueError:
+        return text
+
+
+def read_viewlines_csv(path) -> list[Segment]:
+    """Read a view-line CSV into segments in order of first appearance.
+
+    Raises ``UserError`` naming the line and column of the first problem: a missing file or
+    column, an empty file, text where a number belongs, a non-finite value, a partly empty eye,
+    a zero direction.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such file; pass a view-line CSV (see docs/formats.md)")
+    text = path.read_text(encoding="utf-8-sig", errors="replace")
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if header is None or not any(h.strip() for h in header):
+        raise UserError(f"{path}: the file is empty; expected a header line with columns {', '.join(REQUIRED)}")
+    names = [h.strip() for h in header]
+    missing = [c for c in REQUIRED if c not in names]
+    if missing:
+        raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the header "
+                        f"(it has: {', '.join(n for n in names if n) or 'nothing'})")
+    col = {n: i for i, n in enumerate(names)}
+    has_segment = "segment" in col
+    rows = {}
+    order = []
+    for line_no, row in enumerate(reader, start=2):
+        if not any(cell.strip() for cell in row):
+            continue
+        row = row + [""] * (len(names) - len(row))
+
+        def number(name, allow_empty=False):
+            cell = row[col[name]].strip()
+            if cell == "" and allow_empty:
+                return None
+            try:
+                v = float(cell)
+            except ValueError:
+                raise UserError(f"{path} line {line_no}, column {name}: {cell!r} is not a number") from None
+            if not np.isfinite(v):
+                raise UserError(f"{path} line {line_no}, column {name}: {cell!r} is not a finite number")
+            return v
+
+        t = number("t")
+        eyes = {}
+        for side, cols in EYE_COLUMNS.items():
+            vals = [number(c, allow_empty=True) for c in cols]
+            if all(v is None for v in vals):
+                eyes[side] = None
+                continue
+            empty = [c for c, v in zip(cols, vals) if v is None]
+            if empty:
+                raise UserError(f"{path} line {line_no}, column {empty[0]}: empty, but other {side}-eye "
+                                f"cells are not; leave all six {side}_* cells empty for a monocular sample")
+            if np.linalg.norm(vals[3:]) == 0:
+                raise UserError(f"{path} line {line_no}, columns {side}_dx..{side}_dz: the direction is zero; "
+                                "a view direction must be non-zero")
+            eyes[side] = vals
+        key = _segment_value(row[col["segment"]].strip()) if has_segment else None
+        if key not in rows:
+            rows[key] = []
+            order.append((key, line_no))
+        rows[key].append((t, eyes["left"], eyes["right"]))
+    if not order:
+        raise UserError(f"{path}: the header has no data rows below it; add one row per binocular sample")
+    segments = []
+    nan6 = [np.nan] * 6
+    for key, first in order:
+        r = rows[key]
+        t = np.array([x[0] for x in r])
+        left = np.array([x[1] if x[1] is not None else nan6 for x in r])
+        right = np.array([x[2] if x[2] is not None else nan6 for x in r])
+        samples = BinocularSamples.from_arrays(t, left[:, :3], left[:, 3:], right[:, :3], right[:, 3:])
+        segments.append(Segment(key, samples, first))
+    return segments
+
+
+def write_viewlines_csv(path, samples: BinocularSamples, segment=None) -> None:
+    """Write samples (world frame) in the view-line CSV format, atomically. ``segment``: None,
+    one value for all rows, or an (N,) sequence."""
+    if samples.frame != "world":
+        raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
+    n = len(samples)
+    seg = None if segment is None else (list(segment) if np.ndim(segment) else [segment] * n)
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(REQUIRED + (["segment"] if seg is not None else []))
+        for i in range(n):
+            cells = [repr(float(samples.t_s[i]))]
+            for o, d, v in ((samples.left_origin_mm, samples.left_direction, samples.left_valid),
+                            (samples.right_origin_mm, samples.right_direction, samples.right_valid)):
+                cells += [f"{x:.6f}" for x in o[i]] + [f"{x:.9f}" for x in d[i]] if v[i] else [""] * 6
+            w.writerow(cells + ([seg[i]] if seg is not None else []))
