@@ -23,6 +23,7 @@ option, multiplied) into the space; re-centring by ``d/2`` when the maximum leav
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -178,13 +179,10 @@ _DESIGN = np.column_stack([
 _FIT = np.linalg.pinv(_DESIGN)
 
 
-def quadratic_peak(grid: DensityGrid, idx) -> tuple[np.ndarray, np.ndarray] | None:
-    """Sub-voxel peak of the log-density around interior voxel ``idx``.
-
-    Returns ``(point_mm (3,), covariance_mm2 (3, 3))`` with the Laplace covariance ``-H^-1`` of the
-    fitted quadratic, both world frame; ``None`` where the fit is not a maximum within one voxel.
-    (3x3 algebra in closed form: this runs once per streamed sample.)
-    """
+def _quadratic_fit_local(grid: DensityGrid, idx):
+    """3x3x3 quadratic fit around interior voxel ``idx``: ``(offset (3,), cov (3, 3))`` in the box
+    frame, offset in mm from the box centre, covariance in mm^2; ``None`` if not a maximum within
+    one voxel. (3x3 algebra in closed form: this runs once per streamed sample.)"""
     i, j, k = (int(x) for x in idx)
     v = grid.values[i - 1:i + 2, j - 1:j + 2, k - 1:k + 2].reshape(-1)
     _, gx, gy, gz, hxx, hyy, hzz, hxy, hxz, hyz = (_FIT @ (v - v[13])).tolist()
@@ -193,17 +191,32 @@ def quadratic_peak(grid: DensityGrid, idx) -> tuple[np.ndarray, np.ndarray] | No
     det = hxx * (hyy * hzz - hyz * hyz) - hxy * (hxy * hzz - hyz * hxz) + hxz * (hxy * hyz - hyy * hxz)
     if not (hxx < 0 and m2 > 0 and det < 0):
         return None
-    # inverse of the symmetric H by cofactors
+    # inverse of the symmetric H by cofactors; Newton step -H^-1 g
     c00, c01, c02 = hyy * hzz - hyz * hyz, hxz * hyz - hxy * hzz, hxy * hyz - hxz * hyy
     c11, c12, c22 = hxx * hzz - hxz * hxz, hxy * hxz - hxx * hyz, m2
-    Hinv = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
-    delta = -(Hinv @ np.array([gx, gy, gz]))
-    if np.max(np.abs(delta)) > 1.0:
+    dx = -(c00 * gx + c01 * gy + c02 * gz) / det
+    dy = -(c01 * gx + c11 * gy + c12 * gz) / det
+    dz = -(c02 * gx + c12 * gy + c22 * gz) / det
+    if max(abs(dx), abs(dy), abs(dz)) > 1.0:
         return None
     s = grid.spacing_mm
-    point = grid.center_mm + grid.axes @ ((np.array([i, j, k]) + delta - (grid.n - 1) / 2.0) * s)
-    cov_local = -Hinv * np.outer(s, s)
-    return point, grid.axes @ cov_local @ grid.axes.T
+    h = (grid.n - 1) / 2.0
+    offset = np.array([i - h + dx, j - h + dy, k - h + dz]) * s
+    cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) * (-1.0 / det) * np.outer(s, s)
+    return offset, cov
+
+
+def quadratic_peak(grid: DensityGrid, idx) -> tuple[np.ndarray, np.ndarray] | None:
+    """Sub-voxel peak of the log-density around interior voxel ``idx``.
+
+    Returns ``(point_mm (3,), covariance_mm2 (3, 3))``, world frame, with the Laplace covariance
+    ``-H^-1`` of the fitted quadratic; ``None`` where the fit is not a maximum within one voxel.
+    """
+    fit = _quadratic_fit_local(grid, idx)
+    if fit is None:
+        return None
+    offset, cov = fit
+    return grid.center_mm + grid.axes @ offset, grid.axes @ cov @ grid.axes.T
 
 
 class _SampleBuffer:
@@ -475,17 +488,31 @@ class VoxelEstimator:
         self._buf.weight[first:first + m] = np.where(dof > 0, wts, 1.0)
 
     def _set_weight_one(self, i, center, cov):
+        """``_set_weights`` for one sample, in scalar arithmetic (the streaming hot path)."""
         valid = self._buf.valid[i]
-        if not valid.any():
+        if not (valid[0] or valid[1]):
             return
-        o, d = self._buf.o[i][valid], self._buf.d[i][valid]
-        v = center - o
-        s2 = (v * v).sum(1)
-        a = np.maximum((v * d).sum(1), 1e-6 * np.sqrt(s2))
-        tan2 = np.minimum(s2 / (a * a) - 1.0, _MAX_TAN2)
-        lateral = np.maximum(0.5 * (np.trace(cov) - ((d @ cov) * d).sum(1)), 0.0)
-        chi2 = float((tan2 / (self._sigma**2 + lateral / (a * a))).sum())
-        self._buf.weight[i] = reliability_weight(chi2, 2.0 * len(a), self._sigma, self.config.outlier_prob)
+        cx, cy, cz = center.tolist()
+        C = cov.tolist()
+        tr = C[0][0] + C[1][1] + C[2][2]
+        sig2 = self._sigma**2
+        chi2 = 0.0
+        dof = 0.0
+        for eye in (0, 1):
+            if not valid[eye]:
+                continue
+            ox, oy, oz = self._buf.o[i, eye].tolist()
+            dx, dy, dz = self._buf.d[i, eye].tolist()
+            vx, vy, vz = cx - ox, cy - oy, cz - oz
+            s2 = vx * vx + vy * vy + vz * vz
+            a = max(vx * dx + vy * dy + vz * dz, 1e-6 * math.sqrt(s2))
+            tan2 = min(s2 / (a * a) - 1.0, _MAX_TAN2)
+            dCd = (dx * (C[0][0] * dx + C[0][1] * dy + C[0][2] * dz) + dy * (C[1][0] * dx + C[1][1] * dy + C[1][2] * dz)
+                   + dz * (C[2][0] * dx + C[2][1] * dy + C[2][2] * dz))
+            lateral = max(0.5 * (tr - dCd), 0.0)
+            chi2 += tan2 / (sig2 + lateral / (a * a))
+            dof += 2.0
+        self._buf.weight[i] = reliability_weight(chi2, dof, self._sigma, self.config.outlier_prob)
 
     def _accumulate(self, sl):
         o, d, si = self._buf.lines(sl)
@@ -506,8 +533,8 @@ class VoxelEstimator:
             grid = self.grid
             idx = grid.argmax()
             fit = None
-            if not (np.any(idx == 0) or np.any(idx == grid.n - 1)):
-                fit = quadratic_peak(grid, idx)
+            if idx.min() > 0 and idx.max() < grid.n - 1:
+                fit = _quadratic_fit_local(grid, idx)
             if fit is None:
                 # the maximum is at the border, or not a peak at this voxel size: lay the box
                 # anew from the continuous optimum over every kept line (nothing is lost)
@@ -516,8 +543,10 @@ class VoxelEstimator:
                     return self._fail(Status.INSUFFICIENT, f"the density has no clear peak yet: {reason}")
                 self._layout(*seed)
                 continue
-            point, cov = fit
-            if self._needs_layout(point, cov):
+            offset, cov_local = fit
+            point = grid.center_mm + grid.axes @ offset
+            cov = grid.axes @ cov_local @ grid.axes.T
+            if self._needs_layout(offset, cov_local):
                 self._layout(point, cov)
                 continue
             return self._result(point, cov)
@@ -528,15 +557,15 @@ class VoxelEstimator:
         g = self.grid
         return g.axes @ np.diag(self._design_std**2) @ g.axes.T
 
-    def _needs_layout(self, point, cov) -> bool:
+    def _needs_layout(self, offset_mm, cov_local) -> bool:
+        """Lay a new box when the peak (box frame, mm) left the central half, or the posterior
+        std along a box axis changed by more than ``refine_factor``."""
         g = self.grid
-        offset = (g.axes.T @ (point - g.center_mm)) / g.spacing_mm
-        if np.max(np.abs(offset)) > g.n / 4:
+        if np.max(np.abs(offset_mm / g.spacing_mm)) > g.n / 4:
             return True
-        std_now = np.sqrt(np.maximum(((g.axes.T @ cov) * g.axes.T).sum(1), 0.0))
         floor = self.config.min_spacing_mm * g.n / (2 * self.config.coverage_sigmas)
-        ratio = np.maximum(std_now, floor) / self._design_std
-        return bool(np.any(ratio > self.config.refine_factor) or np.any(ratio < 1 / self.config.refine_factor))
+        ratio = np.maximum(np.sqrt(np.maximum(np.diag(cov_local), 0.0)), floor) / self._design_std
+        return bool(ratio.max() > self.config.refine_factor or ratio.min() < 1 / self.config.refine_factor)
 
     def _result(self, point, cov) -> GazeEstimate:
         g = self.grid
@@ -544,8 +573,8 @@ class VoxelEstimator:
         # behind the eyes? check against the latest sample's lines (O(1) per update)
         i = self._buf.n - 1
         valid = self._buf.valid[i]
-        ahead = np.einsum("ij,ij->i", point - self._buf.o[i][valid], self._buf.d[i][valid])
-        if len(ahead) and np.all(ahead <= 0):
+        ahead = ((point - self._buf.o[i][valid]) * self._buf.d[i][valid]).sum(1)
+        if len(ahead) and ahead.max() <= 0:
             return GazeEstimate(self.method, Status.BEHIND, point, cov, self._buf.n, self._n_lines(),
                                 "the lines meet behind the eyes: the view directions diverge", info)
         return GazeEstimate(self.method, Status.OK, point, cov, self._buf.n, self._n_lines(), "", info)

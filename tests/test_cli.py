@@ -1,0 +1,161 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wearable_gaze.cli import main
+from wearable_gaze.sim.protocol import simulate_lines
+from wearable_gaze.viewlines_csv import REQUIRED, read_viewlines_csv, write_viewlines_csv
+
+
+@pytest.fixture
+def csv_two_segments(tmp_path, rng):
+    a = simulate_lines([0, 0, 1500.0], rng)
+    b = simulate_lines([200, 0, 2500.0], rng)
+    path = tmp_path / "lines.csv"
+    from estimator import BinocularSamples
+    both = BinocularSamples(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in (
+        "t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction", "left_valid", "right_valid")))
+    write_viewlines_csv(path, both, segment=["near"] * len(a) + [7] * len(b))
+    return path
+
+
+def _one_line_error(capsys):
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def test_csv_round_trip_keeps_samples(tmp_path, rng):
+    s = simulate_lines([0, 0, 1000.0], rng)
+    p = tmp_path / "x.csv"
+    write_viewlines_csv(p, s)
+    segs = read_viewlines_csv(p)
+    assert len(segs) == 1 and segs[0].key is None
+    got = segs[0].samples
+    assert np.allclose(got.left_direction, s.left_direction, atol=1e-8)
+    assert np.allclose(got.right_origin_mm, s.right_origin_mm, atol=1e-5)
+
+
+def test_estimate_json_one_object_per_segment_in_order(csv_two_segments, capsys):
+    assert main(["estimate", str(csv_two_segments), "--method", "ml", "--json"]) == 0
+    out = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
+    assert [o["segment"] for o in out] == ["near", 7]
+    assert all(o["method"] == "ml" and o["n_samples"] == 200 for o in out)
+    assert abs(out[0]["position_mm"][2] - 1500) < 150 and abs(out[1]["position_mm"][2] - 2500) < 400
+    assert np.array(out[0]["covariance_mm2"]).shape == (3, 3)
+
+
+@pytest.mark.parametrize("method", ["lse", "ml", "voxel", "paper"])
+def test_estimate_table_for_every_method(csv_two_segments, capsys, method):
+    assert main(["estimate", str(csv_two_segments), "--method", method]) == 0
+    out = capsys.readouterr().out
+    assert "near" in out and method in out and "ok" in out
+
+
+def test_export_density_writes_a_ply_per_segment(csv_two_segments, tmp_path, capsys):
+    out = tmp_path / "dens.ply"
+    assert main(["estimate", str(csv_two_segments), "--method", "voxel", "--export-density", str(out), "--json"]) == 0
+    rows = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
+    from estimator._open3d import import_open3d
+    for r in rows:
+        pc = import_open3d().t.io.read_point_cloud(r["density_ply"])
+        assert "density" in pc.point
+        assert pc.point["density"].numpy().sum() == pytest.approx(1.0, rel=1e-3)
+
+
+def test_monocular_rows_are_accepted(tmp_path, capsys):
+    s = simulate_lines([0, 0, 1200.0], np.random.default_rng(1))
+    p = tmp_path / "mono.csv"
+    write_viewlines_csv(p, s)
+    lines = p.read_text().splitlines()
+    cells = lines[5].split(",")
+    cells[1:7] = [""] * 6                        # left eye missing on one row
+    lines[5] = ",".join(cells)
+    p.write_text("\n".join(lines) + "\n")
+    assert main(["estimate", str(p), "--method", "ml", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["n_samples"] == 200 and out["status"] == "ok"
+
+
+def _write(tmp_path, text, name="bad.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+HEADER = ",".join(REQUIRED)
+GOOD_ROW = "0,-32.5,0,0,0,0,1,32.5,0,0,0,0,1"
+
+
+@pytest.mark.parametrize("text,expect", [
+    ("", "empty"),
+    ("t,left_ox\n0,1\n", "missing column(s) left_oy"),
+    (HEADER + "\n" + GOOD_ROW.replace("-32.5", "abc", 1) + "\n", "line 2, column left_ox: 'abc' is not a number"),
+    (HEADER + "\n" + GOOD_ROW + "\n" + "0.1,-32.5,0,0,0,0,0,32.5,0,0,0,0,1\n", "line 3, columns left_dx..left_dz: the direction is zero"),
+    (HEADER + "\n" + "0,-32.5,,0,0,0,1,32.5,0,0,0,0,1\n", "line 2, column left_oy: empty"),
+    (HEADER + "\n" + GOOD_ROW.replace("1", "inf", 1) + "\n", "not a finite number"),
+    (HEADER + "\n", "no data rows"),
+])
+def test_bad_csv_gets_one_line_and_status_2(tmp_path, capsys, text, expect):
+    p = _write(tmp_path, text)
+    assert main(["estimate", str(p)]) == 2
+    line = _one_line_error(capsys)
+    assert expect in line and str(p) in line
+
+
+def test_missing_file_and_bad_options(tmp_path, capsys, csv_two_segments):
+    assert main(["estimate", str(tmp_path / "nope.csv")]) == 2
+    assert "no such file" in _one_line_error(capsys)
+    assert main(["estimate", str(csv_two_segments), "--method", "ml", "--export-density", "x.ply"]) == 2
+    assert "--export-density needs --method voxel" in _one_line_error(capsys)
+    with pytest.raises(SystemExit) as e:
+        main(["estimate", str(csv_two_segments), "--sigma-deg", "-1"])
+    assert e.value.code == 2
+    assert "must be positive" in _one_line_error(capsys)
+    with pytest.raises(SystemExit) as e:
+        main(["estimate", str(csv_two_segments), "--method", "kalman"])
+    assert e.value.code == 2
+    assert "invalid choice" in _one_line_error(capsys)
+
+
+def test_console_script_reports_bad_input_without_traceback(tmp_path):
+    p = _write(tmp_path, "t,foo\n1,2\n")
+    exe = Path(sys.executable).with_name("wearable-gaze")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "wearable_gaze.cli"]
+    r = subprocess.run(cmd + ["estimate", str(p)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert "missing column(s)" in r.stderr
+
+
+def test_reproduce_figure5(tmp_path, capsys):
+    assert main(["reproduce", "figure5", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "figure5_single_pairs.png").stat().st_size > 10000
+    rows = [ln.split() for ln in out.splitlines() if ln.strip()[:4].isdigit()]
+    stats = {float(r[0]): (float(r[1]), float(r[2]), float(r[3].rstrip("%"))) for r in rows}
+    assert sorted(stats) == [1200.0, 1600.0, 2400.0, 3300.0]
+    # the paper's finding: usable near 1.2 m, unreliable beyond 3 m
+    assert abs(stats[1200.0][0] - 1200) < 0.25 * 1200
+    rel_iqr = [stats[z][1] / z for z in sorted(stats)]
+    assert all(a < b for a, b in zip(rel_iqr, rel_iqr[1:]))
+    assert rel_iqr[0] < 0.5 < rel_iqr[-1]          # spread below / above half the distance
+    assert stats[1200.0][2] <= 5 and stats[3300.0][2] >= 10   # % of diverging pairs
+
+
+def test_reproduce_table1_prints_all_columns_and_writes_figures(tmp_path, capsys):
+    assert main(["reproduce", "table1", "--trials", "2", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for col in ("paper proposed", "paper LSE", "lse mean z", "paper mean z", "voxel mean z", "ml mean z", "CRB"):
+        assert col in out
+    for name in ("table1.txt", "table1.json", "fig11_density_slices.png", "fig13_convergence.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    data = json.loads((tmp_path / "table1.json").read_text())
+    lse_z = [r["methods"]["lse"]["mean_mm"][2] for r in data["rows"]]
+    assert lse_z[-1] < 0.5 * 5000                     # LSE biased toward the head at 5 m
