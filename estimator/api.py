@@ -10,8 +10,6 @@ Methods:
 
 from __future__ import annotations
 
-import numpy as np
-
 from .likelihood import MLConfig, ml_point
 from .lines import BinocularSample, BinocularSamples, samples_from_stream
 from .result import GazeEstimate, Status, failed
@@ -55,10 +53,7 @@ class LinesEstimator:
     def _solve(self) -> GazeEstimate:
         self._flush()
         if len(self._batches) > 1:
-            b = self._batches
-            self._batches = [BinocularSamples(*(np.concatenate([getattr(x, f) for x in b]) for f in (
-                "t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction",
-                "left_valid", "right_valid")))]
+            self._batches = [BinocularSamples.concatenate(self._batches)]
         lines = self._batches[0].lines()
         if self.method == "lse":
             self._last = lse_point(lines)

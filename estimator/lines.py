@@ -125,6 +125,19 @@ class BinocularSamples:
         return cls.from_arrays(t_s, left.origins_mm, left.directions, right.origins_mm,
                                right.directions, frame=left.frame)
 
+    @classmethod
+    def concatenate(cls, parts) -> "BinocularSamples":
+        """Join ``BinocularSamples`` (same frame) end to end."""
+        parts = list(parts)
+        if not parts:
+            raise ValueError("nothing to concatenate")
+        frames = {p.frame for p in parts}
+        if len(frames) != 1:
+            raise ValueError(f"cannot concatenate samples in different frames: {sorted(frames)}")
+        fields = ("t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction",
+                  "left_valid", "right_valid")
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields), parts[0].frame)
+
     def __len__(self) -> int:
         return len(self.t_s)
 

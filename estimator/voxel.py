@@ -599,11 +599,10 @@ class PaperVoxelConfig:
         voxel_mm: voxel edge, mm (the paper's estimates come in 10 mm steps).
         grid_size: voxels per axis of the cubic voxel space.
         seed_samples: binocular samples whose lines seed the LSE (the paper: "several").
-        sphere_sigma_mm: std of the Gaussian sphere around ``P_n``, mm; ``None`` takes the
-            binocular triangulation's depth uncertainty at the seed's distance ``r``
-            (``r^2 sigma / baseline``, baseline = the eyes' distance), at least one voxel. It is
-            fixed once: a width taken at each ``P_n`` would weight samples by ``r^-6`` and pull
-            the peak toward the head.
+        sphere_sigma_mm: std of the Gaussian sphere around ``P_n``, mm; ``None`` takes each
+            pair's own triangulation depth uncertainty, ``sqrt(2) r^2 sigma / b`` (``r`` the
+            distance of ``P_n``, ``b`` the eyes' separation), at least one voxel. The sphere is
+            unnormalised (peak 1): normalising it would weight near pairs by ``r^-6``.
         update: ``add`` (densities summed: the paper's "integration") or ``multiply``
             (log-densities summed; a floor keeps one stray sample from zeroing a voxel).
     """
@@ -667,11 +666,8 @@ class PaperVoxelEstimator:
                                                                 "no samples yet", 0, 0)
 
     def _seed(self) -> bool:
-        from .lines import BinocularSamples as BS  # noqa: PLC0415
         pend = self._pending
-        allv = BS(*(np.concatenate([getattr(p, f) for p in pend]) for f in
-                    ("t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction",
-                     "left_valid", "right_valid")))
+        allv = BinocularSamples.concatenate(pend)
         seed = lse_point(allv.lines())
         if not seed.ok:
             return False
@@ -681,14 +677,6 @@ class PaperVoxelEstimator:
         half = 0.5 * c.voxel_mm if c.grid_size % 2 == 0 else 0.0
         center = np.round((seed.position_mm - half) / c.voxel_mm) * c.voxel_mm + half
         self.grid = DensityGrid(center, np.eye(3), c.voxel_mm, c.grid_size)
-        if c.sphere_sigma_mm is None:
-            o = allv.lines().origins_mm
-            mid = o.mean(axis=0)
-            base = max(np.linalg.norm(np.nanmean(allv.left_origin_mm - allv.right_origin_mm, axis=0)), 1.0)
-            r = np.linalg.norm(seed.position_mm - mid)
-            self._sphere_sigma = max(r * r * self._sigma / base, c.voxel_mm)
-        else:
-            self._sphere_sigma = c.sphere_sigma_mm
         for p in pend:
             self._update_one(p)
             self._recentre()

@@ -17,8 +17,7 @@ def csv_two_segments(tmp_path, rng):
     b = simulate_lines([200, 0, 2500.0], rng)
     path = tmp_path / "lines.csv"
     from estimator import BinocularSamples
-    both = BinocularSamples(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in (
-        "t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction", "left_valid", "right_valid")))
+    both = BinocularSamples.concatenate([a, b])
     write_viewlines_csv(path, both, segment=["near"] * len(a) + [7] * len(b))
     return path
 
