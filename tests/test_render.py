@@ -1,0 +1,101 @@
+"""The renderer's geometry against projection of the ground truth (issue 3, first part).
+
+OpenCV's sub-pixel refinement is itself biased inward on the L-shaped corners of a marker
+(about 0.14 px on an analytically area-sampled square, measured below), so the renderer is held
+to what an ideal area-sampled image gives with the same detector, and to no systematic offset.
+"""
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator.frames import rotation_about_axis
+from wearable_gaze.sim.render import (Camera, Plane, aruco_dictionary, finish, marker_corners_world,
+                                      marker_plane, render)
+
+
+def _detector():
+    det = cv2.aruco.ArucoDetector(aruco_dictionary("DICT_4X4_50"), cv2.aruco.DetectorParameters())
+    p = det.getDetectorParameters()
+    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    p.cornerRefinementMinAccuracy = 0.001
+    p.cornerRefinementMaxIterations = 100
+    det.setDetectorParameters(p)
+    return det
+
+
+def _ideal_errors(det, rng, n=12):
+    """Detection errors on exactly area-sampled markers (drawn at 16x, box-downsampled)."""
+    d = aruco_dictionary("DICT_4X4_50")
+    mk = cv2.aruco.generateImageMarker(d, 3, 300, borderBits=1)
+    S, errs, offs = 16, [], []
+    for _ in range(n):
+        side, ang, c = rng.uniform(40, 90), rng.uniform(0, 2 * np.pi), rng.uniform(150, 250, 2)
+        R = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+        dst = (np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * side / 2) @ R.T + c
+        H = cv2.getPerspectiveTransform(np.float32([[0, 0], [300, 0], [300, 300], [0, 300]]),
+                                        (S * (dst + 0.5)).astype(np.float32))
+        big = cv2.warpPerspective(mk, H, (400 * S, 400 * S), flags=cv2.INTER_NEAREST, borderValue=255)
+        img = cv2.resize(big, (400, 400), interpolation=cv2.INTER_AREA)
+        cc, ids, _ = det.detectMarkers(img)
+        e = cc[0].reshape(4, 2) - dst
+        errs.append(np.linalg.norm(e, axis=1))
+    return np.concatenate(errs)
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    cam = Camera.wide_scene_camera()
+    rng = np.random.default_rng(0)
+    out = []
+    for _ in range(8):
+        planes, truth = [], {}
+        for mid in range(4):
+            T = np.eye(4)
+            T[:3, :3] = rotation_about_axis(rng.normal(size=3), np.deg2rad(rng.uniform(0, 40)))
+            T[:3, 3] = [rng.uniform(-600, 600), rng.uniform(-300, 300), rng.uniform(1000, 2000)]
+            planes.append(marker_plane("DICT_4X4_50", mid, 120.0, T))
+            truth[mid] = cam.project(marker_corners_world(120.0, T))
+        out.append((finish(render(cam, np.eye(4), planes)), truth))
+    return out
+
+
+def test_rendered_marker_corners_match_projected_ground_truth(scenes):
+    det = _detector()
+    errs, offsets = [], []
+    for img, truth in scenes:
+        corners, ids, _ = det.detectMarkers(img)
+        assert ids is not None
+        for c, i in zip(corners, ids.ravel()):
+            e = c.reshape(4, 2) - truth[int(i)]
+            errs.append(np.linalg.norm(e, axis=1))
+            offsets.append(e)
+    errs = np.concatenate(errs)
+    offsets = np.concatenate(offsets)
+    assert len(errs) >= 0.8 * 4 * 4 * len(scenes)            # markers in view are found
+    assert np.all(np.abs(offsets.mean(axis=0)) < 0.05)      # no systematic shift of the image
+    ideal = _ideal_errors(det, np.random.default_rng(1))
+    assert np.median(errs) < np.median(ideal) + 0.05        # as good as ideal area sampling
+    assert np.percentile(errs, 95) < 0.6
+
+
+def test_occlusion_nearest_plane_wins():
+    cam = Camera.wide_scene_camera(width=320, height=180)
+    near = np.eye(4)
+    near[:3, 3] = [-500, -500, 1000]
+    far = np.eye(4)
+    far[:3, 3] = [-2000, -2000, 3000]
+    white = np.full((8, 8), 250, np.uint8)
+    black = np.zeros((8, 8), np.uint8)
+    img = render(cam, np.eye(4), [Plane(near, (1000, 1000), black), Plane(far, (4000, 4000), white)])
+    img2 = render(cam, np.eye(4), [Plane(far, (4000, 4000), white), Plane(near, (1000, 1000), black)])
+    c = (90, 160)
+    assert img[c] < 5 and img2[c] < 5                        # the near black plane hides the far one
+    assert img[90, 80] > 240 and img2[90, 240] > 240          # the far plane shows beside it
+
+
+def test_finish_is_seeded_and_clipped():
+    img = np.full((10, 10), 254.0, np.float32)
+    a = finish(img, np.random.default_rng(3), noise_std=5.0)
+    b = finish(img, np.random.default_rng(3), noise_std=5.0)
+    assert a.dtype == np.uint8 and np.array_equal(a, b) and a.max() == 255
