@@ -73,6 +73,8 @@ class Table1Result:
             f"{int(r['depth_mm'])}: " + ", ".join(
                 f"{m} {r['methods'][m]['rmse_mm'] / r['crb_mm']:.2f}" for m in ("ml", "voxel")
                 if r["methods"][m]["rmse_mm"] is not None) for r in self.rows))
+        lines.append(f"(with {self.trials} trials per depth an RMSE is known to about "
+                     f"+-{100 / np.sqrt(2 * self.trials):.0f} %; run more trials to tighten it)")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
