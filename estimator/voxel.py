@@ -33,7 +33,7 @@ from .frames import tangent_basis
 from .likelihood import MLConfig, fisher_information, ml_point, reliability_weight, reliability_weights
 from .lines import BinocularSample, BinocularSamples, ViewLines
 from .result import GazeEstimate, Status, failed
-from .triangulation import closest_point_two_lines, lse_point
+from .triangulation import PairStatus, closest_point_two_lines, lse_point
 
 log = logging.getLogger(__name__)
 
@@ -66,20 +66,11 @@ class DensityGrid:
         base = np.arange(self.n) - (self.n - 1) / 2.0
         self.offsets = [base * s for s in self.spacing_mm]
 
-    @property
-    def extent_mm(self) -> np.ndarray:
-        """(3,) edge lengths of the box, mm."""
-        return self.spacing_mm * self.n
-
     def index_to_world(self, ijk) -> np.ndarray:
         """World points (M, 3), mm, of (possibly fractional) voxel indices (M, 3)."""
         ijk = np.atleast_2d(np.asarray(ijk, dtype=np.float64))
         local = (ijk - (self.n - 1) / 2.0) * self.spacing_mm
         return self.center_mm + local @ self.axes.T
-
-    def world_to_local(self, pts_mm) -> np.ndarray:
-        """Box-frame coordinates (M, 3), mm, of world points (M, 3)."""
-        return (np.atleast_2d(pts_mm) - self.center_mm) @ self.axes
 
     def centers(self) -> np.ndarray:
         """World centres (n^3, 3), mm, in the order of ``values.ravel()``."""
@@ -124,10 +115,6 @@ class DensityGrid:
         np.reciprocal(out, out=out)
         out -= 1.0
         return out
-
-    def tan2_of_line(self, origin_mm, direction) -> np.ndarray:
-        """``tan2_of_lines`` for one line, shaped (n, n, n)."""
-        return self.tan2_of_lines(origin_mm, direction)[0].reshape((self.n,) * 3)
 
     def add_lines(self, origins_mm, directions, coefficients, chunk: int = 64) -> None:
         """``values += sum_l coefficients[l] * tan2_l`` for lines (L, 3) origins and (L, 3) unit
@@ -204,19 +191,6 @@ def _quadratic_fit_local(grid: DensityGrid, idx):
     offset = np.array([i - h + dx, j - h + dy, k - h + dz]) * s
     cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) * (-1.0 / det) * np.outer(s, s)
     return offset, cov
-
-
-def quadratic_peak(grid: DensityGrid, idx) -> tuple[np.ndarray, np.ndarray] | None:
-    """Sub-voxel peak of the log-density around interior voxel ``idx``.
-
-    Returns ``(point_mm (3,), covariance_mm2 (3, 3))``, world frame, with the Laplace covariance
-    ``-H^-1`` of the fitted quadratic; ``None`` where the fit is not a maximum within one voxel.
-    """
-    fit = _quadratic_fit_local(grid, idx)
-    if fit is None:
-        return None
-    offset, cov = fit
-    return grid.center_mm + grid.axes @ offset, grid.axes @ cov @ grid.axes.T
 
 
 class _SampleBuffer:
@@ -553,10 +527,6 @@ class VoxelEstimator:
         return self._fail(Status.DEGENERATE, "the density has no bounded maximum: the view lines are "
                                              "nearly parallel (target too far for this head motion)")
 
-    def _design_cov(self) -> np.ndarray:
-        g = self.grid
-        return g.axes @ np.diag(self._design_std**2) @ g.axes.T
-
     def _needs_layout(self, offset_mm, cov_local) -> bool:
         """Lay a new box when the peak (box frame, mm) left the central half, or the posterior
         std along a box axis changed by more than ``refine_factor``."""
@@ -688,7 +658,7 @@ class PaperVoxelEstimator:
         if not (s.left_valid[0] and s.right_valid[0]):
             return                                   # the method needs both lines for P_n
         pair = closest_point_two_lines(s.left_origin_mm, s.left_direction, s.right_origin_mm, s.right_direction)
-        if pair.status[0] == 1:                      # parallel: no P_n
+        if pair.status[0] == PairStatus.PARALLEL:   # no P_n
             return
         P = pair.point_mm[0]
         if c.sphere_sigma_mm is None:
@@ -699,10 +669,9 @@ class PaperVoxelEstimator:
         else:
             sig_s = c.sphere_sigma_mm
         sphere = np.exp(-0.5 * g.sq_distance_to(P) / sig_s**2)
-        k = -0.5 / self._sigma**2
-        cone_l = np.exp(k * g.tan2_of_line(s.left_origin_mm[0], s.left_direction[0]))
-        cone_r = np.exp(k * g.tan2_of_line(s.right_origin_mm[0], s.right_direction[0]))
-        contribution = sphere * (cone_l + cone_r)
+        cones = np.exp((-0.5 / self._sigma**2) * g.tan2_of_lines(
+            np.vstack([s.left_origin_mm, s.right_origin_mm]), np.vstack([s.left_direction, s.right_direction])))
+        contribution = sphere * (cones[0] + cones[1]).reshape(sphere.shape)
         if c.update == "add":
             g.values += contribution
         else:

@@ -109,6 +109,15 @@ def test_ml_robust_loss_resists_blinks_and_saccades(rng):
     assert robust.info["inlier_weight_mean"] == pytest.approx(0.9, abs=0.03)
 
 
+def test_scalar_reliability_weight_matches_the_vector_one():
+    from estimator.likelihood import reliability_weight
+
+    chi2_values = np.array([0.0, 3.0, 30.0, 45.0, 400.0])
+    for dof in (2.0, 4.0):
+        vec = reliability_weights(chi2_values, dof, np.deg2rad(1), 0.02)
+        assert np.allclose([reliability_weight(c, dof, np.deg2rad(1), 0.02) for c in chi2_values], vec)
+
+
 def test_reliability_weights():
     w = reliability_weights(np.array([0.0, 4.0, 400.0]), 4, np.deg2rad(1), 0.02)
     assert w[0] > 0.999 and w[1] > 0.999 and w[2] < 1e-6

@@ -145,3 +145,23 @@ def test_rendered_corners_within_a_tenth_of_a_pixel_with_edge_refinement(scenes)
     errs = np.concatenate(errs)
     assert np.median(errs) < 0.1
     assert np.percentile(errs, 95) < 0.3
+
+
+def test_edges_land_in_place_on_deep_pyramid_levels_of_odd_sized_textures():
+    """A 100-px texture's level 3 is 13 px wide, not 12.5: sampling must use 2^k, not W / width."""
+    cam = Camera.wide_scene_camera(width=320, height=180, dist=(0, 0, 0, 0, 0))
+    tex = np.zeros((100, 100), np.uint8)
+    tex[:, 50:] = 240                                       # edge at the plane's middle
+    T = np.eye(4)
+    T[:3, 3] = [-100.0, -100.0, 6000.0]                     # 200 mm square, about 5 px wide
+    plane = Plane(T, (200.0, 200.0), tex)
+    img = render(cam, np.eye(4), [plane], background=120.0)
+    assert plane.level(5)[1] >= 3                           # deep levels were built and used
+    row = img[int(round(cam.project([[0.0, 0.0, 6000.0]])[0, 1]))]
+    edge_x = cam.project([[0.0, 0.0, 6000.0]])[0, 0]        # projected x of the texture's edge
+    x = np.arange(len(row))
+    lo, hi = int(edge_x) - 2, int(edge_x) + 3
+    seg = row[lo:hi]
+    j = np.nonzero(seg >= 120.0)[0][0]                      # 50 % crossing between 0 and 240
+    crossing = x[lo + j - 1] + (120.0 - seg[j - 1]) / (seg[j] - seg[j - 1])
+    assert abs(crossing - edge_x) < 0.15

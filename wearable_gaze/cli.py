@@ -46,13 +46,10 @@ def _positive_int(text):
 # --- estimate ---------------------------------------------------------------------------------
 
 def cmd_estimate(args) -> int:
-    from estimator import METHODS  # noqa: PLC0415
-
     from .estimate_cmd import estimate_file, format_table  # noqa: PLC0415
 
     if args.export_density and args.method not in ("voxel", "paper"):
         raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no density)")
-    assert args.method in METHODS
     results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density)
     if args.json:
         for r in results:

@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from estimator import closest_point_two_lines, cramer_rao_bound, run_estimator
+from estimator import closest_point_two_lines, cramer_rao_bound, make_estimator, run_estimator
 
 from .sim.protocol import PAPER_DEPTHS_MM, PAPER_TABLE1, Protocol, simulate_lines
 
@@ -123,8 +123,6 @@ def run_table1(trials: int = 20, seed: int = 0, depths_mm=PAPER_DEPTHS_MM, proto
 
 def convergence(depth_mm: float, seed: int, protocol: Protocol = Protocol(), methods=TABLE_METHODS) -> dict:
     """Estimated depth (mm) after each observation, one trial, per streaming method (Fig. 13)."""
-    from estimator import make_estimator  # noqa: PLC0415
-
     rng = np.random.default_rng(seed)
     truth = np.array([0.0, 0.0, float(depth_mm)])
     samples = simulate_lines(truth, rng, protocol)
@@ -145,8 +143,6 @@ def plot_fig11(out_path, seed: int = 0, protocol: Protocol = Protocol(), depths_
     import matplotlib  # noqa: PLC0415
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    from estimator import make_estimator  # noqa: PLC0415
 
     fig, axes = plt.subplots(2, len(depths_mm), figsize=(4.2 * len(depths_mm), 8), squeeze=False)
     for col, z in enumerate(depths_mm):

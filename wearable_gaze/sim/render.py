@@ -64,6 +64,14 @@ class Camera:
         return und[..., 0].copy(), und[..., 1].copy()
 
     @functools.cached_property
+    def field_limits(self) -> tuple[float, float]:
+        """Largest |x| and |y| of the normalised rays at the image border, times 1.2: beyond
+        them the distortion model is not trusted to be monotonic."""
+        xs, ys = self.rays
+        return (max(abs(xs[:, 0]).max(), abs(xs[:, -1]).max()) * 1.2,
+                max(abs(ys[0]).max(), abs(ys[-1]).max()) * 1.2)
+
+    @functools.cached_property
     def rays32(self) -> tuple[np.ndarray, np.ndarray]:
         """``rays`` as float32 (for ``cv2.remap`` at sub-pixel positions)."""
         return tuple(r.astype(np.float32) for r in self.rays)
@@ -97,9 +105,9 @@ class Plane:
         c = np.array([[0, 0, 0, 1], [w, 0, 0, 1], [w, h, 0, 1], [0, h, 0, 1.0]])
         return (self.T_world_from_plane @ c.T).T[:, :3]
 
-    def level(self, k: int) -> np.ndarray:
+    def level(self, k: int) -> tuple[np.ndarray, int]:
         """Texture pyramid level ``k`` (0 is the texture itself), each level Gaussian-filtered and
-        halved (``cv2.pyrDown``)."""
+        halved (``cv2.pyrDown``), and the level actually returned (a small texture has fewer)."""
         if not self._pyramid:
             self._pyramid.append(np.ascontiguousarray(self.texture, dtype=np.float32))
         while len(self._pyramid) <= k:
@@ -107,7 +115,8 @@ class Plane:
             if min(prev.shape[:2]) < 4:
                 break
             self._pyramid.append(cv2.pyrDown(prev))
-        return self._pyramid[min(k, len(self._pyramid) - 1)]
+        k = min(k, len(self._pyramid) - 1)
+        return self._pyramid[k], k
 
 
 def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) -> np.ndarray:
@@ -157,8 +166,8 @@ def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) 
         # footprint: texels per sample at the box centre -> pyramid level
         cy, cx = x.shape[0] // 2, x.shape[1] // 2
         k = _pyramid_level(u_mm, v_mm, cy, cx, su, sv)
-        lev = plane.level(k)
-        f = tex_w / lev.shape[1] if k else 1.0
+        lev, k = plane.level(k)
+        f = 2.0**k                  # exact: pyrDown rounds odd sizes up, so tex_w / width is not
         # level-0 continuous texel coordinates (0 .. W across the rectangle); cv2.pyrDown centres
         # level-k pixel i on level-0 pixel 2^k i, so its index coordinate is (p - 0.5) / 2^k
         pu = u_mm * su
@@ -196,7 +205,7 @@ def _pyramid_level(u, v, cy, cx, su, sv) -> int:
     scale = max(du, dv)
     if not np.isfinite(scale) or scale <= 1.5:
         return 0
-    return int(np.floor(np.log2(scale / 1.5))) + 1 if scale > 1.5 else 0
+    return int(np.floor(np.log2(scale / 1.5))) + 1
 
 
 def _bbox(camera: Camera, T_cam_from_plane, size_mm):
@@ -215,9 +224,7 @@ def _bbox(camera: Camera, T_cam_from_plane, size_mm):
         return 0, 0, w, h
     n = pts[:, :2] / pts[:, 2:3]
     # beyond the field where the distortion model is monotonic, fall back to the whole image
-    xs, ys = camera.rays
-    lim_x = max(abs(xs[:, 0]).max(), abs(xs[:, -1]).max()) * 1.2
-    lim_y = max(abs(ys[0]).max(), abs(ys[-1]).max()) * 1.2
+    lim_x, lim_y = camera.field_limits
     if np.any(np.abs(n[:, 0]) > lim_x) or np.any(np.abs(n[:, 1]) > lim_y):
         inside = (np.abs(n[:, 0]) <= lim_x) & (np.abs(n[:, 1]) <= lim_y)
         if not inside.any():
