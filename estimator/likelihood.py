@@ -199,17 +199,22 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
             line_w[:] = _loss_weights(chi2_s, dof, sigma, config.loss, config.outlier_prob, config.huber_k)[inverse]
         return 0.5 * np.sum(line_w * r2)
 
+    def normal_equations(X):
+        """Residuals (N, 2), Gauss-Newton matrix J^T W J and gradient J^T W r at X, with
+        d r_k / d X = (b_k - r_k d) / (d . u)."""
+        r, a = _residuals(X, e, d, b1, b2)
+        J1 = (b1 - r[:, [0]] * d) / a[:, None]
+        J2 = (b2 - r[:, [1]] * d) / a[:, None]
+        H = (np.einsum("n,ni,nj->ij", line_w, J1, J1) + np.einsum("n,ni,nj->ij", line_w, J2, J2)) / sigma**2
+        g = (np.einsum("n,ni->i", line_w * r[:, 0], J1) + np.einsum("n,ni->i", line_w * r[:, 1], J2)) / sigma**2
+        return r, H, g
+
     lam = 1e-3
     cost = cost_and_weights(x, True)
     it = 0
     converged = False
     for it in range(1, config.max_iterations + 1):
-        r, a = _residuals(x, e, d, b1, b2)
-        # d r_k / d X = (b_k - r_k d) / (d . u)
-        J1 = (b1 - r[:, [0]] * d) / a[:, None]
-        J2 = (b2 - r[:, [1]] * d) / a[:, None]
-        H = (np.einsum("n,ni,nj->ij", line_w, J1, J1) + np.einsum("n,ni,nj->ij", line_w, J2, J2)) / sigma**2
-        g = (np.einsum("n,ni->i", line_w * r[:, 0], J1) + np.einsum("n,ni->i", line_w * r[:, 1], J2)) / sigma**2
+        _, H, g = normal_equations(x)
         step_ok = False
         for _ in range(30):
             try:
@@ -229,10 +234,7 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
             converged = step_ok or np.linalg.norm(g) < 1e-9
             break
 
-    r, a = _residuals(x, e, d, b1, b2)
-    J1 = (b1 - r[:, [0]] * d) / a[:, None]
-    J2 = (b2 - r[:, [1]] * d) / a[:, None]
-    H = (np.einsum("n,ni,nj->ij", line_w, J1, J1) + np.einsum("n,ni,nj->ij", line_w, J2, J2)) / sigma**2
+    r, H, _ = normal_equations(x)
     if np.linalg.cond(H) > 1e14:
         return failed("ml", Status.DEGENERATE, "the view lines do not fix a point (information matrix singular)", ns, n)
     cov = np.linalg.inv(H)
