@@ -14,21 +14,12 @@ the speed-up is not bought with precision.
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("MKL_NUM_THREADS", "1")
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 
 import argparse  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-try:
-    os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
-except (AttributeError, OSError):
-    pass
 
 from estimator import (BinocularSamples, MLConfig, PaperVoxelEstimator, VoxelEstimator,  # noqa: E402
                        cramer_rao_bound, ml_point)

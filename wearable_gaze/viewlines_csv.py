@@ -25,6 +25,7 @@ from estimator import BinocularSamples
 
 from .atomic import atomic_path
 from .errors import UserError
+from .tables import open_csv
 
 EYE_COLUMNS = {side: [f"{side}_{k}" for k in ("ox", "oy", "oz", "dx", "dy", "dz")] for side in ("left", "right")}
 REQUIRED = ["t", *EYE_COLUMNS["left"], *EYE_COLUMNS["right"]]
@@ -54,18 +55,7 @@ def read_viewlines_csv(path) -> list[Segment]:
     a zero direction.
     """
     path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: no such file; pass a view-line CSV (see docs/formats.md)")
-    text = path.read_text(encoding="utf-8-sig", errors="replace")
-    reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
-    if header is None or not any(h.strip() for h in header):
-        raise UserError(f"{path}: the file is empty; expected a header line with columns {', '.join(REQUIRED)}")
-    names = [h.strip() for h in header]
-    missing = [c for c in REQUIRED if c not in names]
-    if missing:
-        raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the header "
-                        f"(it has: {', '.join(n for n in names if n) or 'nothing'})")
+    names, reader = open_csv(path, REQUIRED, "view-line CSV", "pass a view-line CSV (see docs/formats.md)")
     col = {n: i for i, n in enumerate(names)}
     has_segment = "segment" in col
     rows = {}

@@ -1,16 +1,27 @@
 """A small OpenCV renderer: textured planes seen through a pinhole camera with lens distortion.
 
 Each plane is a rectangle ``size_mm`` in its own frame (x right, y down along the texture, z its
-normal), placed by ``T_world_from_plane``. Texture pixel centre ``(i + 0.5, j + 0.5)`` sits at
-``((i + 0.5) w / W, (j + 0.5) h / H)`` mm in the plane frame.
+normal, pointing away from the side that is seen), placed by ``T_world_from_plane``. Texture
+pixel centre ``(i + 0.5, j + 0.5)`` sits at ``((i + 0.5) w / W, (j + 0.5) h / H)`` mm in the plane
+frame.
 
-For a camera ray ``r = (x, y, 1)`` (undistorted normalised coordinates, camera frame), the plane
-point it meets is a homography of ``r``: ``[u, v, 1] ~ M^-1 r`` with ``M = [R0 R1 t]`` the first
-two axes and origin of the plane in the camera frame. The rays of every (distorted) image pixel
-are computed once per camera with ``cv2.undistortPoints`` (iterated to 1e-10); a plane then costs a few array
-operations over its bounding box and one ``cv2.remap``. Anti-aliasing: textures are minified
-through a Gaussian pyramid level matched to their footprint, sampled bilinearly, and plane
-borders carry fractional coverage. Occlusion: per-pixel depth along the ray.
+Two paths, both exact in geometry:
+
+- Shell planes (a room's walls, floor and ceiling: ``Plane.shell``) are drawn with
+  ``cv2.warpPerspective`` into an undistorted pinhole canvas, which one ``cv2.remap`` then
+  distorts into the image. Seen from inside a convex room they never hide each other and lie
+  behind everything else, so they need no depth test.
+- Every other plane (markers, boards, cards) is drawn per pixel: for a camera ray
+  ``r = (x, y, 1)`` (undistorted normalised coordinates of a pixel centre, computed once per
+  camera with ``cv2.undistortPoints`` iterated to 1e-10) the plane point it meets is a
+  homography of ``r``: ``[u, v, 1] ~ M^-1 r`` with ``M = [R0 R1 t]`` the plane's first two axes
+  and origin in the camera frame; ``cv2.perspectiveTransform`` gives texel coordinates and one
+  ``cv2.remap`` samples the texture. Occlusion: a depth buffer along the rays.
+
+Anti-aliasing: textures are minified through a Gaussian pyramid level matched to their
+footprint; markers are area-sampled (the level box-filtered over one pixel's footprint, or
+``supersample`` x ``supersample`` samples per pixel), so that detected corners are unbiased; plane
+borders carry fractional coverage. One-sided planes facing away are culled.
 """
 
 from __future__ import annotations
@@ -22,6 +33,9 @@ import cv2
 import numpy as np
 
 from estimator.frames import invert
+
+
+CANVAS_AREA = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +66,22 @@ class Camera:
         px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), self.camera_matrix, self.dist_coeffs)
         return px.reshape(-1, 2)
 
+    def distort(self, xy) -> np.ndarray:
+        """Pixels (N, 2) of undistorted normalised coordinates (N, 2) (OpenCV's model)."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        d = self.dist_coeffs
+        if len(d) > 5 or len(d) < 4:
+            return self.project(np.column_stack([xy, np.ones(len(xy))]))
+        k1, k2, p1, p2 = d[:4]
+        k3 = d[4] if len(d) > 4 else 0.0
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        K = self.camera_matrix
+        return np.column_stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]])
+
     @functools.cached_property
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """Undistorted normalised coordinates (x, y), each (H, W) float64, of every pixel centre."""
@@ -72,6 +102,45 @@ class Camera:
                 max(abs(ys[0]).max(), abs(ys[-1]).max()) * 1.2)
 
     @functools.cached_property
+    def canvas(self) -> tuple[np.ndarray, tuple[int, int], np.ndarray, np.ndarray]:
+        """The undistorted pinhole canvas that shell planes are drawn into: its (3, 3) matrix
+        ``K_c``, its size (w, h), and the float32 (H, W) maps from image pixels to canvas pixels.
+        Its focal length is scaled so that it covers the whole distorted field with
+        ``CANVAS_AREA`` times the image's pixel count: walls and floors are textures whose
+        detail need not be sharper than that, and the warp's cost is proportional to it."""
+        xs, ys = self.rays
+        w, h = self.image_size
+        x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
+        f = self.camera_matrix[0, 0]
+        fc = min(f, np.sqrt(CANVAS_AREA * w * h / ((x1 - x0) * (y1 - y0))))
+        Kc = np.array([[fc, 0, -x0 * fc + 1.0], [0, fc, -y0 * fc + 1.0], [0, 0, 1.0]])
+        size = (int(np.ceil((x1 - x0) * fc)) + 3, int(np.ceil((y1 - y0) * fc)) + 3)
+        mx = (fc * xs + Kc[0, 2]).astype(np.float32)
+        my = (fc * ys + Kc[1, 2]).astype(np.float32)
+        return Kc, size, mx, my
+
+    @functools.cached_property
+    def rays2(self) -> np.ndarray:
+        """``rays`` as one float32 (H, W, 2) array."""
+        xs, ys = self.rays
+        return np.dstack([xs, ys]).astype(np.float32)
+
+    def sample_rays(self, ss: int) -> np.ndarray:
+        """(H ss, W ss, 2) float32 rays at ``ss`` x ``ss`` sample positions per pixel (pixel
+        centre + ((i + 0.5) / ss - 0.5)), interpolated from the smooth per-pixel map; cached."""
+        if ss == 1:
+            return self.rays2
+        cache = self.__dict__.setdefault("_sample_rays", {})
+        if ss not in cache:
+            w, h = self.image_size
+            off = (np.arange(ss) + 0.5) / ss - 0.5
+            gx = (np.arange(w)[:, None] + off[None]).ravel().astype(np.float32)
+            gy = (np.arange(h)[:, None] + off[None]).ravel().astype(np.float32)
+            mx, my = np.meshgrid(gx, gy)
+            cache[ss] = cv2.remap(self.rays2, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return cache[ss]
+
+    @functools.cached_property
     def rays32(self) -> tuple[np.ndarray, np.ndarray]:
         """``rays`` as float32 (for ``cv2.remap`` at sub-pixel positions)."""
         return tuple(r.astype(np.float32) for r in self.rays)
@@ -87,9 +156,13 @@ class Plane:
         texture: (H, W) uint8 grey texture covering the whole rectangle.
         name: a label.
         supersample: samples per pixel along each axis (area sampling: each pixel is the mean of
-            ``supersample^2`` samples). Markers use 3: gradient-based corner refinement is
+            ``supersample^2`` samples). Markers use 2: gradient-based corner refinement is
             biased toward the inside of a blurred L-corner, so their edges must be as sharp as
             a real pixel's box integration makes them.
+        shell: part of the convex enclosure (a room's walls, floor, ceiling). Seen from inside
+            a convex room no shell plane hides another and every other plane is in front of
+            them, so shell planes skip the depth test and take the fast path: drawn by
+            ``cv2.warpPerspective`` into an undistorted canvas that one ``cv2.remap`` distorts.
     """
 
     T_world_from_plane: np.ndarray
@@ -97,7 +170,11 @@ class Plane:
     texture: np.ndarray
     name: str = ""
     supersample: int = 1
+    shell: bool = False
+    max_texel_step: float = 1.5
+    box_prefilter: bool = False
     _pyramid: list = field(default_factory=list, repr=False)
+    _pyramid2: list = field(default_factory=list, repr=False)
 
     def corners_world(self) -> np.ndarray:
         """(4, 3) corners in the world frame: (0,0), (w,0), (w,h), (0,h) of the plane frame, mm."""
@@ -118,6 +195,33 @@ class Plane:
         k = min(k, len(self._pyramid) - 1)
         return self._pyramid[k], k
 
+    def boxed(self, k: int, ksize: int) -> tuple[np.ndarray, int, float]:
+        """``level2(k)`` zero-padded and box-filtered with a ``ksize`` square (cached): the
+        texture convolved with one pixel's footprint. Returns the image, the level and the
+        index offset to add to level-``k`` index coordinates (padding minus the even-kernel
+        half-texel shift of ``cv2.boxFilter``'s anchor)."""
+        cache = self.__dict__.setdefault("_boxed", {})
+        lev, k = self.level2(k)
+        key = (k, ksize)
+        if key not in cache:
+            pad = ksize
+            img = cv2.copyMakeBorder(lev, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+            if ksize > 1:
+                img = cv2.boxFilter(img, -1, (ksize, ksize), normalize=True, borderType=cv2.BORDER_CONSTANT)
+            cache[key] = (img, pad - ((ksize - 1) / 2 - ksize // 2))
+        img, shift = cache[key]
+        return img, k, shift
+
+    def level2(self, k: int) -> tuple[np.ndarray, int]:
+        """``level(k)`` as a 2-channel float32 image (colour, 1): sampled with a zero border it
+        gives premultiplied colour and coverage."""
+        lev, k = self.level(k)
+        while len(self._pyramid2) <= k:
+            self._pyramid2.append(None)
+        if self._pyramid2[k] is None:
+            self._pyramid2[k] = np.dstack([lev, np.ones_like(lev)])
+        return self._pyramid2[k], k
+
 
 def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) -> np.ndarray:
     """Render planes (nearest wins) into a float32 (H, W) grey image, values 0-255.
@@ -130,107 +234,248 @@ def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) 
     """
     w, h = camera.image_size
     xs, ys = camera.rays
-    img = np.full((h, w), background, np.float32)
-    depth = np.full((h, w), np.inf, np.float32)
     T_cam_from_world = invert(T_world_from_cam)
+    planes = list(planes)
+    shell = [p for p in planes if p.shell]
+    if shell:
+        img = _render_shell(camera, T_cam_from_world, shell, background)
+    else:
+        img = np.full((h, w), background, np.float32)
+    exact = [p for p in planes if not p.shell]
+    if not exact:
+        return img
+    Ts = np.einsum("ij,pjk->pik", T_cam_from_world, np.stack([p.T_world_from_plane for p in exact]))
+    boxes = _bboxes(camera, Ts, np.array([p.size_mm for p in exact], float))
+    seen = [b for b in boxes if b is not None]
+    if not seen:
+        return img
+    # depth buffer over the union of the boxes only, origin (dx, dy)
+    dx, dy = min(b[0] for b in seen), min(b[1] for b in seen)
+    depth = np.full((max(b[3] for b in seen) - dy, max(b[2] for b in seen) - dx), np.inf, np.float32)
+    for plane, T, bbox in zip(exact, Ts, boxes):
+        if bbox is None:
+            continue
+        if abs(T[:3, 2] @ T[:3, 3]) < 1e-9:            # det [x y t] = z . t: seen edge-on
+            continue
+        M = T[:3, [0, 1, 3]]
+        x0, y0, x1, y1 = bbox
+        ss = max(int(plane.supersample), 1)
+        R = camera.sample_rays(ss)[y0 * ss:y1 * ss, x0 * ss:x1 * ss]
+        Mi = _inv3(M)                                  # ray (x, y, 1) -> plane (u, v, 1) mm, homogeneous
+        tex_h, tex_w = plane.texture.shape[:2]
+        su, sv = tex_w / plane.size_mm[0], tex_h / plane.size_mm[1]
+        # level-0 continuous texel coordinates (0 .. W across the rectangle)
+        P = Mi * np.array([[su], [sv], [1.0]])
+        pp = cv2.perspectiveTransform(R, P)
+        den = cv2.transform(R, Mi[2:3])               # Mi[2] . (x, y, 1): 1 / depth
+        if plane.box_prefilter and ss == 1:
+            # area sampling without supersampling: a level with 3-6 texels per pixel, box-filtered
+            # over one pixel's footprint, then sampled bilinearly at the pixel centre
+            scale = _footprint(pp, R.shape[0] // 2, R.shape[1] // 2)
+            k = 0 if not np.isfinite(scale) or scale < 6 else int(np.floor(np.log2(scale / 3)))
+            lev, k, shift = plane.boxed(k, max(1, int(round(scale / 2.0**k))) if np.isfinite(scale) else 1)
+        else:
+            # footprint: texels per sample at the box centre -> pyramid level
+            k = _pyramid_level(pp, R.shape[0] // 2, R.shape[1] // 2, plane.max_texel_step * ss)
+            lev, k = plane.level2(k)
+            shift = 0.0
+        f = 2.0**k                  # exact: pyrDown rounds odd sizes up, so tex_w / width is not
+        # cv2.pyrDown centres level-k pixel i on level-0 pixel 2^k i, so the index coordinate
+        # of continuous texel coordinate p is (p - 0.5) / 2^k
+        mp = (pp - np.float32(0.5)) * np.float32(1 / f) + np.float32(shift) if k or shift else pp - np.float32(0.5)
+        # (colour, 1) sampled with a zero border: premultiplied colour and a coverage ramp one
+        # (level) texel wide centred on the rectangle's border
+        out = cv2.remap(lev, mp, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if den.min() <= 0:
+            behind = den <= 0
+            out[behind] = 0
+            den[behind] = 1e-30
+        s = np.float32(1.0) / den                      # ray parameter: depth along z, mm
+        if ss > 1:                   # box filter: mean of the ss x ss samples of each pixel
+            size = (x1 - x0, y1 - y0)
+            out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
+            s = cv2.resize(s, size, interpolation=cv2.INTER_AREA)
+        premult, cov = out[..., 0], out[..., 1]
+        sub_d = depth[y0 - dy:y1 - dy, x0 - dx:x1 - dx]
+        sub_i = img[y0:y1, x0:x1]
+        nearer = s < sub_d
+        np.copyto(sub_i, premult + (1 - cov) * sub_i, where=nearer & (cov > 0))
+        np.copyto(sub_d, s, where=nearer & (cov >= 0.5))
+    return img
+
+
+def _render_shell(camera: Camera, T_cam_from_world, planes, background: float) -> np.ndarray:
+    """Shell planes drawn into the undistorted canvas (warpPerspective of the pyramid level
+    matched to the footprint, masked by the near-clipped polygon), then distorted into the
+    image by one remap. Shell edges are not anti-aliased beyond what that remap's bilinear
+    interpolation gives: they are room seams, not measured features."""
+    Kc, (cw, ch), mx, my = camera.canvas
+    canvas = np.full((ch, cw), background, np.float32)
+    Kc_inv = np.linalg.inv(Kc)
     for plane in planes:
         T = T_cam_from_world @ plane.T_world_from_plane
         M = np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]])
         if abs(np.linalg.det(M)) < 1e-9:
-            continue                                   # seen edge-on
-        bbox = _bbox(camera, T, plane.size_mm)
-        if bbox is None:
             continue
-        x0, y0, x1, y1 = bbox
-        ss = max(int(plane.supersample), 1)
-        if ss == 1:
-            x = xs[y0:y1, x0:x1]
-            y = ys[y0:y1, x0:x1]
-        else:
-            # rays at the sub-pixel sample positions, interpolated from the smooth per-pixel map
-            off = (np.arange(ss) + 0.5) / ss - 0.5
-            gx = (np.arange(x0, x1)[:, None] + off[None]).ravel().astype(np.float32)
-            gy = (np.arange(y0, y1)[:, None] + off[None]).ravel().astype(np.float32)
-            mx, my = np.meshgrid(gx, gy)
-            xs32, ys32 = camera.rays32
-            x = cv2.remap(xs32, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-            y = cv2.remap(ys32, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-        Mi = np.linalg.inv(M)
-        den = Mi[2, 0] * x + Mi[2, 1] * y + Mi[2, 2]  # 1 / (ray parameter s), r = (x, y, 1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = 1.0 / den
-            u_mm = (Mi[0, 0] * x + Mi[0, 1] * y + Mi[0, 2]) * s
-            v_mm = (Mi[1, 0] * x + Mi[1, 1] * y + Mi[1, 2]) * s
+        pts_cam = _corners_plane(plane.size_mm) @ T[:3, :3].T + T[:3, 3]
+        poly = _clip_near(pts_cam)
+        if len(poly) < 3:
+            continue
+        pix = (Kc @ (poly / poly[:, 2:3]).T).T[:, :2]
+        x0, y0 = np.maximum(np.floor(pix.min(axis=0)).astype(int) - 1, 0)
+        x1, y1 = np.minimum(np.ceil(pix.max(axis=0)).astype(int) + 2, (cw, ch))
+        if x1 <= x0 or y1 <= y0:
+            continue
+        bw, bh = x1 - x0, y1 - y0
+        # pixels to draw: the clipped polygon (only needed when the plane reaches behind the
+        # camera; otherwise the texture's own extent masks it, BORDER_TRANSPARENT)
+        clipped = len(poly) != 4 or np.any(np.abs(poly - pts_cam) > 1e-9)
+        if clipped:
+            cov = np.zeros((bh, bw), np.uint8)
+            pts = np.rint((pix - (x0, y0)) * 16).astype(np.int64).clip(-2**27, 2**27).astype(np.int32)
+            cv2.fillConvexPoly(cov, pts, 255, cv2.LINE_8, shift=4)
         tex_h, tex_w = plane.texture.shape[:2]
         su, sv = tex_w / plane.size_mm[0], tex_h / plane.size_mm[1]
-        # footprint: texels per sample at the box centre -> pyramid level
-        cy, cx = x.shape[0] // 2, x.shape[1] // 2
-        k = _pyramid_level(u_mm, v_mm, cy, cx, su, sv)
+        # canvas pixel -> plane mm (homogeneous)
+        G = _inv3(M) @ Kc_inv
+        k = _footprint_level(G, su, sv, (x0 + x1) / 2, (y0 + y1) / 2)
         lev, k = plane.level(k)
-        f = 2.0**k                  # exact: pyrDown rounds odd sizes up, so tex_w / width is not
-        # level-0 continuous texel coordinates (0 .. W across the rectangle); cv2.pyrDown centres
-        # level-k pixel i on level-0 pixel 2^k i, so its index coordinate is (p - 0.5) / 2^k
-        pu = u_mm * su
-        pv = v_mm * sv
-        mu = ((pu - 0.5) / f).astype(np.float32)
-        mv = ((pv - 0.5) / f).astype(np.float32)
-        front = (s > 0) & np.isfinite(s)
-        colour = cv2.remap(lev, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        # coverage: 1 inside the rectangle, a ramp one (level) texel wide centred on its border
-        cov = (np.clip(np.minimum(pu, tex_w - pu) / f + 0.5, 0, 1)
-               * np.clip(np.minimum(pv, tex_h - pv) / f + 0.5, 0, 1))
-        cov = np.where(front, cov, 0.0).astype(np.float32)
-        s = np.where(front, s, np.inf)
-        premult = cov * colour
-        if ss > 1:
-            bh, bw = y1 - y0, x1 - x0
-            cov = cov.reshape(bh, ss, bw, ss).mean(axis=(1, 3))
-            premult = premult.reshape(bh, ss, bw, ss).mean(axis=(1, 3))
-            s = s.reshape(bh, ss, bw, ss).min(axis=(1, 3))
-        sub_d = depth[y0:y1, x0:x1]
-        take = (cov > 0) & (s < sub_d)
-        sub_i = img[y0:y1, x0:x1]
-        sub_i[take] = (premult + (1 - cov) * sub_i)[take]
-        solid = take & (cov >= 0.5)
-        sub_d[solid] = s[solid]
-    return img
+        f = 2.0**k
+        A = np.array([[su / f, 0, -0.5 / f], [0, sv / f, -0.5 / f], [0, 0, 1.0]]) @ G
+        # warp in horizontal strips, each only as wide as the polygon there: a wall seen
+        # obliquely covers a fraction of its bounding box
+        step = max(64, -(-bh // 6))
+        for ys in range(y0, y1, step):
+            ye = min(ys + step, y1)
+            xs, xe = _strip_extent(pix, ys - 1, ye + 1, x0, x1)
+            if xe <= xs:
+                continue
+            shift = np.array([[1, 0, xs], [0, 1, ys], [0, 0, 1.0]])
+            sub = canvas[ys:ye, xs:xe]
+            if clipped:
+                colour = cv2.warpPerspective(lev, A @ shift, (xe - xs, ye - ys),
+                                             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                             borderMode=cv2.BORDER_REPLICATE)
+                cv2.copyTo(colour, cov[ys - y0:ye - y0, xs - x0:xe - x0], sub)
+            else:
+                cv2.warpPerspective(lev, A @ shift, (xe - xs, ye - ys), dst=sub,
+                                    flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                    borderMode=cv2.BORDER_TRANSPARENT)
+    return cv2.remap(canvas, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
-def _pyramid_level(u, v, cy, cx, su, sv) -> int:
-    try:
-        du = np.hypot((u[cy, cx + 1] - u[cy, cx]) * su, (v[cy, cx + 1] - v[cy, cx]) * sv)
-        dv = np.hypot((u[cy + 1, cx] - u[cy, cx]) * su, (v[cy + 1, cx] - v[cy, cx]) * sv)
-    except IndexError:
-        return 0
-    scale = max(du, dv)
+def _strip_extent(pix: np.ndarray, ya: float, yb: float, x0: int, x1: int) -> tuple[int, int]:
+    """Integer x range [xs, xe) of a convex polygon (N, 2) within the band ya <= y <= yb,
+    clamped to [x0, x1)."""
+    xs_in = []
+    n = len(pix)
+    for i in range(n):
+        a, b = pix[i], pix[(i + 1) % n]
+        if ya <= a[1] <= yb:
+            xs_in.append(a[0])
+        for yl in (ya, yb):
+            if (a[1] - yl) * (b[1] - yl) < 0:
+                t = (yl - a[1]) / (b[1] - a[1])
+                xs_in.append(a[0] + t * (b[0] - a[0]))
+    if not xs_in:
+        return 0, 0
+    return max(int(np.floor(min(xs_in))) - 1, x0), min(int(np.ceil(max(xs_in))) + 2, x1)
+
+
+def _corners_plane(size_mm) -> np.ndarray:
+    w, h = size_mm
+    return np.array([[0, 0, 0], [w, 0, 0], [w, h, 0], [0, h, 0.0]])
+
+
+def _clip_near(poly: np.ndarray, near: float = 10.0) -> np.ndarray:
+    """Clip a convex polygon (N, 3), camera frame, mm, to z >= near (Sutherland-Hodgman)."""
+    out = []
+    n = len(poly)
+    for i in range(n):
+        a, b = poly[i], poly[(i + 1) % n]
+        ina, inb = a[2] >= near, b[2] >= near
+        if ina:
+            out.append(a)
+        if ina != inb:
+            t = (near - a[2]) / (b[2] - a[2])
+            out.append(a + t * (b - a))
+    return np.array(out).reshape(-1, 3)
+
+
+def _footprint_level(G, su, sv, px, py) -> int:
+    """Pyramid level for the texel footprint of one canvas pixel at (px, py) of the box."""
+    def texel(x, y):
+        q = G @ np.array([x, y, 1.0])
+        return np.array([q[0] * su, q[1] * sv]) / q[2]
+    c = texel(px, py)
+    scale = max(np.linalg.norm(texel(px + 1, py) - c), np.linalg.norm(texel(px, py + 1) - c))
     if not np.isfinite(scale) or scale <= 1.5:
         return 0
     return int(np.floor(np.log2(scale / 1.5))) + 1
 
 
+def _inv3(M) -> np.ndarray:
+    """Inverse of a (3, 3) matrix by cofactors (the rows of M^-1 are cross products of M's
+    columns over det M): an order of magnitude cheaper than ``np.linalg.inv`` for one 3x3."""
+    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = M.tolist()
+    r0 = (b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0)
+    r1 = (c1 * a2 - c2 * a1, c2 * a0 - c0 * a2, c0 * a1 - c1 * a0)
+    r2 = (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+    det = a0 * r0[0] + a1 * r0[1] + a2 * r0[2]
+    return np.array([r0, r1, r2]) / det
+
+
+def _footprint(pp, cy, cx) -> float:
+    """Texels per sample at (cy, cx) of texel coordinates ``pp`` (H, W, 2)."""
+    try:
+        return max(np.hypot(*(pp[cy, cx + 1] - pp[cy, cx])), np.hypot(*(pp[cy + 1, cx] - pp[cy, cx])))
+    except IndexError:
+        return float("nan")
+
+
+def _pyramid_level(pp, cy, cx, max_step: float = 1.5) -> int:
+    """Pyramid level for the texel footprint of one sample at (cy, cx) of texel coordinates
+    ``pp`` (H, W, 2): the coarsest level whose sample step is at most ``max_step`` texels."""
+    try:
+        du = np.hypot(*(pp[cy, cx + 1] - pp[cy, cx]))
+        dv = np.hypot(*(pp[cy + 1, cx] - pp[cy, cx]))
+    except IndexError:
+        return 0
+    scale = max(du, dv)
+    if not np.isfinite(scale) or scale <= max_step:
+        return 0
+    return int(np.floor(np.log2(scale / max_step))) + 1
+
+
 def _bbox(camera: Camera, T_cam_from_plane, size_mm):
-    """Pixel bounding box (x0, y0, x1, y1) of a plane, padded; the whole image when a corner is
-    behind the camera or projects wildly (distortion models fold far outside the image)."""
+    """Pixel bounding box (x0, y0, x1, y1) of a plane, padded, or None when it is not in view.
+
+    The rectangle is clipped to the near plane and to the field where the distortion model is
+    trusted (``Camera.field_limits``); the clipped outline, sampled densely because a distorted
+    straight edge bulges, is projected."""
     w, h = camera.image_size
-    W, H = size_mm
-    # sample the border densely: a distorted straight edge bulges
-    t = np.linspace(0, 1, 9)
-    edge = np.concatenate([np.column_stack([t * W, 0 * t]), np.column_stack([W + 0 * t, t * H]),
-                           np.column_stack([t * W, H + 0 * t]), np.column_stack([0 * t, t * H])])
-    pts = (T_cam_from_plane @ np.column_stack([edge, np.zeros(len(edge)), np.ones(len(edge))]).T).T[:, :3]
-    if np.all(pts[:, 2] <= 0):
-        return None
-    if np.any(pts[:, 2] <= 1e-6):
-        return 0, 0, w, h
-    n = pts[:, :2] / pts[:, 2:3]
-    # beyond the field where the distortion model is monotonic, fall back to the whole image
-    lim_x, lim_y = camera.field_limits
-    if np.any(np.abs(n[:, 0]) > lim_x) or np.any(np.abs(n[:, 1]) > lim_y):
-        inside = (np.abs(n[:, 0]) <= lim_x) & (np.abs(n[:, 1]) <= lim_y)
-        if not inside.any():
-            return _whole_if_crossing(n, lim_x, lim_y, w, h)
-        return 0, 0, w, h
-    px = camera.project(pts)
+    pts = _corners_plane(size_mm) @ T_cam_from_plane[:3, :3].T + T_cam_from_plane[:3, 3]
+    lim = np.array(camera.field_limits)
+    if np.all(pts[:, 2] > 1.0):
+        n = pts[:, :2] / pts[:, 2:3]
+        if np.any(np.all(n > lim, axis=0)) or np.any(np.all(n < -lim, axis=0)):
+            return None                                # wholly beyond one side of the field
+        inside = np.all(np.abs(n) <= lim)
+    else:
+        inside = False
+    if not inside:
+        poly = _clip_near(pts, 1.0)
+        if len(poly) < 3:
+            return None
+        n = poly[:, :2] / poly[:, 2:3]
+        for axis in (0, 1):
+            for sign in (1.0, -1.0):
+                n = _clip_half_plane(n, axis, sign, lim[axis])
+                if len(n) < 3:
+                    return None
+    t = _EDGE_T
+    edge = (n[:, None, :] + t[None, :, None] * (np.roll(n, -1, axis=0) - n)[:, None, :]).reshape(-1, 2)
+    px = camera.project(np.column_stack([edge, np.ones(len(edge))]))
     x0 = int(np.floor(px[:, 0].min())) - 2
     y0 = int(np.floor(px[:, 1].min())) - 2
     x1 = int(np.ceil(px[:, 0].max())) + 3
@@ -241,11 +486,104 @@ def _bbox(camera: Camera, T_cam_from_plane, size_mm):
     return x0, y0, x1, y1
 
 
-def _whole_if_crossing(n, lim_x, lim_y, w, h):
-    """All border samples outside the valid field: the plane may still cover the whole view."""
-    if n[:, 0].min() < -lim_x and n[:, 0].max() > lim_x or n[:, 1].min() < -lim_y and n[:, 1].max() > lim_y:
-        return 0, 0, w, h
-    return None
+def _bboxes(camera: Camera, Ts: np.ndarray, sizes: np.ndarray) -> list:
+    """``_bbox`` of many planes (P, 4, 4) camera-from-plane, sizes (P, 2): culling and the
+    common case (wholly in front and inside the trusted field) in one batch, the rest one by
+    one."""
+    P = len(Ts)
+    w, h = camera.image_size
+    half = np.column_stack([sizes / 2, np.zeros(P)])
+    c = np.einsum("pij,pj->pi", Ts[:, :3, :3], half) + Ts[:, :3, 3]
+    r = 0.5 * np.hypot(sizes[:, 0], sizes[:, 1])
+    zf = c[:, 2] + r
+    lim = np.array(camera.field_limits)
+    facing = np.einsum("pi,pi->p", c, Ts[:, :3, 2]) > 0        # one-sided: see _outside_view
+    keep = facing & (zf > 0)
+    keep &= (np.abs(c[:, 0]) - r <= lim[0] * zf) & (np.abs(c[:, 1]) - r <= lim[1] * zf)
+    corners = np.zeros((P, 4, 3))
+    corners[:, 1, 0] = corners[:, 2, 0] = sizes[:, 0]
+    corners[:, 2, 1] = corners[:, 3, 1] = sizes[:, 1]
+    pts = np.einsum("pij,pkj->pki", Ts[:, :3, :3], corners) + Ts[:, None, :3, 3]
+    front = np.all(pts[..., 2] > 1.0, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        n = pts[..., :2] / pts[..., 2:3]
+    simple = keep & front & np.all(np.abs(n) <= lim, axis=(1, 2))
+    out = [None] * P
+    idx = np.flatnonzero(simple)
+    if len(idx):
+        nn = n[idx]
+        t = _EDGE_T[None, None, :, None]
+        edge = (nn[:, :, None, :] + t * (np.roll(nn, -1, axis=1) - nn)[:, :, None, :]).reshape(len(idx), -1, 2)
+        px = camera.distort(edge.reshape(-1, 2)).reshape(len(idx), -1, 2)
+        lo = np.floor(px.min(axis=1)).astype(int) - 2
+        hi = np.ceil(px.max(axis=1)).astype(int) + 3
+        for j, i in enumerate(idx):
+            x0, y0 = max(lo[j, 0], 0), max(lo[j, 1], 0)
+            x1, y1 = min(hi[j, 0], w), min(hi[j, 1], h)
+            if x1 > x0 and y1 > y0:
+                out[i] = (x0, y0, x1, y1)
+    for i in np.flatnonzero(keep & ~simple):
+        out[i] = _bbox(camera, Ts[i], sizes[i])
+    return out
+
+
+def _outside_view(camera: Camera, T_cam_from_plane, size_mm) -> bool:
+    """Cheap conservative cull: the plane faces away (its front side is the one its z axis
+    points away from: printed markers, cards and boards are one-sided), or its bounding sphere
+    is behind the camera or outside the trusted field of view."""
+    w, h = size_mm
+    c = T_cam_from_plane[:3, :3] @ np.array([w / 2, h / 2, 0.0]) + T_cam_from_plane[:3, 3]
+    if np.dot(c, T_cam_from_plane[:3, 2]) <= 0:
+        return True
+    r = 0.5 * np.hypot(w, h)
+    zf = c[2] + r
+    if zf <= 0:
+        return True
+    lim_x, lim_y = camera.field_limits
+    return abs(c[0]) - r > lim_x * zf or abs(c[1]) - r > lim_y * zf
+
+
+_EDGE_T = np.linspace(0, 1, 9)[:-1]
+
+
+def _clip_half_plane(poly: np.ndarray, axis: int, sign: float, lim: float) -> np.ndarray:
+    """Clip a convex polygon (N, 2) to sign * p[axis] <= lim."""
+    out = []
+    n = len(poly)
+    for i in range(n):
+        a, b = poly[i], poly[(i + 1) % n]
+        ina, inb = sign * a[axis] <= lim, sign * b[axis] <= lim
+        if ina:
+            out.append(a)
+        if ina != inb:
+            t = (lim - sign * a[axis]) / (sign * (b[axis] - a[axis]))
+            out.append(a + t * (b - a))
+    return np.array(out).reshape(-1, 2)
+
+
+class SensorNoise:
+    """Gaussian sensor noise (grey levels) for a stream of frames.
+
+    Drawing 10^6 normal deviates per frame costs more than rendering it, so one bank twice the
+    frame's size is drawn from the seeded generator and each frame takes a window at a random
+    offset: per-pixel noise with the right distribution, fixed by the seed.
+    """
+
+    def __init__(self, image_size: tuple[int, int], rng: np.random.Generator, std: float = 2.0):
+        w, h = image_size
+        self.size = (int(w), int(h))
+        self.std = float(std)
+        self.rng = rng
+        self.bank = (rng.standard_normal((2 * h, 2 * w), dtype=np.float32) * np.float32(std)
+                     if std > 0 else None)
+
+    def apply(self, img: np.ndarray, gain: float = 1.0) -> np.ndarray:
+        """``img * gain + noise``, rounded and saturated to uint8 (H, W)."""
+        h, w = img.shape[:2]
+        if self.bank is None:
+            return cv2.convertScaleAbs(img, alpha=gain)
+        oy, ox = self.rng.integers(0, self.bank.shape[0] - h), self.rng.integers(0, self.bank.shape[1] - w)
+        return cv2.addWeighted(img, float(gain), self.bank[oy:oy + h, ox:ox + w], 1.0, 0.0, dtype=cv2.CV_8U)
 
 
 def finish(img: np.ndarray, rng: np.random.Generator | None = None, noise_std: float = 2.0,
@@ -269,6 +607,9 @@ def aruco_dictionary(name: str):
     return cv2.aruco.getPredefinedDictionary(ARUCO_DICTS[name])
 
 
+MARKER_SUPERSAMPLE = 1
+
+
 def marker_plane(dictionary: str, marker_id: int, side_mm: float, T_world_from_marker,
                  quiet_zone_modules: float = 1.0, px_per_module: int = 32) -> Plane:
     """A printed marker: the black square of side ``side_mm`` centred on the marker frame origin
@@ -288,7 +629,7 @@ def marker_plane(dictionary: str, marker_id: int, side_mm: float, T_world_from_m
     shift = np.eye(4)
     shift[:2, 3] = -total / 2
     return Plane(np.asarray(T_world_from_marker, float) @ shift, (total, total), tex, f"marker {marker_id}",
-                 supersample=3)
+                 supersample=MARKER_SUPERSAMPLE, box_prefilter=MARKER_SUPERSAMPLE == 1)
 
 
 def marker_corners_world(side_mm: float, T_world_from_marker) -> np.ndarray:
@@ -297,3 +638,58 @@ def marker_corners_world(side_mm: float, T_world_from_marker) -> np.ndarray:
     s = side_mm / 2
     c = np.array([[-s, -s, 0, 1], [s, -s, 0, 1], [s, s, 0, 1], [-s, s, 0, 1.0]])
     return (np.asarray(T_world_from_marker, float) @ c.T).T[:, :3]
+
+
+def noise_texture(rng: np.random.Generator, size_px: tuple[int, int], blob_px: float = 8.0,
+                  contrast: float = 45.0, mean: float = 140.0) -> np.ndarray:
+    """Smooth random texture (H, W) uint8 (plaster, carpet): Gaussian noise low-passed to blobs
+    of about ``blob_px`` texels, so walls have texture for feature matching but no false
+    markers."""
+    w, h = size_px
+    small = rng.standard_normal((max(h // 4, 2), max(w // 4, 2))).astype(np.float32)
+    tex = cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+    tex = cv2.GaussianBlur(tex, (0, 0), blob_px / 4)
+    tex *= contrast / (tex.std() + 1e-6)
+    return np.clip(tex + mean, 0, 255).astype(np.uint8)
+
+
+def poster_texture(rng: np.random.Generator, size_px: tuple[int, int]) -> np.ndarray:
+    """A feature-rich poster (H, W) uint8: random filled shapes, lines and text on a light
+    ground (for the homography tracker and for realism)."""
+    w, h = size_px
+    img = np.full((h, w), int(rng.integers(190, 235)), np.uint8)
+    for _ in range(40):
+        c = int(rng.integers(0, 255))
+        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+        r = int(rng.integers(max(w // 40, 2), max(w // 8, 3)))
+        kind = rng.integers(0, 3)
+        if kind == 0:
+            cv2.circle(img, (x, y), r, c, -1, cv2.LINE_AA)
+        elif kind == 1:
+            cv2.rectangle(img, (x, y), (x + r, y + int(rng.integers(r // 2 + 1, 2 * r + 2))), c, -1)
+        else:
+            cv2.line(img, (x, y), (int(rng.integers(0, w)), int(rng.integers(0, h))), c,
+                     max(w // 150, 1), cv2.LINE_AA)
+    for i in range(4):
+        txt = "".join(chr(int(rng.integers(65, 91))) for _ in range(6))
+        cv2.putText(img, txt, (w // 12, (i + 1) * h // 5), cv2.FONT_HERSHEY_SIMPLEX, w / 500, 20,
+                    max(w // 250, 1), cv2.LINE_AA)
+    return img
+
+
+def target_texture(px: int = 128) -> np.ndarray:
+    """A gaze-target card (px, px) uint8: a bullseye on white."""
+    img = np.full((px, px), 245, np.uint8)
+    c = (px // 2, px // 2)
+    for r, col in [(0.45, 30), (0.33, 245), (0.2, 30), (0.07, 245)]:
+        cv2.circle(img, c, int(r * px), col, -1, cv2.LINE_AA)
+    return img
+
+
+def chessboard_texture(cols: int, rows: int, px_per_square: int = 40) -> np.ndarray:
+    """A chessboard with ``cols`` x ``rows`` inner corners, one white square of margin around it:
+    (rows + 3) x (cols + 3) squares, uint8."""
+    sq = np.indices((rows + 1, cols + 1)).sum(axis=0) % 2
+    board = np.where(sq == 0, 0, 255).astype(np.uint8)
+    board = cv2.copyMakeBorder(board, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=255)
+    return cv2.resize(board, None, fx=px_per_square, fy=px_per_square, interpolation=cv2.INTER_NEAREST)
