@@ -285,3 +285,50 @@ def test_simulate_refuses_a_non_empty_folder_and_leaves_no_partial_output(tmp_pa
     with pytest.raises(Exception):
         simulate(bad, out)
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("spec", [
+    {"type": "chessboard", "cols": 9, "rows": 6, "square_mm": 30.0},
+    {"type": "charuco", "cols": 7, "rows": 5, "square_mm": 40.0, "marker_mm": 30.0, "dictionary": "DICT_5X5_100"},
+])
+def test_rendered_board_corners_match_their_object_points(spec):
+    """Board views for the intrinsics: detected corners against the board's object points
+    projected with the true pose (the calibration of issue 4 relies on this)."""
+    from wearable_gaze.sim.render import Camera, finish, render
+    from wearable_gaze.sim.simulate import _board_views
+    from wearable_gaze.sim.world import board_plane
+
+    cam = Camera.wide_scene_camera()
+    errs = []
+    for T in _board_views(cam, spec, 4, np.random.default_rng(0)):
+        plane, obj = board_plane(spec, T)
+        img = finish(render(cam, np.eye(4), [plane], background=90.0), np.random.default_rng(1))
+        truth = cam.project((T[:3, :3] @ obj.T).T + T[:3, 3])
+        if spec["type"] == "chessboard":
+            ok, c = cv2.findChessboardCornersSB(img, (spec["cols"], spec["rows"]))
+            assert ok
+            got, ids = c.reshape(-1, 2), np.arange(len(obj))
+            if np.linalg.norm(got[::-1] - truth).sum() < np.linalg.norm(got - truth).sum():
+                got = got[::-1]          # the board is symmetric under a half turn: either order is right
+        else:
+            board = cv2.aruco.CharucoBoard((spec["cols"], spec["rows"]), spec["square_mm"], spec["marker_mm"],
+                                           aruco_dictionary(spec["dictionary"]))
+            c, i, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(img)
+            assert i is not None and len(i) >= 0.8 * len(obj)
+            got, ids = c.reshape(-1, 2), i.ravel()
+        errs.append(np.linalg.norm(got - truth[ids], axis=1))
+    errs = np.concatenate(errs)
+    assert np.median(errs) < 0.15 and np.percentile(errs, 95) < 0.4
+
+
+def test_motion_blur_and_gain_change_the_frame_not_the_geometry(tmp_path):
+    base = {"base": "lab-walkabout", "duration_s": 0.2, "camera": {"resolution": [320, 180], "codec": "FFV1",
+                                                                 "noise_std": 0.0},
+            "calibration": {"eye": False, "camera_views": 0}}
+    sharp = _session(tmp_path / "a", base, 1)
+    blurred = _session(tmp_path / "b", {**base, "camera": {**base["camera"], "motion_blur_samples": 5,
+                                                             "gain": 0.5}}, 1)
+    fa = cv2.VideoCapture(str(sharp / "scene.avi")).read()[1][..., 0].astype(float)
+    fb = cv2.VideoCapture(str(blurred / "scene.avi")).read()[1][..., 0].astype(float)
+    assert abs(fb.mean() / fa.mean() - 0.5) < 0.05
+    assert (sharp / "truth" / "head_poses.csv").read_bytes() == (blurred / "truth" / "head_poses.csv").read_bytes()
