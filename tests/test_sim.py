@@ -59,7 +59,9 @@ def test_every_named_scenario_writes_a_session_the_readers_load(tmp_path, name):
     assert man["scenario"]["name"] == name
     cal = root / man["files"]["eye_calibration"]
     eye_cal, extra = read_eye_csv(cal / "eye_calibration.csv", ["recording", "target"])
-    assert set(extra["target"].astype(int)) == set(range(9))
+    rec, tgt = extra["recording"].astype(int), extra["target"].astype(int)
+    assert set(tgt[rec == 0]) == set(range(9))                      # the paper's nine points
+    assert set(tgt[rec == 1]) == set(range(25))                     # 5x5 grids for the eye centres
     assert len(list((root / man["files"]["camera_views"]).glob("view_*.png"))) == 3
     if not man["has_recording"]:
         assert "scene_video" not in man["files"]

@@ -597,14 +597,7 @@ def finish(img: np.ndarray, rng: np.random.Generator | None = None, noise_std: f
 
 # --- textures ---------------------------------------------------------------------------------
 
-ARUCO_DICTS = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco) if name.startswith("DICT_")}
-
-
-def aruco_dictionary(name: str):
-    """``cv2.aruco`` predefined dictionary by name (``DICT_4X4_50``, ``DICT_APRILTAG_36h11``...)."""
-    if name not in ARUCO_DICTS:
-        raise ValueError(f"unknown ArUco dictionary {name!r}: use one of cv2.aruco's DICT_* names")
-    return cv2.aruco.getPredefinedDictionary(ARUCO_DICTS[name])
+from calibration.camera import aruco_dictionary  # noqa: E402  (re-exported for the simulator)
 
 
 MARKER_SUPERSAMPLE = 1

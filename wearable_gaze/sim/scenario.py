@@ -68,9 +68,11 @@ DEFAULTS = {
     },
     "calibration": {
         "eye": True,
-        "wall_distances_mm": [1000.0, 2000.0],
-        "wall_tilt_deg": 12.0,
-        "dwell_s": 1.0,
+        "walls": [{"distance_mm": 1000.0, "grid": [3, 3], "tilt_deg": 12.0},
+                  {"distance_mm": 500.0, "grid": [5, 5], "tilt_deg": -8.0},
+                  {"distance_mm": 2000.0, "grid": [5, 5], "tilt_deg": 6.0}],
+        "span_deg": [20.0, 15.0],
+        "dwell_s": 1.5,
         "camera_board": {"type": "chessboard", "cols": 9, "rows": 6, "square_mm": 30.0},
         "camera_views": 15,
     },
@@ -88,9 +90,9 @@ POSITIVE = {"duration_s", "camera.hfov_deg", "camera.fps", "eyes.rate_hz", "eyes
 NON_NEGATIVE = {"camera.noise_std", "eyes.sigma_deg", "eyes.blink_rate_hz", "eyes.dropout_rate",
                 "eyes.pursuit_lag_s", "head.sway_deg", "head.sway_mm", "head.speed_mm_s",
                 "targets.random_count", "room.markers_per_wall", "room.posters_per_wall",
-                "calibration.camera_views", "calibration.wall_tilt_deg"}
+                "calibration.camera_views"}
 FREE_FORM = {"calibration.camera_board", "targets.points_mm", "targets.moving", "eyes.bias_deg",
-             "calibration.wall_distances_mm", "camera.dist_coeffs"}
+             "calibration.walls", "camera.dist_coeffs"}
 
 # named scenarios: overrides of DEFAULTS
 NAMED = {
@@ -181,9 +183,20 @@ def _check_free_form(s: dict):
     points(s["eyes"]["bias_deg"], "eyes.bias_deg", n=2, min_len=2)
     if len(s["eyes"]["bias_deg"]) != 2:
         raise _field_error("eyes.bias_deg", "expected [[left h, v], [right h, v]] in degrees")
-    d = s["calibration"]["wall_distances_mm"]
-    if not isinstance(d, list) or not d or not all(isinstance(v, (int, float)) and v > 0 for v in d):
-        raise _field_error("calibration.wall_distances_mm", f"expected a non-empty list of distances > 0 mm, got {d!r}")
+    walls = s["calibration"]["walls"]
+    if not isinstance(walls, list) or not walls:
+        raise _field_error("calibration.walls", "expected a non-empty list of {distance_mm, grid, tilt_deg}")
+    for i, w in enumerate(walls):
+        path = f"calibration.walls[{i}]"
+        if not isinstance(w, dict) or set(w) != {"distance_mm", "grid", "tilt_deg"}:
+            raise _field_error(path, "expected an object with distance_mm, grid [cols, rows] and tilt_deg")
+        if not isinstance(w["distance_mm"], (int, float)) or not 200 <= w["distance_mm"] <= 10000:
+            raise _field_error(path + ".distance_mm", f"expected 200-10000 mm, got {w['distance_mm']!r}")
+        g = w["grid"]
+        if not (isinstance(g, list) and len(g) == 2 and all(isinstance(v, int) and 2 <= v <= 9 for v in g)):
+            raise _field_error(path + ".grid", f"expected [cols, rows] of 2-9 dots each, got {g!r}")
+        if not isinstance(w["tilt_deg"], (int, float)) or abs(w["tilt_deg"]) > 45:
+            raise _field_error(path + ".tilt_deg", f"expected -45..45 degrees, got {w['tilt_deg']!r}")
     dc = s["camera"]["dist_coeffs"]
     if not isinstance(dc, list) or len(dc) not in (4, 5, 8) or not all(isinstance(v, (int, float)) for v in dc):
         raise _field_error("camera.dist_coeffs", "expected 4, 5 or 8 OpenCV distortion coefficients")

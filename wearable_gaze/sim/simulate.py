@@ -214,7 +214,7 @@ def _simulate_into(scn: dict, root: Path, seed: int, progress) -> dict:
     if cal["camera_views"] > 0:
         steps.append("camera views")
     n_frames = int(round(scn["duration_s"] * fps)) if scn["session"] else 0
-    total = n_frames + len(cal["wall_distances_mm"]) * int(bool(cal["eye"])) + int(cal["camera_views"])
+    total = n_frames + len(cal["walls"]) * int(bool(cal["eye"])) + int(cal["camera_views"])
     done = [0]
 
     def tick(k=1):
@@ -243,8 +243,8 @@ def _eye_calibration(root, scn, camera, eye_model, noise, rng, tick) -> str:
     rows = {k: [] for k in ("recording", "target", "t", "raw", "valid")}
     walls = []
     t0 = 0.0
-    for r, dist in enumerate(cal["wall_distances_mm"]):
-        wall = CalibrationWall(float(dist), float(cal["wall_tilt_deg"]) * (1 if r % 2 == 0 else -0.6))
+    for r, spec in enumerate(cal["walls"]):
+        wall = CalibrationWall.spanning(spec["distance_mm"], spec["tilt_deg"], spec["grid"], cal["span_deg"])
         world = wall.world()
         img = noise.apply(render(camera, np.eye(4), world.planes))
         name = f"wall_{r}.png"
@@ -264,7 +264,12 @@ def _eye_calibration(root, scn, camera, eye_model, noise, rng, tick) -> str:
         rows["target"].append(target)
         rows["t"].append(t)
         rows["raw"].append(raw)
-        rows["valid"].append(np.ones((len(t), 2), bool))
+        valid = np.ones((len(t), 2), bool)
+        if scn["eyes"]["blink_rate_hz"] > 0:             # the odd blink during calibration too
+            for tb in t[0] + np.cumsum(rng.exponential(1 / scn["eyes"]["blink_rate_hz"], 50)):
+                valid[(t >= tb) & (t < tb + 0.15)] = False
+        raw[~valid] = 0.0
+        rows["valid"].append(valid)
         entry = wall.to_dict()
         entry.update({"recording": r, "image": name, "head_still": True,
                       "truth_T_cam_from_wall": wall.T_world_from_wall.tolist(), "truth_tilt_deg": wall.tilt_deg})

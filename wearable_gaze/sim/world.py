@@ -191,6 +191,15 @@ class CalibrationWall:
     marker_size_mm: float = 120.0
     marker_ids: tuple = (46, 47, 48, 49)
 
+    @classmethod
+    def spanning(cls, distance_mm: float, tilt_deg: float, grid=(3, 3), span_deg=(20.0, 15.0)) -> "CalibrationWall":
+        """A wall whose dot grid spans +-span_deg (horizontal, vertical) as seen from the camera,
+        with reference markers scaled to the distance (120 mm at 1 m)."""
+        nx, ny = int(grid[0]), int(grid[1])
+        sx = distance_mm * np.tan(np.deg2rad(span_deg[0])) / ((nx - 1) / 2)
+        sy = distance_mm * np.tan(np.deg2rad(span_deg[1])) / ((ny - 1) / 2)
+        return cls(float(distance_mm), float(tilt_deg), (sx, sy), (nx, ny), marker_size_mm=120.0 * distance_mm / 1000)
+
     @property
     def T_world_from_wall(self) -> np.ndarray:
         a = np.deg2rad(self.tilt_deg)
@@ -222,14 +231,16 @@ class CalibrationWall:
         return (self.T_world_from_wall @ h.T).T[:, :3]
 
     def world(self) -> World:
-        size = (2600.0, 1800.0)
-        mm_per_px = 2.0
+        ext = np.abs(np.array(list(self.markers_wall().values()))).max(axis=0) + self.marker_size_mm
+        size = tuple(float(v) for v in 2 * ext + 200.0)
+        mm_per_px = max(size[0] / 1600, 0.5)
         tex = np.full((int(size[1] / mm_per_px), int(size[0] / mm_per_px)), 225, np.uint8)
         origin = np.array([-size[0] / 2, -size[1] / 2])
         for x, y in self.targets_wall():
             c = ((np.array([x, y]) - origin) / mm_per_px).astype(int)
-            cv2.circle(tex, tuple(int(v) for v in c), 12, 20, -1, cv2.LINE_AA)
-            cv2.circle(tex, tuple(int(v) for v in c), 3, 225, -1, cv2.LINE_AA)
+            r = max(int(round(0.012 * self.distance_mm / mm_per_px)), 3)
+            cv2.circle(tex, tuple(int(v) for v in c), r, 20, -1, cv2.LINE_AA)
+            cv2.circle(tex, tuple(int(v) for v in c), max(r // 4, 1), 225, -1, cv2.LINE_AA)
         T_plane = self.T_world_from_wall @ frame((origin[0], origin[1], 0), (1, 0, 0), (0, 1, 0))
         w = World(planes=[Plane(T_plane, size, tex, "calibration wall", shell=True)],
                   dictionary=self.dictionary, marker_size_mm=self.marker_size_mm)
@@ -242,6 +253,7 @@ class CalibrationWall:
         """The wall description a user writes for a real calibration (see docs/session.md)."""
         return {
             "distance_mm": self.distance_mm,
+            "grid": list(self.grid),
             "targets_wall_mm": self.targets_wall().tolist(),
             "dictionary": self.dictionary,
             "marker_size_mm": self.marker_size_mm,

@@ -1,0 +1,271 @@
+"""Calibration (issue 4): camera intrinsics on OpenCV's own photos and on rendered boards, the
+eye calibration (eq. 1-2) with wall tilt and eye centres, view lines, the CLI."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.camera import BoardView, CameraCalibration, calibrate_camera, detect_board, parse_board
+from calibration.eyes import (CalibrationError, calibrate_eye, estimate_centre, fit_raw_map, target_readings,
+                              wall_pose)
+from estimator.frames import rotation_about_axis
+from tracking.timeline import interpolate_poses
+from wearable_gaze.calibrate_cmd import load_camera, load_eyes
+from wearable_gaze.cli import main
+from wearable_gaze.sim.simulate import simulate_scenario
+from wearable_gaze.tables import read_table
+from wearable_gaze.viewlines_csv import read_viewlines_csv
+
+
+# --- real photos -------------------------------------------------------------------------------
+
+def test_opencv_left_chessboards_reproduce_the_published_calibration(real_data):
+    d = real_data / "opencv_stereo_chessboard_9x6"
+    ref = json.loads((d / "reference_results.json").read_text())
+    pub = ref["published_opencv_python_test"]
+    spec = parse_board("chessboard:9x6:1")                  # square 1, as the published test
+    views = [detect_board(cv2.imread(str(d / f), cv2.IMREAD_GRAYSCALE), spec, f) for f in ref["left_images_used"]]
+    assert all(v.ok for v in views)
+    cal = calibrate_camera(views, tuple(ref["image_size"]), spec)
+    assert all(v["used"] for v in cal.views)                # no good view is thrown away
+    assert abs(cal.rms_px - pub["rms"]) < pub["rms_tolerance"]
+    assert np.abs(cal.camera_matrix - np.array(pub["camera_matrix"])).sum() < pub["camera_matrix_L1_tolerance"]
+
+
+def test_opencv_charuco_tutorial_photos_calibrate_close_to_the_reference(real_data):
+    d = real_data / "opencv_aruco_charuco_tutorial"
+    ref = json.loads((d / "expected_results.json").read_text())["charuco_calibration_reference"]
+    spec = parse_board("charuco:5x7:40:20:DICT_6X6_250")
+    views = [detect_board(cv2.imread(str(d / f)), spec, f) for f in ref["images"]]
+    assert [len(v.ids) for v in views] == [24, 24, 24, 24]
+    cal = calibrate_camera(views, (640, 480), spec, reject=False)
+    pub = ref["published"]
+    # four views only: the focal length is weakly determined; OpenCV 5 also dropped a
+    # +0.5 px ChArUco corner offset since the reference was made (PROVENANCE.md): ~1 %
+    assert abs(cal.camera_matrix[0, 0] / pub["fx"] - 1) < 0.015
+    assert abs(cal.camera_matrix[1, 1] / pub["fy"] - 1) < 0.015
+    assert abs(cal.camera_matrix[0, 2] - pub["cx"]) < 3 and abs(cal.camera_matrix[1, 2] - pub["cy"]) < 4
+    assert cal.rms_px < 0.25
+
+
+def test_opencv_filestorage_camera_files_load(real_data):
+    cam = load_camera(real_data / "opencv_stereo_chessboard_9x6" / "left_intrinsics.yml")
+    assert abs(cam.camera_matrix[0, 0] - 535.9157) < 1e-3 and cam.image_size == (640, 480)
+    assert abs(cam.dist_coeffs[0] + 0.26637) < 1e-4
+    cam = load_camera(real_data / "opencv_aruco_charuco_tutorial" / "tutorial_camera_charuco.yml")
+    assert abs(cam.camera_matrix[1, 1] - 456.767) < 1e-2 and len(cam.dist_coeffs) == 5
+
+
+# --- rendered boards ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cal") / "s"
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 4.0}, root, seed=21)
+    return root
+
+
+def test_rendered_board_views_recover_the_true_intrinsics(session, tmp_path, capsys):
+    out = tmp_path / "camera.json"
+    assert main(["calibrate-camera", str(session / "calibration" / "camera"), "--board", "chessboard:9x6:30",
+                 "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "RMS" in printed and "view_000.png" in printed
+    cal = load_camera(out)
+    truth = load_camera(session / "truth" / "camera.json")
+    assert np.abs(cal.camera_matrix - truth.camera_matrix).max() < 2.0       # px, of f = 640
+    # and within the uncertainty the calibration reports (3 sigma)
+    K, Kt = cal.camera_matrix, truth.camera_matrix
+    for (i, j), name in (((0, 0), "fx"), ((1, 1), "fy"), ((0, 2), "cx"), ((1, 2), "cy")):
+        assert abs(K[i, j] - Kt[i, j]) < 3 * cal.std[name] + 0.05, name
+    # the lens model, not its coefficients: a true ray lands within 1.5 px of where the calibrated
+    # model puts it, over the part of the image the boards covered
+    w, h = truth.image_size
+    px = np.array([[0.15, 0.15], [0.85, 0.15], [0.85, 0.85], [0.15, 0.85], [0.5, 0.15], [0.15, 0.5], [0.5, 0.5]]) * [w, h]
+    n = truth.undistort_points(px)
+    assert np.linalg.norm(cal.project(np.column_stack([n, np.ones(len(n))])) - px, axis=1).max() < 1.5
+    assert cal.rms_px < 0.15
+    assert (tmp_path / "camera_undistorted.png").is_file()
+
+
+def test_a_bad_view_is_rejected_with_its_reason(session):
+    spec = parse_board("chessboard:9x6:30")
+    views = [detect_board(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), spec, p.name)
+             for p in sorted((session / "calibration" / "camera").glob("*.png"))]
+    bad = views[3]
+    rng = np.random.default_rng(0)
+    views[3] = BoardView(bad.name, bad.object_points, bad.image_points + rng.normal(0, 3, bad.image_points.shape),
+                         bad.ids)
+    views.append(BoardView("blank.png", np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, int), "no board found"))
+    cal = calibrate_camera(views, (1280, 720), spec)
+    rep = {v["view"]: v for v in cal.views}
+    assert not rep[bad.name]["used"] and "reprojection RMS" in rep[bad.name]["reason"]
+    assert not rep["blank.png"]["used"] and rep["blank.png"]["reason"] == "no board found"
+    assert sum(v["used"] for v in cal.views) == len(views) - 2 and cal.rms_px < 0.15
+
+
+# --- eye calibration ---------------------------------------------------------------------------
+
+def _grid(n=3, span=0.35):
+    g = np.linspace(-span, span, n)
+    return np.array([[x, y] for y in g for x in g])
+
+
+def test_quadratic_raw_map_is_exact_on_quadratic_data_and_refuses_degenerate_designs():
+    rng = np.random.default_rng(0)
+    raw = 2000 + 800 * _grid() + rng.normal(0, 5, (9, 2))
+    C = rng.normal(size=(6, 2))
+    r = (raw - 2000) / 800
+    q = np.column_stack([np.ones(9), r[:, 0], r[:, 1], r[:, 0] ** 2, r[:, 0] * r[:, 1], r[:, 1] ** 2]) @ C
+    m = fit_raw_map(raw, q)
+    assert np.abs(m(raw) - q).max() < 1e-9
+    a, b = m.paper_coefficients()                         # eq. 1-2 on raw counts reproduce it
+    x, y = raw[:, 0], raw[:, 1]
+    X = a[0] + a[1] * x + a[2] * y + a[3] * x * x + a[4] * x * y + a[5] * y * y
+    assert np.abs(X - q[:, 0]).max() < 1e-6
+    with pytest.raises(CalibrationError, match="at least 6"):
+        fit_raw_map(raw[:5], q[:5])
+    line = np.column_stack([np.linspace(1000, 3000, 9), np.linspace(1000, 3000, 9)])
+    with pytest.raises(CalibrationError, match="line"):
+        fit_raw_map(line, q)
+
+
+def _eye_setup(rng, tilt_deg=10.0):
+    from wearable_gaze.sim.eyes import EyeModel
+    from wearable_gaze.sim.world import CalibrationWall
+
+    model = EyeModel.make(rng)
+    wall = CalibrationWall(1000.0, tilt_deg)
+    P = wall.to_world(wall.targets_wall())
+    return model, wall, P
+
+
+def test_calibrate_eye_reports_residuals_loo_and_flags_an_outlier_target():
+    rng = np.random.default_rng(1)
+    model, _, P = _eye_setup(rng)
+    model.sigma_deg = 0.05
+    raw, _, _ = model.measure(P, rng, with_bias=False)
+    cal = calibrate_eye("left", raw[:, 0], P, model.centres[0], focal_px=640.0)
+    rep = cal.report
+    assert rep["rms_deg"] < 0.15 and rep["loo_rms_deg"] < 0.4 and rep["outliers"] == []
+    assert len(rep["residual_px"]) == 9
+    bad = raw[:, 0].copy()
+    bad[4] += 60.0                                        # ~3.5 deg off at the centre target
+    rep = calibrate_eye("left", bad, P, model.centres[0]).report
+    assert rep["outliers"] == [4]
+    with pytest.raises(CalibrationError, match="left eye"):
+        calibrate_eye("left", np.full((9, 2), np.nan), P, model.centres[0])
+    collinear = P.copy()
+    collinear[:, 1] = 0.0
+    with pytest.raises(CalibrationError, match="collinear"):
+        calibrate_eye("right", raw[:, 1], collinear, model.centres[1])
+
+
+def test_wall_pose_recovers_distance_and_tilt():
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis([0, 1, 0], np.deg2rad(10)) @ rotation_about_axis([1, 0, 0], np.deg2rad(3))
+    T[:3, 3] = [30, -20, 1200]
+    W = np.array([[x, y] for x in (-600, -480, 480, 600) for y in (-400, -280, 280, 400)], float)
+    P = W @ T[:3, :2].T + T[:3, 3]
+    wp = wall_pose(W, P[:, :2] / P[:, 2:3])
+    assert np.abs(wp.T_cam_from_wall - T).max() < 1e-6
+    assert abs(wp.tilt_deg - np.degrees(np.arccos(T[2, 2]))) < 1e-6
+
+
+def test_target_readings_skip_the_saccade_and_blinks():
+    t = np.arange(180) / 60.0
+    target = np.repeat(np.arange(3), 60)
+    raw = np.repeat(np.array([[100.0, 200.0], [300.0, 400.0], [500.0, 600.0]]), 60, axis=0)
+    raw[60:66] = [200.0, 300.0]                                # still travelling
+    valid = np.ones(180, bool)
+    valid[150:160] = False
+    raw[150:160] = 0.0
+    ids, vals, counts = target_readings(target, raw, valid, t)
+    assert list(ids) == [0, 1, 2] and np.allclose(vals, [[100, 200], [300, 400], [500, 600]])
+    assert counts[2] == 60 - 12 - 10
+
+
+def test_calibration_study_meets_the_issue_targets():
+    """Done-when: mean view-direction error <= 0.15 deg with both corrections (paper error sources),
+    each correction helps, and the two-distance centres land within 3 mm (median)."""
+    from wearable_gaze.calstudy import run_calibration_study
+
+    r = run_calibration_study(trials=12, seed=3)
+    e = {k: float(np.mean(v)) for k, v in r.errors_deg.items()}
+    assert e["both"] <= 0.15
+    assert e["no correction"] > 3 * e["both"] and e["undistortion only"] > e["both"]
+    assert np.median(r.centre_errors_mm) < 3.0
+    # the reported uncertainty is honest: errors are of the size it says
+    assert 0.3 < np.median(r.centre_errors_mm / r.centre_sigma_mm) < 2.0
+    assert "| both |" in r.format()
+
+
+def test_estimate_centre_needs_two_distances():
+    rng = np.random.default_rng(2)
+    model, _, P = _eye_setup(rng)
+    raw, _, _ = model.measure(P, rng, with_bias=False)
+    with pytest.raises(CalibrationError, match="two wall distances"):
+        estimate_centre(raw[:, 0], P, [-32, 30, -20])
+
+
+# --- end to end on a session -------------------------------------------------------------------
+
+def test_calibrate_eyes_and_viewlines_on_a_rendered_session(session, tmp_path, capsys):
+    eyes = tmp_path / "eyes.json"
+    assert main(["calibrate-eyes", str(session), "--camera", str(session / "truth" / "camera.json"),
+                 "-o", str(eyes)]) == 0
+    out = capsys.readouterr().out
+    assert "two-distance" in out and "tilt 12.0 deg" in out
+    truth = json.loads((session / "truth" / "eyes.json").read_text())
+    cals = load_eyes(eyes)
+    for e in range(2):
+        assert np.linalg.norm(cals[e].centre_mm - truth["centres_mm"][e]) < 3.0
+    vl = tmp_path / "viewlines.csv"
+    assert main(["viewlines", str(session / "eye.csv"), "--eyes", str(eyes), "--poses",
+                 str(session / "truth" / "head_poses.csv"), "-o", str(vl)]) == 0
+    seg = read_viewlines_csv(vl)[0].samples
+    g = read_table(session / "truth" / "gaze.csv", ["t"], ("phase",))
+    idx = np.round(seg.t_s * 60).astype(int)
+    for side in ("left", "right"):
+        meas = np.column_stack([g[f"{side}_meas_d{a}"] for a in "xyz"])[idx]
+        d, v = getattr(seg, f"{side}_direction"), getattr(seg, f"{side}_valid")
+        ang = np.degrees(np.arccos(np.clip((d[v] * meas[v]).sum(1), -1, 1)))
+        assert ang.mean() < 0.15                          # the calibration's own error, on top of the noise
+        assert not v.all()                                # blinks stay marked
+
+
+def test_interpolate_poses_slerps_and_refuses_gaps():
+    t = np.array([0.0, 1.0, 2.0, 5.0])
+    T = np.tile(np.eye(4), (4, 1, 1))
+    for i, a in enumerate([0.0, 20.0, 40.0, 100.0]):
+        T[i, :3, :3] = rotation_about_axis([0, 1, 0], np.deg2rad(a))
+        T[i, :3, 3] = [10 * a, 0, 0]
+    T[2] = np.nan                                          # no pose at t = 2
+    Tq, ok = interpolate_poses(t, T, [0.5, 1.5, 3.0, 6.0], max_gap_s=1.0)
+    assert list(ok) == [True, False, False, False]
+    assert np.allclose(Tq[0, :3, :3], rotation_about_axis([0, 1, 0], np.deg2rad(10.0)))
+    assert np.allclose(Tq[0, :3, 3], [100, 0, 0])
+    Tq, ok = interpolate_poses(t, T, [1.5], max_gap_s=5.0)
+    assert ok[0] and np.allclose(Tq[0, :3, :3], rotation_about_axis([0, 1, 0], np.deg2rad(20 + 80 * 0.5 / 4)))
+
+
+def test_calibration_cli_errors_are_one_line(tmp_path, capsys):
+    cases = [
+        (["calibrate-camera", str(tmp_path), "--board", "chess:9x6", "-o", str(tmp_path / "c.json")], "chessboard:"),
+        (["calibrate-camera", str(tmp_path / "none"), "--board", "chessboard:9x6:25", "-o", str(tmp_path / "c.json")],
+         "no such file"),
+        (["calibrate-eyes", str(tmp_path), "--camera", str(tmp_path / "c.json"), "-o", str(tmp_path / "e.json")],
+         "eye_calibration.csv"),
+        (["viewlines", str(tmp_path / "eye.csv"), "--eyes", str(tmp_path / "e.json"), "--poses",
+          str(tmp_path / "p.csv"), "-o", str(tmp_path / "v.csv")], "no such file"),
+    ]
+    for argv, needle in cases:
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err, err
+    (tmp_path / "bad.json").write_text('{"camera_matrix": [[1, 0], [0, 1]]}')
+    with pytest.raises(Exception):
+        CameraCalibration.from_dict(json.loads((tmp_path / "bad.json").read_text()))
+    assert main(["calibrate-eyes", str(tmp_path), "--camera", str(tmp_path / "bad.json"), "-o", "x"]) == 2
