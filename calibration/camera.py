@@ -249,11 +249,11 @@ def undistort_image(image, cal: CameraCalibration, alpha: float = 0.0) -> tuple[
 def _calibrate_once(views, image_size, model, flags):
     obj = [v.object_points.astype(np.float32).reshape(-1, 1, 3) for v in views]
     img = [v.image_points.astype(np.float32).reshape(-1, 1, 2) for v in views]
-    if model == "fisheye":
-        K = np.zeros((3, 3))
-        D = np.zeros(4)
+    if model == "fisheye":                           # cv2.fisheye wants (1, N, c) point arrays
+        obj = [o.reshape(1, -1, 3) for o in obj]
+        img = [i.reshape(1, -1, 2) for i in img]
         rms, K, D, rv, tv = cv2.fisheye.calibrate(
-            obj, img, tuple(image_size), K, D, flags=flags | cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC,
+            obj, img, tuple(image_size), np.zeros((3, 3)), np.zeros((4, 1)), flags=flags | cv2.CALIB_RECOMPUTE_EXTRINSIC,
             criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10))
         std = None
     else:

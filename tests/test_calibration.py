@@ -269,3 +269,25 @@ def test_calibration_cli_errors_are_one_line(tmp_path, capsys):
     with pytest.raises(Exception):
         CameraCalibration.from_dict(json.loads((tmp_path / "bad.json").read_text()))
     assert main(["calibrate-eyes", str(tmp_path), "--camera", str(tmp_path / "bad.json"), "-o", "x"]) == 2
+
+
+def test_calibrate_camera_from_a_video_picks_views_for_coverage_and_fits_fisheye(session, tmp_path):
+    from wearable_gaze.calibrate_cmd import calibrate_camera_files
+
+    frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted((session / "calibration" / "camera").glob("*.png"))]
+    video = tmp_path / "boards.avi"
+    w = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (1280, 720), isColor=False)
+    for f in frames:
+        for _ in range(3):                                 # each view held for 3 frames, as a slow sweep
+            w.write(f)
+    w.release()
+    cal, _ = calibrate_camera_files([video], "chessboard:9x6:30", tmp_path / "cam.json", max_views=8)
+    used = [v for v in cal.views if v["used"]]
+    assert len(used) == 8 and all("#" in v["view"] for v in cal.views)
+    skipped = [v for v in cal.views if not v["used"]]
+    assert skipped and all("coverage" in v["reason"] for v in skipped)
+    assert cal.rms_px < 0.5 and abs(cal.camera_matrix[0, 0] - 640) < 6
+    fish, _ = calibrate_camera_files([session / "calibration" / "camera"], "chessboard:9x6:30",
+                                     tmp_path / "fish.json", model="fisheye")
+    assert fish.model == "fisheye" and len(fish.dist_coeffs) == 4 and fish.rms_px < 1.0
+    assert load_camera(tmp_path / "fish.json").model == "fisheye"
