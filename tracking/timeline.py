@@ -49,3 +49,31 @@ def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
         for i in range(3):
             out[sel, i, 3] = np.interp(tt, ts, Ts[:, i, 3])
     return out, ok
+
+
+def smooth_poses(t, T, window_s: float, causal: bool = False):
+    """Moving-average smoothing of poses (N, 4, 4) at times t (N,): translations averaged,
+    rotations averaged as sign-aligned quaternions, over ``window_s`` seconds.
+
+    Centred (default, for offline processing) it adds no lag; ``causal`` (for the live loop)
+    uses only past poses and lags by about ``window_s / 2``. Frames without a pose stay NaN
+    and are left out of their neighbours' averages.
+    """
+    t = np.asarray(t, float)
+    T = np.asarray(T, float).reshape(-1, 4, 4)
+    out = np.full_like(T, np.nan)
+    good = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
+    if not good.any() or window_s <= 0:
+        return T.copy()
+    q = np.zeros((len(T), 4))
+    q[good] = Rotation.from_matrix(T[good, :3, :3]).as_quat()
+    for i in np.flatnonzero(good):
+        lo = t[i] - (window_s if causal else window_s / 2)
+        hi = t[i] if causal else t[i] + window_s / 2
+        sel = good & (t >= lo - 1e-9) & (t <= hi + 1e-9)          # symmetric despite rounding
+        qs = q[sel] * np.where(q[sel] @ q[i] < 0, -1.0, 1.0)[:, None]
+        qm = qs.mean(axis=0)
+        out[i] = np.eye(4)
+        out[i, :3, :3] = Rotation.from_quat(qm / np.linalg.norm(qm)).as_matrix()
+        out[i, :3, 3] = T[sel, :3, 3].mean(axis=0)
+    return out

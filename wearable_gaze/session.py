@@ -153,6 +153,23 @@ def marker_map_dict(dictionary: str, marker_size_mm: float, markers: dict, label
                         for i, T in sorted(markers.items())]}
 
 
+# --- video -------------------------------------------------------------------------------------
+
+def grey_frames(path):
+    """Yield every frame of a video as a (H, W) uint8 grey image."""
+    import cv2  # noqa: PLC0415
+
+    cap = cv2.VideoCapture(str(path))
+    try:
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                return
+            yield cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+    finally:
+        cap.release()
+
+
 # --- the session ---------------------------------------------------------------------------------
 
 @dataclass

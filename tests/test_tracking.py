@@ -1,0 +1,348 @@
+"""Head pose from the scene camera (issue 5): marker maps, detection, joint PnP with RANSAC, the
+single-marker ambiguity, pycolmap, homography mode, real photos, the CLI."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.camera import CameraCalibration
+from estimator.frames import rotation_about_axis
+from tracking.homography import PlanarTracker
+from tracking.markermap import MarkerMap, MarkerMapError
+from tracking.markers import MarkerDetector
+from tracking.pose import MarkerPoseEstimator, rotation_angle_deg
+from wearable_gaze.cli import main
+from wearable_gaze.session import grey_frames, load_session, read_poses_csv
+from wearable_gaze.sim.render import Camera, Plane, SensorNoise, marker_plane, poster_texture, render
+from wearable_gaze.sim.simulate import simulate_scenario
+from wearable_gaze.sim.world import look_at
+
+
+def _map(**over):
+    d = {"dictionary": "DICT_4X4_50", "marker_size_mm": 150,
+         "markers": [{"id": 0, "T_world_from_marker": np.eye(4).tolist()}]}
+    d.update(over)
+    return d
+
+
+def test_marker_map_validation_names_the_problem():
+    cases = [
+        (_map(dictionary="DICT_9X9_1"), "unknown marker dictionary"),
+        (_map(marker_size_mm=0.15), "millimetres"),
+        (_map(markers=[{"id": 1, "T_world_from_marker": np.eye(4).tolist()}] * 2), "appears twice"),
+        (_map(markers=[{"id": 60, "T_world_from_marker": np.eye(4).tolist()}]), "not in DICT_4X4_50"),
+        (_map(markers=[{"id": 1, "T_world_from_marker": (2 * np.eye(4)).tolist()}]), "rigid"),
+        (_map(markers=[{"id": 1, "corners_mm": [[0, 0, 0], [150, 0, 0], [150, 100, 0], [0, 100, 0]]}]), "square"),
+        (_map(markers=[{"id": 1, "corners_mm": [[0, 0, 0], [0.15, 0, 0], [0.15, 0.15, 0], [0, 0.15, 0]]}]),
+         "not metres"),
+        (_map(markers=[{"id": 1}]), "T_world_from_marker or corners_mm"),
+    ]
+    for d, needle in cases:
+        with pytest.raises(MarkerMapError, match=needle):
+            MarkerMap.from_dict(d)
+
+
+def test_marker_map_from_corners_matches_the_pose():
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis([0, 1, 0], 0.4)
+    T[:3, 3] = [100, -50, 2000]
+    m = MarkerMap.from_dict(_map(markers=[{"id": 3, "T_world_from_marker": T.tolist()}]))
+    corners = m.corners(3)
+    m2 = MarkerMap.from_dict(_map(markers=[{"id": 3, "corners_mm": corners.tolist()}]))
+    assert np.allclose(m2.poses[3], T, atol=1e-9)
+    assert np.allclose(MarkerMap.from_dict(m.to_dict()).poses[3], T, atol=1e-8)
+
+
+# --- rendered sessions -------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    root = tmp_path_factory.mktemp("trk") / "s"
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 2.0, "calibration": {"eye": False, "camera_views": 0}},
+                      root, seed=4)
+    s = load_session(root)
+    cam = CameraCalibration.from_dict(json.loads((root / "truth" / "camera.json").read_text()))
+    mm = MarkerMap.from_dict(s.marker_map())
+    _, _, T, extra = read_poses_csv(root / "truth" / "head_poses.csv")
+    return root, cam, mm, T, list(grey_frames(s.path("scene_video")))
+
+
+def _errors(results, T):
+    rot = [rotation_angle_deg(r.T_world_from_cam[:3, :3], t[:3, :3]) for r, t in zip(results, T) if r.ok]
+    tr = [np.linalg.norm(r.T_world_from_cam[:3, 3] - t[:3, 3]) for r, t in zip(results, T) if r.ok]
+    return np.array(rot), np.array(tr)
+
+
+def test_marker_tracking_on_a_rendered_session_meets_the_accuracy_target(walk):
+    """Done-when: >= 2 markers at 1-3 m: median rotation error <= 0.1 deg, translation <= 2 mm."""
+    _, cam, mm, T, frames = walk
+    det = MarkerDetector(mm.dictionary)
+    est = MarkerPoseEstimator(mm, cam)
+    res = [est.estimate(det.detect(f)) for f in frames]
+    assert all(r.ok for r in res) and min(len(r.markers) for r in res) >= 2
+    rot, tr = _errors(res, T)
+    assert np.median(rot) <= 0.1 and np.median(tr) <= 2.0
+    assert np.percentile(rot, 95) < 0.3 and np.percentile(tr, 95) < 6.0
+    # the covariance is a sound 6x6 and its size matches the errors actually made
+    cov = np.stack([r.covariance for r in res])
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    sd_t = np.sqrt(np.trace(cov[:, 3:, 3:], axis1=1, axis2=2))
+    assert 0.2 < np.median(tr / sd_t) < 5
+
+
+def test_pycolmap_backend_agrees_with_opencv(walk):
+    _, cam, mm, T, frames = walk
+    det = MarkerDetector(mm.dictionary)
+    found = [det.detect(f) for f in frames[::3]]
+    a = [MarkerPoseEstimator(mm, cam).estimate(c) for c in found]
+    b = [MarkerPoseEstimator(mm, cam, backend="pycolmap").estimate(c) for c in found]
+    assert all(r.ok for r in a + b)
+    rot_b, tr_b = _errors(b, T[::3])
+    assert np.median(rot_b) <= 0.1 and np.median(tr_b) <= 2.5
+    d_rot = [rotation_angle_deg(x.T_world_from_cam[:3, :3], y.T_world_from_cam[:3, :3]) for x, y in zip(a, b)]
+    d_tr = [np.linalg.norm(x.T_world_from_cam[:3, 3] - y.T_world_from_cam[:3, 3]) for x, y in zip(a, b)]
+    assert np.median(d_rot) < 0.05 and np.median(d_tr) < 1.5
+    assert b[0].covariance.shape == (6, 6)
+
+
+def test_ransac_drops_a_marker_with_wrong_corners(walk):
+    _, cam, mm, T, frames = walk
+    found = MarkerDetector(mm.dictionary).detect(frames[0])
+    bad = sorted(found)[0]
+    found[bad] = found[bad] + [25.0, -18.0]
+    r = MarkerPoseEstimator(mm, cam).estimate(found)
+    assert r.ok and bad not in r.markers
+    assert rotation_angle_deg(r.T_world_from_cam[:3, :3], T[0][:3, :3]) < 0.2
+    assert np.linalg.norm(r.T_world_from_cam[:3, 3] - T[0][:3, 3]) < 5
+
+
+def test_no_markers_and_unknown_markers_give_a_status_not_a_pose(walk):
+    _, cam, mm, _, _ = walk
+    est = MarkerPoseEstimator(mm, cam)
+    assert est.estimate({}).status == "no_markers"
+    assert est.estimate({49: np.array([[0, 0], [10, 0], [10, 10], [0, 10.0]])}).status == "no_markers"
+
+
+def test_single_marker_sequence_has_no_flips():
+    """One marker in view, the head moving on an arc: IPPE's two solutions are resolved by
+    continuity, so no frame jumps to the mirrored pose."""
+    cam = Camera.wide_scene_camera()
+    cal = CameraCalibration(cam.camera_matrix, cam.dist_coeffs, cam.image_size)
+    T_m = np.eye(4)
+    T_m[:3, 3] = [0, 0, 2500.0]
+    mm = MarkerMap("DICT_4X4_50", 200.0, {7: T_m}, {})
+    plane = marker_plane("DICT_4X4_50", 7, 200.0, T_m)
+    noise = SensorNoise(cam.image_size, np.random.default_rng(0))
+    det = MarkerDetector("DICT_4X4_50")
+    est = MarkerPoseEstimator(mm, cal)
+    errs, ambiguous = [], 0
+    for k, a in enumerate(np.linspace(-0.45, 0.5, 60)):        # 1.5 m from the marker, through head-on
+        c = np.array([0, 0, 2500.0]) + 1500 * np.array([np.sin(a), 0.08 * np.cos(3 * a), -np.cos(a)])
+        T = look_at(c, [150 * np.sin(5 * a), 60, 2500])
+        r = est.estimate(det.detect(noise.apply(render(cam, T, [plane]))))
+        assert r.ok, r.reason
+        ambiguous += r.ambiguous
+        errs.append(rotation_angle_deg(r.T_world_from_cam[:3, :3], T[:3, :3]))
+    assert ambiguous > 0                      # the test does exercise the ambiguity
+    assert max(errs) < 3.0                    # a flip is tens of degrees
+
+
+def test_homography_mode_on_a_textured_poster():
+    """Done-when: <= 0.5 deg and <= 10 mm at 1-2 m (median over random views)."""
+    rng = np.random.default_rng(0)
+    cam = Camera.wide_scene_camera()
+    cal = CameraCalibration(cam.camera_matrix, cam.dist_coeffs, cam.image_size)
+    tex = poster_texture(rng, (800, 600))
+    plane = Plane(np.eye(4), (800.0, 600.0), tex, "poster")
+    tracker = PlanarTracker(tex, (800.0, 600.0), cal)
+    noise = SensorNoise(cam.image_size, rng)
+    rot, tr = [], []
+    for _ in range(8):
+        d = rng.uniform(1000, 2000)
+        yaw, el = np.deg2rad(rng.uniform(-30, 30)), np.deg2rad(rng.uniform(-15, 15))
+        centre = np.array([400.0, 300.0, 0.0])
+        c = centre + d * np.array([np.sin(yaw) * np.cos(el), np.sin(el), -np.cos(yaw) * np.cos(el)])
+        T = look_at(c, centre + rng.normal(0, 80, 3))
+        r = tracker.estimate(noise.apply(render(cam, T, [plane])))
+        assert r.ok, r.reason
+        rot.append(rotation_angle_deg(r.T_world_from_cam[:3, :3], T[:3, :3]))
+        tr.append(np.linalg.norm(r.T_world_from_cam[:3, 3] - T[:3, 3]))
+    assert np.median(rot) <= 0.5 and np.median(tr) <= 10.0
+    blank = np.full((720, 1280), 128, np.uint8)
+    assert not tracker.estimate(blank).ok
+
+
+# --- real photos -------------------------------------------------------------------------------
+
+def _aruco_gold(real_data):
+    d = real_data / "opencv_aruco_charuco_tutorial"
+    return d, json.loads((d / "expected_results.json").read_text())["marker_tests"]
+
+
+def _tutorial_dictionary(path):
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    n, size = int(fs.getNode("nmarkers").real()), int(fs.getNode("markersize").real())
+    bits = [np.array([int(ch) for ch in fs.getNode(f"marker_{i}").string()], np.uint8).reshape(size, size)
+            for i in range(n)]
+    fs.release()
+    return cv2.aruco.Dictionary(np.vstack([cv2.aruco.Dictionary.getByteListFromBits(b) for b in bits]), size)
+
+
+@pytest.mark.parametrize("case", ["can_find_singlemarkersoriginal", "can_find_gboriginal", "can_find_choriginal",
+                                  "can_find_chocclusion"])
+def test_opencv_tutorial_photos_give_the_published_ids_and_corners(real_data, case):
+    d, gold = _aruco_gold(real_data)
+    t = gold[case]
+    dic = _tutorial_dictionary(d / "tutorial_dict.yml") if "gboriginal" in case else t["dictionary"]
+    # the gold values are OpenCV's default detector without refinement, as its own test runs it
+    found = MarkerDetector(dic, refine="none", params=cv2.aruco.DetectorParameters()).detect(cv2.imread(str(d / t["image"])))
+    want = {int(i): np.array(c, float) for i, c in t["markers"].items()}
+    assert sorted(found) == sorted(want)
+    for i, c in want.items():
+        assert np.abs(found[i] - c).max() <= 1.0
+    # our default (one threshold window, refined corners) finds the same markers, within 2 px of
+    # the unrefined integer gold
+    ours = MarkerDetector(dic).detect(cv2.imread(str(d / t["image"])))
+    assert sorted(ours) == sorted(want)
+    assert max(np.abs(ours[i] - c).max() for i, c in want.items()) <= 2.0
+
+
+def test_apriltag_rotation_sweep_yaw_matches_the_file_names(real_data):
+    """Done-when: yaw within 7 deg of the angle in each file name (set by hand)."""
+    import re
+
+    d = real_data / "dt_apriltags_test_images"
+    text = (d / "test_info.yaml").read_text()
+    block = text[text.index("rotation_test:"):text.index("multiple_tags_test:")]
+    K = np.array([float(v) for v in re.search(r"K: \[([^\]]+)\]", block).group(1).split(",")]).reshape(3, 3)
+    size = float(re.search(r"tag_size: ([\d.]+)", block).group(1)) * 1000.0
+    cal = CameraCalibration(K, np.zeros(5), (1056, 792))
+    # OpenCV's fast quad finder misses the tag turned 70 deg; the AprilTag quad refinement finds it
+    det = MarkerDetector("DICT_APRILTAG_36h11", refine="apriltag")
+    yaws, angles = [], []
+    for f in sorted(d.glob("test_image_rotation_*.png")):
+        angle = float(f.stem.rsplit("_", 1)[1])
+        found = det.detect(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE))
+        assert list(found) == [76]
+        est = MarkerPoseEstimator(MarkerMap("DICT_APRILTAG_36h11", size, {76: np.eye(4)}, {}), cal)
+        r = est.estimate(found)
+        assert r.ok
+        R = np.linalg.inv(r.T_world_from_cam)[:3, :3]          # tag in the camera frame
+        yaws.append(np.degrees(np.arctan2(R[0, 2], R[2, 2])))  # turn about the vertical axis
+        angles.append(angle)
+    yaws, angles = np.array(yaws), np.array(angles)
+    sign = np.sign(np.sum(yaws * angles))                      # the sweep's sign convention
+    assert len(yaws) == 15 and np.abs(sign * yaws - angles).max() <= 7.0
+
+
+def test_apriltag_nasa_photos_detections_match_the_reference(real_data):
+    d = real_data / "apriltag_test_photos_nasa"
+    det = MarkerDetector("DICT_APRILTAG_36h11", refine="subpix")
+    found_total, expected_total, errs = 0, 0, []
+    for txt in sorted(d.glob("*.txt")):
+        want = []
+        for line in txt.read_text().splitlines():
+            nums = [float(v) for v in line.replace("(", " ").replace(")", " ").replace(",", " ").split()]
+            want.append(np.array(nums[1:9]).reshape(4, 2))
+        expected_total += len(want)
+        img = cv2.imread(str(txt.with_suffix(".jpg")), cv2.IMREAD_GRAYSCALE)
+        got = det.detect(img)
+        assert set(got) <= {0}
+        # order-free matching of the found tags to the reference (all tags have id 0, so the
+        # detector's dict keeps only one per id: run the raw detector for all of them)
+        corners, ids, _ = det._det.detectMarkers(img)
+        for c in ([] if ids is None else corners):
+            c = c.reshape(4, 2)
+            dist = [np.abs(np.sort(np.linalg.norm(c[:, None] - w[None], axis=2).min(axis=1))).max() for w in want]
+            if min(dist) < 3.0:
+                found_total += 1
+                errs.append(min(dist))
+    assert expected_total == 47
+    assert found_total >= 28                  # OpenCV misses the smallest, most oblique tags
+    assert np.median(errs) < 2.0
+
+
+# --- time and the CLI --------------------------------------------------------------------------
+
+def test_smoothing_reduces_jitter_without_lag():
+    from tracking.timeline import smooth_poses
+
+    rng = np.random.default_rng(0)
+    t = np.arange(300) / 30.0
+    true = np.tile(np.eye(4), (300, 1, 1))
+    true[:, 0, 3] = 200 * np.sin(t)
+    noisy = true.copy()
+    noisy[:, :3, 3] += rng.normal(0, 2.0, (300, 3))
+    for i in range(300):
+        noisy[i, :3, :3] = rotation_about_axis(rng.normal(size=3), np.deg2rad(0.1))
+    noisy[100] = np.nan
+    sm = smooth_poses(t, noisy, 0.2)
+    ok = np.isfinite(sm[:, 0, 0])
+    assert not ok[100] and ok.sum() == 299
+    err_raw = np.linalg.norm(noisy[ok, :3, 3] - true[ok, :3, 3], axis=1)
+    err_sm = np.linalg.norm(sm[ok, :3, 3] - true[ok, :3, 3], axis=1)
+    assert np.median(err_sm) < 0.6 * np.median(err_raw)
+    lag = smooth_poses(t, true, 0.2, causal=True)[150:290, 0, 3] - true[150:290, 0, 3]
+    centred = smooth_poses(t, true, 0.2)[150:290, 0, 3] - true[150:290, 0, 3]   # (the last 0.1 s is one-sided)
+    assert np.abs(centred).max() < 0.5 < np.abs(lag).max()
+
+
+def test_track_cli_writes_poses_and_an_overlay(walk, tmp_path, capsys):
+    root = walk[0]
+    out = tmp_path / "poses.csv"
+    assert main(["track", str(root / "scene.mp4"), "--camera", str(root / "truth" / "camera.json"),
+                 "--markers", str(root / "markers.json"), "-o", str(out), "--overlay", str(tmp_path / "ov.mp4")]) == 0
+    assert "60 of 60 frames" in capsys.readouterr().out
+    t, frames, T, extra = read_poses_csv(out)
+    t_true, _, T_true, _ = read_poses_csv(root / "truth" / "head_poses.csv")
+    assert np.allclose(t, t_true) and list(extra["status"]) == ["ok"] * 60
+    assert np.median(np.linalg.norm(T[:, :3, 3] - T_true[:, :3, 3], axis=1)) < 2.0
+    cap = cv2.VideoCapture(str(tmp_path / "ov.mp4"))
+    assert cap.read()[0] and int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 60
+
+
+def test_track_cli_bad_inputs_are_one_line(walk, tmp_path, capsys):
+    root = walk[0]
+    (tmp_path / "map.json").write_text(json.dumps(_map(marker_size_mm=0.2)))
+    small = tmp_path / "cam.json"
+    d = json.loads((root / "truth" / "camera.json").read_text())
+    d["image_size"] = [640, 360]
+    small.write_text(json.dumps(d))
+    cases = [
+        (["--markers", str(tmp_path / "map.json")], "millimetres"),
+        (["--markers", str(tmp_path / "none.json")], "no such file"),
+    ]
+    for extra, needle in cases:
+        argv = ["track", str(root / "scene.mp4"), "--camera", str(root / "truth" / "camera.json"), "-o",
+                str(tmp_path / "p.csv")] + extra
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err, err
+    assert main(["track", str(root / "scene.mp4"), "--camera", str(small), "--markers", str(root / "markers.json"),
+                 "-o", str(tmp_path / "p.csv")]) == 2
+    assert "1280x720" in capsys.readouterr().err
+    (tmp_path / "broken.mp4").write_bytes(b"not a video at all")
+    assert main(["track", str(tmp_path / "broken.mp4"), "--camera", str(root / "truth" / "camera.json"),
+                 "--markers", str(root / "markers.json"), "-o", str(tmp_path / "p.csv")]) == 2
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_marker_sheets_print_at_exact_scale(tmp_path):
+    from wearable_gaze.track_cmd import write_marker_sheets
+
+    paths = write_marker_sheets("DICT_4X4_50", [3, 4], 80.0, tmp_path / "sheet.png", dpi=200)
+    img = cv2.imread(str(paths[0]), cv2.IMREAD_GRAYSCALE)
+    assert img.shape == (round(297 / 25.4 * 200), round(210 / 25.4 * 200)) or abs(img.shape[0] - 2339) <= 1
+    found = MarkerDetector("DICT_4X4_50", refine="subpix").detect(img)
+    assert 3 in found
+    side = np.linalg.norm(found[3][1] - found[3][0])
+    assert abs(side - 80 / 25.4 * 200) < 2.0                  # px: the printed square is 80 mm
+    tmpl = json.loads(paths[-1].read_text())
+    assert [m["id"] for m in tmpl["markers"]] == [3, 4] and tmpl["marker_size_mm"] == 80.0
+    pdf = write_marker_sheets("DICT_APRILTAG_36h11", list(range(12)), 60.0, tmp_path / "sheet.pdf")
+    assert pdf[0].read_bytes()[:4] == b"%PDF"
+    assert main(["markers", "--ids", "0-3", "--size-mm", "80", "--dict", "DICT_4X4_50", "-o",
+                 str(tmp_path / "x.png")]) == 0
+    assert main(["markers", "--ids", "60-61", "--size-mm", "80", "-o", str(tmp_path / "y.png")]) == 2

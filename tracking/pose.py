@@ -1,0 +1,222 @@
+"""Head pose from the scene camera: all visible markers jointly (SQPnP, RANSAC, Levenberg-
+Marquardt), the single-marker ambiguity resolved over time, sanity checks, covariance; and
+``pycolmap``'s LO-RANSAC + refinement as an alternative backend.
+
+Frames: ``T_world_from_cam`` (4, 4), mm; image points are undistorted first with the camera
+model from ``calibration``, so every solver works on normalised coordinates (K = I).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from calibration.camera import CameraCalibration
+from estimator.frames import invert
+
+from .markermap import MarkerMap, square_corners
+
+OK, NO_MARKERS, TOO_FEW, REJECTED = "ok", "no_markers", "too_few_points", "rejected"
+
+
+@dataclass
+class PoseResult:
+    """One frame's pose.
+
+    Attributes:
+        T_world_from_cam: (4, 4), or None when there is no pose.
+        status: 'ok', 'no_markers', 'too_few_points' or 'rejected'.
+        reason: why there is no pose ('' when ok).
+        markers: ids used.
+        n_points: corners used (inliers).
+        reproj_rms_px: reprojection RMS of the inliers, pixels.
+        covariance: (6, 6) of (rotation vector, translation mm) of ``T_cam_from_world``, from
+            the residuals (None when not computed).
+        ambiguous: a single-marker pose chosen between two IPPE solutions.
+    """
+
+    T_world_from_cam: np.ndarray | None
+    status: str
+    reason: str = ""
+    markers: list = field(default_factory=list)
+    n_points: int = 0
+    reproj_rms_px: float = float("nan")
+    covariance: np.ndarray | None = None
+    ambiguous: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return self.status == OK
+
+
+def _rt_to_T(rvec, tvec) -> np.ndarray:
+    R, _ = cv2.Rodrigues(np.asarray(rvec, float))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, np.asarray(tvec, float).ravel()
+    return T
+
+
+def _residuals(obj, x, rvec, tvec) -> np.ndarray:
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, np.eye(3), None)
+    return proj.reshape(-1, 2) - x
+
+
+def _covariance(obj, x, rvec, tvec, sigma_norm) -> np.ndarray:
+    _, J = cv2.projectPoints(obj, rvec, tvec, np.eye(3), None)
+    J = J[:, :6]
+    try:
+        return np.linalg.inv(J.T @ J) * sigma_norm**2
+    except np.linalg.LinAlgError:
+        return np.full((6, 6), np.inf)
+
+
+def rotation_angle_deg(Ra, Rb) -> float:
+    """Angle of the rotation between two (3, 3) rotations, degrees."""
+    c = (np.trace(Ra.T @ Rb) - 1) / 2
+    return float(np.degrees(np.arccos(np.clip(c, -1, 1))))
+
+
+class MarkerPoseEstimator:
+    """Pose from detected marker corners.
+
+    Args:
+        marker_map: the room.
+        camera: intrinsics and distortion.
+        max_reproj_px: a pose whose inlier RMS exceeds this is rejected.
+        ransac_px: RANSAC inlier threshold, pixels.
+        min_points: fewest corners accepted (4 = one marker).
+        backend: 'opencv' (SQPnP + RANSAC + LM) or 'pycolmap'.
+    """
+
+    def __init__(self, marker_map: MarkerMap, camera: CameraCalibration, max_reproj_px: float = 3.0,
+                 ransac_px: float = 4.0, min_points: int = 4, backend: str = "opencv"):
+        if backend not in ("opencv", "pycolmap"):
+            raise ValueError(f"backend must be opencv or pycolmap, got {backend!r}")
+        self.map = marker_map
+        self.camera = camera
+        self.f = float(camera.camera_matrix[0, 0])
+        self.max_reproj_px = max_reproj_px
+        self.ransac_px = ransac_px
+        self.min_points = min_points
+        self.backend = backend
+        self.previous: np.ndarray | None = None          # last T_world_from_cam, for continuity
+        self._before: np.ndarray | None = None           # the one before it (for the velocity)
+
+    def estimate(self, corners_px: dict, previous: np.ndarray | None = None) -> PoseResult:
+        """Pose of one frame from {id: (4, 2) distorted pixel corners}. Markers not in the map
+        are ignored. ``previous`` (default: this estimator's last good pose) resolves the
+        single-marker ambiguity."""
+        prev = self._predicted() if previous is None else previous
+        ids = [i for i in sorted(corners_px) if i in self.map.poses]
+        if not ids:
+            return PoseResult(None, NO_MARKERS, "no marker of the map in view")
+        obj = np.vstack([self.map.corners(i) for i in ids])
+        x = self.camera.undistort_points(np.vstack([corners_px[i] for i in ids]))
+        if len(obj) < self.min_points:
+            return PoseResult(None, TOO_FEW, f"{len(obj)} corners, need {self.min_points}", ids, len(obj))
+        if len(ids) == 1:
+            res = self._single(ids[0], x, prev)
+        elif self.backend == "pycolmap":
+            res = self._pycolmap(ids, obj, x)
+        else:
+            res = self._multi(ids, obj, x)
+        if res.ok:
+            self._before, self.previous = self.previous, res.T_world_from_cam
+        else:
+            self._before = self.previous = None if res.status == NO_MARKERS else self.previous
+        return res
+
+    def _predicted(self) -> np.ndarray | None:
+        """The pose the next frame is compared with: the last good one. (A constant-velocity
+        extrapolation doubles the noise of single-marker poses, which is what it would have to
+        beat; the last pose is the steadier reference.)"""
+        return self.previous
+
+    # -- solvers ---------------------------------------------------------------------------
+
+    def _finish(self, ids, obj, x, rvec, tvec, inliers, ambiguous=False, refine=True) -> PoseResult:
+        obj_i, x_i = obj[inliers], x[inliers]
+        rvec = np.asarray(rvec, float).reshape(3, 1).copy()     # OpenCV's LM wants (3, 1) columns
+        tvec = np.asarray(tvec, float).reshape(3, 1).copy()
+        if refine:
+            rvec, tvec = cv2.solvePnPRefineLM(obj_i, x_i, np.eye(3), None, rvec, tvec,
+                                              (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-12))
+        T_cw = _rt_to_T(rvec, tvec)
+        r = _residuals(obj_i, x_i, rvec, tvec)
+        rms_px = float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) * self.f
+        depth = (obj @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
+        used = sorted({ids[k // 4] for k in np.flatnonzero(inliers)})
+        if np.any(depth <= 0):
+            return PoseResult(None, REJECTED, "a marker would be behind the camera", used, int(inliers.sum()), rms_px)
+        if rms_px > self.max_reproj_px:
+            return PoseResult(None, REJECTED, f"reprojection RMS {rms_px:.1f} px > {self.max_reproj_px} px", used,
+                              int(inliers.sum()), rms_px)
+        dof = max(2 * len(x_i) - 6, 1)
+        sigma = max(np.sqrt(np.sum(r**2) / dof), 0.05 / self.f)          # floor: 0.05 px
+        cov = _covariance(obj_i, x_i, rvec, tvec, sigma)
+        return PoseResult(invert(T_cw), OK, "", used, int(inliers.sum()), rms_px, cov, ambiguous)
+
+    def _multi(self, ids, obj, x) -> PoseResult:
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, x, np.eye(3), None, iterationsCount=100,
+                                                 reprojectionError=self.ransac_px / self.f, confidence=0.999,
+                                                 flags=cv2.SOLVEPNP_SQPNP)
+        if not ok or inl is None or len(inl) < self.min_points:
+            return PoseResult(None, REJECTED, "no consistent pose (RANSAC)", ids, 0)
+        mask = np.zeros(len(obj), bool)
+        mask[inl.ravel()] = True
+        return self._finish(ids, obj, x, rvec, tvec, mask)
+
+    def _single(self, marker_id, x, prev) -> PoseResult:
+        """IPPE's two solutions for a square; the better by reprojection unless the two are
+        close, then the one nearer the previous pose (a flip is a jump of tens of degrees)."""
+        # IPPE_SQUARE wants the corners (-s, s), (s, s), (s, -s), (-s, -s): a y-up marker frame,
+        # ours turned half a turn about x (y down, z into the wall)
+        flip = np.diag([1.0, -1.0, -1.0, 1.0])
+        obj_m = square_corners(self.map.marker_size_mm) @ flip[:3, :3]
+        n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj_m, x, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        if n == 0:
+            return PoseResult(None, REJECTED, "IPPE found no pose", [marker_id], 4)
+        T_wm = self.map.poses[marker_id]
+        cands = []
+        for rv, tv, e in zip(rvecs, tvecs, np.ravel(errs)):
+            T_cm = _rt_to_T(rv, tv) @ flip
+            cands.append((float(e), T_wm @ invert(T_cm), rv, tv))
+        cands.sort(key=lambda c: c[0])
+        choice = cands[0]
+        # IPPE's second solution is the mirror of the first about the line of sight; when both
+        # explain the corners nearly as well, only continuity can tell them apart
+        tol = max(4 * cands[0][0], cands[0][0] + 1.0 / self.f)
+        ambiguous = len(cands) > 1 and cands[1][0] < tol
+        if ambiguous and prev is not None:
+            # the two solutions put the camera at mirror positions about the line of sight,
+            # tens of centimetres apart at room distances, while their orientations differ by a
+            # few degrees, comparable to a single marker's noise: compare positions
+            choice = min(cands, key=lambda c: np.linalg.norm(c[1][:3, 3] - prev[:3, 3]))
+        # refine in world coordinates so the result is comparable with the multi-marker path
+        T_cw = invert(choice[1])
+        obj = self.map.corners(marker_id)
+        rvec, _ = cv2.Rodrigues(T_cw[:3, :3])
+        return self._finish([marker_id], obj, x, rvec, T_cw[:3, 3].copy(), np.ones(4, bool), ambiguous)
+
+    def _pycolmap(self, ids, obj, x) -> PoseResult:
+        import pycolmap  # noqa: PLC0415
+
+        f = self.f
+        cam = pycolmap.Camera(model="PINHOLE", width=int(self.camera.image_size[0]),
+                              height=int(self.camera.image_size[1]), params=[f, f, 0.0, 0.0])
+        opts = pycolmap.AbsolutePoseEstimationOptions()
+        opts.ransac.max_error = self.ransac_px
+        opts.ransac.random_seed = 0
+        r = pycolmap.estimate_and_refine_absolute_pose(x * f, obj, cam, opts, return_covariance=True)
+        if r is None:
+            return PoseResult(None, REJECTED, "no consistent pose (pycolmap)", ids, 0)
+        M = r["cam_from_world"].matrix()
+        T_cw = np.eye(4)
+        T_cw[:3] = M
+        mask = np.asarray(r["inlier_mask"], bool)
+        res = self._finish(ids, obj, x, cv2.Rodrigues(T_cw[:3, :3])[0], T_cw[:3, 3].copy(), mask, refine=False)
+        if res.ok:
+            res.covariance = np.asarray(r["covariance"])     # pycolmap's own (rotation, translation)
+        return res
