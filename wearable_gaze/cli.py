@@ -177,20 +177,23 @@ def cmd_markers(args) -> int:
 
 # --- demo -------------------------------------------------------------------------------------
 
-def cmd_demo(args) -> int:
+def cmd_process(args) -> int:
+    from .process import format_result, process_session  # noqa: PLC0415
     from .progress import progress_bar  # noqa: PLC0415
-    from .reproduce import reproduce_table1  # noqa: PLC0415
 
-    out = Path(args.out)
-    print("wearable-gaze demo: the paper's simulation (head moving 20 cm, 1 deg eye noise), "
-          f"{args.trials} trials per depth, every estimator against the Cramér-Rao bound.\n")
-    with progress_bar("demo trials", args.trials * 5) as cb:
-        result, paths = reproduce_table1(out, args.trials, args.seed, progress=cb)
-    print(result.format())
-    print()
-    for p in paths:
-        print(f"wrote {p}")
-    return 0
+    res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
+                          overlay=not args.no_overlay, track_every=args.track_every,
+                          progress_factory=lambda name: progress_bar(name, 1))
+    print(format_result(res))
+    for p in res.problems:
+        print(f"wearable-gaze process: {p}", file=sys.stderr)
+    return 2 if res.problems and not res.targets else 0
+
+
+def cmd_demo(args) -> int:
+    from .demo import run_demo  # noqa: PLC0415
+
+    return run_demo(Path(args.out), args.seed, args.duration)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -289,9 +292,21 @@ def build_parser() -> argparse.ArgumentParser:
                     help="scene-camera resolution (default: the scenario's, 1280x720)")
     sm.set_defaults(func=cmd_simulate)
 
-    d = sub.add_parser("demo", help="run the main job on the embedded default")
-    d.add_argument("--trials", type=_positive_int, default=10, metavar="N", help="trials per depth (default: 10)")
+    pr = sub.add_parser("process", help="a recorded session -> fixated 3D targets, plots and a report")
+    pr.add_argument("session", metavar="SESSION", help="session folder (docs/session.md)")
+    pr.add_argument("-o", "--out", default=None, metavar="OUT", help="output folder (default SESSION/processed)")
+    pr.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")
+    pr.add_argument("--camera", metavar="camera.json", help="use this camera calibration instead of the session's")
+    pr.add_argument("--eyes", metavar="eyes.json", help="use this eye calibration instead of the session's")
+    pr.add_argument("--force", action="store_true", help="redo every step")
+    pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
+    pr.add_argument("--track-every", type=_positive_int, default=2, metavar="N",
+                    help="track one scene frame in N and interpolate the rest (default 2)")
+    pr.set_defaults(func=cmd_process)
+
+    d = sub.add_parser("demo", help="simulate the default session (lab-walkabout), process it, compare with the truth")
     d.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    d.add_argument("--duration", type=_positive_float, default=20.0, metavar="S", help="session length (default: 20)")
     d.add_argument("--out", default="wearable-gaze-demo", metavar="DIR", help="output folder")
     d.set_defaults(func=cmd_demo)
     return p

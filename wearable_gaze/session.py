@@ -100,7 +100,10 @@ def pose_columns(t, frames, T_world_from_cam) -> dict:
     """Columns of a pose table: quaternion (w, x, y, z) and translation (mm) of
     ``T_world_from_cam`` (N, 4, 4) at times t (N,) and frame numbers (N,)."""
     T = np.asarray(T_world_from_cam, float).reshape(-1, 4, 4)
-    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()         # x, y, z, w
+    ok = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
+    q = np.full((len(T), 4), np.nan)                           # x, y, z, w; NaN (empty) without a pose
+    if ok.any():
+        q[ok] = Rotation.from_matrix(T[ok, :3, :3]).as_quat()
     q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)                  # w >= 0: one sign per rotation
     return {"t": np.asarray(t, float), "frame": np.asarray(frames).astype(int),
             "qw": q[:, 3], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2],
@@ -120,7 +123,8 @@ def write_poses_csv(path, t, frames, T_world_from_cam, extra: dict | None = None
 def read_poses_csv(path, text_columns=("status",)) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """(t (N,), frame (N,), T_world_from_cam (N, 4, 4) with NaN where there is no pose, extra
     columns)."""
-    tab = read_table(path, POSE_COLUMNS, text_columns, "pose CSV")
+    tab = read_table(path, POSE_COLUMNS, text_columns, "pose CSV",
+                     empty_ok=("qw", "qx", "qy", "qz", "tx", "ty", "tz"))
     q = np.column_stack([tab["qx"], tab["qy"], tab["qz"], tab["qw"]])
     T = np.full((len(q), 4, 4), np.nan)
     ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0)

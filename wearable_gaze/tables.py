@@ -13,7 +13,7 @@ from .atomic import atomic_path
 from .errors import UserError
 
 
-def read_table(path, required, text_columns=(), what: str = "table", fix: str = "") -> dict:
+def read_table(path, required, text_columns=(), what: str = "table", fix: str = "", empty_ok=()) -> dict:
     """Read a CSV with a header into {column: (N,) array}.
 
     Args:
@@ -23,6 +23,7 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
         text_columns: columns kept as strings.
         what: what the file is, for messages ("eye-sample CSV").
         fix: a hint appended to "missing file" messages.
+        empty_ok: columns whose empty cells mean "no value" (NaN), e.g. a frame without a pose.
 
     Raises:
         UserError: missing file or column, empty file, a cell that is not a finite number.
@@ -40,7 +41,8 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
             out[name] = np.array(cells, dtype=object)
             continue
         try:
-            vals = np.array([float(c) for c in cells], float) if cells else np.zeros(0)
+            vals = np.array([float(c) if c or name not in empty_ok else np.nan for c in cells], float) \
+                if cells else np.zeros(0)
         except ValueError:
             if name not in required:
                 continue
@@ -49,7 +51,7 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
                     float(c)
                 except ValueError:
                     raise UserError(f"{path} line {i + 2}, column {name}: {c!r} is not a number") from None
-        bad = np.flatnonzero(~np.isfinite(vals))
+        bad = np.flatnonzero(~np.isfinite(vals) & ~(np.array([c == "" for c in cells], bool) & (name in empty_ok)))
         if len(bad) and name in required:
             raise UserError(f"{path} line {bad[0] + 2}, column {name}: {cells[bad[0]]!r} is not a finite number")
         out[name] = vals
@@ -93,9 +95,9 @@ def write_table(path, columns: dict, formats: dict | None = None) -> None:
         v = columns[name]
         fmt = formats.get(name)
         if fmt is not None:
-            cols.append([format(x, fmt) for x in v])
+            cols.append(["" if isinstance(x, float) and np.isnan(x) else format(x, fmt) for x in v])
         elif isinstance(v, np.ndarray) and v.dtype.kind == "f":
-            cols.append([repr(float(x)) for x in v])
+            cols.append(["" if np.isnan(x) else repr(float(x)) for x in v])
         elif isinstance(v, np.ndarray) and v.dtype.kind == "b":
             cols.append(["1" if x else "0" for x in v])
         else:

@@ -13,7 +13,7 @@ from tracking.homography import PlanarTracker
 from tracking.markermap import MarkerMap, MarkerMapError
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
-from tracking.timeline import smooth_poses
+from tracking.timeline import interpolate_poses, smooth_poses
 
 from .atomic import atomic_path
 from .calibrate_cmd import load_camera
@@ -40,13 +40,16 @@ def _frame_times(video: Path, timestamps, n_hint: int, fps: float):
 
 
 def track_video(video, camera_path, out, markers=None, reference=None, reference_size_mm=None, overlay=None,
-                timestamps=None, progress=None, smooth_s: float = 0.0) -> dict:
+                timestamps=None, progress=None, smooth_s: float = 0.0, every: int = 1) -> dict:
     """Head pose for every frame of a scene video, written as poses.csv (docs/formats.md).
 
     Either ``markers`` (a marker map JSON) or ``reference`` (an image of a flat surface) with
     ``reference_size_mm`` (width, height). Frame times come from ``timestamps`` (or the
     session's ``scene_timestamps.csv`` beside the video), else frame / fps. ``smooth_s`` > 0
-    averages poses over a centred window of that length (no lag offline). Returns counts.
+    averages poses over a centred window of that length (no lag offline). ``every`` > 1 tracks
+    one frame in ``every`` and fills the others by SLERP between tracked neighbours (status
+    'interpolated'; smooth head motion moves a few hundredths of a degree off the line between
+    two poses 1/15 s apart). Returns counts.
     """
     video = Path(video)
     if (markers is None) == (reference is None):
@@ -94,6 +97,18 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
     i = 0
     try:
         while True:
+            if every > 1 and i % every and writer is None:
+                if not cap.grab():
+                    break
+                rows["t"].append(times.get(i, np.nan) if times is not None else i / fps)
+                rows["frame"].append(i)
+                rows["T"].append(np.full((4, 4), np.nan))
+                rows["n_markers"].append(0)
+                rows["n_points"].append(0)
+                rows["reproj_rms_px"].append(np.nan)
+                rows["status"].append("interpolated")
+                i += 1
+                continue
             ok, frame = cap.read()
             if not ok:
                 break
@@ -119,13 +134,22 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
     if i == 0:
         raise UserError(f"{video}: no frame could be decoded (corrupt or empty video)")
     T_all = np.array(rows["T"])
+    status = rows["status"]
+    if every > 1:
+        t_all = np.array(rows["t"])
+        fill = np.array([st == "interpolated" for st in status])
+        T_i, ok_i = interpolate_poses(t_all[~fill], T_all[~fill], t_all[fill], max_gap_s=(every + 0.5) / fps)
+        T_all[fill] = T_i
+        for k, good in zip(np.flatnonzero(fill), ok_i):
+            if not good:
+                status[k] = "no_pose: no tracked frame on both sides"
     if smooth_s > 0:
         T_all = smooth_poses(np.array(rows["t"]), T_all, smooth_s)
     write_poses_csv(out, rows["t"], rows["frame"], T_all,
                     {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
                      "reproj_rms_px": np.array(rows["reproj_rms_px"]),
                      "status": rows["status"]})
-    n_ok = sum(s == "ok" for s in rows["status"])
+    n_ok = sum(st in ("ok", "interpolated") for st in status)
     return {"frames": i, "posed": n_ok}
 
 

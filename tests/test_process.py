@@ -1,0 +1,129 @@
+"""``wearable-gaze process`` end to end (issue 6): targets found and accurate on a session the
+code has not seen, every output written, re-runs skip unchanged steps, bad input is reported
+and does not stop the steps that can run, the report loads in a headless browser."""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from wearable_gaze.cli import main
+from wearable_gaze.demo import match_targets
+from wearable_gaze.process import process_session
+from wearable_gaze.sim.simulate import simulate_scenario
+from wearable_gaze.tables import read_table
+
+SCENARIO = {"base": "lab-walkabout", "duration_s": 12.0,
+            "room": {"size_mm": [4500.0, 2700.0, 5500.0], "markers_per_wall": 5},
+            "targets": {"random_count": 3, "random_depth_mm": [700.0, 3000.0]},
+            "calibration": {"camera_views": 10}}
+
+
+@pytest.fixture(scope="module")
+def processed(tmp_path_factory):
+    base = tmp_path_factory.mktemp("proc")
+    root = base / "session"
+    simulate_scenario(SCENARIO, root, seed=321)
+    res = process_session(root, base / "out")
+    return root, base / "out", res
+
+
+def test_every_fixated_target_is_found_near_the_bound(processed):
+    root, out, res = processed
+    assert res.problems == []
+    truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
+    fixated = [t for t in truth if sum(b - a for a, b in t["fixations_s"]) >= 1.0]
+    pairs = match_targets(res.targets, fixated)
+    assert len(pairs) == 3 and all(f is not None for _, f in pairs)
+    for tt, f in pairs:
+        err = np.linalg.norm(np.array([f["x_mm"], f["y_mm"], f["z_mm"]]) - tt["position_mm"])
+        # one draw per target here; the 1.5x criterion is on the RMS over many sessions
+        # (benchmarks/process_accuracy.py), a single error passes 3x but for 1 % of draws
+        assert err < 3.0 * f["crb_mm"], (tt["index"], err, f["crb_mm"])
+    assert len(res.targets) == len(fixated)               # no spurious targets
+
+
+def test_outputs_are_written_in_their_formats(processed):
+    _, out, res = processed
+    for name in ("camera.json", "eyes.json", "poses.csv", "viewlines.csv", "estimates.csv", "targets.csv",
+                 "summary.json", "report.html", "plot_depth_vs_observations.png", "plot_density_slices.png",
+                 "plot_3d.png", "plot_top_view.png", "overlay.webp"):
+        assert (out / name).is_file(), name
+    vl = read_table(out / "viewlines.csv", ["t", "segment"])
+    assert set(np.unique(vl["segment"])) >= {0, 1, 2}
+    tg = read_table(out / "targets.csv", ["x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "n_samples",
+                                          "t_start", "t_end", "crb_mm"], ("fixations", "method", "status"))
+    assert len(tg["x_mm"]) == len(res.targets) and set(tg["method"]) == {"voxel"}
+    est = read_table(out / "estimates.csv", ["t", "segment", "x", "y", "z", "radius95_mm"])
+    assert np.all(np.diff(est["t"][est["segment"] == 0]) > 0)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["targets"] == res.targets and summary["problems"] == []
+    # the running estimate converges: its last value is the target's fixation estimate
+    assert est["radius95_mm"][est["segment"] == 0][-1] < est["radius95_mm"][est["segment"] == 0][0]
+
+
+def test_report_loads_every_image_in_headless_chromium(processed):
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
+    _, out, _ = processed
+    dom = subprocess.run([browser, "--headless=new", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=15000",
+                          "--dump-dom", (out / "report.html").as_uri()], capture_output=True, text=True,
+                         timeout=120).stdout
+    import re
+    m = re.search(r'data-images="(\d+)/(\d+)"', dom)
+    assert m, "the report's load script did not run"
+    assert m.group(1) == m.group(2) and int(m.group(2)) >= 5          # 4 plots and the overlay
+
+
+def test_rerun_skips_unchanged_steps_and_redoes_what_changed(processed, tmp_path):
+    root, out, _ = processed
+    res = process_session(root, out)
+    assert set(res.skipped) == {"camera", "eyes", "tracking", "viewlines", "targets", "report"}
+    res = process_session(root, out, method="ml", report=False)
+    assert "targets" not in res.skipped and "tracking" in res.skipped
+    assert {t["method"] for t in json.loads((out / "targets.json").read_text())["targets"]} == {"ml"}
+    res = process_session(root, out, force=True, report=False)
+    assert res.skipped == []
+
+
+def _copy(root, tmp_path):
+    dst = tmp_path / "copy"
+    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("processed"))
+    return dst
+
+
+def test_a_corrupt_video_keeps_the_calibrations_and_says_why(processed, tmp_path, capsys):
+    root, _, _ = processed
+    s = _copy(root, tmp_path)
+    (s / "scene.mp4").write_bytes(b"\x00" * 1000)
+    assert main(["process", str(s), "-o", str(tmp_path / "out"), "--no-overlay"]) == 2
+    err = capsys.readouterr().err
+    assert "tracking:" in err and "Traceback" not in err
+    assert (tmp_path / "out" / "camera.json").is_file() and (tmp_path / "out" / "eyes.json").is_file()
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert any("tracking" in p for p in summary["problems"])
+
+
+def test_bad_eye_samples_get_one_clear_line(processed, tmp_path, capsys):
+    root, _, _ = processed
+    s = _copy(root, tmp_path)
+    lines = (s / "eye.csv").read_text().splitlines()
+    lines[5], lines[6] = lines[6], lines[5]                                 # unsorted
+    (s / "eye.csv").write_text("\n".join(lines) + "\n")
+    assert main(["process", str(s), "-o", str(tmp_path / "out"), "--no-overlay"]) == 2
+    err = capsys.readouterr().err
+    assert "sorted" in err and "eye.csv line 7" in err
+    assert (tmp_path / "out" / "poses.csv").is_file()                       # tracking still ran
+    # samples outside the video's time span: no pose for them, said plainly
+    shifted = [lines[0]] + [",".join([f"{float(r.split(',')[0]) + 500:.6f}"] + r.split(",")[1:]) for r in
+                            sorted(lines[1:], key=lambda r: float(r.split(",")[0]))]
+    (s / "eye.csv").write_text("\n".join(shifted) + "\n")
+    assert main(["process", str(s), "-o", str(tmp_path / "out"), "--no-overlay"]) == 2
+    assert "no head pose" in capsys.readouterr().err
+    (s / "eye.csv").unlink()
+    assert main(["process", str(s), "-o", str(tmp_path / "out2")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "eye.csv" in err and "missing" in err

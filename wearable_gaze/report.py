@@ -1,0 +1,267 @@
+"""The processing report: plots (matplotlib, no display needed), the overlay video and
+report.html tying them together."""
+
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .atomic import atomic_path, write_text
+from .calibrate_cmd import load_camera, load_eyes
+from .session import read_eye_csv, read_poses_csv
+from .tables import read_table
+from .viewlines_csv import read_viewlines_csv
+
+COLOURS = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"]
+
+
+def _plt():
+    import matplotlib  # noqa: PLC0415
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    return plt
+
+
+def _save(fig, path: Path):
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    _plt().close(fig)
+
+
+def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progress=None) -> None:
+    out = Path(out)
+    plt = _plt()
+    targets = json.loads((out / "targets.json").read_text())["targets"]
+    segs = read_viewlines_csv(out / "viewlines.csv")
+    from estimator import BinocularSamples  # noqa: PLC0415
+    samples = BinocularSamples.concatenate([s.samples for s in segs])
+    order = np.argsort(samples.t_s, kind="stable")
+    samples = samples.select(order)
+    tlabels = np.load(out / "target_labels.npy") if (out / "target_labels.npy").is_file() else np.full(len(samples), -1)
+    t_p, _, T_p, _ = read_poses_csv(out / "poses.csv")
+    ok = np.isfinite(T_p[:, 0, 0])
+    head = T_p[ok, :3, 3]
+    est = read_table(out / "estimates.csv", ["t", "segment", "x", "y", "z", "radius95_mm"])
+    images = []
+
+    # 1. depth against observations, per fixation
+    fig, ax = plt.subplots(figsize=(7, 4))
+    centre = head.mean(axis=0) if len(head) else np.zeros(3)
+    for k in np.unique(est["segment"]).astype(int):
+        sel = est["segment"] == k
+        P = np.column_stack([est["x"][sel], est["y"][sel], est["z"][sel]])
+        depth = np.linalg.norm(P - centre, axis=1) / 1000
+        n = np.arange(1, sel.sum() + 1) * max(int(np.sum(tlabels >= 0) / max(len(est["t"]), 1)), 1)
+        ax.plot(n, depth, "-o", ms=3, color=COLOURS[k % len(COLOURS)], label=f"fixation {k}")
+        r = est["radius95_mm"][sel] / 1000
+        ax.fill_between(n, depth - r, depth + r, color=COLOURS[k % len(COLOURS)], alpha=0.15)
+    ax.set_xlabel("observations (binocular samples)")
+    ax.set_ylabel("estimated distance from the head (m)")
+    ax.set_title("Running estimate per fixation (band: 95 % radius)")
+    if len(est["t"]):
+        ax.legend(fontsize=7, ncol=2)
+    _save(fig, out / "plot_depth_vs_observations.png")
+    images.append(("plot_depth_vs_observations.png", "Depth against the number of observations"))
+
+    # 2. density (likelihood) slices through each target, horizontal plane
+    n_t = max(len(targets), 1)
+    fig, axes = plt.subplots(1, min(n_t, 4), figsize=(3.2 * min(n_t, 4), 3.2), squeeze=False)
+    for i, tg in enumerate(targets[:4]):
+        ax = axes[0, i]
+        X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
+        lines = samples.select(np.flatnonzero(tlabels == tg["target"])).lines()
+        half = max(1.5 * (tg["axis3_mm"] if np.isfinite(tg["axis3_mm"]) else 100.0), 30.0)
+        gx, gz = np.meshgrid(np.linspace(-half, half, 45), np.linspace(-half, half, 45))
+        P = X + np.column_stack([gx.ravel(), np.zeros(gx.size), gz.ravel()])
+        ll = _log_likelihood(P, lines.origins_mm, lines.directions).reshape(gx.shape)
+        ax.imshow(np.maximum(ll - ll.max(), -30), origin="lower", cmap="magma", aspect="auto",
+                  extent=(X[0] - half, X[0] + half, X[2] - half, X[2] + half))
+        ax.plot(X[0], X[2], "c+", ms=10)
+        ax.set_title(f"target {tg['target']}: y = {X[1]:.0f} mm", fontsize=8)
+        ax.set_xlabel("x (mm)", fontsize=7)
+        ax.set_ylabel("z (mm)", fontsize=7)
+        ax.tick_params(labelsize=6)
+    _save(fig, out / "plot_density_slices.png")
+    images.append(("plot_density_slices.png", "Log-likelihood of the gazed point (to -30), horizontal slice "
+                   "through each target: narrow across the view lines, long along them"))
+    if progress:
+        progress(2, 5)
+
+    # 3. 3D view and 4. top view
+    cyc = samples.left_direction.copy()
+    cyc[~samples.left_valid] = samples.right_direction[~samples.left_valid]
+    orig = np.where(samples.left_valid[:, None], samples.left_origin_mm, samples.right_origin_mm)
+    fig = plt.figure(figsize=(7, 6))
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(head[:, 0], head[:, 2], -head[:, 1], "k-", lw=1, label="head")
+    for i, tg in enumerate(targets):
+        X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
+        c = COLOURS[i % len(COLOURS)]
+        for a, b in _line_segments(tg, X, orig, cyc, tlabels):
+            ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], color=c, lw=0.3, alpha=0.5)
+        ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {i}")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("z (mm)")
+    ax.set_zlabel("up (mm)")
+    ax.legend(fontsize=7)
+    ax.set_title("Head path, view lines and targets")
+    _save(fig, out / "plot_3d.png")
+    images.append(("plot_3d.png", "3D view: head trajectory, view lines, targets"))
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(head[:, 0], head[:, 2], "k-", lw=1, label="head")
+    for i, tg in enumerate(targets):
+        X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
+        c = COLOURS[i % len(COLOURS)]
+        for a, b in _line_segments(tg, X, orig, cyc, tlabels):
+            ax.plot([a[0], b[0]], [a[2], b[2]], color=c, lw=0.3, alpha=0.4)
+        r = tg["axis3_mm"] if np.isfinite(tg["axis3_mm"]) else 0
+        ax.add_patch(plt.Circle((X[0], X[2]), r, fill=False, color=c, lw=1))
+        ax.plot(X[0], X[2], "o", color=c, label=f"target {i} ({np.linalg.norm(X - centre) / 1000:.2f} m)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("z (mm)")
+    ax.legend(fontsize=7)
+    ax.set_title("Top view (circles: largest 95 % semi-axis)")
+    _save(fig, out / "plot_top_view.png")
+    images.append(("plot_top_view.png", "Top view"))
+    if progress:
+        progress(3, 5)
+
+    video_name = None
+    if overlay and cam_path is not None:
+        try:
+            video_name = _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p)
+        except Exception as exc:  # noqa: BLE001  (a report without a video is still a report)
+            (out / "overlay_error.txt").write_text(str(exc))
+    if progress:
+        progress(4, 5)
+    _html(out, session, targets, images, video_name)
+
+
+def _line_segments(tg, X, orig, directions, tlabels, every: int = 10):
+    """Every ``every``-th view line of a target, from the eye to the target's distance."""
+    for j in np.flatnonzero(tlabels == tg["target"])[::every]:
+        yield orig[j], orig[j] + directions[j] * np.linalg.norm(X - orig[j])
+
+
+def _log_likelihood(P, origins, directions, sigma_deg: float = 1.0) -> np.ndarray:
+    """(G,) log-likelihood of points (G, 3) under lines (L,): gnomonic angular residuals."""
+    v = P[:, None, :] - origins[None]                              # (G, L, 3)
+    along = np.einsum("glk,lk->gl", v, directions)
+    perp2 = np.einsum("glk,glk->gl", v, v) - along**2
+    r2 = perp2 / np.maximum(along, 1e-9) ** 2
+    return -0.5 * r2.sum(axis=1) / np.deg2rad(sigma_deg) ** 2
+
+
+OVERLAY_FPS = 15.0
+OVERLAY_WIDTH = 428
+OVERLAY_MAX_S = 60.0
+
+
+def _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p) -> str | None:
+    """An animated WebP (plays in any browser, no codec needed): the marker map and world
+    axes, each eye's gaze point (eq. 1-2), the fixated target's estimate projected. 15 frames
+    per second, 428 px wide, the first 60 s of the session."""
+    from PIL import Image  # noqa: PLC0415  (Pillow comes with matplotlib)
+
+    cam = load_camera(cam_path)
+    eyes = load_eyes(eyes_path) if Path(eyes_path).is_file() else None
+    eye, _ = read_eye_csv(session.path("eye_samples"))
+    mm = session.marker_map()
+    corners = []
+    if mm:
+        from tracking.markermap import MarkerMap  # noqa: PLC0415
+        m = MarkerMap.from_dict(mm)
+        corners = [m.corners(i) for i in m.poses]
+    cap = cv2.VideoCapture(str(session.path("scene_video")))
+    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+    step = max(int(round(fps / OVERLAY_FPS)), 1)
+    w, h = cam.image_size
+    size = (OVERLAY_WIDTH, int(round(h * OVERLAY_WIDTH / w)))
+    frames = []
+    i = 0
+    while i < len(T_p) and t_p[i] - t_p[0] <= OVERLAY_MAX_S:
+        if i % step:
+            if not cap.grab():
+                break
+            i += 1
+            continue
+        ok, frame = cap.read()
+        if not ok:
+            break
+        img = frame.copy()
+        T, t = T_p[i], t_p[i]
+        if np.isfinite(T[0, 0]):
+            Tcw = np.linalg.inv(T)
+            for c in corners:
+                pc = c @ Tcw[:3, :3].T + Tcw[:3, 3]
+                if np.all(pc[:, 2] > 100):
+                    px = cam.project(pc)
+                    if np.all(np.isfinite(px)) and np.abs(px).max() < 1e5:
+                        cv2.polylines(img, [np.round(px).astype(np.int32)], True, (0, 200, 0), 3, cv2.LINE_AA)
+            for tg in targets:
+                if tg["t_start"] - 0.2 <= t <= tg["t_end"] + 0.2:
+                    pc = Tcw[:3, :3] @ np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]]) + Tcw[:3, 3]
+                    if pc[2] > 100:
+                        u, v = cam.project(pc[None])[0]
+                        cv2.drawMarker(img, (int(u), int(v)), (0, 0, 255), cv2.MARKER_CROSS, 50, 5)
+                        cv2.putText(img, f"target {tg['target']}: {np.linalg.norm(pc) / 1000:.2f} m",
+                                    (int(u) + 15, int(v) - 15), cv2.FONT_HERSHEY_SIMPLEX, 1.3, (0, 0, 255), 3)
+        if eyes is not None:
+            j = int(np.searchsorted(eye.t, t))
+            if j < len(eye.t):
+                for e, col in ((0, (255, 128, 0)), (1, (255, 0, 255))):
+                    if eye.valid[j, e]:
+                        q = eyes[e].image_points(eye.raw[j:j + 1, e])
+                        px = cam.project(np.column_stack([q, np.ones(1)]))[0]
+                        if np.all(np.isfinite(px)):
+                            cv2.circle(img, (int(px[0]), int(px[1])), 14, col, 3, cv2.LINE_AA)
+        small = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        frames.append(Image.fromarray(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)))
+        i += 1
+    cap.release()
+    if not frames:
+        return None
+    name = "overlay.webp"
+    with atomic_path(out / name) as tmp:
+        frames[0].save(tmp, format="WEBP", save_all=True, append_images=frames[1:],
+                       duration=int(round(1000 * step / fps)), loop=0, method=0, quality=60)
+    return name
+
+
+def _html(out: Path, session, targets, images, video_name) -> None:
+    rows = "".join(
+        f"<tr><td>{t['target']}</td><td>{t['x_mm']:.0f}, {t['y_mm']:.0f}, {t['z_mm']:.0f}</td>"
+        f"<td>{t['axis1_mm']:.0f} / {t['axis2_mm']:.0f} / {t['axis3_mm']:.0f}</td><td>{t['n_samples']}</td>"
+        f"<td>{t['t_start']:.1f}-{t['t_end']:.1f}</td><td>{html.escape(str(t['fixations']))}</td>"
+        f"<td>{t['crb_mm']:.0f}</td></tr>" for t in targets)
+    imgs = "".join(f'<figure><img src="{html.escape(n)}" alt="{html.escape(c)}"><figcaption>{html.escape(c)}'
+                   f"</figcaption></figure>" for n, c in images)
+    video = (f'<h2>Overlay</h2><img src="{video_name}" alt="overlay video" width="{OVERLAY_WIDTH * 2}">'
+             "<p>Scene video (animated): green, the markers of the map; circles, each eye's gaze point (orange "
+             "left, magenta right); red cross, the estimated 3D target.</p>"
+             if video_name else "<p>No overlay video.</p>")
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>wearable-gaze report</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}img{{max-width:100%}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}figure{{margin:1em 0}}</style></head>
+<body><h1>Gaze targets: {html.escape(str(session.root.name))}</h1>
+<p>{len(targets)} fixated target(s). Positions in the world frame of the marker map, mm.</p>
+<table><tr><th>target</th><th>position (x, y, z)</th><th>95 % semi-axes</th><th>samples</th><th>time (s)</th>
+<th>fixations</th><th>Cramér-Rao bound (mm)</th></tr>{rows}</table>
+{video}
+<h2>Plots</h2>{imgs}
+<script>
+// after loading, record how many images actually loaded (tests read it from a headless browser)
+window.addEventListener("load", () => {{
+  const im = Array.from(document.images);
+  document.body.dataset.images = im.filter(i => i.complete && i.naturalWidth > 0).length + "/" + im.length;
+}});
+</script>
+</body></html>
+"""
+    write_text(out / "report.html", page)
