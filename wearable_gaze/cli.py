@@ -175,6 +175,20 @@ def cmd_markers(args) -> int:
     return 0
 
 
+# --- live -------------------------------------------------------------------------------------
+
+def cmd_live(args) -> int:
+    from .live.app import run_live  # noqa: PLC0415
+
+    st = run_live(args.serial, args.camera, args.camera_calib, args.eyes, args.markers, args.record, args.publish,
+                  args.baud, args.duration, status_stream=None if args.quiet else sys.stderr)
+    lat = sorted(st.latencies_ms)
+    p95 = lat[int(0.95 * (len(lat) - 1))] if lat else float("nan")
+    print(f"\nlive: {st.samples} eye samples, {st.published} messages, {st.targets} targets, p95 latency "
+          f"{p95:.1f} ms" + (f"; recorded {args.record}" if args.record else ""), file=sys.stderr)
+    return 0
+
+
 # --- demo -------------------------------------------------------------------------------------
 
 def cmd_process(args) -> int:
@@ -303,6 +317,19 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--track-every", type=_positive_int, default=2, metavar="N",
                     help="track one scene frame in N and interpolate the rest (default 2)")
     pr.set_defaults(func=cmd_process)
+
+    lv = sub.add_parser("live", help="live session: serial eye data + scene camera -> 3D targets, published and recorded")
+    lv.add_argument("--serial", required=True, metavar="PORT", help="serial port or pyserial URL (socket://, rfc2217://, loop://)")
+    lv.add_argument("--baud", type=_positive_int, default=115200, metavar="N", help="baud rate (default 115200)")
+    lv.add_argument("--camera", required=True, metavar="SOURCE", help="camera index, device path, URL or video file")
+    lv.add_argument("--camera-calib", required=True, metavar="camera.json", help="scene-camera calibration")
+    lv.add_argument("--eyes", required=True, metavar="eyes.json", help="eye calibration")
+    lv.add_argument("--markers", required=True, metavar="map.json", help="marker map")
+    lv.add_argument("--record", metavar="DIR", help="record everything as a session folder")
+    lv.add_argument("--publish", metavar="udp://HOST:PORT", help="also send the JSON lines to udp:// or tcp://")
+    lv.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="stop after S seconds")
+    lv.add_argument("--quiet", action="store_true", help="no status line")
+    lv.set_defaults(func=cmd_live)
 
     d = sub.add_parser("demo", help="simulate the default session (lab-walkabout), process it, compare with the truth")
     d.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")

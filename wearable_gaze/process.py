@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator import BinocularSamples, cramer_rao_bound, make_estimator, run_estimator
-from estimator.segments import SegmentConfig, segment_fixations
+from estimator.segments import SegmentConfig, same_target, segment_fixations
 
 from .atomic import write_text
 from .calibrate_cmd import calibrate_camera_files, calibrate_eyes_files, viewlines_files
@@ -130,6 +130,11 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     res = ProcessResult(out)
     steps = _Steps(out, force, res, progress_factory)
     files = s.manifest["files"]
+    # a live recording carries the calibrations it ran with
+    if camera is None and "camera" in files and "camera_views" not in files:
+        camera = root / files["camera"]
+    if eyes is None and "eyes" in files and "eye_calibration" not in files:
+        eyes = root / files["eyes"]
 
     # 1. camera
     cam_path = Path(camera) if camera else out / "camera.json"
@@ -294,8 +299,8 @@ def _radius95(e) -> float:
 
 
 def _merge(fixations, samples: BinocularSamples, method: str, sigma_deg: float) -> list:
-    """Fixations of one target (the same point within their joint 99 % uncertainty) are merged
-    and re-estimated from all their lines; revisits are common."""
+    """Fixations of one target (``estimator.segments.same_target``) are merged and re-estimated
+    from all their lines; revisits are common."""
     targets = []
     for f in fixations:
         e = f["estimate"]
@@ -304,12 +309,9 @@ def _merge(fixations, samples: BinocularSamples, method: str, sigma_deg: float) 
         merged = False
         for tg in targets:
             te = tg["estimate"]
-            if e.covariance_mm2 is None or te.covariance_mm2 is None:
-                close = np.linalg.norm(e.position_mm - te.position_mm) < 0.05 * np.linalg.norm(te.position_mm)
-            else:
-                d = e.position_mm - te.position_mm
-                S = e.covariance_mm2 + te.covariance_mm2
-                close = float(d @ np.linalg.solve(S, d)) < 11.34          # chi-square, 3 dof, 99 %
+            close = same_target(e.position_mm, e.covariance_mm2, te.position_mm, te.covariance_mm2,
+                                origin=samples.left_origin_mm[f["idx"][0]] if samples.left_valid[f["idx"][0]]
+                                else samples.right_origin_mm[f["idx"][0]])
             if close:
                 tg["idx"] = np.concatenate([tg["idx"], f["idx"]])
                 tg["segments"].append(f["segment"])

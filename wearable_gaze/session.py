@@ -85,7 +85,7 @@ def read_eye_csv(path, extra_required=(), text_columns=()) -> tuple[EyeSamples, 
     bad = np.flatnonzero(np.diff(t) <= 0)
     if len(bad):
         i = bad[0]
-        raise UserError(f"{path} line {i + 3}: time {t[i + 1]!r} s does not increase after {t[i]!r} s; "
+        raise UserError(f"{path} line {i + 3}: time {float(t[i + 1])!r} s does not increase after {float(t[i])!r} s; "
                         "eye samples must be sorted and unique in time")
     raw = np.stack([np.column_stack([tab["left_x"], tab["left_y"]]),
                     np.column_stack([tab["right_x"], tab["right_y"]])], axis=1)

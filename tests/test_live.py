@@ -1,0 +1,252 @@
+"""The live session (issue 7): the serial reader under fault injection (garbage, truncated records,
+bad checksums, a dropped link, a pseudo-terminal), a camera stall, and an end-to-end run on a
+simulated session served over TCP whose recording ``process`` turns into the same targets."""
+
+import json
+import os
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from wearable_gaze.cli import main
+from wearable_gaze.demo import match_targets
+from wearable_gaze.emr import DEFAULT_PROTOCOL, EyeRecord
+from wearable_gaze.live.serial_in import EyeReader, LineSplitter
+from wearable_gaze.process import process_session
+from wearable_gaze.session import read_eye_csv
+from wearable_gaze.sim.simulate import simulate_scenario
+
+
+def _rec(i):
+    return DEFAULT_PROTOCOL.format(EyeRecord(i, i / 60, (2000.0 + i, 1990.5), (2010.25, 1980.0), True, i % 7 != 0))
+
+
+def _drain(reader, n, timeout=5.0):
+    out, t0 = [], time.monotonic()
+    while len(out) < n and time.monotonic() - t0 < timeout:
+        try:
+            out.append(reader.queue.get(timeout=0.05)[1])
+        except Exception:  # noqa: BLE001
+            pass
+    return out
+
+
+def test_serial_reader_resynchronises_and_counts_faults():
+    link = serial.serial_for_url("loop://", timeout=0.05)
+    good = [_rec(i) for i in range(40)]
+    stream = bytearray(b"\x00\xffnoise before anything")
+    for i, r in enumerate(good):
+        if i == 10:
+            stream += r[:15]                                      # a truncated record
+        if i == 20:
+            bad = bytearray(r)
+            bad[8] = ord("7") if bad[8] != ord("7") else ord("6")
+            stream += bytes(bad)                                  # a wrong checksum
+        if i == 30:
+            stream += b"#garbage#"
+        if i in (25, 26):
+            continue                                              # lost on the line
+        stream += r
+    link.write(bytes(stream))
+    reader = EyeReader("loop://")
+    reader.open = lambda: link
+    raw = bytearray()
+    reader.raw_sink = raw.extend
+    reader.start()
+    recs = _drain(reader, 38)
+    reader.stop()
+    reader.join(2)
+    assert [r.counter for r in recs] == [i for i in range(40) if i not in (25, 26)]
+    assert recs[3].left == (2003.0, 1990.5) and recs[7].right_valid is False
+    st = reader.stats
+    assert st.records == 38 and st.corrupt == 2 and st.lost == 2 and st.garbage_bytes >= len(b"#garbage#")
+    assert bytes(raw) == bytes(stream)                            # the recorder gets every byte
+
+
+def test_line_splitter_handles_records_split_across_reads():
+    sp = LineSplitter()
+    data = b"".join(_rec(i) for i in range(5))
+    out = []
+    for k in range(0, len(data), 7):
+        out += sp.feed(data[k:k + 7])
+    assert [DEFAULT_PROTOCOL.parse(x).counter for x in out] == list(range(5))
+
+
+def _server(chunks, port_holder, accept=2, pause=0.3):
+    srv = socket.socket()
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    port_holder.append(srv.getsockname()[1])
+    for k in range(accept):
+        conn, _ = srv.accept()
+        time.sleep(0.2)              # pyserial's socket:// clears its input buffer just after connecting
+        conn.sendall(chunks[k])
+        time.sleep(pause)
+        conn.close()                                              # the cable is pulled
+    srv.close()
+
+
+def test_serial_reader_reconnects_when_the_link_drops():
+    a = b"".join(_rec(i) for i in range(0, 20))
+    b = b"".join(_rec(i) for i in range(20, 45))
+    port = []
+    th = threading.Thread(target=_server, args=([a, b], port), daemon=True)
+    th.start()
+    while not port:
+        time.sleep(0.01)
+    reader = EyeReader(f"socket://127.0.0.1:{port[0]}", reconnect_s=0.1)
+    reader.start()
+    recs = _drain(reader, 45, timeout=8)
+    reader.stop()
+    reader.join(2)
+    assert [r.counter for r in recs] == list(range(45))
+    assert reader.stats.reconnects >= 1 and reader.stats.corrupt == 0
+
+
+def test_serial_reader_on_a_pseudo_terminal():
+    master, slave = os.openpty()
+    reader = EyeReader(os.ttyname(slave))
+    reader.start()
+    reader.connected.wait(2)
+    for i in range(10):
+        os.write(master, _rec(i))
+    recs = _drain(reader, 10)
+    reader.stop()
+    reader.join(2)
+    os.close(master)
+    os.close(slave)
+    assert [r.counter for r in recs] == list(range(10))
+
+
+def test_camera_stall_is_counted(tmp_path):
+    from wearable_gaze.live.camera_in import FrameSource
+
+    root = tmp_path / "s"
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 0.5, "camera": {"resolution": [320, 180]},
+                       "calibration": {"eye": False, "camera_views": 0}}, root, 1)
+    seen = []
+    src = FrameSource(str(root / "scene.mp4"), sink=lambda t, i, g: seen.append(i))
+    class Stalling:                                               # the camera hangs once for 0.4 s
+        def __init__(self, cap):
+            self.cap, self.n = cap, 0
+
+        def read(self):
+            self.n += 1
+            if self.n == 5:
+                time.sleep(0.4)
+            return self.cap.read()
+
+        def release(self):
+            self.cap.release()
+    src.cap = Stalling(src.cap)
+    src.start()
+    src.finished.wait(5)
+    assert seen == list(range(15)) and src.stats.frames == 15 and src.stats.stalls == 1
+
+
+@pytest.fixture(scope="module")
+def live_run(tmp_path_factory):
+    base = tmp_path_factory.mktemp("live")
+    root = base / "session"
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 7.0, "targets": {"random_count": 2},
+                       "calibration": {"camera_views": 10}}, root, seed=77)
+    cal = process_session(root, base / "cal", report=False)      # the calibrations the wearer made
+    data = (root / "eye_serial.bin").read_bytes().split(b"\r\n")[:-1]
+    port = []
+
+    def recorder():                                              # the EMR-8 at its own pace
+        srv = socket.socket()
+        srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+        port.append(srv.getsockname()[1])
+        conn, _ = srv.accept()
+        time.sleep(0.2)              # pyserial's socket:// clears its input buffer just after connecting
+        t0 = time.monotonic()
+        for k, line in enumerate(data):
+            wait = t0 + DEFAULT_PROTOCOL.parse(line).t - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            conn.sendall(line + b"\r\n" + (b"\x00junk" if k == 100 else b""))
+        time.sleep(0.5)
+        conn.close()
+        srv.close()
+    th = threading.Thread(target=recorder, daemon=True)
+    th.start()
+    while not port:
+        time.sleep(0.01)
+    rec_dir = base / "recording"
+    out = base / "stdout.jsonl"
+    import contextlib
+    import io
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["live", "--serial", f"socket://127.0.0.1:{port[0]}", "--camera", str(root / "scene.mp4"),
+                     "--camera-calib", str(base / "cal" / "camera.json"), "--eyes", str(base / "cal" / "eyes.json"),
+                     "--markers", str(root / "markers.json"), "--record", str(rec_dir), "--quiet"])
+    out.write_text(buf.getvalue())
+    msgs = [json.loads(x) for x in buf.getvalue().splitlines() if x.startswith("{")]
+    return root, rec_dir, msgs, code, cal
+
+
+def test_live_estimates_converge_to_the_targets(live_run):
+    root, _, msgs, code, _ = live_run
+    assert code == 0
+    assert all(m["version"] == 1 for m in msgs)
+    targets = [m for m in msgs if m["type"] == "target"]
+    truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
+    found = [{"target": m["target"], "x_mm": m["position_mm"][0], "y_mm": m["position_mm"][1],
+              "z_mm": m["position_mm"][2]} for m in targets]
+    pairs = match_targets(found, [t for t in truth if sum(b - a for a, b in t["fixations_s"]) >= 1.0])
+    assert pairs and all(f is not None for _, f in pairs)
+    for tt, f in pairs:
+        m = next(x for x in targets if x["target"] == f["target"])
+        err = np.linalg.norm(np.array(m["position_mm"]) - tt["position_mm"])
+        assert err < 1.5 * max(m["ellipsoid95_radii_mm"])          # inside (1.5x) its own 95 % ellipsoid
+    est = [m for m in msgs if m["type"] == "estimate"]
+    assert len(est) > 100 and all(m["latency_ms"] >= 0 for m in est)
+
+
+def test_live_recording_is_complete_and_process_finds_the_same_targets(live_run):
+    root, rec, msgs, _, _ = live_run
+    man = json.loads((rec / "session.json").read_text())
+    assert man["complete"] and man["n_frames"] == 210
+    eye, _ = read_eye_csv(rec / "eye.csv")
+    sent, _ = read_eye_csv(root / "eye.csv")
+    assert len(eye) == len(sent) and np.array_equal(eye.counter, sent.counter)
+    assert np.allclose(eye.raw, sent.raw, atol=0.006)
+    assert (rec / "eye_serial.bin").read_bytes().count(b"$EMR8") == len(sent)
+    res = process_session(rec, rec / "processed", report=False)
+    live_targets = {}
+    for m in msgs:
+        if m["type"] == "target":
+            live_targets[m["target"]] = m
+    assert len(res.targets) == len(live_targets)
+    for m in live_targets.values():
+        d = [np.linalg.norm(np.array(m["position_mm"]) - [t["x_mm"], t["y_mm"], t["z_mm"]]) for t in res.targets]
+        k = int(np.argmin(d))
+        assert d[k] < max(m["ellipsoid95_radii_mm"]) + res.targets[k]["axis3_mm"]
+
+
+def test_live_bad_inputs_are_one_line(tmp_path, capsys, live_run):
+    root, _, _, _, _ = live_run
+    cal = root.parent / "cal"
+    base = ["--camera-calib", str(cal / "camera.json"), "--eyes", str(cal / "eyes.json"), "--markers",
+            str(root / "markers.json"), "--quiet"]
+    cases = [
+        (["live", "--serial", "/dev/does-not-exist", "--camera", str(root / "scene.mp4")] + base, "cannot open"),
+        (["live", "--serial", "loop://", "--camera", str(tmp_path / "none.mp4")] + base, "will not open"),
+        (["live", "--serial", "loop://", "--camera", str(root / "scene.mp4"), "--camera-calib", str(tmp_path / "x.json"),
+          "--eyes", str(cal / "eyes.json"), "--markers", str(root / "markers.json")], "no such camera file"),
+        (["live", "--serial", "loop://", "--camera", str(root / "scene.mp4"), "--publish", "http://x"] + base,
+         "udp://HOST:PORT"),
+    ]
+    for argv, needle in cases:
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], err

@@ -1,0 +1,95 @@
+"""Scene-camera input: ``cv2.VideoCapture`` by index, device path, URL or file (a file replays at
+its own frame rate), timestamped on arrival, with dropped and stalled frames counted."""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+
+
+@dataclass
+class CameraStats:
+    frames: int = 0
+    dropped: int = 0          # frames the consumer had no room for, or gaps in a device's stream
+    stalls: int = 0           # waits longer than 5 frame periods
+
+
+class FrameSource(threading.Thread):
+    """Puts ``(t_s, frame_index, grey_frame, colour_frame)`` on a bounded queue; ``t_s`` is
+    ``time.monotonic()`` at capture (a file: its start time plus index / fps).
+
+    Args:
+        source: a camera index ('0'), a device path, a URL or a video file.
+        maxsize: queue length; when full, the oldest frame is dropped (counted).
+    """
+
+    def __init__(self, source: str, maxsize: int = 4, sink=None):
+        super().__init__(daemon=True, name="camera")
+        self.source = source
+        self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
+        self.stats = CameraStats()
+        self.stop_event = threading.Event()
+        self.error: str | None = None
+        self.finished = threading.Event()
+        target = int(source) if str(source).isdigit() else str(source)
+        self.cap = cv2.VideoCapture(target)
+        if not self.cap.isOpened():
+            raise OSError(f"camera {source!r} will not open (check the index, path or URL)")
+        self.is_file = not str(source).isdigit() and Path(str(source)).is_file()
+        self.fps = self.cap.get(cv2.CAP_PROP_FPS) or 30.0
+        self.size = (int(self.cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(self.cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        self.t0: float | None = None
+        self.sink = sink            # sink(t_rel_s, index, grey) sees every frame (the recorder)
+
+    def run(self):
+        period = 1.0 / self.fps
+        self.t0 = time.monotonic()
+        last = self.t0
+        i = 0
+        try:
+            while not self.stop_event.is_set():
+                if self.is_file:
+                    due = self.t0 + i * period
+                    wait = due - time.monotonic()
+                    if wait > 0:
+                        time.sleep(wait)
+                ok, frame = self.cap.read()
+                now = time.monotonic()
+                if not ok:
+                    if self.is_file:
+                        break
+                    self.stats.stalls += 1
+                    time.sleep(period)
+                    continue
+                t = self.t0 + i * period if self.is_file else now
+                if not self.is_file and now - last > 1.5 * period:
+                    self.stats.dropped += int(round((now - last) / period)) - 1
+                if now - last > 5 * period:
+                    self.stats.stalls += 1
+                last = now
+                grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+                if self.sink is not None:
+                    self.sink(t - self.t0, i, grey)
+                item = (t, i, grey, frame)
+                try:
+                    self.queue.put_nowait(item)
+                except queue.Full:
+                    try:
+                        self.queue.get_nowait()
+                        self.stats.dropped += 1
+                    except queue.Empty:
+                        pass
+                    self.queue.put_nowait(item)
+                self.stats.frames += 1
+                i += 1
+        finally:
+            self.cap.release()
+            self.finished.set()
+
+    def stop(self):
+        self.stop_event.set()
