@@ -28,7 +28,7 @@ class FrameSource(threading.Thread):
         maxsize: queue length; when full, the oldest frame is dropped (counted).
     """
 
-    def __init__(self, source: str, maxsize: int = 4, sink=None):
+    def __init__(self, source: str, maxsize: int = 4, sink=None, loop: bool = False):
         super().__init__(daemon=True, name="camera")
         self.source = source
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
@@ -45,6 +45,7 @@ class FrameSource(threading.Thread):
         self.size = (int(self.cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(self.cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
         self.t0: float | None = None
         self.sink = sink            # sink(t_rel_s, index, grey) sees every frame (the recorder)
+        self.loop = loop            # a file starts again at its end (long-run benchmarks)
 
     def run(self):
         period = 1.0 / self.fps
@@ -61,6 +62,10 @@ class FrameSource(threading.Thread):
                 ok, frame = self.cap.read()
                 now = time.monotonic()
                 if not ok:
+                    if self.is_file and self.loop and i > 0:
+                        self.cap.release()
+                        self.cap = cv2.VideoCapture(str(self.source))
+                        continue
                     if self.is_file:
                         break
                     self.stats.stalls += 1

@@ -1,0 +1,118 @@
+"""Live session on one core: end-to-end latency from an eye sample's arrival to its published
+estimate, at 30 fps 1280x720 video and 60 Hz eye data, and memory over a long stream.
+
+A simulated lab-walkabout session plays the hardware: its serial byte stream is served over TCP
+at its own pace (looped, counters and clock running on), and its scene video is the camera
+(looped at its own frame rate). The session is recorded, as a user would.
+
+    python benchmarks/bench_live.py [--minutes 2]
+
+Targets (issue 7): p95 latency <= 50 ms; memory flat over the run (one hour: --minutes 60);
+no sample that arrived intact is lost.
+"""
+
+from __future__ import annotations
+
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
+
+import argparse  # noqa: E402
+import io  # noqa: E402
+import socket  # noqa: E402
+import tempfile  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from wearable_gaze.emr import DEFAULT_PROTOCOL  # noqa: E402
+from wearable_gaze.live.app import LiveSession  # noqa: E402
+from wearable_gaze.process import process_session  # noqa: E402
+from wearable_gaze.session import read_eye_csv  # noqa: E402
+from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
+
+
+def rss_mb() -> float:
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def serve(data: bytes, period_s: float, minutes: float, port_holder, sent):
+    recs = [DEFAULT_PROTOCOL.parse(x) for x in data.split(b"\r\n")[:-1]]
+    srv = socket.socket()
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    port_holder.append(srv.getsockname()[1])
+    conn, _ = srv.accept()
+    time.sleep(0.2)
+    t0 = time.monotonic()
+    k = 0
+    while True:
+        r = recs[k % len(recs)]
+        t = (k // len(recs)) * period_s + r.t
+        if t > minutes * 60:
+            break
+        wait = t0 + t - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        conn.sendall(DEFAULT_PROTOCOL.format(r._replace(counter=k, t=t)))
+        sent[0] += 1
+        k += 1
+    time.sleep(0.5)
+    conn.close()
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=2.0)
+    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--record", action="store_true", help="also record the session (video encoding shares the core)")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "s"
+        simulate_scenario({"base": "lab-walkabout", "duration_s": 20.0}, root, args.seed)
+        cal = Path(tmp) / "cal"
+        process_session(root, cal, report=False)
+        port, sent = [], [0]
+        th = threading.Thread(target=serve, args=((root / "eye_serial.bin").read_bytes(), 20.0, args.minutes, port,
+                                                  sent), daemon=True)
+        th.start()
+        while not port:
+            time.sleep(0.01)
+        live = LiveSession(f"socket://127.0.0.1:{port[0]}", str(root / "scene.mp4"), cal / "camera.json",
+                           cal / "eyes.json", root / "markers.json", record=Path(tmp) / "rec" if args.record else None, stdout=False,
+                           stream=io.StringIO())
+        live.frames.loop = True
+        mem = []
+        stop = threading.Event()
+
+        def sample_memory():
+            while not stop.is_set():
+                mem.append((time.monotonic(), rss_mb()))
+                time.sleep(5.0)
+        threading.Thread(target=sample_memory, daemon=True).start()
+        st = live.run(duration_s=args.minutes * 60 + 1.0)
+        stop.set()
+        n_rec = len(read_eye_csv(Path(tmp) / "rec" / "eye.csv")[0]) if args.record else live.stats.samples
+        lat = np.array(st.latencies_ms)
+        m = np.array(mem)
+        half = len(m) // 2
+        print(f"live session, {_onecore.CORES} core(s), {args.minutes:g} min of 30 fps 1280x720 video and 60 Hz eye data"
+              f"{', recorded' if args.record else ''}")
+        print(f"  latency arrival -> published estimate: median {np.median(lat):.1f} ms, p95 "
+              f"{np.percentile(lat, 95):.1f} ms, p99 {np.percentile(lat, 99):.1f} ms (last {len(lat)} estimates)")
+        print(f"  eye samples sent {sent[0]}, received intact {live.reader.stats.records}, {'recorded' if args.record else 'processed'} {n_rec}, "
+              f"corrupt {live.reader.stats.corrupt}, dropped by the reader {live.reader.stats.dropped}")
+        print(f"  frames {live.frames.stats.frames}, skipped by tracking under load {live.frames.stats.dropped}")
+        if len(m) >= 4:
+            print(f"  memory (RSS): first half mean {m[:half, 1].mean():.0f} MB, second half {m[half:, 1].mean():.0f} MB, "
+                  f"max {m[:, 1].max():.0f} MB")
+        ok = np.percentile(lat, 95) <= 50 and n_rec == live.reader.stats.records
+        print(f"  target p95 <= 50 ms and nothing intact lost: {'PASS' if ok else 'FAIL'}")
+
+
+if __name__ == "__main__":
+    main()
