@@ -47,8 +47,8 @@ def serve(data: bytes, period_s: float, minutes: float, port_holder, sent):
     srv.listen(1)
     port_holder.append(srv.getsockname()[1])
     conn, _ = srv.accept()
-    time.sleep(0.2)
     t0 = time.monotonic()
+    time.sleep(0.05)                 # pyserial's socket:// clears its input buffer just after connecting
     k = 0
     while True:
         r = recs[k % len(recs)]
