@@ -295,18 +295,25 @@ class LiveSession:
         return getattr(self, "_last_arrival", now)
 
     def _drain_frames(self) -> bool:
-        busy = False
+        """Track the newest waiting frame; older waiting frames are skipped (counted): under
+        load, a fresh pose serves the waiting eye samples better than a backlog of old ones
+        (every frame is still recorded)."""
+        items = []
         while True:
             try:
-                t, i, grey, _ = self.frames.queue.get_nowait()
+                items.append(self.frames.queue.get_nowait())
             except queue.Empty:
-                return busy
-            busy = True
-            t_s = t - self.frames.t0
-            res = self.poser.estimate(self.detector.detect(grey))
-            self.markers_in_view = len(res.markers)
-            if res.ok:
-                self.poses.append((t_s, res.T_world_from_cam))
+                break
+        if not items:
+            return False
+        self.skipped_frames = getattr(self, "skipped_frames", 0) + len(items) - 1
+        t, i, grey, _ = items[-1]
+        t_s = t - self.frames.t0
+        res = self.poser.estimate(self.detector.detect(grey))
+        self.markers_in_view = len(res.markers)
+        if res.ok:
+            self.poses.append((t_s, res.T_world_from_cam))
+        return True
 
     def _drain_eye(self) -> bool:
         busy = False
