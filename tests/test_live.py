@@ -229,11 +229,15 @@ def test_live_recording_is_complete_and_process_finds_the_same_targets(live_run)
         if m["type"] == "target" and m["n_samples"] >= 60:
             live_targets[m["target"]] = m
     offline = [t for t in res.targets if t["n_samples"] >= 60]
-    assert len(offline) == len(live_targets) >= 2
-    for m in live_targets.values():
-        d = [np.linalg.norm(np.array(m["position_mm"]) - [t["x_mm"], t["y_mm"], t["z_mm"]]) for t in offline]
-        k = int(np.argmin(d))
-        assert d[k] < max(m["ellipsoid95_radii_mm"]) + offline[k]["axis3_mm"]
+    assert len(offline) >= 2 and live_targets
+
+    def near(m, t):
+        d = np.linalg.norm(np.array(m["position_mm"]) - [t["x_mm"], t["y_mm"], t["z_mm"]])
+        return d < max(m["ellipsoid95_radii_mm"]) + t["axis3_mm"]
+    # the same set of points: every live target is an offline one and every offline one was seen
+    # live (a fixation the online detector split in two gives two live ids for one point)
+    assert all(any(near(m, t) for t in offline) for m in live_targets.values())
+    assert all(any(near(m, t) for m in live_targets.values()) for t in offline)
 
 
 def test_live_bad_inputs_are_one_line(tmp_path, capsys, live_run):
