@@ -104,7 +104,6 @@ class Recorder:
         self.eye = open(self.root / "eye.csv", "w", encoding="utf-8")
         self.eye.write("t,counter,left_x,left_y,right_x,right_y,left_valid,right_valid\n")
         self.raw = open(self.root / "eye_serial.bin", "wb")
-        self.poses = []
         self.n_frames = self.n_eye = 0
         self.last_flush = time.monotonic()
         self.lock = threading.Lock()
@@ -150,11 +149,6 @@ class Recorder:
                        f"{format(rec.left[1], f['left_y'])},{format(rec.right[0], f['right_x'])},"
                        f"{format(rec.right[1], f['right_y'])},{int(rec.left_valid)},{int(rec.right_valid)}\n")
         self.n_eye += 1
-        self._maybe_flush()
-
-    def _maybe_flush(self):
-        if time.monotonic() - self.last_flush >= 1.0:
-            self.flush()
 
     def flush(self):
         with self.lock:

@@ -140,11 +140,6 @@ class Camera:
             cache[ss] = cv2.remap(self.rays2, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return cache[ss]
 
-    @functools.cached_property
-    def rays32(self) -> tuple[np.ndarray, np.ndarray]:
-        """``rays`` as float32 (for ``cv2.remap`` at sub-pixel positions)."""
-        return tuple(r.astype(np.float32) for r in self.rays)
-
 
 @dataclass(frozen=True, eq=False)
 class Plane:
@@ -497,7 +492,9 @@ def _bboxes(camera: Camera, Ts: np.ndarray, sizes: np.ndarray) -> list:
     r = 0.5 * np.hypot(sizes[:, 0], sizes[:, 1])
     zf = c[:, 2] + r
     lim = np.array(camera.field_limits)
-    facing = np.einsum("pi,pi->p", c, Ts[:, :3, 2]) > 0        # one-sided: see _outside_view
+    # one-sided: a plane's seen side is the one its z axis points away from (printed markers,
+    # cards and boards); facing away, it is culled
+    facing = np.einsum("pi,pi->p", c, Ts[:, :3, 2]) > 0
     keep = facing & (zf > 0)
     keep &= (np.abs(c[:, 0]) - r <= lim[0] * zf) & (np.abs(c[:, 1]) - r <= lim[1] * zf)
     corners = np.zeros((P, 4, 3))
@@ -525,22 +522,6 @@ def _bboxes(camera: Camera, Ts: np.ndarray, sizes: np.ndarray) -> list:
     for i in np.flatnonzero(keep & ~simple):
         out[i] = _bbox(camera, Ts[i], sizes[i])
     return out
-
-
-def _outside_view(camera: Camera, T_cam_from_plane, size_mm) -> bool:
-    """Cheap conservative cull: the plane faces away (its front side is the one its z axis
-    points away from: printed markers, cards and boards are one-sided), or its bounding sphere
-    is behind the camera or outside the trusted field of view."""
-    w, h = size_mm
-    c = T_cam_from_plane[:3, :3] @ np.array([w / 2, h / 2, 0.0]) + T_cam_from_plane[:3, 3]
-    if np.dot(c, T_cam_from_plane[:3, 2]) <= 0:
-        return True
-    r = 0.5 * np.hypot(w, h)
-    zf = c[2] + r
-    if zf <= 0:
-        return True
-    lim_x, lim_y = camera.field_limits
-    return abs(c[0]) - r > lim_x * zf or abs(c[1]) - r > lim_y * zf
 
 
 _EDGE_T = np.linspace(0, 1, 9)[:-1]
