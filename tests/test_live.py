@@ -15,6 +15,7 @@ import serial
 from wearable_gaze.cli import main
 from wearable_gaze.demo import match_targets
 from wearable_gaze.emr import DEFAULT_PROTOCOL, EyeRecord
+from wearable_gaze.live.app import LatencyHistogram
 from wearable_gaze.live.serial_in import EyeReader, LineSplitter
 from wearable_gaze.process import process_session
 from wearable_gaze.session import read_eye_csv
@@ -33,6 +34,20 @@ def _drain(reader, n, timeout=5.0):
         except Exception:  # noqa: BLE001
             pass
     return out
+
+
+def test_latency_histogram_percentiles_match_the_samples_within_one_bin():
+    rng = np.random.default_rng(1)
+    ms = np.concatenate([rng.gamma(3.0, 4.0, 20000), [3500.0]])   # one beyond the top bin
+    h = LatencyHistogram(bin_ms=0.1, max_ms=2000.0)
+    for v in ms:
+        h.add(v)
+    assert h.n == len(ms)
+    for q in (50, 95, 99):
+        exact = np.percentile(ms, q, method="inverted_cdf")
+        assert exact <= h.percentile(q) <= exact + 0.1 + 1e-9
+    assert h.percentile(100) == pytest.approx(2000.1)          # the overflow bin: "at least 2 s"
+    assert np.isnan(LatencyHistogram().percentile(95))
 
 
 def test_serial_reader_resynchronises_and_counts_faults():

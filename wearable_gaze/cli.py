@@ -182,10 +182,9 @@ def cmd_live(args) -> int:
 
     st = run_live(args.serial, args.camera, args.camera_calib, args.eyes, args.markers, args.record, args.publish,
                   args.baud, args.duration, status_stream=None if args.quiet else sys.stderr)
-    lat = sorted(st.latencies_ms)
-    p95 = lat[int(0.95 * (len(lat) - 1))] if lat else float("nan")
-    print(f"\nlive: {st.samples} eye samples, {st.published} messages, {st.targets} targets, p95 latency "
-          f"{p95:.1f} ms" + (f"; recorded {args.record}" if args.record else ""), file=sys.stderr)
+    print(f"\nlive: {st.samples} eye samples, {st.published} messages, {st.targets} targets, latency median "
+          f"{st.latency_all.percentile(50):.1f} ms, p95 {st.latency_all.percentile(95):.1f} ms"
+          + (f"; recorded {args.record}" if args.record else ""), file=sys.stderr)
     return 0
 
 

@@ -166,13 +166,39 @@ class Recorder:
         self._manifest(final=True)
 
 
+class LatencyHistogram:
+    """Latencies of a whole run in fixed memory: counts in ``bin_ms`` bins up to ``max_ms``
+    (longer ones in the last bin), so percentiles of an hour-long run need no sample list."""
+
+    def __init__(self, bin_ms: float = 0.1, max_ms: float = 2000.0):
+        self.bin_ms = bin_ms
+        self.counts = np.zeros(int(round(max_ms / bin_ms)) + 1, np.int64)
+
+    def add(self, ms: float) -> None:
+        self.counts[min(int(ms / self.bin_ms), len(self.counts) - 1)] += 1
+
+    @property
+    def n(self) -> int:
+        return int(self.counts.sum())
+
+    def percentile(self, q: float) -> float:
+        """The q-th percentile in ms (upper edge of its bin: never under the true value by more
+        than nothing, never over by more than one bin); NaN when empty."""
+        n = self.n
+        if n == 0:
+            return float("nan")
+        k = int(np.searchsorted(np.cumsum(self.counts), max(1, int(np.ceil(q / 100.0 * n)))))
+        return (k + 1) * self.bin_ms
+
+
 @dataclass
 class LiveStats:
     samples: int = 0
     published: int = 0
     no_pose: int = 0
     targets: int = 0
-    latencies_ms: deque = field(default_factory=lambda: deque(maxlen=5000))
+    latencies_ms: deque = field(default_factory=lambda: deque(maxlen=5000))   # the recent ones, for the status line
+    latency_all: LatencyHistogram = field(default_factory=LatencyHistogram)   # the whole run
 
 
 class OnlineFixations:
@@ -387,6 +413,7 @@ class LiveSession:
             self.last_est = (est, t_s)
             lat = (time.monotonic() - arrival) * 1000
             self.stats.latencies_ms.append(lat)
+            self.stats.latency_all.add(lat)
             r = est.ellipsoid(0.95)
             self._publish({"type": "estimate", "t": round(t_s, 4), "fixation": self.fix_index,
                            "position_mm": [round(v, 1) for v in est.position_mm],
