@@ -18,7 +18,6 @@ import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV loa
 
 import argparse  # noqa: E402
 import io  # noqa: E402
-import socket  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
@@ -26,10 +25,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from wearable_gaze.emr import DEFAULT_PROTOCOL  # noqa: E402
 from wearable_gaze.live.app import LiveSession  # noqa: E402
 from wearable_gaze.process import process_session  # noqa: E402
 from wearable_gaze.session import load_session, read_eye_csv  # noqa: E402
+from wearable_gaze.sim.emulate import RecorderEmulator  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
 
 
@@ -38,32 +37,6 @@ def rss_mb() -> float:
         if line.startswith("VmRSS"):
             return int(line.split()[1]) / 1024
     return float("nan")
-
-
-def serve(data: bytes, period_s: float, minutes: float, port_holder, sent):
-    recs = [DEFAULT_PROTOCOL.parse(x) for x in data.split(b"\r\n")[:-1]]
-    srv = socket.socket()
-    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(1)
-    port_holder.append(srv.getsockname()[1])
-    conn, _ = srv.accept()
-    t0 = time.monotonic()
-    time.sleep(0.05)                 # pyserial's socket:// clears its input buffer just after connecting
-    k = 0
-    while True:
-        r = recs[k % len(recs)]
-        t = (k // len(recs)) * period_s + r.t
-        if t > minutes * 60:
-            break
-        wait = t0 + t - time.monotonic()
-        if wait > 0:
-            time.sleep(wait)
-        conn.sendall(DEFAULT_PROTOCOL.format(r._replace(counter=k, t=t)))
-        sent[0] += 1
-        k += 1
-    time.sleep(0.5)
-    conn.close()
 
 
 def main():
@@ -77,13 +50,9 @@ def main():
         simulate_scenario({"base": "lab-walkabout", "duration_s": 20.0}, root, args.seed)
         cal = Path(tmp) / "cal"
         process_session(root, cal, report=False)
-        port, sent = [], [0]
-        th = threading.Thread(target=serve, args=((root / "eye_serial.bin").read_bytes(), 20.0, args.minutes, port,
-                                                  sent), daemon=True)
-        th.start()
-        while not port:
-            time.sleep(0.01)
-        live = LiveSession(f"socket://127.0.0.1:{port[0]}", str(root / "scene.mp4"), cal / "camera.json",
+        emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), loop=True, duration_s=args.minutes * 60)
+        url = emu.listen_tcp()
+        live = LiveSession(url, str(root / "scene.mp4"), cal / "camera.json",
                            cal / "eyes.json", root / "markers.json", record=Path(tmp) / "rec" if args.record else None, stdout=False,
                            stream=io.StringIO())
         live.frames.loop = True
@@ -108,7 +77,7 @@ def main():
         print(f"  latency arrival -> published estimate, whole run ({h.n} estimates): median {h.percentile(50):.1f} ms, "
               f"p95 {h.percentile(95):.1f} ms, p99 {h.percentile(99):.1f} ms, max {h.percentile(100):.1f} ms")
         print(f"  last {len(lat)} estimates: median {np.median(lat):.1f} ms, p95 {np.percentile(lat, 95):.1f} ms")
-        print(f"  eye samples sent {sent[0]}, received intact {live.reader.stats.records}, {'recorded' if args.record else 'processed'} {n_rec}, "
+        print(f"  eye samples sent {emu.sent}, received intact {live.reader.stats.records}, {'recorded' if args.record else 'processed'} {n_rec}, "
               f"corrupt {live.reader.stats.corrupt}, dropped by the reader {live.reader.stats.dropped}")
         print(f"  frames {live.frames.stats.frames}, skipped by tracking under load {live.frames.stats.dropped}"
               + (f", recorded {n_frames_rec}" if args.record else ""))

@@ -41,3 +41,26 @@ def walkabout_samples(target, rng, n=300, sigma_deg=1.0, ipd=64.0):
     ld = perturb_directions(X - lo, s, rng) if s > 0 else X - lo
     rd = perturb_directions(X - ro, s, rng) if s > 0 else X - ro
     return BinocularSamples.from_arrays(t, lo, ld, ro, rd)
+
+
+def eye_record_bytes(i: int, rate_hz: float = 60.0) -> bytes:
+    """Record ``i`` of a synthetic recorder stream in the default protocol: counter i, time
+    i / rate_hz s, the right eye invalid every 7th record."""
+    from wearable_gaze.emr import DEFAULT_PROTOCOL, EyeRecord
+
+    return DEFAULT_PROTOCOL.format(EyeRecord(i, i / rate_hz, (2000.0 + i, 1990.5), (2010.25, 1980.0), True,
+                                             i % 7 != 0))
+
+
+def drain_reader(reader, n: int, timeout: float = 5.0) -> list:
+    """Up to ``n`` records from an ``EyeReader``'s queue, waiting at most ``timeout`` s."""
+    import queue
+    import time
+
+    out, t0 = [], time.monotonic()
+    while len(out) < n and time.monotonic() - t0 < timeout:
+        try:
+            out.append(reader.queue.get(timeout=0.05)[1])
+        except queue.Empty:
+            pass
+    return out

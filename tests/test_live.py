@@ -12,28 +12,16 @@ import numpy as np
 import pytest
 import serial
 
+from tests.helpers import drain_reader, eye_record_bytes
 from wearable_gaze.cli import main
 from wearable_gaze.demo import match_targets
-from wearable_gaze.emr import DEFAULT_PROTOCOL, EyeRecord
+from wearable_gaze.emr import DEFAULT_PROTOCOL
 from wearable_gaze.live.app import LatencyHistogram
 from wearable_gaze.live.serial_in import EyeReader, LineSplitter
 from wearable_gaze.process import process_session
 from wearable_gaze.session import read_eye_csv
+from wearable_gaze.sim.emulate import RecorderEmulator
 from wearable_gaze.sim.simulate import simulate_scenario
-
-
-def _rec(i):
-    return DEFAULT_PROTOCOL.format(EyeRecord(i, i / 60, (2000.0 + i, 1990.5), (2010.25, 1980.0), True, i % 7 != 0))
-
-
-def _drain(reader, n, timeout=5.0):
-    out, t0 = [], time.monotonic()
-    while len(out) < n and time.monotonic() - t0 < timeout:
-        try:
-            out.append(reader.queue.get(timeout=0.05)[1])
-        except Exception:  # noqa: BLE001
-            pass
-    return out
 
 
 def test_latency_histogram_percentiles_match_the_samples_within_one_bin():
@@ -52,7 +40,7 @@ def test_latency_histogram_percentiles_match_the_samples_within_one_bin():
 
 def test_serial_reader_resynchronises_and_counts_faults():
     link = serial.serial_for_url("loop://", timeout=0.05)
-    good = [_rec(i) for i in range(40)]
+    good = [eye_record_bytes(i) for i in range(40)]
     stream = bytearray(b"\x00\xffnoise before anything")
     for i, r in enumerate(good):
         if i == 10:
@@ -72,7 +60,7 @@ def test_serial_reader_resynchronises_and_counts_faults():
     raw = bytearray()
     reader.raw_sink = raw.extend
     reader.start()
-    recs = _drain(reader, 38)
+    recs = drain_reader(reader, 38)
     reader.stop()
     reader.join(2)
     assert [r.counter for r in recs] == [i for i in range(40) if i not in (25, 26)]
@@ -84,7 +72,7 @@ def test_serial_reader_resynchronises_and_counts_faults():
 
 def test_line_splitter_handles_records_split_across_reads():
     sp = LineSplitter()
-    data = b"".join(_rec(i) for i in range(5))
+    data = b"".join(eye_record_bytes(i) for i in range(5))
     out = []
     for k in range(0, len(data), 7):
         out += sp.feed(data[k:k + 7])
@@ -107,8 +95,8 @@ def _server(chunks, port_holder, accept=2, pause=0.3):
 
 
 def test_serial_reader_reconnects_when_the_link_drops():
-    a = b"".join(_rec(i) for i in range(0, 20))
-    b = b"".join(_rec(i) for i in range(20, 45))
+    a = b"".join(eye_record_bytes(i) for i in range(0, 20))
+    b = b"".join(eye_record_bytes(i) for i in range(20, 45))
     port = []
     th = threading.Thread(target=_server, args=([a, b], port), daemon=True)
     th.start()
@@ -116,7 +104,7 @@ def test_serial_reader_reconnects_when_the_link_drops():
         time.sleep(0.01)
     reader = EyeReader(f"socket://127.0.0.1:{port[0]}", reconnect_s=0.1)
     reader.start()
-    recs = _drain(reader, 45, timeout=8)
+    recs = drain_reader(reader, 45, timeout=8)
     reader.stop()
     reader.join(2)
     assert [r.counter for r in recs] == list(range(45))
@@ -129,8 +117,8 @@ def test_serial_reader_on_a_pseudo_terminal():
     reader.start()
     reader.connected.wait(2)
     for i in range(10):
-        os.write(master, _rec(i))
-    recs = _drain(reader, 10)
+        os.write(master, eye_record_bytes(i))
+    recs = drain_reader(reader, 10)
     reader.stop()
     reader.join(2)
     os.close(master)
@@ -171,39 +159,18 @@ def live_run(tmp_path_factory):
     simulate_scenario({"base": "lab-walkabout", "duration_s": 7.0, "targets": {"random_count": 2},
                        "calibration": {"camera_views": 10}}, root, seed=77)
     cal = process_session(root, base / "cal", report=False)      # the calibrations the wearer made
-    data = (root / "eye_serial.bin").read_bytes().split(b"\r\n")[:-1]
-    port = []
-
-    def recorder():                                              # the EMR-8 at its own pace
-        srv = socket.socket()
-        srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        srv.bind(("127.0.0.1", 0))
-        srv.listen(1)
-        port.append(srv.getsockname()[1])
-        conn, _ = srv.accept()
-        t0 = time.monotonic()        # the recorder's clock starts with the camera's
-        time.sleep(0.05)             # pyserial's socket:// clears its input buffer just after connecting
-        for k, line in enumerate(data):
-            wait = t0 + DEFAULT_PROTOCOL.parse(line).t - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
-            conn.sendall(line + b"\r\n" + (b"\x00junk" if k == 100 else b""))
-        time.sleep(0.5)
-        conn.close()
-        srv.close()
-    th = threading.Thread(target=recorder, daemon=True)
-    th.start()
-    while not port:
-        time.sleep(0.01)
+    emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), inject={100: b"\x00junk"})   # the EMR-8
+    url = emu.listen_tcp()
     rec_dir = base / "recording"
     out = base / "stdout.jsonl"
     import contextlib
     import io
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        code = main(["live", "--serial", f"socket://127.0.0.1:{port[0]}", "--camera", str(root / "scene.mp4"),
+        code = main(["live", "--serial", url, "--camera", str(root / "scene.mp4"),
                      "--camera-calib", str(base / "cal" / "camera.json"), "--eyes", str(base / "cal" / "eyes.json"),
                      "--markers", str(root / "markers.json"), "--record", str(rec_dir), "--quiet"])
+    emu.stop()
     out.write_text(buf.getvalue())
     msgs = [json.loads(x) for x in buf.getvalue().splitlines() if x.startswith("{")]
     return root, rec_dir, msgs, code, cal

@@ -188,6 +188,38 @@ def cmd_live(args) -> int:
     return 0
 
 
+def _host_port(text):
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not HOST:PORT, e.g. 127.0.0.1:5555 (port 0: any free one)")
+    return host, int(port)
+
+
+def cmd_emulate(args) -> int:
+    from .session import load_session  # noqa: PLC0415
+    from .sim.emulate import RecorderEmulator  # noqa: PLC0415
+
+    sess = load_session(args.session)
+    path = sess.path("eye_serial")
+    if path is None or not path.is_file():
+        raise UserError(f"{args.session}: no recorder byte stream (eye_serial.bin); simulated sessions and "
+                        f"'live --record' recordings have one")
+    emu = RecorderEmulator(path.read_bytes(), loop=args.loop, duration_s=args.duration)
+    where = emu.open_pty() if args.pty else emu.listen_tcp(*args.listen)
+    video = sess.path("scene_video")
+    print(f"emulating the eye recorder of {args.session} on {where} ({len(emu.records)} records, "
+          f"{emu.period_s:.1f} s{', looped' if args.loop else ''}); Ctrl-C stops. Try (docs/live.md):\n"
+          f"  wearable-gaze live --serial {where} --camera {video} --markers {sess.path('marker_map') or 'map.json'} "
+          f"--camera-calib CAL/camera.json --eyes CAL/eyes.json", file=sys.stderr, flush=True)
+    try:
+        while not emu.finished.wait(0.2):
+            pass
+    finally:
+        emu.stop()
+    print(f"emulate: {emu.sent} records sent", file=sys.stderr)
+    return 0
+
+
 # --- demo -------------------------------------------------------------------------------------
 
 def cmd_process(args) -> int:
@@ -329,6 +361,17 @@ def build_parser() -> argparse.ArgumentParser:
     lv.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="stop after S seconds")
     lv.add_argument("--quiet", action="store_true", help="no status line")
     lv.set_defaults(func=cmd_live)
+
+    em = sub.add_parser("emulate", help="play a session's eye-recorder stream at its own pace, for 'live' "
+                                        "without the hardware")
+    em.add_argument("session", metavar="SESSION", help="session folder with eye_serial.bin (simulated or recorded)")
+    where = em.add_mutually_exclusive_group()
+    where.add_argument("--listen", type=_host_port, default=("127.0.0.1", 5555), metavar="HOST:PORT",
+                       help="serve one reader over TCP (default 127.0.0.1:5555); 'live --serial socket://HOST:PORT'")
+    where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal, read as a serial port")
+    em.add_argument("--loop", action="store_true", help="start again at the end, clock and counter running on")
+    em.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="stop after S seconds")
+    em.set_defaults(func=cmd_emulate)
 
     d = sub.add_parser("demo", help="simulate the default session (lab-walkabout), process it, compare with the truth")
     d.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
