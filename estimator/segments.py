@@ -15,6 +15,7 @@ minimum fixation 0.3 s, maximum gap 0.5 s.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,6 +99,52 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
         labels[idx[sel]] = label
         label += 1
     return labels
+
+
+class OnlineSegmenter:
+    """``segment_fixations`` one sample at a time, for a live stream.
+
+    The same test, made as soon as the window after a sample is full: the angle between the
+    median cyclopean direction of the ``window`` samples before and of the ``window`` after.
+    Crossing ``jump_deg`` ends the fixation; the samples until the angle falls back under it
+    (the saccade, as the windows see it) belong to no fixation. A gap over ``max_gap_s`` ends a
+    fixation too, and the sample after it starts the next. The reference thus follows a target
+    whose direction drifts as the head moves, as the offline test does; only a jump counts.
+
+    Feed it the binocular samples' cyclopean directions (one eye alone is off the cyclopean line
+    by half the vergence, which is not a saccade).
+    """
+
+    def __init__(self, config: SegmentConfig = SegmentConfig()):
+        self.config = config
+        self.buf: deque = deque(maxlen=2 * config.window)
+        self.in_saccade = False
+        self.last_t: float | None = None
+
+    def update(self, t_s: float, direction) -> bool:
+        """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) (world frame).
+
+        Returns:
+            True when this sample ends the current fixation. Afterwards ``in_saccade`` tells
+            whether the sample (and the ones after it, until it clears) belongs to no fixation.
+        """
+        w = self.config.window
+        gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
+        self.last_t = t_s
+        if gap:
+            self.buf.clear()
+            self.buf.append(np.asarray(direction, float))
+            self.in_saccade = False
+            return True
+        self.buf.append(np.asarray(direction, float))
+        if len(self.buf) < 2 * w:
+            return False
+        b = np.array(self.buf)
+        before, after = np.median(b[:w], axis=0), np.median(b[w:], axis=0)
+        jumped = _angle_deg(before / np.linalg.norm(before), after / np.linalg.norm(after)) > self.config.jump_deg
+        ended = jumped and not self.in_saccade
+        self.in_saccade = jumped
+        return ended
 
 
 def same_target(p1, cov1, p2, cov2, origin=None, floor_deg: float = 0.5, threshold: float = 11.34) -> bool:

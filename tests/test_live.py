@@ -196,6 +196,8 @@ def test_live_estimates_converge_to_the_targets(live_run):
 
 def test_live_recording_is_complete_and_process_finds_the_same_targets(live_run):
     root, rec, msgs, _, _ = live_run
+    fixations = [m["fixation"] for m in msgs if m["type"] == "target"]
+    assert fixations == list(range(len(fixations)))             # no fixation split in short pieces
     man = json.loads((rec / "session.json").read_text())
     assert man["complete"] and man["n_frames"] == 210
     eye, _ = read_eye_csv(rec / "eye.csv")
@@ -204,22 +206,23 @@ def test_live_recording_is_complete_and_process_finds_the_same_targets(live_run)
     assert np.allclose(eye.raw, sent.raw, atol=0.006)
     assert (rec / "eye_serial.bin").read_bytes().count(b"$EMR8") == len(sent)
     res = process_session(rec, rec / "processed", report=False)
-    # the targets looked at for a second or more, live and offline, pair up within their
-    # joint 95 % extent
-    live_targets = {}
+    # the targets looked at for a second or more, live and offline, pair up one to one within
+    # their joint 95 % extent: each live id is its own offline target, every offline one was seen
+    by_id = {}
     for m in msgs:
-        if m["type"] == "target" and m["n_samples"] >= 60:
-            live_targets[m["target"]] = m
+        if m["type"] == "target":
+            by_id.setdefault(m["target"], []).append(m)
+    live_targets = {k: max(ms, key=lambda m: m["n_samples"]) for k, ms in by_id.items()
+                    if sum(m["n_samples"] for m in ms) >= 60}
     offline = [t for t in res.targets if t["n_samples"] >= 60]
     assert len(offline) >= 2 and live_targets
 
-    def near(m, t):
-        d = np.linalg.norm(np.array(m["position_mm"]) - [t["x_mm"], t["y_mm"], t["z_mm"]])
-        return d < max(m["ellipsoid95_radii_mm"]) + t["axis3_mm"]
-    # the same set of points: every live target is an offline one and every offline one was seen
-    # live (a fixation the online detector split in two gives two live ids for one point)
-    assert all(any(near(m, t) for t in offline) for m in live_targets.values())
-    assert all(any(near(m, t) for m in live_targets.values()) for t in offline)
+    def dist(m, t):
+        return np.linalg.norm(np.array(m["position_mm"]) - [t["x_mm"], t["y_mm"], t["z_mm"]])
+    pairs = {k: min(range(len(offline)), key=lambda j: dist(m, offline[j])) for k, m in live_targets.items()}
+    for k, j in pairs.items():
+        assert dist(live_targets[k], offline[j]) < max(live_targets[k]["ellipsoid95_radii_mm"]) + offline[j]["axis3_mm"]
+    assert sorted(pairs.values()) == list(range(len(offline)))
 
 
 def test_live_bad_inputs_are_one_line(tmp_path, capsys, live_run):

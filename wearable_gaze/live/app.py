@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from estimator import BinocularSample, make_estimator
-from estimator.segments import same_target
+from estimator.segments import OnlineSegmenter, same_target
 from estimator.frames import rotate_directions, transform_points
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
@@ -201,33 +201,6 @@ class LiveStats:
     latency_all: LatencyHistogram = field(default_factory=LatencyHistogram)   # the whole run
 
 
-class OnlineFixations:
-    """Online version of ``estimator.segments``: a fixation ends when the median direction of
-    the last ``k`` samples leaves the fixation's median direction by more than ``jump_deg``."""
-
-    def __init__(self, jump_deg: float = 3.0, k: int = 4, min_s: float = 0.3):
-        self.jump = np.deg2rad(jump_deg)
-        self.k = k
-        self.min_s = min_s
-        self.recent = deque(maxlen=k)
-        self.ref: list = []
-
-    def update(self, d: np.ndarray) -> bool:
-        """Add a cyclopean direction (3,); True when it starts a new fixation."""
-        self.recent.append(d)
-        if len(self.ref) < 3:
-            self.ref.append(d)
-            return False
-        ref = np.median(np.array(self.ref[-30:]), axis=0)
-        cur = np.median(np.array(self.recent), axis=0)
-        ang = np.arctan2(np.linalg.norm(np.cross(ref, cur)), ref @ cur)
-        if len(self.recent) == self.k and ang > self.jump:
-            self.ref = list(self.recent)
-            return True
-        self.ref.append(d)
-        return False
-
-
 class LiveSession:
     """Runs until the camera file ends, ``duration_s`` passes, or ``stop()`` (Ctrl-C, SIGTERM)."""
 
@@ -260,7 +233,7 @@ class LiveSession:
         self.poses = deque(maxlen=120)            # (t, T_world_from_cam) of recent frames
         self.pending = deque()
         self.offset = None
-        self.fix = OnlineFixations()
+        self.fix = OnlineSegmenter()
         self.fix_index = 0
         self.estimator = make_estimator(method)
         self.fix_samples = 0
@@ -403,8 +376,10 @@ class LiveSession:
         self.head = parts[0] if parts[0] is not None else parts[2]
         if rec.left_valid and rec.right_valid:            # one eye alone is off the cyclopean line by
             cyc = parts[1] + parts[3]                     # half the vergence: not a saccade
-            if self.fix.update(cyc / np.linalg.norm(cyc)):
+            if self.fix.update(t_s, cyc / np.linalg.norm(cyc)):
                 self._end_fixation()
+        if self.fix.in_saccade:                           # between fixations: no target's line
+            return
         if self.fix_t0 is None:
             self.fix_t0 = t_s
         est = self.estimator.update(sample)
@@ -430,7 +405,7 @@ class LiveSession:
         return len(self.targets) - 1
 
     def _end_fixation(self):
-        if self.last_est is not None and self.fix_t0 is not None and self.last_est[1] - self.fix_t0 >= self.fix.min_s:
+        if self.last_est is not None and self.fix_t0 is not None and self.last_est[1] - self.fix_t0 >= self.fix.config.min_fixation_s:
             est = self.last_est[0]
             r = est.ellipsoid(0.95)
             self._publish({"type": "target", "target": self._target_id(est), "fixation": self.fix_index,
