@@ -17,6 +17,7 @@ from __future__ import annotations
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 
 import argparse  # noqa: E402
+import ctypes  # noqa: E402
 import io  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
@@ -30,6 +31,23 @@ from wearable_gaze.process import process_session  # noqa: E402
 from wearable_gaze.session import load_session, read_eye_csv  # noqa: E402
 from wearable_gaze.sim.emulate import RecorderEmulator  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
+
+
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
+                                                 "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+
+def malloc_in_use_mb() -> float:
+    """Bytes the C allocator has handed out and not had back (glibc ``mallinfo2``), MB; NaN
+    elsewhere. RSS minus this is the allocator's free-but-kept memory."""
+    try:
+        f = ctypes.CDLL(None).mallinfo2
+    except (OSError, AttributeError):
+        return float("nan")
+    f.restype = _MallInfo2
+    mi = f()
+    return (mi.uordblks + mi.hblkhd) / 2 ** 20
 
 
 def rss_mb() -> float:
@@ -59,9 +77,17 @@ def main():
         mem = []
         stop = threading.Event()
 
+        frame_mb = live.frames.size[0] * live.frames.size[1] / 2 ** 20       # a grey frame
+        queues = []
+
         def sample_memory():
             while not stop.is_set():
-                mem.append((time.monotonic(), rss_mb()))
+                # what the bounded queues hold at this moment: frames waiting for the video encoder
+                # and for tracking (grey and colour), eye records waiting for the loop, samples waiting for a pose
+                vq = live.recorder.video_q.qsize() if live.recorder else 0
+                cq, rq, pend = live.frames.queue.qsize(), live.reader.queue.qsize(), len(live.pending)
+                queues.append((vq, cq, rq, pend, len(live.targets)))
+                mem.append((time.monotonic(), rss_mb(), rss_mb() - (vq + 4 * cq) * frame_mb, malloc_in_use_mb()))
                 time.sleep(5.0)
         threading.Thread(target=sample_memory, daemon=True).start()
         st = live.run(duration_s=args.minutes * 60 + 1.0)
@@ -91,6 +117,17 @@ def main():
             slices = [f"{m[(tm >= a) & (tm < b), 1].mean():.0f}" for a, b in zip(edges[:-1], edges[1:])
                       if ((tm >= a) & (tm < b)).any()]
             print(f"  memory by sixths of the run: {' / '.join(slices)} MB; trend after warm-up {slope:+.1f} MB/hour")
+            slices = [f"{m[(tm >= a) & (tm < b), 2].mean():.0f}" for a, b in zip(edges[:-1], edges[1:])
+                      if ((tm >= a) & (tm < b)).any()]
+            slope = np.polyfit(tm[late], m[late, 2], 1)[0] * 60.0 if late.sum() >= 3 else float("nan")
+            q = np.array(queues)
+            print(f"  less the frames queued at that moment: {' / '.join(slices)} MB; trend {slope:+.1f} MB/hour")
+            slices = [f"{m[(tm >= a) & (tm < b), 3].mean():.0f}" for a, b in zip(edges[:-1], edges[1:])
+                      if ((tm >= a) & (tm < b)).any()]
+            print(f"  C allocator in use (malloc, queued frames included): {' / '.join(slices)} MB")
+            print(f"  queues, most seen: video encoder {q[:, 0].max()} frames (bound "
+                  f"{live.recorder.video_q.maxsize if live.recorder else 0}), tracking {q[:, 1].max()}, eye records "
+                  f"{q[:, 2].max()}, samples waiting for a pose {q[:, 3].max()}; target ids {q[-1, 4]}")
         ok = (h.percentile(95) <= 50 and n_rec == live.reader.stats.records
               and (not args.record or n_frames_rec == live.frames.stats.frames))
         print(f"  target p95 <= 50 ms and nothing intact lost: {'PASS' if ok else 'FAIL'}")
