@@ -105,7 +105,8 @@ def main():
         print(f"  last {len(lat)} estimates: median {np.median(lat):.1f} ms, p95 {np.percentile(lat, 95):.1f} ms")
         print(f"  eye samples sent {emu.sent}, received intact {live.reader.stats.records}, {'recorded' if args.record else 'processed'} {n_rec}, "
               f"corrupt {live.reader.stats.corrupt}, dropped by the reader {live.reader.stats.dropped}")
-        print(f"  frames {live.frames.stats.frames}, skipped by tracking under load {live.frames.stats.dropped}"
+        print(f"  frames {live.frames.stats.frames}, dropped by a full camera queue {live.frames.stats.dropped}, "
+              f"skipped by tracking for a newer one {st.frames_skipped}"
               + (f", recorded {n_frames_rec}" if args.record else ""))
         if len(m) >= 4:
             print(f"  memory (RSS): first half mean {m[:half, 1].mean():.0f} MB, second half {m[half:, 1].mean():.0f} MB, "

@@ -197,6 +197,7 @@ class LiveStats:
     published: int = 0
     no_pose: int = 0
     targets: int = 0
+    frames_skipped: int = 0   # waiting frames tracking passed over for a newer one (all still recorded)
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=5000))   # the recent ones, for the status line
     latency_all: LatencyHistogram = field(default_factory=LatencyHistogram)   # the whole run
 
@@ -242,6 +243,9 @@ class LiveSession:
         self.messages = open(Path(record) / "live.jsonl", "w", encoding="utf-8") if record else None
         self.targets: list = []
         self.head = None
+        self.markers_in_view = 0
+        self.last_arrival: float | None = None    # monotonic time the newest eye record arrived
+        self.last_t = -1.0                        # session time of the newest eye sample, s
 
     def stop(self, *_):
         self.stop_event.set()
@@ -270,7 +274,7 @@ class LiveSession:
                 if duration_s is not None and now - t_start >= duration_s:
                     break
                 if self.frames.finished.is_set() and self.frames.queue.empty() and self.reader.queue.empty():
-                    if now - self._last_eye_arrival(now) > 0.5:
+                    if self.last_arrival is not None and now - self.last_arrival > 0.5:
                         break
                 if self.recorder is not None:
                     self.recorder.flush_if_due()
@@ -284,9 +288,6 @@ class LiveSession:
             self._close()
         return self.stats
 
-    def _last_eye_arrival(self, now):
-        return getattr(self, "_last_arrival", now)
-
     def _drain_frames(self) -> bool:
         """Track the newest waiting frame; older waiting frames are skipped (counted): under
         load, a fresh pose serves the waiting eye samples better than a backlog of old ones
@@ -299,7 +300,7 @@ class LiveSession:
                 break
         if not items:
             return False
-        self.skipped_frames = getattr(self, "skipped_frames", 0) + len(items) - 1
+        self.stats.frames_skipped += len(items) - 1
         t, i, grey, _ = items[-1]
         t_s = t - self.frames.t0
         res = self.poser.estimate(self.detector.detect(grey))
@@ -316,15 +317,15 @@ class LiveSession:
             except queue.Empty:
                 break
             busy = True
-            self._last_arrival = arrival
+            self.last_arrival = arrival
             t0 = self.frames.t0 if self.frames.t0 is not None else arrival
             off = arrival - t0 - rec.t
             if self.offset is None or off < self.offset - 0.002:
                 self.offset = off                            # the fastest path: the clocks' offset
             # the eye clock mapped onto the session clock; kept strictly increasing when the
             # offset estimate improves (by at most the first samples' extra transport delay)
-            t_s = max(rec.t + self.offset, getattr(self, "_last_t", -1.0) + 1e-4)
-            self._last_t = t_s
+            t_s = max(rec.t + self.offset, self.last_t + 1e-4)
+            self.last_t = t_s
             if self.recorder is not None:
                 self.recorder.eye_sample(t_s, rec)
             self.pending.append((arrival, t_s, rec))
@@ -364,7 +365,6 @@ class LiveSession:
         if T is None:
             self.stats.no_pose += 1
             return
-        R = T[:3, :3]
         parts = []
         for e, (raw, valid) in enumerate(((rec.left, rec.left_valid), (rec.right, rec.right_valid))):
             if not valid:
@@ -424,8 +424,8 @@ class LiveSession:
         s, r, c = self.stats, self.reader.stats, self.frames.stats
         lat = np.percentile(list(s.latencies_ms), 95) if s.latencies_ms else float("nan")
         cur = "-" if self.last_est is None else "(" + ", ".join(f"{v:.0f}" for v in self.last_est[0].position_mm) + ")"
-        self.status_stream.write(f"\rframes {c.frames} (dropped {c.dropped})  eye {r.records} (corrupt {r.corrupt}, "
-                                 f"lost {r.lost}, reconnects {r.reconnects})  markers {getattr(self, 'markers_in_view', 0)}"
+        self.status_stream.write(f"\rframes {c.frames} (dropped {c.dropped}, skipped {s.frames_skipped})  eye {r.records} (corrupt {r.corrupt}, "
+                                 f"lost {r.lost}, reconnects {r.reconnects})  markers {self.markers_in_view}"
                                  f"  p95 latency {lat:.1f} ms  target {cur} mm   ")
         self.status_stream.flush()
 
