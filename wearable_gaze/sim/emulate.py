@@ -146,31 +146,28 @@ class RecorderEmulator:
             raise UserError(f"cannot listen on {host}:{port} ({exc.strerror}); pick a free port, e.g. --listen "
                             f"127.0.0.1:0 for any") from None
         srv.listen(1)
-        srv.settimeout(0.1)
         conn: list = [None]
+
+        def take(wait_s: float) -> bool:
+            """Accept a waiting reader (within ``wait_s``; 0: only one already there)."""
+            srv.settimeout(wait_s)
+            try:
+                c, _ = srv.accept()
+            except (BlockingIOError, TimeoutError):
+                return False
+            c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            conn[0] = c
+            return True
 
         def accept() -> bool:
             while not self._stop.is_set():
-                try:
-                    c, _ = srv.accept()
-                except TimeoutError:
-                    continue
-                c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                conn[0] = c
-                return True
+                if take(0.1):
+                    return True
             return False
 
         def write(chunk: bytes) -> bool:
-            if conn[0] is None:
-                srv.settimeout(0.0)           # a reader reconnecting: take it without waiting
-                try:
-                    c, _ = srv.accept()
-                    c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    conn[0] = c
-                except (BlockingIOError, TimeoutError):
-                    return False
-                finally:
-                    srv.settimeout(0.1)
+            if conn[0] is None and not take(0.0):  # a reader reconnecting: taken without waiting
+                return False
             try:
                 conn[0].sendall(chunk)
                 return True
