@@ -14,15 +14,13 @@ the speed-up is not bought with precision.
 
 from __future__ import annotations
 
-import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-
 import argparse  # noqa: E402
 import time  # noqa: E402
 
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np  # noqa: E402
 
-from estimator import (BinocularSamples, MLConfig, PaperVoxelEstimator, VoxelEstimator,  # noqa: E402
-                       cramer_rao_bound, ml_point)
+from estimator import BinocularSamples, MLConfig, PaperVoxelEstimator, VoxelEstimator, cramer_rao_bound, ml_point  # noqa: E402
 from estimator._open3d import import_open3d  # noqa: E402
 from wearable_gaze.sim.protocol import Protocol, simulate_lines  # noqa: E402
 
@@ -38,7 +36,7 @@ class NaiveGrid:
         self.k = -0.5 / np.deg2rad(sigma_deg) ** 2
 
     def update(self, o, d):
-        for e, u in zip(o, d):
+        for e, u in zip(o, d, strict=True):
             v = self.pts - e
             cos = (v @ u) / np.linalg.norm(v, axis=1)
             ang = np.arccos(np.clip(cos, -1, 1))

@@ -14,8 +14,6 @@ no sample that arrived intact is lost.
 
 from __future__ import annotations
 
-import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-
 import argparse  # noqa: E402
 import ctypes  # noqa: E402
 import io  # noqa: E402
@@ -24,6 +22,7 @@ import threading  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np  # noqa: E402
 
 from wearable_gaze.live.app import LiveSession  # noqa: E402
@@ -115,15 +114,15 @@ def main():
             late = tm >= min(5.0, tm[-1] / 2)           # past the warm-up (caches, allocator pools)
             slope = np.polyfit(tm[late], m[late, 1], 1)[0] * 60.0 if late.sum() >= 3 else float("nan")
             edges = np.linspace(0.0, tm[-1] + 1e-9, 7)
-            slices = [f"{m[(tm >= a) & (tm < b), 1].mean():.0f}" for a, b in zip(edges[:-1], edges[1:])
+            slices = [f"{m[(tm >= a) & (tm < b), 1].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
                       if ((tm >= a) & (tm < b)).any()]
             print(f"  memory by sixths of the run: {' / '.join(slices)} MB; trend after warm-up {slope:+.1f} MB/hour")
-            slices = [f"{m[(tm >= a) & (tm < b), 2].mean():.0f}" for a, b in zip(edges[:-1], edges[1:])
+            slices = [f"{m[(tm >= a) & (tm < b), 2].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
                       if ((tm >= a) & (tm < b)).any()]
             slope = np.polyfit(tm[late], m[late, 2], 1)[0] * 60.0 if late.sum() >= 3 else float("nan")
             q = np.array(queues)
             print(f"  less the frames queued at that moment: {' / '.join(slices)} MB; trend {slope:+.1f} MB/hour")
-            slices = [f"{m[(tm >= a) & (tm < b), 3].mean():.0f}" for a, b in zip(edges[:-1], edges[1:])
+            slices = [f"{m[(tm >= a) & (tm < b), 3].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
                       if ((tm >= a) & (tm < b)).any()]
             print(f"  C allocator in use (malloc, queued frames included): {' / '.join(slices)} MB")
             print(f"  queues, most seen: video encoder {q[:, 0].max()} frames (bound "

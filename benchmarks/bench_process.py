@@ -10,12 +10,12 @@ Target (issue 6): >= 2x real time.
 
 from __future__ import annotations
 
-import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-
 import argparse  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 
 from wearable_gaze.process import process_session  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402

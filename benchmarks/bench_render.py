@@ -9,12 +9,11 @@ Target (issue 3): >= 50 frames per second at 1280x720 on one core.
 
 from __future__ import annotations
 
-import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import time  # noqa: E402
 
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np  # noqa: E402
 
 from wearable_gaze.sim.motion import make_motion  # noqa: E402

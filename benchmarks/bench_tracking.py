@@ -11,14 +11,13 @@ Target (issue 5): >= 60 frames per second, detection and pose included.
 
 from __future__ import annotations
 
-import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-
 import argparse  # noqa: E402
 import json  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -51,7 +50,7 @@ def main():
         t0 = time.perf_counter()
         results = [est.estimate(detector.detect(f)) for f in frames]
         dt = (time.perf_counter() - t0) / len(frames)
-        for r, T in zip(results, T_true):
+        for r, T in zip(results, T_true, strict=True):
             if r.ok:
                 rot.append(rotation_angle_deg(r.T_world_from_cam[:3, :3], T[:3, :3]))
                 tr.append(np.linalg.norm(r.T_world_from_cam[:3, 3] - T[:3, 3]))
@@ -68,7 +67,7 @@ def main():
 
         def detect(self, grey):
             c, ids, _ = self.det.detectMarkers(grey)
-            return {} if ids is None else {int(i): q.reshape(4, 2).astype(float) for i, q in zip(ids.ravel(), c)}
+            return {} if ids is None else {int(i): q.reshape(4, 2).astype(float) for i, q in zip(ids.ravel(), c, strict=True)}
 
     ours = run(MarkerDetector(mm.dictionary))
     base = run(OpenCVDefault())

@@ -50,7 +50,7 @@ class BoardSpec:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "BoardSpec":
+    def from_dict(cls, d: dict) -> BoardSpec:
         spec = cls(str(d["type"]), int(d["cols"]), int(d["rows"]), float(d["square_mm"]),
                    float(d.get("marker_mm", 0.0)), str(d.get("dictionary", "")))
         spec.validate()
@@ -184,7 +184,7 @@ class CameraCalibration:
                 "rms_px": self.rms_px, "std": self.std, "board": self.board, "views": self.views}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "CameraCalibration":
+    def from_dict(cls, d: dict) -> CameraCalibration:
         """Raises ValueError naming the missing or malformed key."""
         for key in ("camera_matrix", "dist_coeffs", "image_size"):
             if key not in d:
@@ -261,7 +261,7 @@ def _calibrate_once(views, image_size, model, flags):
                                                                    flags=flags)
         std = std.ravel()
     per = []
-    for v, r, t in zip(views, rv, tv):
+    for v, r, t in zip(views, rv, tv, strict=True):
         if model == "fisheye":
             px, _ = cv2.fisheye.projectPoints(v.object_points.reshape(-1, 1, 3), r, t, K, D)
         else:
@@ -307,7 +307,7 @@ def calibrate_camera(views, image_size, spec: BoardSpec | None = None, model: st
                                              "(blurred, moved or misdetected)")
         report[use[worst].name]["rms_px"] = per[worst]
         use = use[:worst] + use[worst + 1:]
-    for v, e in zip(use, per):
+    for v, e in zip(use, per, strict=True):
         report[v.name].update(used=True, rms_px=e, reason="")
     cal = CameraCalibration(K, D, (int(image_size[0]), int(image_size[1])), model, rms, list(report.values()),
                             spec.to_dict() if spec else None)

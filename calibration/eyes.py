@@ -96,7 +96,7 @@ class RawMap:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RawMap":
+    def from_dict(cls, d: dict) -> RawMap:
         tps = None
         if d.get("tps"):
             tps = (np.asarray(d["tps"]["nodes"], float), np.asarray(d["tps"]["values"], float),
@@ -185,7 +185,7 @@ class EyeCalibration:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "EyeCalibration":
+    def from_dict(cls, d: dict) -> EyeCalibration:
         return cls(d["eye"], np.asarray(d["centre_mm"], float), float(d["plane_mm"]),
                    RawMap.from_dict(d["raw_map"]), d.get("report", {}))
 

@@ -6,8 +6,15 @@ Frames and units: see ``estimator.frames``.
 
 from .api import METHODS, density_point_cloud, estimate, make_estimator, run_estimator
 from .likelihood import MLConfig, cramer_rao_bound, fisher_information, ml_point, perturb_directions
-from .lines import (BinocularSample, BinocularSamples, ViewLines, calibration_plane_points,
-                    view_lines_in_camera, view_lines_to_camera, view_lines_to_world)
+from .lines import (
+                    BinocularSample,
+                    BinocularSamples,
+                    ViewLines,
+                    calibration_plane_points,
+                    view_lines_in_camera,
+                    view_lines_to_camera,
+                    view_lines_to_world,
+)
 from .result import Ellipsoid, GazeEstimate, Status
 from .triangulation import PairStatus, closest_point_two_lines, lse_point, nearest_point_to_lines
 from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEstimator

@@ -96,7 +96,7 @@ class BinocularSamples:
 
     @classmethod
     def from_arrays(cls, t_s, left_origin_mm, left_direction, right_origin_mm, right_direction,
-                    left_valid=None, right_valid=None, frame: str = "world") -> "BinocularSamples":
+                    left_valid=None, right_valid=None, frame: str = "world") -> BinocularSamples:
         """Validate and normalise; an eye is valid where its origin and direction are all finite
         (unless masks are given). A valid eye with a zero direction raises ``ValueError``."""
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
@@ -120,13 +120,13 @@ class BinocularSamples:
                    arrays["right"][2], frame)
 
     @classmethod
-    def from_lines(cls, t_s, left: ViewLines, right: ViewLines) -> "BinocularSamples":
+    def from_lines(cls, t_s, left: ViewLines, right: ViewLines) -> BinocularSamples:
         """Pair two equally long ``ViewLines`` (left, right) into binocular samples."""
         return cls.from_arrays(t_s, left.origins_mm, left.directions, right.origins_mm,
                                right.directions, frame=left.frame)
 
     @classmethod
-    def concatenate(cls, parts) -> "BinocularSamples":
+    def concatenate(cls, parts) -> BinocularSamples:
         """Join ``BinocularSamples`` (same frame) end to end."""
         parts = list(parts)
         if not parts:
@@ -141,7 +141,7 @@ class BinocularSamples:
     def __len__(self) -> int:
         return len(self.t_s)
 
-    def select(self, index) -> "BinocularSamples":
+    def select(self, index) -> BinocularSamples:
         """The samples at ``index`` (a slice, boolean mask or integer array)."""
         return BinocularSamples(self.t_s[index], self.left_origin_mm[index], self.left_direction[index],
                                 self.right_origin_mm[index], self.right_direction[index],

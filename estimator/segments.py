@@ -87,7 +87,7 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s)
     bounds = sorted({0, m} | {c[2] for c in cuts} | set((gaps + 1).tolist()))
     label = 0
-    for a, b in zip(bounds[:-1], bounds[1:]):
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         # drop the samples inside the jump region around each cut and trim the ends
         ta, tb = tv[a] + config.trim_s, tv[b - 1] - config.trim_s
         sel = np.arange(a, b)

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._open3d import import_open3d
-from .frames import tangent_basis
 from .likelihood import MLConfig, fisher_information, ml_point, reliability_weight, reliability_weights
 from .lines import BinocularSample, BinocularSamples, ViewLines
 from .result import GazeEstimate, Status, failed

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from calibration.camera import BoardView, CameraCalibration, calibrate_camera, detect_board, parse_board
-from calibration.eyes import (CalibrationError, calibrate_eye, estimate_centre, fit_raw_map, target_readings,
-                              wall_pose)
+from calibration.eyes import CalibrationError, calibrate_eye, estimate_centre, fit_raw_map, target_readings, wall_pose
 from estimator.frames import rotation_about_axis
 from tracking.timeline import interpolate_poses
 from wearable_gaze.calibrate_cmd import load_camera, load_eyes
@@ -17,7 +16,6 @@ from wearable_gaze.cli import main
 from wearable_gaze.sim.simulate import simulate_scenario
 from wearable_gaze.tables import read_table
 from wearable_gaze.viewlines_csv import read_viewlines_csv
-
 
 # --- real photos -------------------------------------------------------------------------------
 

@@ -1,3 +1,4 @@
+import itertools
 import json
 import subprocess
 import sys
@@ -143,7 +144,7 @@ def test_reproduce_figure5(tmp_path, capsys):
     # the paper's finding: usable near 1.2 m, unreliable beyond 3 m
     assert abs(stats[1200.0][0] - 1200) < 0.25 * 1200
     rel_iqr = [stats[z][1] / z for z in sorted(stats)]
-    assert all(a < b for a, b in zip(rel_iqr, rel_iqr[1:]))
+    assert all(a < b for a, b in itertools.pairwise(rel_iqr))
     assert rel_iqr[0] < 0.5 < rel_iqr[-1]          # spread below / above half the distance
     assert stats[1200.0][2] <= 5 and stats[3300.0][2] >= 10   # % of diverging pairs
 

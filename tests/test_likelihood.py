@@ -6,8 +6,8 @@ from estimator import MLConfig, Status, cramer_rao_bound, ml_point, perturb_dire
 from estimator.frames import tangent_basis
 from estimator.likelihood import angular_residuals, reliability_weights
 from estimator.lines import ViewLines
-from wearable_gaze.sim.protocol import simulate_lines
 from tests.helpers import lines_toward, walkabout_samples
+from wearable_gaze.sim.protocol import simulate_lines
 
 
 def test_noise_model_has_the_configured_angular_std(rng):

@@ -1,8 +1,14 @@
 import numpy as np
 import pytest
 
-from estimator import (BinocularSamples, ViewLines, calibration_plane_points, view_lines_in_camera,
-                       view_lines_to_camera, view_lines_to_world)
+from estimator import (
+    BinocularSamples,
+    ViewLines,
+    calibration_plane_points,
+    view_lines_in_camera,
+    view_lines_to_camera,
+    view_lines_to_world,
+)
 from estimator.frames import invert, transform_points
 from tests.helpers import random_transform
 

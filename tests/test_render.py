@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from estimator.frames import rotation_about_axis
-from wearable_gaze.sim.render import (Camera, Plane, aruco_dictionary, finish, marker_corners_world,
-                                      marker_plane, render)
+from wearable_gaze.sim.render import Camera, Plane, aruco_dictionary, finish, marker_corners_world, marker_plane, render
 
 
 def _detector():
@@ -68,7 +67,7 @@ def test_rendered_marker_corners_match_projected_ground_truth(scenes):
     for img, truth in scenes:
         corners, ids, _ = det.detectMarkers(img)
         assert ids is not None
-        for c, i in zip(corners, ids.ravel()):
+        for c, i in zip(corners, ids.ravel(), strict=True):
             e = c.reshape(4, 2) - truth[int(i)]
             errs.append(np.linalg.norm(e, axis=1))
             offsets.append(e)
@@ -140,7 +139,7 @@ def test_rendered_corners_within_a_tenth_of_a_pixel_with_edge_refinement(scenes)
     errs = []
     for img, truth in scenes:
         corners, ids, _ = det.detectMarkers(img)
-        for c, i in zip(corners, ids.ravel()):
+        for c, i in zip(corners, ids.ravel(), strict=True):
             errs.append(np.linalg.norm(refine_marker_corners(img, c.reshape(4, 2), 6) - truth[int(i)], axis=1))
     errs = np.concatenate(errs)
     assert np.median(errs) < 0.1

@@ -107,7 +107,7 @@ def test_rendered_session_markers_match_projected_ground_truth(tmp_path):
         corners, ids, _ = det.detectMarkers(grey)
         per_frame.append(0 if ids is None else len(ids))
         T_cw = np.linalg.inv(T[i])
-        for c, mid in zip(corners, ids.ravel()):
+        for c, mid in zip(corners, ids.ravel(), strict=True):
             assert int(mid) in Tm                                  # no false ids
             w = marker_corners_world(mm["marker_size_mm"], Tm[int(mid)])
             px, _ = cv2.projectPoints((T_cw[:3, :3] @ w.T).T + T_cw[:3, 3], np.zeros(3), np.zeros(3), K, D)

@@ -70,8 +70,8 @@ def walk(tmp_path_factory):
 
 
 def _errors(results, T):
-    rot = [rotation_angle_deg(r.T_world_from_cam[:3, :3], t[:3, :3]) for r, t in zip(results, T) if r.ok]
-    tr = [np.linalg.norm(r.T_world_from_cam[:3, 3] - t[:3, 3]) for r, t in zip(results, T) if r.ok]
+    rot = [rotation_angle_deg(r.T_world_from_cam[:3, :3], t[:3, :3]) for r, t in zip(results, T, strict=True) if r.ok]
+    tr = [np.linalg.norm(r.T_world_from_cam[:3, 3] - t[:3, 3]) for r, t in zip(results, T, strict=True) if r.ok]
     return np.array(rot), np.array(tr)
 
 
@@ -101,8 +101,8 @@ def test_pycolmap_backend_agrees_with_opencv(walk):
     assert all(r.ok for r in a + b)
     rot_b, tr_b = _errors(b, T[::3])
     assert np.median(rot_b) <= 0.1 and np.median(tr_b) <= 2.5
-    d_rot = [rotation_angle_deg(x.T_world_from_cam[:3, :3], y.T_world_from_cam[:3, :3]) for x, y in zip(a, b)]
-    d_tr = [np.linalg.norm(x.T_world_from_cam[:3, 3] - y.T_world_from_cam[:3, 3]) for x, y in zip(a, b)]
+    d_rot = [rotation_angle_deg(x.T_world_from_cam[:3, :3], y.T_world_from_cam[:3, :3]) for x, y in zip(a, b, strict=True)]
+    d_tr = [np.linalg.norm(x.T_world_from_cam[:3, 3] - y.T_world_from_cam[:3, 3]) for x, y in zip(a, b, strict=True)]
     assert np.median(d_rot) < 0.05 and np.median(d_tr) < 1.5
     assert b[0].covariance.shape == (6, 6)
 

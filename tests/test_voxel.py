@@ -1,9 +1,20 @@
 import numpy as np
 import pytest
 
-from estimator import (BinocularSample, PaperVoxelConfig, PaperVoxelEstimator, Status, VoxelConfig,
-                       VoxelEstimator, cramer_rao_bound, density_point_cloud, estimate, make_estimator,
-                       ml_point, run_estimator)
+from estimator import (
+    BinocularSample,
+    PaperVoxelConfig,
+    PaperVoxelEstimator,
+    Status,
+    VoxelConfig,
+    VoxelEstimator,
+    cramer_rao_bound,
+    density_point_cloud,
+    estimate,
+    make_estimator,
+    ml_point,
+    run_estimator,
+)
 from estimator._open3d import import_open3d
 from estimator.voxel import DensityGrid
 from tests.helpers import random_rotation, walkabout_samples

@@ -53,7 +53,7 @@ class MarkerMap:
                             for i, T in sorted(self.poses.items())]}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "MarkerMap":
+    def from_dict(cls, d: dict) -> MarkerMap:
         """Validate and load. Each marker gives ``T_world_from_marker`` (4x4) or ``corners_mm``
         (4x3, cv2.aruco order).
 

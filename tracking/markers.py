@@ -66,4 +66,4 @@ class MarkerDetector:
             c = pts.reshape(-1, 4, 2).astype(float)
         if self.refine == "edges":
             c = refine_markers(grey, c, self.modules)
-        return {int(i): ci for i, ci in zip(ids.ravel(), c)}
+        return {int(i): ci for i, ci in zip(ids.ravel(), c, strict=True)}

@@ -180,7 +180,7 @@ class MarkerPoseEstimator:
             return PoseResult(None, REJECTED, "IPPE found no pose", [marker_id], 4)
         T_wm = self.map.poses[marker_id]
         cands = []
-        for rv, tv, e in zip(rvecs, tvecs, np.ravel(errs)):
+        for rv, tv, e in zip(rvecs, tvecs, np.ravel(errs), strict=True):
             T_cm = _rt_to_T(rv, tv) @ flip
             cands.append((float(e), T_wm @ invert(T_cm), rv, tv))
         cands.sort(key=lambda c: c[0])

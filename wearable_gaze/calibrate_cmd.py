@@ -8,10 +8,23 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calibration.camera import (CameraCalibration, calibrate_camera, detect_board, parse_board,
-                                select_frames, undistort_image)
-from calibration.eyes import (CalibrationError, EyeCalibration, calibrate_eye, compare_models, estimate_centre,
-                              target_readings, wall_pose)
+from calibration.camera import (
+    CameraCalibration,
+    calibrate_camera,
+    detect_board,
+    parse_board,
+    select_frames,
+    undistort_image,
+)
+from calibration.eyes import (
+    CalibrationError,
+    EyeCalibration,
+    calibrate_eye,
+    compare_models,
+    estimate_centre,
+    target_readings,
+    wall_pose,
+)
 from estimator import BinocularSamples, view_lines_to_world
 from estimator.frames import invert
 from tracking.markers import MarkerDetector

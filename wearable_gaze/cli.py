@@ -71,8 +71,8 @@ def cmd_reproduce(args) -> int:
             result, paths = reproduce_table1(out, args.trials, args.seed, progress=cb)
         print(result.format())
     elif args.what == "calibration":
-        from .calibrate_cmd import study_table  # noqa: PLC0415
         from .atomic import write_text  # noqa: PLC0415
+        from .calibrate_cmd import study_table  # noqa: PLC0415
 
         with progress_bar("calibration trials", args.trials) as cb:
             result = study_table(args.trials, args.seed, cb)

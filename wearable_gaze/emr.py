@@ -110,7 +110,7 @@ class LineProtocol:
         parts = body.split(self.separator)[1:]
         if len(parts) != len(self.fields):
             raise ParseError(f"{len(parts)} fields, expected {len(self.fields)}")
-        vals = dict(zip(self.fields, parts))
+        vals = dict(zip(self.fields, parts, strict=True))
         try:
             raw = [float(vals[k]) for k in ("left_x", "left_y", "right_x", "right_y")]
             valid = int(vals["valid"], self.valid_base)

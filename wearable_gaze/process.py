@@ -22,7 +22,7 @@ from estimator.segments import SegmentConfig, same_target, segment_fixations
 from .atomic import write_text
 from .calibrate_cmd import calibrate_camera_files, calibrate_eyes_files, viewlines_files
 from .errors import UserError
-from .session import load_session, read_json, read_poses_csv, write_json
+from .session import load_session, read_json, write_json
 from .tables import write_table
 from .track_cmd import track_video
 from .viewlines_csv import read_viewlines_csv, write_viewlines_csv
@@ -242,12 +242,12 @@ def _targets(vl_path: Path, out: Path, method: str, sigma_deg: float, config: Se
         stream = make_estimator(method, sigma_deg)
         bounds = np.unique(np.linspace(0, len(idx), min(21, len(idx) + 1)).astype(int))
         e = None
-        for j0, j1 in zip(bounds[:-1], bounds[1:]):
+        for j0, j1 in zip(bounds[:-1], bounds[1:], strict=True):
             e = stream.add(sub.select(slice(j0, j1)))
             if e.ok:
                 running["t"].append(float(sub.t_s[j1 - 1]))
                 running["segment"].append(k)
-                for a, v in zip("xyz", e.position_mm):
+                for a, v in zip("xyz", e.position_mm, strict=True):
                     running[a].append(float(v))
                 running["radius95_mm"].append(_radius95(e))
         fixations.append({"segment": k, "idx": idx, "estimate": e})

@@ -8,9 +8,9 @@ below the Cramér-Rao bound of its own protocol).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -198,10 +198,10 @@ def plot_fig13(out_path, seed: int = 0, protocol: Protocol = Protocol(), depths_
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(depths_mm)))
     for i, z in enumerate(depths_mm):
         conv = convergence(z, seed + i, protocol)
-        for ax, m in zip(axes, TABLE_METHODS):
+        for ax, m in zip(axes, TABLE_METHODS, strict=True):
             ax.plot(np.arange(1, len(conv[m]) + 1), conv[m], color=colors[i], label=f"Z = {z / 1000:.0f} m")
             ax.axhline(z, color=colors[i], ls=":", lw=1)
-    for ax, m in zip(axes, TABLE_METHODS):
+    for ax, m in zip(axes, TABLE_METHODS, strict=True):
         ax.set_title(m)
         ax.set_xlabel("binocular observations")
         ax.set_ylim(0, 1.3 * max(depths_mm))
@@ -257,7 +257,7 @@ def plot_figure5(result: Figure5Result, out_path):
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
     colors = plt.cm.plasma(np.linspace(0, 0.85, len(result.depths_mm)))
-    for c, (z, d) in zip(colors, result.depths_mm.items()):
+    for c, (z, d) in zip(colors, result.depths_mm.items(), strict=True):
         ax.plot(result.t_s, d, ".", ms=3, color=c, label=f"{z / 1000:.1f} m")
         ax.axhline(z, color=c, lw=1)
     ax.set_ylim(0, 8000)

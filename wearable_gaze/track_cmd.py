@@ -36,7 +36,7 @@ def _frame_times(video: Path, timestamps, n_hint: int, fps: float):
     if timestamps is None:
         return None
     tab = read_table(timestamps, ["frame", "t"], what="frame-timestamp CSV")
-    return dict(zip(tab["frame"].astype(int), tab["t"]))
+    return dict(zip(tab["frame"].astype(int), tab["t"], strict=True))
 
 
 def track_video(video, camera_path, out, markers=None, reference=None, reference_size_mm=None, overlay=None,
@@ -140,7 +140,7 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
         fill = np.array([st == "interpolated" for st in status])
         T_i, ok_i = interpolate_poses(t_all[~fill], T_all[~fill], t_all[fill], max_gap_s=(every + 0.5) / fps)
         T_all[fill] = T_i
-        for k, good in zip(np.flatnonzero(fill), ok_i):
+        for k, good in zip(np.flatnonzero(fill), ok_i, strict=True):
             if not good:
                 status[k] = "no_pose: no tracked frame on both sides"
     if smooth_s > 0:

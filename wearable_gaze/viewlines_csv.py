@@ -15,7 +15,6 @@ One eye's six cells may all be empty (a monocular sample); partly empty is an er
 from __future__ import annotations
 
 import csv
-import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,7 +83,7 @@ def read_viewlines_csv(path) -> list[Segment]:
             if all(v is None for v in vals):
                 eyes[side] = None
                 continue
-            empty = [c for c, v in zip(cols, vals) if v is None]
+            empty = [c for c, v in zip(cols, vals, strict=True) if v is None]
             if empty:
                 raise UserError(f"{path} line {line_no}, column {empty[0]}: empty, but other {side}-eye "
                                 f"cells are not; leave all six {side}_* cells empty for a monocular sample")

@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 from estimator import BinocularSample, make_estimator
-from estimator.segments import OnlineSegmenter, same_target
 from estimator.frames import rotate_directions, transform_points
+from estimator.segments import OnlineSegmenter, same_target
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
 from tracking.timeline import interpolate_poses

@@ -44,7 +44,7 @@ class EyeSensor:
     cubic: float
 
     @classmethod
-    def random(cls, rng: np.random.Generator) -> "EyeSensor":
+    def random(cls, rng: np.random.Generator) -> EyeSensor:
         g = rng.uniform(900, 1100, 2)
         a = np.deg2rad(rng.uniform(-3, 3))
         A = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) @ np.diag(g)
@@ -94,7 +94,7 @@ class EyeSensor:
         return {"offset": self.offset.tolist(), "A": self.A.tolist(), "Q": self.Q.tolist(), "cubic": self.cubic}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "EyeSensor":
+    def from_dict(cls, d: dict) -> EyeSensor:
         return cls(np.asarray(d["offset"], float), np.asarray(d["A"], float), np.asarray(d["Q"], float),
                    float(d["cubic"]))
 
@@ -120,7 +120,7 @@ class EyeModel:
 
     @classmethod
     def make(cls, rng: np.random.Generator, ipd_mm: float = 64.0, centre_offset_mm=(0.0, 30.0, -20.0),
-             sigma_deg: float = 1.0, bias_deg=None) -> "EyeModel":
+             sigma_deg: float = 1.0, bias_deg=None) -> EyeModel:
         off = np.asarray(centre_offset_mm, float)
         centres = np.array([[-ipd_mm / 2, 0, 0], [ipd_mm / 2, 0, 0]]) + off
         bias = np.zeros((2, 2)) if bias_deg is None else np.asarray(bias_deg, float).reshape(2, 2)

@@ -15,8 +15,8 @@ SLERP rotation), so video frames and eye samples at any rate see one continuous 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -84,7 +84,7 @@ def _heading(t, gaze_target: Callable[[np.ndarray], np.ndarray], positions, foll
 
 
 def _assemble(t, positions, headings, extra_rotvec=None) -> HeadMotion:
-    R = np.stack([look_at(p, p + h)[:3, :3] for p, h in zip(positions, headings)])
+    R = np.stack([look_at(p, p + h)[:3, :3] for p, h in zip(positions, headings, strict=True)])
     rot = Rotation.from_matrix(R)
     if extra_rotvec is not None:
         rot = rot * Rotation.from_rotvec(extra_rotvec)     # sway in the head's own frame

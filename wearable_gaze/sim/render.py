@@ -34,7 +34,6 @@ import numpy as np
 
 from estimator.frames import invert
 
-
 CANVAS_AREA = 0.25
 
 
@@ -54,7 +53,7 @@ class Camera:
 
     @classmethod
     def wide_scene_camera(cls, width: int = 1280, height: int = 720, hfov_deg: float = 90.0,
-                          dist=(-0.28, 0.09, 0.0, 0.0, -0.012)) -> "Camera":
+                          dist=(-0.28, 0.09, 0.0, 0.0, -0.012)) -> Camera:
         """The default scene camera: wide (90 deg horizontal), barrel distortion, 1280x720."""
         f = 0.5 * width / np.tan(np.deg2rad(hfov_deg) / 2)
         K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
@@ -247,7 +246,7 @@ def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) 
     # depth buffer over the union of the boxes only, origin (dx, dy)
     dx, dy = min(b[0] for b in seen), min(b[1] for b in seen)
     depth = np.full((max(b[3] for b in seen) - dy, max(b[2] for b in seen) - dx), np.inf, np.float32)
-    for plane, T, bbox in zip(exact, Ts, boxes):
+    for plane, T, bbox in zip(exact, Ts, boxes, strict=True):
         if bbox is None:
             continue
         if abs(T[:3, 2] @ T[:3, 3]) < 1e-9:            # det [x y t] = z . t: seen edge-on
@@ -579,7 +578,6 @@ def finish(img: np.ndarray, rng: np.random.Generator | None = None, noise_std: f
 # --- textures ---------------------------------------------------------------------------------
 
 from calibration.camera import aruco_dictionary  # noqa: E402  (re-exported for the simulator)
-
 
 MARKER_SUPERSAMPLE = 1
 

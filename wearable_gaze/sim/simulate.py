@@ -19,8 +19,17 @@ from estimator import BinocularSamples
 from .. import __version__
 from ..emr import encode_stream
 from ..errors import UserError
-from ..session import (FORMAT, VERSION, EyeSamples, camera_dict, marker_map_dict, read_json, write_eye_csv,
-                       write_json, write_poses_csv)
+from ..session import (
+    FORMAT,
+    VERSION,
+    EyeSamples,
+    camera_dict,
+    marker_map_dict,
+    read_json,
+    write_eye_csv,
+    write_json,
+    write_poses_csv,
+)
 from ..tables import write_table
 from ..viewlines_csv import write_viewlines_csv
 from .eyes import EyeModel, gaze_points, plan_gaze
@@ -68,7 +77,7 @@ def make_targets(scn: dict, rng: np.random.Generator) -> list:
     return out
 
 
-def build_world(scn: dict, rng: np.random.Generator, targets) -> "World":  # noqa: F821
+def build_world(scn: dict, rng: np.random.Generator, targets) -> World:  # noqa: F821
     room = scn["room"]
     if room["layout"] == "lab":
         world = lab_room(rng, room["size_mm"], room["eye_height_mm"], room["back_mm"],

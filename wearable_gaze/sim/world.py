@@ -7,14 +7,22 @@ y down (gravity), z forward: the scene camera at the identity pose looks down +z
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import cv2
 import numpy as np
 
-from .render import (Plane, aruco_dictionary, chessboard_texture, marker_corners_world, marker_plane,
-                     noise_texture, poster_texture, target_texture)
+from .render import (
+    Plane,
+    aruco_dictionary,
+    chessboard_texture,
+    marker_corners_world,
+    marker_plane,
+    noise_texture,
+    poster_texture,
+    target_texture,
+)
 
 MM_PER_TEXEL_WALL = 4.0
 
@@ -192,7 +200,7 @@ class CalibrationWall:
     marker_ids: tuple = (46, 47, 48, 49)
 
     @classmethod
-    def spanning(cls, distance_mm: float, tilt_deg: float, grid=(3, 3), span_deg=(20.0, 15.0)) -> "CalibrationWall":
+    def spanning(cls, distance_mm: float, tilt_deg: float, grid=(3, 3), span_deg=(20.0, 15.0)) -> CalibrationWall:
         """A wall whose dot grid spans +-span_deg (horizontal, vertical) as seen from the camera,
         with reference markers scaled to the distance (120 mm at 1 m)."""
         nx, ny = int(grid[0]), int(grid[1])
@@ -222,7 +230,7 @@ class CalibrationWall:
         hx = (nx - 1) / 2 * self.spacing_mm[0] + 1.2 * self.marker_size_mm
         hy = (ny - 1) / 2 * self.spacing_mm[1] + 1.0 * self.marker_size_mm
         pos = [(-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)]
-        return {int(i): np.array(p) for i, p in zip(self.marker_ids, pos)}
+        return {int(i): np.array(p) for i, p in zip(self.marker_ids, pos, strict=True)}
 
     def to_world(self, pts_wall) -> np.ndarray:
         """(N, 2) wall points -> (N, 3) world points, mm."""
