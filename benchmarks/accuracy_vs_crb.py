@@ -43,8 +43,10 @@ def make_samples(target, heads, baseline_dirs, ipd, sigma_deg, rng):
 GEOMETRIES = {
     # name: (targets, heads, baseline dirs, ipd mm, sigma deg)
     "paper protocol": ([(0, 0, z) for z in (1000, 2000, 3000, 4000, 5000)], paper_heads(), None, 65.0, 1.0),
-    "paper path, off-axis targets": ([(800, -300, 1000), (-600, 200, 3000), (1500, 500, 5000)], paper_heads(), None, 65.0, 1.0),
-    "head sway with yaw, ipd 63": ([(0, 0, 1000), (400, -150, 2500), (-300, 100, 4000), (0, 200, 5000)], *sway_heads(), 63.0, 1.0),
+    "paper path, off-axis targets": ([(800, -300, 1000), (-600, 200, 3000), (1500, 500, 5000)],
+                                     paper_heads(), None, 65.0, 1.0),
+    "head sway with yaw, ipd 63": ([(0, 0, 1000), (400, -150, 2500), (-300, 100, 4000), (0, 200, 5000)],
+                                   *sway_heads(), 63.0, 1.0),
     "short fast path, 0.5 deg": ([(0, 0, 1000), (200, 0, 3000), (0, 0, 5000)], paper_heads(100, 4.0), None, 65.0, 0.5),
 }
 

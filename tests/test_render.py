@@ -28,7 +28,7 @@ def _ideal_errors(det, rng, n=12):
     """Detection errors on exactly area-sampled markers (drawn at 16x, box-downsampled)."""
     d = aruco_dictionary("DICT_4X4_50")
     mk = cv2.aruco.generateImageMarker(d, 3, 300, borderBits=1)
-    S, errs, offs = 16, [], []
+    S, errs = 16, []
     for _ in range(n):
         side, ang, c = rng.uniform(40, 90), rng.uniform(0, 2 * np.pi), rng.uniform(150, 250, 2)
         R = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])

@@ -198,7 +198,7 @@ def plan_gaze(t, n_targets: int, moving, rng: np.random.Generator, fixation_s=(2
     n = len(t)
     target = np.full(n, -1)
     phase = np.full(n, "saccade", dtype=object)
-    start, k, i = t[0], 0, 0
+    start, k = t[0], 0
     seq = []
     while start <= t[-1]:
         idx = (k % n_targets) if order == "cycle" else int(rng.integers(n_targets))
