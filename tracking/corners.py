@@ -2,7 +2,8 @@
 
 Gradient-based refinement (``cv2.cornerSubPix``, ArUco's CORNER_REFINE_SUBPIX) is biased toward
 the inside of an L-shaped corner once the image is blurred at all (about 0.2 px median error on
-rendered and on exactly area-sampled markers; tests/test_render.py). A marker's corner is the intersection of two straight edges, so instead:
+rendered and on exactly area-sampled markers; tests/test_render.py). A marker's corner is the
+intersection of two straight edges, so instead:
 sample the intensity profile across each edge near the corner, take the sub-pixel 50 % crossing
 between the dark and light levels (unbiased for any symmetric blur), fit a line to those points
 (total least squares) and intersect the two lines. Only the part of each edge near its corner is

@@ -95,7 +95,8 @@ class MarkerMap:
                 if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                     raise MarkerMapError(f"marker {i}: T_world_from_marker must be a 4x4 matrix")
                 R = T[:3, :3]
-                if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9:
+                if (np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0
+                        or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9):
                     raise MarkerMapError(f"marker {i}: T_world_from_marker is not a rigid transform (rotation "
                                          "part must be orthonormal, last row 0 0 0 1)")
             elif "corners_mm" in m:

@@ -2,12 +2,53 @@
 
 from __future__ import annotations
 
+import logging
+from collections import Counter
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
 from calibration.camera import aruco_dictionary as get_dictionary
 
 from .corners import refine_markers
+
+log = logging.getLogger(__name__)
+
+
+class MarkerDetection(NamedTuple):
+    """One detected marker (immutable; unpacks as ``marker_id, corners_px``).
+
+    Attributes:
+        marker_id: the dictionary id decoded from the marker's bits.
+        corners_px: (4, 2) float64, read-only: the black square's corners in pixels of the
+            (distorted) image, OpenCV's convention (pixel ``(u, v)``'s centre at integer ``u, v``),
+            ``cv2.aruco`` order: top-left, top-right, bottom-right, bottom-left of the printed marker.
+    """
+
+    marker_id: int
+    corners_px: np.ndarray
+
+
+def detection(marker_id, corners_px) -> MarkerDetection:
+    """A ``MarkerDetection`` from an id and (4, 2) corners, px (checked, copied, read-only)."""
+    c = np.array(corners_px, dtype=np.float64)
+    if c.shape != (4, 2):
+        raise ValueError(f"marker {marker_id}: corners_px must have shape (4, 2), got {c.shape}")
+    c.setflags(write=False)
+    return MarkerDetection(int(marker_id), c)
+
+
+def unique_by_id(detections) -> dict[int, np.ndarray]:
+    """{id: (4, 2) corners px} of the markers whose id was detected exactly once; an id seen more
+    than once is ambiguous (at most one of them is the marker a map or a board means) and is left
+    out, with a log line."""
+    found = list(detections)
+    seen = Counter(d.marker_id for d in found)
+    repeated = sorted(i for i, n in seen.items() if n > 1)
+    if repeated:
+        log.info("marker ids seen more than once, left out as ambiguous: %s", repeated)
+    return {d.marker_id: d.corners_px for d in found if seen[d.marker_id] == 1}
 
 
 class MarkerDetector:
@@ -24,8 +65,11 @@ class MarkerDetector:
             still found), then refine their corners on the full image; default 2 for images 1200
             px wide or more, else 1. Finding is most of the cost, so this is ~3x faster at 720p.
 
-    ``detect(image)`` returns {id: (4, 2) corners in pixels, cv2.aruco order (top-left,
-    top-right, bottom-right, bottom-left of the printed marker)}.
+    ``detect(image)`` returns every marker found, as a list of ``MarkerDetection`` (id, (4, 2)
+    corners px), repeated ids included (a photo may hold several tags of one id): the caller decides
+    what a repeated id means (``MarkerPoseEstimator`` drops an id seen twice that its map lists once;
+    ``detect_unique`` keeps only ids seen once). Corners are in OpenCV's pixel convention for every
+    ``refine``.
     """
 
     def __init__(self, dictionary, refine: str = "edges", params=None, downscale: int | None = None):
@@ -48,17 +92,25 @@ class MarkerDetector:
         self.refine = refine
         self.downscale = downscale
 
-    def detect(self, image) -> dict:
+    def detect(self, image) -> list[MarkerDetection]:
+        """Every marker in ``image`` ((H, W) grey or (H, W, 3) BGR), in the detector's order."""
         img = np.asarray(image)
+        if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+            raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
         grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
         k = self.downscale or (2 if grey.shape[1] >= 1200 and self.refine != "apriltag" else 1)
         small = grey if k == 1 else cv2.resize(grey, (grey.shape[1] // k, grey.shape[0] // k),
                                                interpolation=cv2.INTER_AREA)
         corners, ids, _ = (self._det if k == 1 else self._det_small).detectMarkers(small)
         if ids is None:
-            return {}
+            return []
+        c = np.array([q.reshape(4, 2) for q in corners], float)
+        if self.refine == "apriltag":
+            # OpenCV's AprilTag quad refinement returns AprilTag's pixel convention (a pixel's
+            # centre at +0.5): back to OpenCV's (centre at the integer coordinate)
+            c -= 0.5
         # pixel centres: small-image pixel i covers full-image pixels k i .. k i + k - 1
-        c = np.array([q.reshape(4, 2) for q in corners], float) * k + (k - 1) / 2
+        c = c * k + (k - 1) / 2
         if self.refine in ("edges", "subpix"):
             win = max(2, min(5, int(np.min(np.linalg.norm(np.diff(c, axis=1), axis=2)) / (2 * self.modules))))
             pts = cv2.cornerSubPix(grey, c.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1),
@@ -66,4 +118,9 @@ class MarkerDetector:
             c = pts.reshape(-1, 4, 2).astype(float)
         if self.refine == "edges":
             c = refine_markers(grey, c, self.modules)
-        return {int(i): ci for i, ci in zip(ids.ravel(), c, strict=True)}
+        return [detection(i, ci) for i, ci in zip(ids.ravel(), c, strict=True)]
+
+    def detect_unique(self, image) -> dict[int, np.ndarray]:
+        """{id: (4, 2) corners px} of the markers in ``image`` whose id is seen exactly once
+        (``unique_by_id``): for a board or a wall where each id is printed once."""
+        return unique_by_id(self.detect(image))

@@ -8,6 +8,9 @@ model from ``calibration``, so every solver works on normalised coordinates (K =
 
 from __future__ import annotations
 
+import logging
+from collections import Counter
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import cv2
@@ -17,6 +20,9 @@ from calibration.camera import CameraCalibration
 from estimator.frames import invert
 
 from .markermap import MarkerMap, square_corners
+from .markers import MarkerDetection, detection
+
+log = logging.getLogger(__name__)
 
 OK, NO_MARKERS, TOO_FEW, REJECTED = "ok", "no_markers", "too_few_points", "rejected"
 
@@ -35,6 +41,9 @@ class PoseResult:
         covariance: (6, 6) of (rotation vector, translation mm) of ``T_cam_from_world``, from
             the residuals (None when not computed).
         ambiguous: a single-marker pose chosen between two IPPE solutions.
+        repeated_ids: ids of the map detected more than once in the frame; every detection of such
+            an id was left out (the map has one marker of each id, so at most one of them is it).
+        n_repeated_dropped: detections left out for that reason.
     """
 
     T_world_from_cam: np.ndarray | None
@@ -45,6 +54,8 @@ class PoseResult:
     reproj_rms_px: float = float("nan")
     covariance: np.ndarray | None = None
     ambiguous: bool = False
+    repeated_ids: list = field(default_factory=list)
+    n_repeated_dropped: int = 0
 
     @property
     def ok(self) -> bool:
@@ -104,12 +115,32 @@ class MarkerPoseEstimator:
         self.previous: np.ndarray | None = None          # last T_world_from_cam, for continuity
         self._before: np.ndarray | None = None           # the one before it (for the velocity)
 
-    def estimate(self, corners_px: dict, previous: np.ndarray | None = None) -> PoseResult:
-        """Pose of one frame from {id: (4, 2) distorted pixel corners}. Markers not in the map
-        are ignored. ``previous`` (default: this estimator's last good pose) resolves the
-        single-marker ambiguity."""
+    def estimate(self, detections: Iterable[MarkerDetection] | Mapping, previous: np.ndarray | None = None
+                 ) -> PoseResult:
+        """Pose of one frame from its detections: ``MarkerDetector.detect``'s list of
+        ``MarkerDetection`` (or (id, (4, 2) corners) pairs), or a mapping {id: (4, 2) corners};
+        corners in distorted pixels. Markers not in the map are ignored. An id of the map detected
+        more than once is ambiguous: all its detections are left out, counted in
+        ``repeated_ids`` / ``n_repeated_dropped`` and logged. ``previous`` (default: this
+        estimator's last good pose) resolves the single-marker ambiguity."""
         prev = self._predicted() if previous is None else previous
-        ids = [i for i in sorted(corners_px) if i in self.map.poses]
+        items = detections.items() if isinstance(detections, Mapping) else detections
+        dets = [detection(i, c) for i, c in items]
+        in_map = [d for d in dets if d.marker_id in self.map.poses]
+        seen = Counter(d.marker_id for d in in_map)
+        repeated = sorted(i for i, n in seen.items() if n > 1)
+        n_dropped = sum(seen[i] for i in repeated)
+        if repeated:
+            log.debug("marker ids %s detected more than once: %d detections left out", repeated, n_dropped)
+        by_id = {d.marker_id: d.corners_px for d in in_map if seen[d.marker_id] == 1}
+        res = self._estimate(by_id, prev)
+        res.repeated_ids, res.n_repeated_dropped = repeated, n_dropped
+        if repeated and not res.ok and not by_id:
+            res.reason = f"marker ids {repeated} each detected more than once (ambiguous), no other marker in view"
+        return res
+
+    def _estimate(self, corners_px: dict, prev) -> PoseResult:
+        ids = sorted(corners_px)
         if not ids:
             return PoseResult(None, NO_MARKERS, "no marker of the map in view")
         obj = np.vstack([self.map.corners(i) for i in ids])

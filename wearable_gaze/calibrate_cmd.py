@@ -273,7 +273,7 @@ def _wall_targets(folder: Path, rec: dict, camera: CameraCalibration):
         det = MarkerDetector(rec["dictionary"])
     except ValueError as exc:
         raise UserError(f"{folder / 'walls.json'}: {exc}") from None
-    found = det.detect(img)
+    found = det.detect_unique(img)       # {id: corners}; a repeated id is ambiguous and left out
     s = float(rec["marker_size_mm"]) / 2
     wall_pts, img_pts = [], []
     for mid, c in rec["markers_wall_mm"].items():

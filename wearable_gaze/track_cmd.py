@@ -153,9 +153,9 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
     return {"frames": i, "posed": n_ok}
 
 
-def _draw_overlay(frame, found: dict, res, camera) -> np.ndarray:
+def _draw_overlay(frame, found, res, camera) -> np.ndarray:
     img = frame.copy() if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-    for mid, c in found.items():
+    for mid, c in found:                 # every detection, repeated ids included
         cv2.polylines(img, [np.round(c * 16).astype(np.int32)], True, (0, 255, 0), 2, cv2.LINE_AA, shift=4)
         cv2.putText(img, str(mid), tuple(int(v) for v in c[0]), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 255, 0), 2)
     if res.ok:
