@@ -180,10 +180,17 @@ def cmd_markers(args) -> int:
 def cmd_live(args) -> int:
     from .live.app import run_live  # noqa: PLC0415
 
-    st = run_live(args.serial, args.camera, args.camera_calib, args.eyes, args.markers, args.record, args.publish,
-                  args.baud, args.duration, status_stream=None if args.quiet else sys.stderr)
-    print(f"\nlive: {st.samples} eye samples, {st.published} messages, {st.targets} targets, latency median "
-          f"{st.latency_all.percentile(50):.1f} ms, p95 {st.latency_all.percentile(95):.1f} ms"
+    status = None if args.quiet else sys.stderr
+    try:
+        st = run_live(args.serial, args.camera, args.camera_calib, args.eyes, args.markers, args.record, args.publish,
+                      args.baud, args.duration, status_stream=status)
+    except UserError:
+        if status is not None:
+            print(file=sys.stderr)            # past the status line
+        raise
+    print(f"\nlive: ended: {st.end_reason}; {st.samples} eye samples, {st.published} messages, "
+          f"{st.distinct_targets} distinct targets ({st.targets} target messages), latency median "
+          f"{st.latency_all.percentile(50):.1f} ms, p95 {st.latency_all.percentile(95):.1f} ms; {st.counters()}"
           + (f"; recorded {args.record}" if args.record else ""), file=sys.stderr)
     return 0
 
@@ -349,8 +356,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="track one scene frame in N and interpolate the rest (default 2)")
     pr.set_defaults(func=cmd_process)
 
-    lv = sub.add_parser("live", help="live session: serial eye data + scene camera -> 3D targets, published and recorded")
-    lv.add_argument("--serial", required=True, metavar="PORT", help="serial port or pyserial URL (socket://, rfc2217://, loop://)")
+    lv = sub.add_parser("live", help="live session: serial eye data + scene camera -> 3D targets, published and "
+                                     "recorded")
+    lv.add_argument("--serial", required=True, metavar="PORT",
+                    help="serial port or pyserial URL (socket://, rfc2217://, loop://)")
     lv.add_argument("--baud", type=_positive_int, default=115200, metavar="N", help="baud rate (default 115200)")
     lv.add_argument("--camera", required=True, metavar="SOURCE", help="camera index, device path, URL or video file")
     lv.add_argument("--camera-calib", required=True, metavar="camera.json", help="scene-camera calibration")

@@ -5,20 +5,15 @@ session folder that ``process`` reads."""
 
 from __future__ import annotations
 
-import json
+import logging
 import queue
-import shutil
 import signal
-import socket
-import sys
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import urlparse
 
-import cv2
 import numpy as np
 
 from estimator import BinocularSample, make_estimator
@@ -30,140 +25,19 @@ from tracking.timeline import interpolate_poses
 
 from ..calibrate_cmd import load_camera, load_eyes
 from ..errors import UserError
-from ..session import EYE_FORMATS, FORMAT, VERSION, marker_map_dict
 from ..track_cmd import load_marker_map
 from .camera_in import FrameSource
+from .clock import SessionClock
+from .publish import Publisher
+from .record import Recorder
 from .serial_in import EyeReader
 
+log = logging.getLogger(__name__)
+
 MESSAGE_VERSION = 1
+QUIET_END_S = 0.5       # after the camera file ends, the session ends once eye data have been quiet this long
 
-
-class Publisher:
-    """JSON lines to stdout and/or a UDP or TCP endpoint (``udp://host:port``, ``tcp://host:port``)."""
-
-    def __init__(self, url: str | None = None, stdout: bool = True, stream=None):
-        self.stdout = stdout
-        self.stream = stream or sys.stdout
-        self.sock = None
-        self.kind = None
-        if url:
-            u = urlparse(url)
-            if u.scheme not in ("udp", "tcp") or not u.hostname or not u.port:
-                raise UserError(f"--publish {url!r}: expected udp://HOST:PORT or tcp://HOST:PORT")
-            self.kind, self.addr = u.scheme, (u.hostname, u.port)
-            if u.scheme == "udp":
-                self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            else:
-                try:
-                    self.sock = socket.create_connection(self.addr, timeout=2.0)
-                except OSError as exc:
-                    raise UserError(f"--publish {url}: cannot connect ({exc})") from None
-        self.sent = 0
-
-    def send(self, msg: dict) -> None:
-        line = json.dumps(msg, separators=(",", ":")) + "\n"
-        if self.stdout:
-            self.stream.write(line)
-            self.stream.flush()
-        if self.sock is not None:
-            try:
-                if self.kind == "udp":
-                    self.sock.sendto(line.encode(), self.addr)
-                else:
-                    self.sock.sendall(line.encode())
-            except OSError:
-                pass                                       # a listener that went away must not stop the session
-        self.sent += 1
-
-    def close(self):
-        if self.sock is not None:
-            self.sock.close()
-
-
-class Recorder:
-    """Writes everything received as a session folder (docs/session.md), flushed at least once
-    a second; ``close`` finishes the video and the manifest."""
-
-    def __init__(self, root: Path, size, fps: float, camera_path, eyes_path, marker_map):
-        self.root = Path(root)
-        if self.root.exists() and any(self.root.iterdir()):
-            raise UserError(f"--record {self.root}: already exists and is not empty; choose a new folder")
-        self.root.mkdir(parents=True, exist_ok=True)
-        shutil.copy(camera_path, self.root / "camera.json")
-        shutil.copy(eyes_path, self.root / "eyes.json")
-        (self.root / "markers.json").write_text(json.dumps(marker_map_dict(
-            marker_map.dictionary, marker_map.marker_size_mm, marker_map.poses, marker_map.labels), indent=1))
-        self.video = cv2.VideoWriter(str(self.root / "scene.avi"), cv2.CAP_FFMPEG,
-                                     cv2.VideoWriter_fourcc(*"MJPG"), fps, tuple(size), isColor=False)
-        # frames are encoded in their own thread (bounded: the live loop never waits on the disk)
-        self.video_q: queue.Queue = queue.Queue(maxsize=60)
-        self.video_thread = threading.Thread(target=self._video_worker, daemon=True, name="recorder-video")
-        self.video_thread.start()
-        self.ts = open(self.root / "scene_timestamps.csv", "w", encoding="utf-8")
-        self.ts.write("frame,t\n")
-        self.eye = open(self.root / "eye.csv", "w", encoding="utf-8")
-        self.eye.write("t,counter,left_x,left_y,right_x,right_y,left_valid,right_valid\n")
-        self.raw = open(self.root / "eye_serial.bin", "wb")
-        self.n_frames = self.n_eye = 0
-        self.last_flush = time.monotonic()
-        self.lock = threading.Lock()
-        self.fps = fps
-        self.size = size
-        self._manifest(final=False)
-
-    def _manifest(self, final: bool):
-        man = {"format": FORMAT, "version": VERSION, "producer": "wearable-gaze live", "image_size": list(self.size),
-               "fps": self.fps, "eye_rate_hz": None, "has_recording": True, "complete": final,
-               "files": {"scene_video": "scene.avi", "scene_timestamps": "scene_timestamps.csv",
-                         "eye_samples": "eye.csv", "eye_serial": "eye_serial.bin", "marker_map": "markers.json",
-                         "camera": "camera.json", "eyes": "eyes.json", "live_messages": "live.jsonl"},
-               "n_frames": self.n_frames, "n_eye_samples": self.n_eye}
-        tmp = self.root / ".session.json.tmp"
-        tmp.write_text(json.dumps(man, indent=1))
-        tmp.replace(self.root / "session.json")
-
-    def raw_bytes(self, data: bytes):
-        with self.lock:
-            self.raw.write(data)
-
-    def _video_worker(self):
-        while True:
-            item = self.video_q.get()
-            if item is None:
-                return
-            self.video.write(item)
-
-    def frame(self, t: float, index: int, grey):
-        self.video_q.put(grey)
-        with self.lock:
-            self.ts.write(f"{index},{t:.6f}\n")
-            self.n_frames += 1
-
-    def flush_if_due(self):
-        if time.monotonic() - self.last_flush >= 1.0:
-            self.flush()
-
-    def eye_sample(self, t: float, rec):
-        f = EYE_FORMATS
-        self.eye.write(f"{format(t, f['t'])},{rec.counter},{format(rec.left[0], f['left_x'])},"
-                       f"{format(rec.left[1], f['left_y'])},{format(rec.right[0], f['right_x'])},"
-                       f"{format(rec.right[1], f['right_y'])},{int(rec.left_valid)},{int(rec.right_valid)}\n")
-        self.n_eye += 1
-
-    def flush(self):
-        with self.lock:
-            for fh in (self.ts, self.eye, self.raw):
-                fh.flush()
-        self.last_flush = time.monotonic()
-
-    def close(self):
-        self.video_q.put(None)
-        self.video_thread.join()
-        self.video.release()
-        self.flush()
-        for fh in (self.ts, self.eye, self.raw):
-            fh.close()
-        self._manifest(final=True)
+__all__ = ["LatencyHistogram", "LiveSession", "LiveStats", "Publisher", "Recorder", "run_live"]
 
 
 class LatencyHistogram:
@@ -193,21 +67,52 @@ class LatencyHistogram:
 
 @dataclass
 class LiveStats:
-    samples: int = 0
-    published: int = 0
-    no_pose: int = 0
-    targets: int = 0
-    frames_skipped: int = 0   # waiting frames tracking passed over for a newer one (all still recorded)
+    """What a live session counted; each event is counted once, in one counter.
+
+    The serial reader's, camera's and publisher's own counters are copied in by
+    ``LiveSession.update_stats`` (the status line and the final summary show them all)."""
+    samples: int = 0              # eye samples the loop processed
+    published: int = 0            # messages published
+    no_pose: int = 0              # samples with a valid eye but no head pose at their time
+    targets: int = 0              # target messages (a target seen again is published again)
+    distinct_targets: int = 0     # distinct target ids
+    frames_skipped: int = 0       # frames tracking did not see: passed over for a newer one, or the
+    #                               camera queue had no room (every one still recorded)
+    frames: int = 0               # frames captured
+    frames_missed: int = 0        # frames a camera device did not deliver (short gaps)
+    camera_stalls: int = 0        # waits of over 5 frame periods
+    eye_records: int = 0          # intact records received
+    corrupt: int = 0              # records that failed their checksum or format
+    lost: int = 0                 # records missing by the counter, never received at all
+    reader_dropped: int = 0       # intact records the loop had no room for (still recorded)
+    publish_dropped: int = 0      # messages a subscriber did not get (its queue was full, or it was disconnected)
+    reconnects: int = 0
+    end_reason: str = ""
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=5000))   # the recent ones, for the status line
     latency_all: LatencyHistogram = field(default_factory=LatencyHistogram)   # the whole run
 
+    def counters(self) -> str:
+        """Every counter, one line."""
+        return (f"frames {self.frames} (skipped {self.frames_skipped}, missed {self.frames_missed}, stalls "
+                f"{self.camera_stalls})  eye {self.eye_records} (corrupt {self.corrupt}, lost {self.lost}, dropped "
+                f"{self.reader_dropped}, reconnects {self.reconnects}, no pose {self.no_pose})  messages "
+                f"{self.published} (dropped {self.publish_dropped})")
+
 
 class LiveSession:
-    """Runs until the camera file ends, ``duration_s`` passes, or ``stop()`` (Ctrl-C, SIGTERM)."""
+    """Runs until the camera file ends, ``duration_s`` passes, or ``stop()`` (Ctrl-C, SIGTERM).
+
+    Readers (serial, camera) run in threads; the recorder takes every intact eye record and
+    every frame from them directly, so nothing the loop or the subscribers do can keep a
+    sample out of the recording. The loop tracks, estimates and publishes; publishing never
+    blocks it (``publish.Publisher``). Any error inside the loop ends the session: the
+    recording is kept, marked incomplete, and ``run`` raises a ``UserError`` saying so.
+    """
 
     def __init__(self, serial_port: str, camera_source: str, camera_calib, eyes_path, markers_path,
                  record=None, publish=None, baud: int = 115200, method: str = "voxel", stdout: bool = True,
-                 status_stream=None, hold_s: float = 0.05, stream=None):
+                 status_stream=None, hold_s: float = 0.05, stream=None, publish_queue: int = 1000,
+                 publish_stuck_s: float = 5.0):
         self.camera = load_camera(camera_calib)
         self.eyes = load_eyes(eyes_path)
         self.map = load_marker_map(markers_path)
@@ -218,12 +123,19 @@ class LiveSession:
         if tuple(self.frames.size) != tuple(self.camera.image_size):
             raise UserError(f"camera {camera_source} gives {self.frames.size[0]}x{self.frames.size[1]} frames but the "
                             f"calibration is for {self.camera.image_size[0]}x{self.camera.image_size[1]}")
-        self.publisher = Publisher(publish, stdout, stream)
-        self.recorder = (Recorder(Path(record), self.frames.size, self.frames.fps, camera_calib, eyes_path, self.map)
-                         if record else None)
+        self.serial_port = serial_port
+        self.publisher = Publisher(publish, stdout, stream, maxsize=publish_queue, stuck_s=publish_stuck_s)
+        try:
+            self.recorder = (Recorder(Path(record), self.frames.size, self.frames.fps, camera_calib, eyes_path,
+                                      self.map) if record else None)
+        except BaseException:
+            self.publisher.close(0.1)
+            raise
         if self.recorder is not None:
             self.frames.sink = self.recorder.frame          # every captured frame, even those tracking skips
-        self.reader = EyeReader(serial_port, baud, raw_sink=self.recorder.raw_bytes if self.recorder else None)
+        self.clock = SessionClock(lambda: self.frames.t0)
+        self.reader = EyeReader(serial_port, baud, raw_sink=self.recorder.raw_bytes if self.recorder else None,
+                                on_record=self._on_record)
         self.detector = MarkerDetector(self.map.dictionary)
         self.poser = MarkerPoseEstimator(self.map, self.camera)
         self.method = method
@@ -233,60 +145,111 @@ class LiveSession:
         self.hold_s = hold_s
         self.poses = deque(maxlen=120)            # (t, T_world_from_cam) of recent frames
         self.pending = deque()
-        self.offset = None
         self.fix = OnlineSegmenter()
         self.fix_index = 0
         self.estimator = make_estimator(method)
         self.fix_samples = 0
         self.fix_t0 = None
         self.last_est = None
-        self.messages = open(Path(record) / "live.jsonl", "w", encoding="utf-8") if record else None
         self.targets: list = []
         self.head = None
         self.markers_in_view = 0
         self.last_arrival: float | None = None    # monotonic time the newest eye record arrived
-        self.last_t = -1.0                        # session time of the newest eye sample, s
+        self.camera_ended_at: float | None = None
 
     def stop(self, *_):
         self.stop_event.set()
 
+    def _on_record(self, arrival, rec):
+        """In the reader's thread, for every intact record: its session time, and the record
+        kept (before any queue that could drop it)."""
+        t_s = self.clock.map(arrival, rec.t)
+        if self.recorder is not None:
+            self.recorder.eye_sample(t_s, rec)
+        return arrival, t_s, rec
+
     def _publish(self, msg):
-        msg = {"version": MESSAGE_VERSION, **msg}
-        self.publisher.send(msg)
-        if self.messages is not None:
-            self.messages.write(json.dumps(msg, separators=(",", ":")) + "\n")
+        line = self.publisher.send({"version": MESSAGE_VERSION, **msg})
+        if self.recorder is not None:
+            self.recorder.message(line)
         self.stats.published += 1
 
+    def update_stats(self) -> LiveStats:
+        """Copy the readers' and the publisher's counters into ``stats``."""
+        s, r, c = self.stats, self.reader.stats, self.frames.stats
+        s.frames, s.frames_missed, s.camera_stalls = c.frames, c.missed, c.stalls
+        s.eye_records, s.corrupt, s.lost, s.reader_dropped, s.reconnects = (r.records, r.corrupt, r.lost, r.dropped,
+                                                                            r.reconnects)
+        s.publish_dropped = self.publisher.dropped
+        s.distinct_targets = len(self.targets)
+        return s
+
     def run(self, duration_s: float | None = None) -> LiveStats:
+        """Run the session; returns its counters.
+
+        Raises:
+            UserError: the serial port will not open, or an error inside the session (the
+                recording is kept and marked incomplete).
+        """
         self.reader.start()
         self.reader.connected.wait(5.0)
         if self.reader.error and self.reader.error.startswith("cannot open"):
-            self._close()
+            self._close(complete=False)
             raise UserError(f"--serial: {self.reader.error}")
         self.frames.start()
         t_start = time.monotonic()
         last_status = 0.0
+        failure = None
         try:
             while not self.stop_event.is_set():
+                for th, what in ((self.reader, "the eye reader"), (self.frames, "the camera")):
+                    if th.failure:
+                        raise RuntimeError(f"{what} failed: {th.failure}")
                 busy = self._drain_frames()
                 busy |= self._drain_eye()
                 now = time.monotonic()
                 if duration_s is not None and now - t_start >= duration_s:
+                    self.stats.end_reason = f"{duration_s:g} s passed"
                     break
-                if self.frames.finished.is_set() and self.frames.queue.empty() and self.reader.queue.empty():
-                    if self.last_arrival is not None and now - self.last_arrival > 0.5:
-                        break
-                if self.recorder is not None:
-                    self.recorder.flush_if_due()
+                if self._camera_over(now):
+                    break
                 if self.status_stream is not None and now - last_status > 0.5:
                     self._status()
                     last_status = now
                 if not busy:
                     time.sleep(0.002)
-        finally:
+            else:
+                self.stats.end_reason = "stopped"
             self._end_fixation()
-            self._close()
+        except Exception as exc:  # noqa: BLE001  (one line to the user; the recording kept, not complete)
+            log.debug("live session failed", exc_info=True)
+            failure = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        finally:
+            self._close(complete=failure is None)
+        self.update_stats()
+        if failure is not None:
+            kept = f"; the recording in {self.recorder.root} is kept, marked incomplete" if self.recorder else ""
+            raise UserError(f"the session stopped on an error ({failure}){kept}")
         return self.stats
+
+    def _camera_over(self, now: float) -> bool:
+        """The camera file has ended and its frames are done; the session ends once the eye
+        data have been quiet for ``QUIET_END_S`` (at once if none ever came)."""
+        if not (self.frames.finished.is_set() and self.frames.queue.empty()):
+            return False
+        if self.camera_ended_at is None:
+            self.camera_ended_at = now
+        if not (self.reader.queue.empty() and not self.pending):
+            return False
+        since = now - max(self.camera_ended_at, self.last_arrival or 0.0)
+        if since <= QUIET_END_S:
+            return False
+        if self.last_arrival is None:
+            self.stats.end_reason = (f"the camera ended and no eye data ever arrived from {self.serial_port} "
+                                     f"(check --serial and --baud, and that the recorder is sending)")
+        else:
+            self.stats.end_reason = "the camera ended"
+        return True
 
     def _drain_frames(self) -> bool:
         """Track the newest waiting frame; older waiting frames are skipped (counted): under
@@ -313,21 +276,11 @@ class LiveSession:
         busy = False
         while True:
             try:
-                arrival, rec = self.reader.queue.get_nowait()
+                arrival, t_s, rec = self.reader.queue.get_nowait()
             except queue.Empty:
                 break
             busy = True
             self.last_arrival = arrival
-            t0 = self.frames.t0 if self.frames.t0 is not None else arrival
-            off = arrival - t0 - rec.t
-            if self.offset is None or off < self.offset - 0.002:
-                self.offset = off                            # the fastest path: the clocks' offset
-            # the eye clock mapped onto the session clock; kept strictly increasing when the
-            # offset estimate improves (by at most the first samples' extra transport delay)
-            t_s = max(rec.t + self.offset, self.last_t + 1e-4)
-            self.last_t = t_s
-            if self.recorder is not None:
-                self.recorder.eye_sample(t_s, rec)
             self.pending.append((arrival, t_s, rec))
         last_frame_t = self.poses[-1][0] if self.poses else None
         while self.pending:
@@ -405,7 +358,8 @@ class LiveSession:
         return len(self.targets) - 1
 
     def _end_fixation(self):
-        if self.last_est is not None and self.fix_t0 is not None and self.last_est[1] - self.fix_t0 >= self.fix.config.min_fixation_s:
+        if (self.last_est is not None and self.fix_t0 is not None
+                and self.last_est[1] - self.fix_t0 >= self.fix.config.min_fixation_s):
             est = self.last_est[0]
             r = est.ellipsoid(0.95)
             self._publish({"type": "target", "target": self._target_id(est), "fixation": self.fix_index,
@@ -421,25 +375,23 @@ class LiveSession:
         self.last_est = None
 
     def _status(self):
-        s, r, c = self.stats, self.reader.stats, self.frames.stats
+        s = self.update_stats()
         lat = np.percentile(list(s.latencies_ms), 95) if s.latencies_ms else float("nan")
         cur = "-" if self.last_est is None else "(" + ", ".join(f"{v:.0f}" for v in self.last_est[0].position_mm) + ")"
-        self.status_stream.write(f"\rframes {c.frames} (dropped {c.dropped}, skipped {s.frames_skipped})  eye {r.records} (corrupt {r.corrupt}, "
-                                 f"lost {r.lost}, reconnects {r.reconnects})  markers {self.markers_in_view}"
-                                 f"  p95 latency {lat:.1f} ms  target {cur} mm   ")
+        self.status_stream.write(f"\r{s.counters()}  markers {self.markers_in_view}  p95 latency {lat:.1f} ms  "
+                                 f"target {cur} mm   ")
         self.status_stream.flush()
 
-    def _close(self):
+    def _close(self, complete: bool = True):
         self.reader.stop()
         self.frames.stop()
         for th in (self.reader, self.frames):
             if th.ident is not None:
                 th.join(2.0)
-        if self.recorder is not None:
-            self.recorder.close()
-        if self.messages is not None:
-            self.messages.close()
         self.publisher.close()
+        if self.recorder is not None:
+            self.recorder.close(complete=complete)
+        self.update_stats()
 
 
 def run_live(serial_port, camera_source, camera_calib, eyes_path, markers_path, record=None, publish=None,

@@ -1,8 +1,10 @@
 """Scene-camera input: ``cv2.VideoCapture`` by index, device path, URL or file (a file replays at
-its own frame rate), timestamped on arrival, with dropped and stalled frames counted."""
+its own frame rate), timestamped on arrival; frames the consumer had no room for, frames a device
+missed and stalls are counted, each event once."""
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 import time
@@ -11,12 +13,14 @@ from pathlib import Path
 
 import cv2
 
+log = logging.getLogger(__name__)
 
 @dataclass
 class CameraStats:
     frames: int = 0
-    dropped: int = 0          # frames the consumer had no room for, or gaps in a device's stream
-    stalls: int = 0           # waits longer than 5 frame periods
+    skipped: int = 0          # frames the consumer had no room for (the oldest waiting one goes; still recorded)
+    missed: int = 0           # frames a device did not deliver: gaps of 1.5 to 5 frame periods
+    stalls: int = 0           # waits longer than 5 frame periods, or a run of failed reads: one each
 
 
 class FrameSource(threading.Thread):
@@ -25,7 +29,7 @@ class FrameSource(threading.Thread):
 
     Args:
         source: a camera index ('0'), a device path, a URL or a video file.
-        maxsize: queue length; when full, the oldest frame is dropped (counted).
+        maxsize: queue length; when full, the oldest frame is dropped (counted as ``skipped``).
     """
 
     def __init__(self, source: str, maxsize: int = 4, sink=None, loop: bool = False):
@@ -35,6 +39,7 @@ class FrameSource(threading.Thread):
         self.stats = CameraStats()
         self.stop_event = threading.Event()
         self.error: str | None = None
+        self.failure: str | None = None          # an unexpected error that ended the thread
         self.finished = threading.Event()
         target = int(source) if str(source).isdigit() else str(source)
         self.cap = cv2.VideoCapture(target)
@@ -48,10 +53,18 @@ class FrameSource(threading.Thread):
         self.loop = loop            # a file starts again at its end (long-run benchmarks)
 
     def run(self):
+        try:
+            self._run()
+        except Exception as exc:  # noqa: BLE001  (the live loop reports it and ends the session)
+            self.failure = f"{type(exc).__name__}: {exc}"
+            log.debug("camera failed", exc_info=True)
+
+    def _run(self):
         period = 1.0 / self.fps
         self.t0 = time.monotonic()
         last = self.t0
         i = 0
+        failing = False
         try:
             while not self.stop_event.is_set():
                 if self.is_file:
@@ -68,14 +81,18 @@ class FrameSource(threading.Thread):
                         continue
                     if self.is_file:
                         break
-                    self.stats.stalls += 1
+                    if not failing:                  # a run of failed reads is one stall
+                        self.stats.stalls += 1
+                    failing = True
                     time.sleep(period)
                     continue
                 t = self.t0 + i * period if self.is_file else now
-                if not self.is_file and now - last > 1.5 * period:
-                    self.stats.dropped += int(round((now - last) / period)) - 1
                 if now - last > 5 * period:
-                    self.stats.stalls += 1
+                    if not failing:
+                        self.stats.stalls += 1       # a stall, not a run of missed frames
+                elif not self.is_file and now - last > 1.5 * period:
+                    self.stats.missed += int(round((now - last) / period)) - 1
+                failing = False
                 last = now
                 grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
                 if self.sink is not None:
@@ -86,7 +103,7 @@ class FrameSource(threading.Thread):
                 except queue.Full:
                     try:
                         self.queue.get_nowait()
-                        self.stats.dropped += 1
+                        self.stats.skipped += 1
                     except queue.Empty:
                         pass
                     self.queue.put_nowait(item)

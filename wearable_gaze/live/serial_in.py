@@ -1,17 +1,27 @@
 """Eye-tracker input over pyserial: a serial port or a pyserial URL (``socket://``,
 ``rfc2217://``, ``loop://``), records parsed with a ``LineProtocol``, resynchronised after
-garbage, checksums validated, counters kept, reconnection when the link drops."""
+garbage, checksums validated, counters kept, reconnection when the link drops.
+
+``socket://`` URLs are read with a plain socket: pyserial's own handler discards the bytes of a
+read in progress when the peer closes (the last records before a disconnect) and its input
+buffer when it connects."""
 
 from __future__ import annotations
 
+import logging
 import queue
+import select
+import socket
 import threading
 import time
 from dataclasses import dataclass
+from urllib.parse import urlparse
 
 import serial
 
 from ..emr import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -19,7 +29,7 @@ class SerialStats:
     records: int = 0          # valid records delivered
     corrupt: int = 0          # lines that failed to parse (checksum, fields, numbers)
     garbage_bytes: int = 0    # bytes skipped while resynchronising
-    lost: int = 0             # records missing according to the counter
+    lost: int = 0             # records missing according to the counter (corrupt ones not counted again)
     dropped: int = 0          # records dropped because the consumer fell behind
     reconnects: int = 0
 
@@ -64,10 +74,47 @@ class LineSplitter:
             del self.buf[:end + 1]
 
 
+class SocketLink:
+    """A ``socket://host:port`` link read with a plain TCP socket: ``read`` returns what has
+    arrived (b"" after ``timeout`` s without data) and raises ``serial.SerialException`` only
+    once everything the peer sent before closing has been returned."""
+
+    def __init__(self, url: str, timeout: float = 0.05, connect_timeout: float = 2.0):
+        u = urlparse(url)
+        try:
+            port = u.port
+        except ValueError:
+            port = None
+        if not u.hostname or not port:
+            raise ValueError(f"{url!r}: expected socket://HOST:PORT")
+        self.timeout = timeout
+        self.sock = socket.create_connection((u.hostname, port), timeout=connect_timeout)
+        self.sock.setblocking(False)
+        self.is_open = True
+
+    def read(self, size: int) -> bytes:
+        ready, _, _ = select.select([self.sock], [], [], self.timeout)
+        if not ready:
+            return b""
+        try:
+            data = self.sock.recv(size)
+        except BlockingIOError:
+            return b""
+        if not data:
+            raise serial.SerialException("connection closed by the peer")
+        return data
+
+    def close(self) -> None:
+        self.is_open = False
+        self.sock.close()
+
+
 class EyeReader(threading.Thread):
     """Reads records in a thread and puts ``(arrival_s, EyeRecord)`` on a bounded queue
     (``time.monotonic()`` arrival times). Raw bytes go to ``raw_sink(bytes)`` if given (the
-    recorder keeps them).
+    recorder keeps them). With ``on_record(arrival_s, record)``, every intact record is handed
+    to it in this thread, before the queue (so it sees records the queue has no room for), and
+    its return value is queued instead of ``(arrival_s, record)``.
 
     Args:
         port: a device (``/dev/ttyUSB0``) or a pyserial URL.
@@ -77,7 +124,8 @@ class EyeReader(threading.Thread):
     """
 
     def __init__(self, port: str, baudrate: int = 115200, protocol: LineProtocol = DEFAULT_PROTOCOL,
-                 maxsize: int = 2000, reconnect_s: float = 0.5, raw_sink=None, bytesize=8, parity="N", stopbits=1):
+                 maxsize: int = 2000, reconnect_s: float = 0.5, raw_sink=None, bytesize=8, parity="N", stopbits=1,
+                 on_record=None):
         super().__init__(daemon=True, name="eye-reader")
         self.port, self.baudrate = port, baudrate
         self.settings = dict(bytesize=bytesize, parity=parity, stopbits=stopbits)
@@ -87,14 +135,38 @@ class EyeReader(threading.Thread):
         self.stop_event = threading.Event()
         self.reconnect_s = reconnect_s
         self.raw_sink = raw_sink
+        self.on_record = on_record
+        self._corrupt_since_good = 0
         self.error: str | None = None
+        self.failure: str | None = None          # an unexpected error that ended the thread
         self._last_counter = None
         self.connected = threading.Event()
 
     def open(self):
+        if str(self.port).startswith("socket://"):
+            return SocketLink(self.port)
         return serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=0.05, **self.settings)
 
+    @staticmethod
+    def _read(link) -> bytes:
+        """What has arrived: sized by ``in_waiting`` where the link has it, so that a link that
+        fails mid-read (a pulled USB cable) has no received bytes inside the failed call."""
+        if isinstance(link, SocketLink):
+            return link.read(4096)
+        try:
+            waiting = link.in_waiting
+        except (serial.SerialException, OSError, AttributeError, NotImplementedError):
+            waiting = 4096
+        return link.read(max(1, min(waiting, 4096)))
+
     def run(self):
+        try:
+            self._run()
+        except Exception as exc:  # noqa: BLE001  (the live loop reports it and ends the session)
+            self.failure = f"{type(exc).__name__}: {exc}"
+            log.debug("eye reader failed", exc_info=True)
+
+    def _run(self):
         splitter = LineSplitter(self.protocol)
         first = True
         while not self.stop_event.is_set():
@@ -113,12 +185,10 @@ class EyeReader(threading.Thread):
             self.connected.set()
             try:
                 while not self.stop_event.is_set():
-                    data = link.read(4096)
+                    data = self._read(link)
                     if not data:
-                        if isinstance(link, serial.Serial) and not link.is_open:
+                        if not getattr(link, "is_open", True):
                             raise serial.SerialException("port closed")
-                        if getattr(link, "_socket", "x") is None:       # socket:// peer went away
-                            raise serial.SerialException("connection closed")
                         continue
                     now = time.monotonic()
                     if self.raw_sink is not None:
@@ -128,6 +198,8 @@ class EyeReader(threading.Thread):
                     self.stats.garbage_bytes = splitter.garbage
             except (serial.SerialException, OSError) as exc:
                 self.error = None if self.stop_event.is_set() else f"link lost ({exc}); reconnecting"
+                if self.error:
+                    log.info("eye data: %s", self.error)
             finally:
                 try:
                     link.close()
@@ -141,15 +213,18 @@ class EyeReader(threading.Thread):
             rec = self.protocol.parse(line)
         except ParseError:
             self.stats.corrupt += 1
+            self._corrupt_since_good += 1
             return
         if self._last_counter is not None:
             gap = (rec.counter - self._last_counter - 1) % self.protocol.counter_modulo
             if gap < self.protocol.counter_modulo // 2:
-                self.stats.lost += gap
+                self.stats.lost += max(0, gap - self._corrupt_since_good)   # a corrupt record is counted once
+        self._corrupt_since_good = 0
         self._last_counter = rec.counter
         self.stats.records += 1
+        item = self.on_record(now, rec) if self.on_record is not None else (now, rec)
         try:
-            self.queue.put_nowait((now, rec))
+            self.queue.put_nowait(item)
         except queue.Full:
             self.stats.dropped += 1
 
@@ -157,4 +232,4 @@ class EyeReader(threading.Thread):
         self.stop_event.set()
 
 
-__all__ = ["EyeReader", "EyeRecord", "LineSplitter", "SerialStats"]
+__all__ = ["EyeReader", "EyeRecord", "LineSplitter", "SerialStats", "SocketLink"]

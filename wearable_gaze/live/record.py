@@ -1,0 +1,166 @@
+"""Recording a live session as a session folder (docs/session.md, docs/live.md).
+
+Every file is written as data arrive and flushed on one schedule (``flush_s``, at most 1 s) by
+the recorder's own thread, together with the manifest and its counts (written atomically: a
+temporary file, then ``os.replace``). A recording killed at any moment (even SIGKILL) therefore
+loses at most the last ``flush_s`` of eye samples, raw bytes and messages, and ``process``
+reads it; ``complete`` is true in the manifest only once the session was closed cleanly.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import shutil
+import threading
+from pathlib import Path
+
+import cv2
+
+from ..errors import UserError
+from ..session import EYE_COLUMNS, EYE_FORMATS, FORMAT, VERSION, marker_map_dict
+
+log = logging.getLogger(__name__)
+
+FILES = {"scene_video": "scene.avi", "scene_timestamps": "scene_timestamps.csv", "eye_samples": "eye.csv",
+         "eye_serial": "eye_serial.bin", "marker_map": "markers.json", "camera": "camera.json", "eyes": "eyes.json",
+         "live_messages": "live.jsonl"}
+_BUFFER = 1 << 20      # large enough that only the flush schedule writes (whole lines) to the files
+
+
+class Recorder:
+    """Writes everything received as a session folder.
+
+    The camera thread calls ``frame``, the serial reader ``raw_bytes`` and ``eye_sample``, the
+    loop ``message``; a thread of its own flushes every file and rewrites the manifest every
+    ``flush_s`` seconds. ``close`` finishes the video and marks the manifest complete (or not).
+
+    Args:
+        root: the new session folder (must not exist or be empty).
+        size: (width, height) of the frames, px; fps: their rate.
+        camera_path, eyes_path: calibrations copied into the folder; marker_map: the map used.
+        flush_s: the flush period, s (<= 1).
+
+    Raises:
+        UserError: ``root`` exists and is not empty.
+    """
+
+    def __init__(self, root: Path, size, fps: float, camera_path, eyes_path, marker_map, flush_s: float = 0.5):
+        if not 0 < flush_s <= 1.0:
+            raise ValueError(f"flush_s must be in (0, 1] s, got {flush_s!r}")
+        self.root = Path(root)
+        if self.root.exists() and any(self.root.iterdir()):
+            raise UserError(f"--record {self.root}: already exists and is not empty; choose a new folder")
+        self.root.mkdir(parents=True, exist_ok=True)
+        shutil.copy(camera_path, self.root / FILES["camera"])
+        shutil.copy(eyes_path, self.root / FILES["eyes"])
+        (self.root / FILES["marker_map"]).write_text(json.dumps(marker_map_dict(
+            marker_map.dictionary, marker_map.marker_size_mm, marker_map.poses, marker_map.labels), indent=1))
+        self.video = cv2.VideoWriter(str(self.root / FILES["scene_video"]), cv2.CAP_FFMPEG,
+                                     cv2.VideoWriter_fourcc(*"MJPG"), fps, tuple(size), isColor=False)
+        # frames are encoded in their own thread (bounded: the live loop never waits on the disk)
+        self.video_q: queue.Queue = queue.Queue(maxsize=60)
+        self.video_thread = threading.Thread(target=self._video_worker, daemon=True, name="recorder-video")
+        self.video_thread.start()
+        self.ts = open(self.root / FILES["scene_timestamps"], "w", encoding="utf-8", buffering=_BUFFER)
+        self.ts.write("frame,t\n")
+        self.eye = open(self.root / FILES["eye_samples"], "w", encoding="utf-8", buffering=_BUFFER)
+        self.eye.write(",".join(EYE_COLUMNS) + "\n")
+        self.raw = open(self.root / FILES["eye_serial"], "wb", buffering=_BUFFER)
+        self.messages = open(self.root / FILES["live_messages"], "wb", buffering=_BUFFER)
+        self.n_frames = self.n_eye = self.n_messages = 0
+        self.lock = threading.Lock()
+        self.fps = fps
+        self.size = size
+        self.flush_s = flush_s
+        self.closed = False
+        self._write_manifest(complete=False)
+        self._stop = threading.Event()
+        self.flusher = threading.Thread(target=self._flush_loop, daemon=True, name="recorder-flush")
+        self.flusher.start()
+
+    # --- what the streams hand in --------------------------------------------------------------
+
+    def raw_bytes(self, data: bytes) -> None:
+        """Bytes as received on the serial line (garbage included)."""
+        with self.lock:
+            if not self.closed:
+                self.raw.write(data)
+
+    def eye_sample(self, t: float, rec) -> None:
+        """One intact record at session time ``t``, s."""
+        f = EYE_FORMATS
+        line = (f"{format(t, f['t'])},{rec.counter},{format(rec.left[0], f['left_x'])},"
+                f"{format(rec.left[1], f['left_y'])},{format(rec.right[0], f['right_x'])},"
+                f"{format(rec.right[1], f['right_y'])},{int(rec.left_valid)},{int(rec.right_valid)}\n")
+        with self.lock:
+            if not self.closed:
+                self.eye.write(line)
+                self.n_eye += 1
+
+    def frame(self, t: float, index: int, grey) -> None:
+        """A captured frame at session time ``t``, s (the video thread encodes it)."""
+        if self.closed:
+            return
+        self.video_q.put(grey)
+        with self.lock:
+            self.ts.write(f"{index},{t:.6f}\n")
+            self.n_frames += 1
+
+    def message(self, line: bytes) -> None:
+        """A published message, one encoded JSON line."""
+        with self.lock:
+            if not self.closed:
+                self.messages.write(line)
+                self.n_messages += 1
+
+    # --- the schedule ----------------------------------------------------------------------------
+
+    def _video_worker(self):
+        while True:
+            item = self.video_q.get()
+            if item is None:
+                return
+            self.video.write(item)
+
+    def _flush_loop(self):
+        while not self._stop.wait(self.flush_s):
+            try:
+                self.flush()
+            except OSError as exc:                   # a full disk: say so once a period, keep going
+                log.error("recording %s: cannot write (%s)", self.root, exc)
+
+    def flush(self) -> None:
+        """Every file to the OS, then the manifest with the counts written (atomically)."""
+        with self.lock:
+            if self.closed:
+                return
+            for fh in (self.ts, self.eye, self.raw, self.messages):
+                fh.flush()
+            self._write_manifest(complete=False)
+
+    def _write_manifest(self, complete: bool) -> None:
+        man = {"format": FORMAT, "version": VERSION, "producer": "wearable-gaze live", "image_size": list(self.size),
+               "fps": self.fps, "has_recording": True, "complete": complete,
+               "files": dict(FILES), "n_frames": self.n_frames, "n_eye_samples": self.n_eye,
+               "n_messages": self.n_messages}
+        tmp = self.root / ".session.json.tmp"
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(json.dumps(man, indent=1))
+        os.replace(tmp, self.root / "session.json")
+
+    def close(self, complete: bool = True) -> None:
+        """Finish the video and every file; the manifest says ``complete`` only when the session
+        ended cleanly."""
+        self._stop.set()
+        self.flusher.join(2.0)
+        self.video_q.put(None)
+        self.video_thread.join()
+        self.video.release()
+        with self.lock:
+            for fh in (self.ts, self.eye, self.raw, self.messages):
+                fh.close()
+            self.closed = True
+            self._write_manifest(complete=complete)
