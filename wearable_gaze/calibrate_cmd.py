@@ -3,6 +3,7 @@ library in the middle, files out."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import cv2
@@ -31,55 +32,75 @@ from tracking.markers import MarkerDetector
 from tracking.timeline import interpolate_poses
 
 from .atomic import atomic_path
-from .errors import UserError
-from .session import read_eye_csv, read_json, read_poses_csv, write_json
+from .errors import UserError, check_output
+from .jsonio import inside, load_json, validate
+from .session import read_eye_csv, read_poses_csv, write_json
 from .viewlines_csv import write_viewlines_csv
 
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 NOMINAL_CENTRES_MM = np.array([[-32.0, 30.0, -20.0], [32.0, 30.0, -20.0]])
 EYES_FORMAT = "wearable-gaze-eyes"
 
+log = logging.getLogger(__name__)
+
 
 # --- camera files ------------------------------------------------------------------------------
 
 def load_camera(path) -> CameraCalibration:
     """A camera file: our JSON, or an OpenCV FileStorage YAML/XML (``camera_matrix`` and
-    ``distortion_coefficients`` / ``dist_coeffs``, ``image_width`` / ``image_height``)."""
+    ``distortion_coefficients`` / ``dist_coeffs``, ``image_width`` / ``image_height``). Both are
+    checked against the camera schema (wearable_gaze/schemas/camera.schema.json)."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"{path}: no such camera file; run 'wearable-gaze calibrate-camera' to make one")
+        what = "a folder" if path.is_dir() else "no such camera file"
+        raise UserError(f"{path}: {what}; pass a camera JSON, or run 'wearable-gaze calibrate-camera' to make one")
     if path.suffix.lower() == ".json":
-        d = read_json(path, "camera JSON")
-        try:
-            return CameraCalibration.from_dict(d)
-        except (ValueError, TypeError) as exc:
-            raise UserError(f"{path}: {exc} (see docs/formats.md, camera JSON)") from None
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        d = load_json(path, "camera")
+    else:
+        d = _read_opencv_camera(path)
+        validate(d, "camera", path)
+    try:
+        return CameraCalibration.from_dict(d)
+    except ValueError as exc:
+        raise UserError(f"{path}: {exc} (see docs/formats.md, camera JSON)") from None
+
+
+def _read_opencv_camera(path: Path) -> dict:
+    """The fields of an OpenCV FileStorage camera file as a camera-JSON dict (not yet checked)."""
+    bad = UserError(f"{path}: not a camera JSON or an OpenCV YAML/XML camera file OpenCV can parse; pass "
+                    "camera.json from 'wearable-gaze calibrate-camera' (docs/calibration.md)")
+    head = path.read_bytes()[:64].lstrip()
+    if not head.startswith((b"%YAML", b"<?xml", b"<opencv_storage")) and path.suffix.lower() not in (
+            ".yml", ".yaml", ".xml"):
+        raise bad
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError):         # OpenCV's parser raises SystemError on some garbage
+        raise bad from None
     if not fs.isOpened():
-        raise UserError(f"{path}: not a camera JSON or an OpenCV YAML/XML file")
+        raise bad
     try:
         K = _fs_mat(fs, ("camera_matrix", "cameraMatrix", "K", "M1"))
         D = _fs_mat(fs, ("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "D1"))
         w, h = (fs.getNode(k).real() for k in ("image_width", "image_height"))
         model = "fisheye" if fs.getNode("model").isString() and fs.getNode("model").string() == "fisheye" else "pinhole"
+    except (cv2.error, SystemError):
+        raise bad from None
     finally:
         fs.release()
-    if K is None:
-        raise UserError(f"{path}: no camera_matrix in this OpenCV file")
-    if not (w and h):
+    if K is None or K.shape != (3, 3):
+        raise UserError(f"{path}: no 3x3 camera_matrix in this OpenCV file; add one (docs/calibration.md)")
+    if not (w and h) and np.all(np.isfinite(K)):
         w, h = 2 * K[0, 2] + 1, 2 * K[1, 2] + 1          # best guess; said in the JSON we write
-    try:
-        return CameraCalibration.from_dict({"camera_matrix": K.tolist(),
-                                            "dist_coeffs": [] if D is None else D.ravel().tolist(),
-                                            "image_size": [int(round(w)), int(round(h))], "model": model})
-    except ValueError as exc:
-        raise UserError(f"{path}: {exc}") from None
+    size = [int(round(v)) if np.isfinite(v) and abs(v) < 1e9 else -1 for v in (w, h)]
+    return {"camera_matrix": K.tolist(), "dist_coeffs": [] if D is None else D.ravel().tolist(),
+            "image_size": size, "model": model}
 
 
 def _fs_mat(fs, names):
     for n in names:
         node = fs.getNode(n)
-        if not node.empty():
+        if not node.empty() and node.isMap():
             m = node.mat()
             if m is not None:
                 return np.asarray(m, float)
@@ -88,8 +109,8 @@ def _fs_mat(fs, names):
 
 # --- calibrate-camera --------------------------------------------------------------------------
 
-def _frames(inputs, max_video_frames: int, progress=None):
-    """(name, grey image) for image files, and every k-th frame of video files."""
+def _input_files(inputs) -> list:
+    """The image and video files of the inputs (folders: their images, sorted)."""
     files = []
     for p in inputs:
         p = Path(p)
@@ -100,7 +121,12 @@ def _frames(inputs, max_video_frames: int, progress=None):
         else:
             raise UserError(f"{p}: no such file or folder; pass images, a folder of images or a video")
     if not files:
-        raise UserError("no images found in the inputs")
+        raise UserError("no images found in the inputs; pass images, a folder of images or a video")
+    return files
+
+
+def _frames(files, max_video_frames: int, progress=None):
+    """(name, grey image) for image files, and every k-th frame of video files."""
     for f in files:
         if f.suffix.lower() in IMAGE_EXT:
             img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
@@ -134,9 +160,14 @@ def calibrate_camera_files(inputs, board: str, out, model: str = "pinhole", max_
     try:
         spec = parse_board(board)
     except ValueError as exc:
-        raise UserError(str(exc)) from None
+        raise UserError(f"--board: {exc}") from None
+    files = _input_files(inputs)
+    out = Path(out)
+    preview = out.with_name(out.stem + "_undistorted.png")
+    check_output(out, files, "-o")
+    check_output(preview, files, "-o (its preview image)")
     views, size, first = [], None, None
-    for k, (name, img) in enumerate(_frames(inputs, 4 * max_views)):
+    for k, (name, img) in enumerate(_frames(files, 4 * max_views)):
         h, w = img.shape[:2]
         if size is None:
             size, first = (w, h), img
@@ -156,9 +187,10 @@ def calibrate_camera_files(inputs, board: str, out, model: str = "pinhole", max_
         cal = calibrate_camera(views, size, spec, model)
     except ValueError as exc:
         raise UserError(f"camera calibration: {exc}") from None
-    out = Path(out)
-    write_json(out, cal.to_dict())
-    preview = out.with_name(out.stem + "_undistorted.png")
+    warnings = plausibility_warnings(cal, spec)
+    for w in warnings:
+        log.warning("%s: camera calibration cannot be trusted: %s", out, w)
+    write_json(out, camera_json(cal, warnings))
     und, _ = undistort_image(first, cal, alpha=0.0)
     side = np.hstack([cv2.cvtColor(first, cv2.COLOR_GRAY2BGR), cv2.cvtColor(und, cv2.COLOR_GRAY2BGR)])
     cv2.putText(side, "original", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 1, (0, 0, 255), 2)
@@ -168,13 +200,55 @@ def calibrate_camera_files(inputs, board: str, out, model: str = "pinhole", max_
     return cal, [out, preview]
 
 
+MAX_TRUSTED_RMS_PX = 1.0
+MAX_ASPECT = 1.15
+
+
+def plausibility_warnings(cal: CameraCalibration, spec=None) -> list[str]:
+    """Why a calibration that OpenCV returned is plainly wrong, or [] when nothing is.
+
+    A real camera has nearly square pixels (fx close to fy) and a well-detected board
+    reprojects within a pixel; a --board size that does not match the printed board (corners
+    matched to the wrong board points) breaks both.
+    """
+    K = cal.camera_matrix
+    w, h = cal.image_size
+    out = []
+    fx, fy = float(K[0, 0]), float(K[1, 1])
+    ratio = max(fx, fy) / min(fx, fy)
+    if ratio > MAX_ASPECT:
+        out.append(f"fx {fx:.0f} and fy {fy:.0f} px differ by a factor {ratio:.2f} (a real camera's pixels are "
+                   "nearly square); check that --board matches the printed board")
+    if cal.rms_px is not None and cal.rms_px > MAX_TRUSTED_RMS_PX:
+        out.append(f"reprojection RMS {cal.rms_px:.2f} px exceeds {MAX_TRUSTED_RMS_PX:g} px; check --board "
+                   "(COLSxROWS inner corners and the square size) and use sharp, still views")
+    if not 0.1 * w < fx < 20 * w:
+        out.append(f"fx {fx:.0f} px is implausible for a {w} px wide image (field of view beyond 3-157 deg)")
+    if not (0.2 * w < K[0, 2] < 0.8 * w and 0.2 * h < K[1, 2] < 0.8 * h):
+        out.append(f"principal point ({K[0, 2]:.0f}, {K[1, 2]:.0f}) is far from the image centre")
+    return out
+
+
+def camera_json(cal: CameraCalibration, warnings=None) -> dict:
+    """The camera JSON of a calibration, with ``trusted`` and the ``warnings`` that make it
+    untrusted (docs/formats.md)."""
+    warnings = plausibility_warnings(cal) if warnings is None else list(warnings)
+    d = cal.to_dict()
+    d["trusted"] = not warnings
+    d["warnings"] = warnings
+    return d
+
+
 def format_camera_report(cal: CameraCalibration) -> str:
     K = cal.camera_matrix
-    lines = [f"camera ({cal.model}, {cal.image_size[0]}x{cal.image_size[1]}): RMS {cal.rms_px:.3f} px, "
-             f"fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f}",
-             "dist " + " ".join(f"{v:.5g}" for v in cal.dist_coeffs)]
+    warnings = plausibility_warnings(cal)
+    lines = [f"NOT TRUSTED: {w}" for w in warnings] + ([""] if warnings else [])
+    lines += [f"camera ({cal.model}, {cal.image_size[0]}x{cal.image_size[1]}): RMS {cal.rms_px:.3f} px, "
+              f"fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f}",
+              "dist " + " ".join(f"{v:.5g}" for v in cal.dist_coeffs)]
     if cal.std:
-        lines.append("standard deviations: " + " ".join(f"{k} {cal.std[k]:.2f}" for k in ("fx", "fy", "cx", "cy")) + " px")
+        lines.append("standard deviations: " + " ".join(f"{k} {cal.std[k]:.2f}" for k in ("fx", "fy", "cx", "cy"))
+                     + " px")
     lines += ["",
               f"{'view':<28} {'points':>6} {'rms px':>8}  status"]
     for v in cal.views:
@@ -202,18 +276,17 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
     ``centres``, or a nominal headset geometry), and eq. 1-2 per eye. Writes eyes.json and
     returns its content."""
     folder, csv_path = _eye_folder(src)
+    walls_path = folder / "walls.json"
+    walls = load_json(walls_path, "walls")
+    recs = walls["recordings"]
+    images = [inside(folder, rec["image"], walls_path, "walls", ["recordings", r, "image"])
+              for r, rec in enumerate(recs)]
+    check_output(out, [camera_path, csv_path, walls_path, *images], "-o")
     camera = load_camera(camera_path)
-    walls = read_json(folder / "walls.json", "wall description (walls.json)")
-    recs = walls.get("recordings")
-    if not isinstance(recs, list) or not recs:
-        raise UserError(f"{folder / 'walls.json'}: no 'recordings' list (docs/session.md)")
     eye, extra = read_eye_csv(csv_path, ["recording", "target"])
     targets_cam, readings, wall_report = [], [[], []], []
     for r, rec in enumerate(recs):
-        try:
-            P, wp = _wall_targets(folder, rec, camera)
-        except KeyError as exc:
-            raise UserError(f"{folder / 'walls.json'} recording {r}: missing {exc}") from None
+        P, wp = _wall_targets(images[r], walls_path, rec, camera)
         sel = extra["recording"].astype(int) == int(rec.get("recording", r))
         if not sel.any():
             raise UserError(f"{csv_path}: no samples of recording {rec.get('recording', r)}; record it again")
@@ -221,7 +294,7 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
         for e in range(2):
             ids, vals, _ = target_readings(extra["target"][sel], eye.raw[sel, e], eye.valid[sel, e], eye.t[sel])
             readings[e].append(vals)
-        if ids.max() >= len(P):
+        if ids.min() < 0 or ids.max() >= len(P):
             raise UserError(f"{csv_path}: target {ids.max()} in recording {r}, but walls.json lists {len(P)} dots")
         targets_cam.append(P[ids])
         wall_report.append({"recording": r, "image": rec.get("image"), "nominal_distance_mm": rec.get("distance_mm"),
@@ -263,16 +336,16 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
     return result
 
 
-def _wall_targets(folder: Path, rec: dict, camera: CameraCalibration):
+def _wall_targets(img_path: Path, walls_path: Path, rec: dict, camera: CameraCalibration):
     """Targets (K, 3) in the camera frame from the wall image's reference markers."""
-    img_path = folder / rec["image"]
-    img = cv2.imread(str(img_path), cv2.IMREAD_GRAYSCALE)
+    img = cv2.imread(str(img_path), cv2.IMREAD_GRAYSCALE) if img_path.is_file() else None
     if img is None:
-        raise UserError(f"{img_path}: missing or unreadable wall image")
+        raise UserError(f"{img_path}: missing or unreadable wall image; record the wall again or fix 'image' in "
+                        f"{walls_path}")
     try:
         det = MarkerDetector(rec["dictionary"])
     except ValueError as exc:
-        raise UserError(f"{folder / 'walls.json'}: {exc}") from None
+        raise UserError(f"{walls_path}: {exc}") from None
     found = det.detect_unique(img)       # {id: corners}; a repeated id is ambiguous and left out
     s = float(rec["marker_size_mm"]) / 2
     wall_pts, img_pts = [], []
@@ -291,23 +364,22 @@ def _wall_targets(folder: Path, rec: dict, camera: CameraCalibration):
 
 
 def load_eyes(path) -> list[EyeCalibration]:
-    d = read_json(path, "eye calibration (eyes.json)")
-    if d.get("format") != EYES_FORMAT:
-        raise UserError(f"{path}: not an eye calibration ('format' is {d.get('format')!r}); run "
-                        "'wearable-gaze calibrate-eyes'")
+    """The two eye calibrations (left, right) of an eyes.json, checked against its schema."""
+    d = load_json(path, "eyes")
     try:
         return [EyeCalibration.from_dict(e) for e in d["eyes"]]
-    except (KeyError, TypeError, ValueError) as exc:
-        raise UserError(f"{path}: malformed eye calibration ({exc})") from None
+    except ValueError as exc:
+        raise UserError(f"{path}: malformed eye calibration ({exc}); run 'wearable-gaze calibrate-eyes'") from None
 
 
 def format_eyes_report(result: dict) -> str:
     lines = ["wall recordings:"]
     for w in result["walls"]:
-        lines.append(f"  {w['image']}: measured distance {w['measured_distance_mm']:.0f} mm, tilt {w['tilt_deg']:.1f} deg, "
-                     f"reference points {w['reference_rms_px']:.2f} px RMS")
+        lines.append(f"  {w['image']}: measured distance {w['measured_distance_mm']:.0f} mm, "
+                     f"tilt {w['tilt_deg']:.1f} deg, reference points {w['reference_rms_px']:.2f} px RMS")
     lines.append("")
-    lines.append(f"{'eye':<6} {'centre (mm)':<26} {'sd (mm)':<18} {'targets':>7} {'rms deg':>8} {'LOO deg':>8}  outliers")
+    lines.append(f"{'eye':<6} {'centre (mm)':<26} {'sd (mm)':<18} {'targets':>7} {'rms deg':>8} {'LOO deg':>8}"
+                 "  outliers")
     for e in result["eyes"]:
         r = e["report"]
         c = "(" + ", ".join(f"{v:.1f}" for v in e["centre_mm"]) + ")"
@@ -328,6 +400,7 @@ def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1) 
     """Raw eye samples -> world view lines (eq. 1-8) with the head poses interpolated to each
     sample; samples without a pose within ``max_gap_s`` are dropped and counted, invalid eyes
     stay empty (monocular samples are kept)."""
+    check_output(out, [eye_csv, eyes_json, poses_csv], "-o")
     eye, _ = read_eye_csv(eye_csv)
     cals = load_eyes(eyes_json)
     t_p, _, T_p, _ = read_poses_csv(poses_csv)

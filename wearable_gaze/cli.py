@@ -6,12 +6,15 @@ Bad input at any boundary gets one line on stderr and exit status 2, never a tra
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
+import math
+import os
 import sys
 from pathlib import Path
 
-from .errors import UserError
+from .errors import UserError, check_output
 
 log = logging.getLogger("wearable_gaze")
 
@@ -23,13 +26,27 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: {message} (see `{self.prog} --help`)\n")
 
 
-def _positive_float(text):
+def _float(text):
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a number") from None
+    if not math.isfinite(v) or abs(v) > 1e9:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a finite number of a sensible size")
+    return v
+
+
+def _positive_float(text):
+    v = _float(text)
     if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        raise argparse.ArgumentTypeError(f"must be positive, got {ascii(text)}")
+    return v
+
+
+def _non_negative_float(text):
+    v = _float(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 (off) or positive, got {ascii(text)}")
     return v
 
 
@@ -37,10 +54,33 @@ def _positive_int(text):
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a whole number") from None
     if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text}")
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {ascii(text)}")
+    if v > 10**9:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is too large")
     return v
+
+
+def _seed(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a whole number") from None
+    if not 0 <= v < 2**63:
+        raise argparse.ArgumentTypeError(f"a seed is a whole number from 0 to 2^63-1, got {ascii(text)}")
+    return v
+
+
+def _publish_url(text):
+    """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` with a port 0-65535."""
+    scheme, sep, rest = text.partition("://")
+    host, colon, port = rest.rpartition(":")
+    if not sep or scheme not in ("udp", "tcp") or not colon or not host or not port.isdigit() \
+            or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not udp://HOST:PORT or tcp://HOST:PORT with a port "
+                                         "0-65535, e.g. udp://127.0.0.1:5555")
+    return text
 
 
 # --- estimate ---------------------------------------------------------------------------------
@@ -198,7 +238,7 @@ def cmd_live(args) -> int:
 def _host_port(text):
     host, sep, port = text.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r} is not HOST:PORT, e.g. 127.0.0.1:5555 (port 0: any free one)")
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not HOST:PORT, e.g. 127.0.0.1:5555 (port 0: any free one)")
     return host, int(port)
 
 
@@ -254,6 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="wearable-gaze",
                 description="Where in 3D a person looks, from a head-worn binocular eye tracker.")
     p.add_argument("-v", "--verbose", action="store_true", help="log what each step does")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     e = sub.add_parser("estimate", help="estimate gazed points from a view-line CSV")
@@ -271,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "13; figure5: depth from single binocular pairs; calibration: the section 2.3.3 correction "
                    "table and the eye-centre estimate")
     r.add_argument("--trials", type=_positive_int, default=20, metavar="N", help="trials per depth (default: 20)")
-    r.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    r.add_argument("--seed", type=_seed, default=0, metavar="S", help="random seed (default: 0)")
     r.add_argument("--out", default="reproduce-out", metavar="DIR", help="output folder (default: reproduce-out)")
     r.set_defaults(func=cmd_reproduce)
 
@@ -319,7 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
     tk.add_argument("--overlay", metavar="OUT.mp4", help="also write a video with markers and world axes drawn")
     tk.add_argument("--timestamps", metavar="CSV", help="frame times (frame,t); default the session's "
                     "scene_timestamps.csv beside the video, else frame / fps")
-    tk.add_argument("--smooth", type=float, default=0.0, metavar="S",
+    tk.add_argument("--smooth", type=_non_negative_float, default=0.0, metavar="S",
                     help="average poses over a centred window of S seconds (no lag offline; default off)")
     tk.set_defaults(func=cmd_track)
 
@@ -337,7 +378,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="paper-table1, lab-walkabout, moving-target, calibration-only, or a scenario "
                          "JSON file (docs/scenarios.md); default lab-walkabout")
     sm.add_argument("-o", "--out", required=True, metavar="SESSION_DIR", help="new session folder")
-    sm.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    sm.add_argument("--seed", type=_seed, default=0, metavar="S", help="random seed (default: 0)")
     sm.add_argument("--duration", type=_positive_float, default=None, metavar="S",
                     help="session length in seconds (default: the scenario's)")
     sm.add_argument("--resolution", type=_resolution, default=None, metavar="WxH",
@@ -366,7 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
     lv.add_argument("--eyes", required=True, metavar="eyes.json", help="eye calibration")
     lv.add_argument("--markers", required=True, metavar="map.json", help="marker map")
     lv.add_argument("--record", metavar="DIR", help="record everything as a session folder")
-    lv.add_argument("--publish", metavar="udp://HOST:PORT", help="also send the JSON lines to udp:// or tcp://")
+    lv.add_argument("--publish", type=_publish_url, metavar="udp://HOST:PORT",
+                    help="also send the JSON lines to udp:// or tcp://")
     lv.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="stop after S seconds")
     lv.add_argument("--quiet", action="store_true", help="no status line")
     lv.set_defaults(func=cmd_live)
@@ -383,14 +425,82 @@ def build_parser() -> argparse.ArgumentParser:
     em.set_defaults(func=cmd_emulate)
 
     d = sub.add_parser("demo", help="simulate the default session (lab-walkabout), process it, compare with the truth")
-    d.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    d.add_argument("--seed", type=_seed, default=0, metavar="S", help="random seed (default: 0)")
     d.add_argument("--duration", type=_positive_float, default=20.0, metavar="S", help="session length (default: 20)")
     d.add_argument("--out", default="wearable-gaze-demo", metavar="DIR", help="output folder")
     d.set_defaults(func=cmd_demo)
     return p
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version  # noqa: PLC0415
+
+    try:
+        return version("wearable-gaze")
+    except PackageNotFoundError:
+        from . import __version__  # noqa: PLC0415
+
+        return __version__
+
+
+# Per command: (output option, is a folder, the options naming its inputs). main() refuses an
+# output that is an input, a folder where a file is wanted (or the reverse), a parent that is a
+# file or an unwritable folder, before the command runs.
+OUTPUTS = {
+    "estimate": [("export_density", False, ("viewlines",))],
+    "reproduce": [("out", True, ())],
+    "calibrate-camera": [("out", False, ("inputs",))],
+    "calibrate-eyes": [("out", False, ("source", "camera"))],
+    "viewlines": [("out", False, ("eye", "eyes", "poses"))],
+    "track": [("out", False, ("video", "camera", "markers", "reference", "timestamps")),
+              ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],
+    "markers": [("out", False, ())],
+    "simulate": [("out", True, ("scenario",))],
+    "process": [("out", True, ("session", "camera", "eyes"))],
+    "live": [("record", True, ("camera", "camera_calib", "eyes", "markers"))],
+    "demo": [("out", True, ())],
+}
+OPTION = {"out": "-o", "export_density": "--export-density", "overlay": "--overlay", "record": "--record"}
+
+
+def _check_outputs(args) -> None:
+    for attr, folder, input_attrs in OUTPUTS.get(args.command, ()):
+        out = getattr(args, attr, None)
+        if out is None:
+            continue
+        inputs = []
+        for a in input_attrs:
+            v = getattr(args, a, None)
+            inputs += [] if v is None else [v] if isinstance(v, str) else list(v)
+        opt = "--out" if attr == "out" and args.command in ("reproduce", "demo") else OPTION[attr]
+        check_output(out, inputs, opt, folder=folder)
+
+
+OS_FIX = {errno.EACCES: "the place is not writable: choose another or change its permissions",
+          errno.EPERM: "the place is not writable: choose another or change its permissions",
+          errno.EROFS: "the file system is read-only: choose another place",
+          errno.EISDIR: "it is a folder: give a file name",
+          errno.ENOTDIR: "a part of the path is a file, not a folder: choose another path",
+          errno.EEXIST: "it exists already: choose a new name",
+          errno.ENOSPC: "the disk is full: free some space or choose another disk",
+          errno.EDQUOT: "the disk quota is exceeded: free some space or choose another disk",
+          errno.ENAMETOOLONG: "the name is too long: choose a shorter path"}
+
+
+def _quiet_opencv() -> None:
+    """No OpenCV / FFmpeg log lines on stderr: a bad input gets exactly one line."""
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")        # AV_LOG_QUIET
+    if "cv2" in sys.modules:
+        cv2 = sys.modules["cv2"]
+        try:
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+        except AttributeError:  # pragma: no cover - very old OpenCV
+            pass
+
+
 def main(argv=None) -> int:
+    _quiet_opencv()
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
@@ -398,14 +508,31 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
+    name = f"wearable-gaze {args.command}"
     try:
+        import cv2  # noqa: PLC0415
+
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+        _check_outputs(args)
         return args.func(args)
     except UserError as exc:
-        print(f"wearable-gaze {args.command}: {exc}", file=sys.stderr)
+        print(f"{name}: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except OSError as exc:                      # an output that cannot be written (or a device gone)
+        where = exc.filename if exc.filename is not None else "?"
+        fix = OS_FIX.get(exc.errno, "check the path and try again")
+        print(f"{name}: cannot write or read {ascii(str(where))[1:-1]}: {exc.strerror or exc}; {fix}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"wearable-gaze {args.command}: interrupted", file=sys.stderr)
+        print(f"{name}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:                     # a bug, not a bad input: say so, keep the traceback for -v
+        if args.verbose:
+            raise
+        msg = " ".join(str(exc).split())[:200]
+        print(f"{name}: internal error ({type(exc).__name__}: {msg}); this is a bug: rerun with -v for the "
+              "traceback and report it", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

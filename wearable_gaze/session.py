@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from .atomic import write_text
 from .errors import UserError
+from .jsonio import load_json, read_json_text
 from .tables import read_table, write_table
 
 FORMAT = "wearable-gaze-session"
@@ -31,14 +32,10 @@ def write_json(path, obj) -> None:
     write_text(path, json.dumps(obj, indent=1) + "\n")
 
 
-def read_json(path, what: str) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: no such file; expected the {what}")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not valid JSON ({exc}); the {what} must be a JSON file") from None
+def read_json(path, what: str):
+    """A JSON file without a schema (strict: UTF-8, no NaN); formats with a schema use
+    ``jsonio.load_json``."""
+    return read_json_text(path, what)
 
 
 # --- eye samples ---------------------------------------------------------------------------------
@@ -205,16 +202,12 @@ class Session:
 
     def marker_map(self) -> dict | None:
         p = self.path("marker_map")
-        return None if p is None else read_json(p, "marker map")
+        return None if p is None else load_json(p, "marker-map")
 
     @property
     def image_size(self) -> tuple[int, int]:
         w, h = self.manifest["image_size"]
         return int(w), int(h)
-
-
-REQUIRED_FILES = {"scene_video": "the scene-camera video", "scene_timestamps": "per-frame timestamps",
-                  "eye_samples": "the eye samples"}
 
 
 def load_session(root) -> Session:
@@ -226,20 +219,9 @@ def load_session(root) -> Session:
     root = Path(root)
     if not root.is_dir():
         raise UserError(f"{root}: no such session folder; record one or run 'wearable-gaze simulate -o {root}'")
-    man = read_json(root / "session.json", "session manifest (session.json)")
-    if man.get("format") != FORMAT:
-        raise UserError(f"{root / 'session.json'}: 'format' is {man.get('format')!r}, expected {FORMAT!r}")
-    if man.get("version") != VERSION:
-        raise UserError(f"{root / 'session.json'}: format version {man.get('version')!r}; "
-                        f"this program reads version {VERSION}")
-    files = man.get("files")
-    if not isinstance(files, dict):
-        raise UserError(f"{root / 'session.json'}: no 'files' object naming the session's files")
-    has_session = man.get("has_recording", True)
-    for key, what in REQUIRED_FILES.items():
-        if has_session and key not in files:
-            raise UserError(f"{root / 'session.json'}: 'files.{key}' ({what}) is missing")
-    for key, rel in files.items():
+    man = load_json(root / "session.json", "session")        # schema: format, version, files inside root
+    for key, rel in man["files"].items():
         if not (root / rel).exists():
-            raise UserError(f"{root / rel}: listed in session.json as {key} but missing")
+            raise UserError(f"{root / rel}: listed in session.json as {key} but missing; restore the file or "
+                            f"remove 'files.{key}' from the manifest")
     return Session(root, man)

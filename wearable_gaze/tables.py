@@ -13,7 +13,8 @@ from .atomic import atomic_path
 from .errors import UserError
 
 
-def read_table(path, required, text_columns=(), what: str = "table", fix: str = "", empty_ok=()) -> dict:
+def read_table(path, required, text_columns=(), what: str = "table", fix: str = "", empty_ok=(),
+               max_abs: float = 1e10) -> dict:
     """Read a CSV with a header into {column: (N,) array}.
 
     Args:
@@ -24,9 +25,12 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
         what: what the file is, for messages ("eye-sample CSV").
         fix: a hint appended to "missing file" messages.
         empty_ok: columns whose empty cells mean "no value" (NaN), e.g. a frame without a pose.
+        max_abs: largest plausible magnitude of a required column's values (1e10: ten billion
+            seconds, millimetres or sensor counts).
 
     Raises:
-        UserError: missing file or column, empty file, a cell that is not a finite number.
+        UserError: missing file or column, a repeated column, an empty file, a file that is not
+            UTF-8 text, a cell that is not a finite number or beyond ``max_abs``.
     """
     path = Path(path)
     names, reader = open_csv(path, required, what, fix or f"expected a {what}")
@@ -50,10 +54,15 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
                 try:
                     float(c)
                 except ValueError:
-                    raise UserError(f"{path} line {i + 2}, column {name}: {c!r} is not a number") from None
+                    raise UserError(f"{path} line {i + 2}, column {name}: '{printable(c)}' is not a number") from None
         bad = np.flatnonzero(~np.isfinite(vals) & ~(np.array([c == "" for c in cells], bool) & (name in empty_ok)))
         if len(bad) and name in required:
-            raise UserError(f"{path} line {bad[0] + 2}, column {name}: {cells[bad[0]]!r} is not a finite number")
+            raise UserError(f"{path} line {bad[0] + 2}, column {name}: '{printable(cells[bad[0]])}' is not a finite "
+                            "number")
+        huge = np.flatnonzero(np.abs(np.nan_to_num(vals)) > max_abs)
+        if len(huge) and name in required:
+            raise UserError(f"{path} line {huge[0] + 2}, column {name}: {cells[huge[0]]} is beyond +-{max_abs:g}, "
+                            "not a plausible value; fix the cell")
         out[name] = vals
     short = [i for i, r in enumerate(rows) if len(r) < width]
     if short and any(c in required for c in names[min(len(rows[short[0]]), width - 1):]):
@@ -70,18 +79,47 @@ def open_csv(path, required, what: str, fix: str):
     """
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"{path}: no such file; {fix}")
-    text = path.read_text(encoding="utf-8-sig", errors="replace")
-    reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
+        raise UserError(f"{path}: {'a folder, not a file' if path.is_dir() else 'no such file'}; {fix}")
+    data = path.read_bytes()
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in data[:4096]:
+        raise UserError(f"{path}: the {what} is UTF-16 or binary, not text; save it as UTF-8 CSV")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: the {what} is not UTF-8 text (byte {exc.start}); save it as UTF-8 CSV") from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = next(reader, None)
+    except csv.Error as exc:
+        raise UserError(f"{path} line 1: the {what} header is not CSV ({exc})") from None
     if header is None or not any(h.strip() for h in header):
         raise UserError(f"{path}: the {what} is empty; expected a header line with columns {', '.join(required)}")
     names = [h.strip() for h in header]
+    dup = sorted({n for n in names if n and names.count(n) > 1})
+    if dup:
+        raise UserError(f"{path}: column {printable(dup[0])} appears more than once in the {what} header; "
+                        "keep one column of each name")
     missing = [c for c in required if c not in names]
     if missing:
-        raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the {what} header "
-                        f"(it has: {', '.join(n for n in names if n) or 'nothing'})")
-    return names, reader
+        has = printable(", ".join(n for n in names if n), 120) if any(names) else "nothing"
+        raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the {what} header (it has: {has})")
+    return names, _rows(path, reader, what)
+
+
+def _rows(path, reader, what):
+    """The rows of a ``csv.reader``, a malformed row turned into a ``UserError``."""
+    try:
+        yield from reader
+    except csv.Error as exc:
+        raise UserError(f"{path} line {reader.line_num}: the {what} is not valid CSV ({exc})") from None
+
+
+def printable(text: str, limit: int = 60) -> str:
+    """``text`` with control and non-ASCII characters escaped, cut to ``limit`` characters: safe
+    to echo in a one-line message."""
+    out = text.encode("ascii", "backslashreplace").decode("ascii")
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in out)
+    return out if len(out) <= limit else out[:limit - 3] + "..."
 
 
 def write_table(path, columns: dict, formats: dict | None = None) -> None:

@@ -17,14 +17,16 @@ from tracking.timeline import interpolate_poses, smooth_poses
 
 from .atomic import atomic_path
 from .calibrate_cmd import load_camera
-from .errors import UserError
-from .session import read_json, write_json, write_poses_csv
+from .errors import UserError, check_output
+from .jsonio import load_json
+from .session import write_json, write_poses_csv
 from .tables import read_table
 
 
 def load_marker_map(path) -> MarkerMap:
+    """A marker map JSON, checked against its schema, then loaded (rigid poses, square corners)."""
     try:
-        return MarkerMap.from_dict(read_json(path, "marker map"))
+        return MarkerMap.from_dict(load_json(path, "marker-map"))
     except MarkerMapError as exc:
         raise UserError(f"{path}: {exc} (docs/formats.md, marker map)") from None
 
@@ -173,22 +175,43 @@ def _draw_overlay(frame, found, res, camera) -> np.ndarray:
 
 # --- printable markers -------------------------------------------------------------------------
 
+MAX_IDS = 10000
+
+
 def parse_ids(text: str) -> list[int]:
-    """'0-11', '3,5,7-9' -> ids."""
+    """'0-11', '3,5,7-9' -> ids (each once, in the order given).
+
+    Raises:
+        UserError: not ids, a range written backwards (5-3), a negative id, or more than
+            ``MAX_IDS`` ids.
+    """
     ids = []
-    try:
-        for part in text.split(","):
-            if "-" in part:
-                a, b = part.split("-")
-                ids += list(range(int(a), int(b) + 1))
+    safe = ascii(text)
+    for part in text.split(","):
+        try:
+            if "-" in part.strip()[1:]:
+                a, b = (int(v) for v in part.split("-"))
+                if b < a:
+                    raise UserError(f"--ids {safe}: the range {a}-{b} runs backwards; write {b}-{a}")
+                if b - a >= MAX_IDS:
+                    raise UserError(f"--ids {safe}: more than {MAX_IDS} ids; print fewer at a time")
+                ids += list(range(a, b + 1))
             else:
                 ids.append(int(part))
-    except ValueError:
-        raise UserError(f"--ids {text!r}: expected ids like 0-11 or 3,5,7-9") from None
-    return ids
+        except ValueError:
+            raise UserError(f"--ids {safe}: expected ids like 0-11 or 3,5,7-9") from None
+    neg = [i for i in ids if i < 0]
+    if neg:
+        raise UserError(f"--ids {safe}: id {neg[0]} is negative; marker ids start at 0")
+    if not ids:
+        raise UserError(f"--ids {safe}: no ids; expected ids like 0-11 or 3,5,7-9")
+    if len(ids) > MAX_IDS:
+        raise UserError(f"--ids {safe}: more than {MAX_IDS} ids; print fewer at a time")
+    return list(dict.fromkeys(ids))
 
 
 PAGE_MM = {"a4": (210.0, 297.0), "letter": (215.9, 279.4), "a3": (297.0, 420.0)}
+MAX_DPI = 1200          # an A3 page at 1200 dpi is 14000 x 19800 pixels; more exhausts memory
 
 
 def write_marker_sheets(dictionary: str, ids, size_mm: float, out, page: str = "a4", dpi: int = 300,
@@ -206,9 +229,15 @@ def write_marker_sheets(dictionary: str, ids, size_mm: float, out, page: str = "
         raise UserError(f"ids {bad[:5]} are not in {dictionary} (0-{n_ids - 1})")
     if not 5 <= size_mm <= 1000:
         raise UserError(f"--size-mm {size_mm}: marker side in millimetres, 5-1000")
+    if not 50 <= dpi <= MAX_DPI:
+        raise UserError(f"--dpi {dpi}: give a resolution of 50-{MAX_DPI} dots per inch (default 300)")
+    if not ids:
+        raise UserError("--ids: no ids to print; expected ids like 0-11 or 3,5,7-9")
     out = Path(out)
     if out.suffix.lower() not in (".pdf", ".png"):
-        raise UserError(f"{out}: write .pdf or .png")
+        raise UserError(f"-o {out}: write .pdf or .png")
+    check_output(out, (), "-o")
+    check_output(out.with_name(out.stem + "_map_template.json"), (), "-o (its map template)")
     pw, ph = PAGE_MM[page]
     module = size_mm / (dic.markerSize + 2)
     cell = size_mm + 2 * module + 12.0                      # quiet zone both sides + label room

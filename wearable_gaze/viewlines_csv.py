@@ -24,10 +24,11 @@ from estimator import BinocularSamples
 
 from .atomic import atomic_path
 from .errors import UserError
-from .tables import open_csv
+from .tables import open_csv, printable
 
 EYE_COLUMNS = {side: [f"{side}_{k}" for k in ("ox", "oy", "oz", "dx", "dy", "dz")] for side in ("left", "right")}
 REQUIRED = ["t", *EYE_COLUMNS["left"], *EYE_COLUMNS["right"]]
+MAX_ABS = 1e10          # s, mm, or direction components (a direction need not be unit, but 1e200 overflows)
 
 
 @dataclass(frozen=True)
@@ -64,16 +65,19 @@ def read_viewlines_csv(path) -> list[Segment]:
             continue
         row = row + [""] * (len(names) - len(row))
 
-        def number(name, allow_empty=False):
+        def number(name, allow_empty=False, row=row, line_no=line_no):
             cell = row[col[name]].strip()
             if cell == "" and allow_empty:
                 return None
             try:
                 v = float(cell)
             except ValueError:
-                raise UserError(f"{path} line {line_no}, column {name}: {cell!r} is not a number") from None
+                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a number") from None
             if not np.isfinite(v):
-                raise UserError(f"{path} line {line_no}, column {name}: {cell!r} is not a finite number")
+                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a finite number")
+            if abs(v) > MAX_ABS:
+                raise UserError(f"{path} line {line_no}, column {name}: {cell} is beyond +-{MAX_ABS:g}, not a "
+                                "plausible time, position (mm) or direction; fix the cell")
             return v
 
         t = number("t")
@@ -87,7 +91,7 @@ def read_viewlines_csv(path) -> list[Segment]:
             if empty:
                 raise UserError(f"{path} line {line_no}, column {empty[0]}: empty, but other {side}-eye "
                                 f"cells are not; leave all six {side}_* cells empty for a monocular sample")
-            if np.linalg.norm(vals[3:]) == 0:
+            if not np.linalg.norm(vals[3:]) > 1e-12:
                 raise UserError(f"{path} line {line_no}, columns {side}_dx..{side}_dz: the direction is zero; "
                                 "a view direction must be non-zero")
             eyes[side] = vals

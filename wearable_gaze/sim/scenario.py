@@ -6,9 +6,9 @@ is wrong. The schema is documented in docs/scenarios.md.
 from __future__ import annotations
 
 import copy
-import json
 
 from ..errors import UserError
+from ..jsonio import fail, short, validate
 
 SCENARIO_VERSION = 1
 
@@ -79,20 +79,8 @@ DEFAULTS = {
     "session": True,
 }
 
-CHOICES = {
-    "camera.codec": ("mp4v", "MJPG", "FFV1"),
-    "eyes.order": ("cycle", "random"),
-    "room.layout": ("lab", "none"),
-    "head.motion": ("fixed", "linear", "sway", "walk"),
-}
-POSITIVE = {"duration_s", "camera.hfov_deg", "camera.fps", "eyes.rate_hz", "eyes.ipd_mm",
-            "room.marker_size_mm", "targets.size_mm", "calibration.dwell_s", "camera.gain"}
-NON_NEGATIVE = {"camera.noise_std", "eyes.sigma_deg", "eyes.blink_rate_hz", "eyes.dropout_rate",
-                "eyes.pursuit_lag_s", "head.sway_deg", "head.sway_mm", "head.speed_mm_s",
-                "targets.random_count", "room.markers_per_wall", "room.posters_per_wall",
-                "calibration.camera_views"}
-FREE_FORM = {"calibration.camera_board", "targets.points_mm", "targets.moving", "eyes.bias_deg",
-             "calibration.walls", "camera.dist_coeffs"}
+# replaced as a whole by a scenario that gives them (not merged field by field)
+FREE_FORM = {"calibration.camera_board", "calibration.walls"}
 
 # named scenarios: overrides of DEFAULTS
 NAMED = {
@@ -125,137 +113,92 @@ NAMED = {
 }
 
 
-def _field_error(path: str, msg: str) -> UserError:
-    return UserError(f"scenario field '{path}': {msg}")
-
-
 def _merge(base: dict, over: dict, prefix: str = "") -> dict:
+    """``over`` (already checked against the schema) merged into ``base`` field by field."""
     out = copy.deepcopy(base)
     for key, val in over.items():
         path = f"{prefix}{key}"
-        if key not in base:
-            raise _field_error(path, f"unknown field (known: {', '.join(sorted(base))})")
-        if isinstance(base[key], dict) and path not in FREE_FORM:
-            if not isinstance(val, dict):
-                raise _field_error(path, "expected an object")
+        if isinstance(base.get(key), dict) and isinstance(val, dict) and path not in FREE_FORM:
             out[key] = _merge(base[key], val, path + ".")
         else:
             out[key] = copy.deepcopy(val)
     return out
 
 
-def _check_types(value, default, path: str):
-    if path in FREE_FORM:
-        return
-    if isinstance(default, dict):
-        for k in default:
-            _check_types(value[k], default[k], f"{path}.{k}" if path else k)
-        return
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise _field_error(path, f"expected true or false, got {json.dumps(value)}")
-    elif isinstance(default, (int, float)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _field_error(path, f"expected a number, got {json.dumps(value)}")
-        if path in POSITIVE and not value > 0:
-            raise _field_error(path, f"must be > 0, got {value}")
-        if path in NON_NEGATIVE and value < 0:
-            raise _field_error(path, f"must be >= 0, got {value}")
-    elif isinstance(default, str):
-        if not isinstance(value, str):
-            raise _field_error(path, f"expected a string, got {json.dumps(value)}")
-        if path in CHOICES and value not in CHOICES[path]:
-            raise _field_error(path, f"expected one of {', '.join(CHOICES[path])}, got {value!r}")
-    elif isinstance(default, list):
-        if not isinstance(value, list) or len(value) != len(default) or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-            raise _field_error(path, f"expected a list of {len(default)} numbers, got {json.dumps(value)}")
+def check_scenario(s: dict, source="scenario") -> None:
+    """What the scenario schema cannot express: relations between fields, dictionary names, a
+    session long enough to hold two frames and two eye samples.
 
+    Raises:
+        UserError: one line naming the field.
+    """
+    from calibration.camera import ARUCO_DICTS  # noqa: PLC0415
 
-def _check_free_form(s: dict):
-    def points(val, path, n=3, min_len=0):
-        if not isinstance(val, list) or len(val) < min_len or not all(
-                isinstance(p, list) and len(p) == n and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                                            for v in p) for p in val):
-            raise _field_error(path, f"expected a list of [{', '.join('xyz'[:n]) if n <= 3 else n}] "
-                                     f"number lists, got {json.dumps(val)}")
-    points(s["targets"]["points_mm"], "targets.points_mm")
-    points(s["eyes"]["bias_deg"], "eyes.bias_deg", n=2, min_len=2)
-    if len(s["eyes"]["bias_deg"]) != 2:
-        raise _field_error("eyes.bias_deg", "expected [[left h, v], [right h, v]] in degrees")
-    walls = s["calibration"]["walls"]
-    if not isinstance(walls, list) or not walls:
-        raise _field_error("calibration.walls", "expected a non-empty list of {distance_mm, grid, tilt_deg}")
-    for i, w in enumerate(walls):
-        path = f"calibration.walls[{i}]"
-        if not isinstance(w, dict) or set(w) != {"distance_mm", "grid", "tilt_deg"}:
-            raise _field_error(path, "expected an object with distance_mm, grid [cols, rows] and tilt_deg")
-        if not isinstance(w["distance_mm"], (int, float)) or not 200 <= w["distance_mm"] <= 10000:
-            raise _field_error(path + ".distance_mm", f"expected 200-10000 mm, got {w['distance_mm']!r}")
-        g = w["grid"]
-        if not (isinstance(g, list) and len(g) == 2 and all(isinstance(v, int) and 2 <= v <= 9 for v in g)):
-            raise _field_error(path + ".grid", f"expected [cols, rows] of 2-9 dots each, got {g!r}")
-        if not isinstance(w["tilt_deg"], (int, float)) or abs(w["tilt_deg"]) > 45:
-            raise _field_error(path + ".tilt_deg", f"expected -45..45 degrees, got {w['tilt_deg']!r}")
-    dc = s["camera"]["dist_coeffs"]
-    if not isinstance(dc, list) or len(dc) not in (4, 5, 8) or not all(isinstance(v, (int, float)) for v in dc):
-        raise _field_error("camera.dist_coeffs", "expected 4, 5 or 8 OpenCV distortion coefficients")
-    mv = s["targets"]["moving"]
+    def bad(where, detail):
+        return fail(source, "scenario", where, detail)
+
     n_targets = len(s["targets"]["points_mm"]) + int(s["targets"]["random_count"])
-    if not isinstance(mv, list) or not all(isinstance(i, int) and 0 <= i < n_targets for i in mv):
-        raise _field_error("targets.moving", f"expected indices of targets (0..{n_targets - 1}), got {mv!r}")
+    for i in s["targets"]["moving"]:
+        if not i < n_targets:
+            raise bad(["targets", "moving"], f"target {i} does not exist (there are {n_targets}: 0..{n_targets - 1})")
     if s["session"] and n_targets == 0:
-        raise _field_error("targets", "a session needs at least one target (points_mm or random_count)")
+        raise bad(["targets"], "a session needs at least one target: give points_mm or random_count")
     lo, hi = s["targets"]["random_depth_mm"]
-    if not 0 < lo <= hi:
-        raise _field_error("targets.random_depth_mm", f"expected 0 < near <= far, got {[lo, hi]}")
+    if not lo <= hi:
+        raise bad(["targets", "random_depth_mm"], f"expected [near, far] with near <= far, got {[lo, hi]}")
+    lo, hi = s["eyes"]["fixation_s"]
+    if not lo <= hi:
+        raise bad(["eyes", "fixation_s"], f"expected [shortest, longest] with shortest <= longest, got {[lo, hi]}")
     board = s["calibration"]["camera_board"]
-    if not isinstance(board, dict) or board.get("type") not in ("chessboard", "charuco"):
-        raise _field_error("calibration.camera_board.type", "expected 'chessboard' or 'charuco'")
-    need = ("cols", "rows", "square_mm") + (("marker_mm", "dictionary") if board["type"] == "charuco" else ())
-    for k in need:
-        if k not in board:
-            raise _field_error(f"calibration.camera_board.{k}", "missing")
-    if 4 * s["room"]["markers_per_wall"] > 46:
-        raise _field_error("room.markers_per_wall", "at most 11: ids 46-49 are the calibration wall's markers")
-    w, h = s["camera"]["resolution"]
-    if not (int(w) == w and int(h) == h and 64 <= w <= 8192 and 64 <= h <= 8192):
-        raise _field_error("camera.resolution", f"expected [width, height] in pixels (64-8192), got {[w, h]}")
-    if not 0 < s["head"]["follow"] <= 1 and s["head"]["motion"] in ("sway", "walk"):
-        raise _field_error("head.follow", "expected a fraction in (0, 1]")
+    for where, name in ((["room", "dictionary"], s["room"]["dictionary"]),
+                        (["calibration", "camera_board", "dictionary"], board.get("dictionary"))):
+        if name is not None and name not in ARUCO_DICTS:
+            raise bad(where, f"unknown marker dictionary {short(name)}: use a cv2.aruco name such as DICT_4X4_50")
+    if board["type"] == "charuco" and not board["marker_mm"] < board["square_mm"]:
+        raise bad(["calibration", "camera_board", "marker_mm"], "a ChArUco marker must be smaller than its square")
+    if s["head"]["motion"] in ("sway", "walk") and not s["head"]["follow"] > 0:
+        raise bad(["head", "follow"], "expected a fraction in (0, 1] for sway and walk motion")
+    if not any(s["head"]["forward"]):
+        raise bad(["head", "forward"], "the heading must be a non-zero vector")
+    if s["session"]:
+        need = 2 / min(s["camera"]["fps"], s["eyes"]["rate_hz"])      # two frames and two eye samples
+        if s["duration_s"] < need:
+            raise bad(["duration_s"], f"{s['duration_s']:g} s is too short for a session: give at least "
+                      f"{need:.3g} s (--duration)")
 
 
-def resolve(scenario, duration_s=None, resolution=None) -> dict:
+def resolve(scenario, duration_s=None, resolution=None, source="scenario") -> dict:
     """A complete, validated scenario dict.
 
     Args:
         scenario: a named scenario (str, ``NAMED``) or a dict parsed from JSON (may name a base
             scenario in ``"base"``).
         duration_s, resolution: command-line overrides.
+        source: the file (or "scenario") named in messages.
 
     Raises:
-        UserError: naming the offending field.
+        UserError: naming the offending field (the schema wearable_gaze/schemas/scenario.schema.json,
+            then ``check_scenario``).
     """
     if isinstance(scenario, str):
         if scenario not in NAMED:
-            raise UserError(f"unknown scenario {scenario!r}: use one of {', '.join(NAMED)} or a JSON file")
+            raise UserError(f"unknown scenario {short(scenario)}: use one of {', '.join(NAMED)} or a JSON file")
         over = NAMED[scenario]
     else:
-        if not isinstance(scenario, dict):
-            raise UserError("scenario file: expected a JSON object at the top level")
+        validate(scenario, "scenario", source)
         over = dict(scenario)
         base = over.pop("base", None)
         if base is not None:
-            if base not in NAMED:
-                raise _field_error("base", f"unknown scenario {base!r}: use one of {', '.join(NAMED)}")
             over = _merge(_merge(DEFAULTS, NAMED[base]), over)
     s = _merge(DEFAULTS, over)
-    if s["version"] != SCENARIO_VERSION:
-        raise _field_error("version", f"this program reads version {SCENARIO_VERSION}, got {s['version']!r}")
     if duration_s is not None:
         s["duration_s"] = float(duration_s)
     if resolution is not None:
         s["camera"]["resolution"] = list(resolution)
-    _check_types(s, DEFAULTS, "")
-    _check_free_form(s)
+    if isinstance(scenario, str):
+        source = f"scenario {scenario}"
+    if duration_s is not None or resolution is not None:
+        source = f"{source} with --duration/--resolution"
+    validate(s, "scenario", source)
+    check_scenario(s, source)
     return s

@@ -18,14 +18,14 @@ from estimator import BinocularSamples
 
 from .. import __version__
 from ..emr import encode_stream
-from ..errors import UserError
+from ..errors import UserError, check_output
+from ..jsonio import read_json_text
 from ..session import (
     FORMAT,
     VERSION,
     EyeSamples,
     camera_dict,
     marker_map_dict,
-    read_json,
     write_eye_csv,
     write_json,
     write_poses_csv,
@@ -149,17 +149,18 @@ def load_scenario(spec) -> dict:
         return spec
     p = Path(spec)
     if not p.suffix.lower() == ".json" and not p.exists():
-        raise UserError(f"unknown scenario {spec!r}: use one of {', '.join(NAMED)} or a scenario JSON file")
-    return read_json(p, "scenario file (docs/scenarios.md)")
+        raise UserError(f"unknown scenario {ascii(str(spec))}: use one of {', '.join(NAMED)} or a scenario JSON file")
+    return read_json_text(p, "scenario file (docs/scenarios.md)")
 
 
 def simulate_scenario(scenario, out_dir, seed: int = 0, duration_s=None, resolution=None, progress=None) -> dict:
     """``wearable-gaze simulate``: resolve a named scenario or JSON file with the command-line
     overrides and write its session. Returns the manifest."""
-    from .scenario import resolve  # noqa: PLC0415
+    from .scenario import NAMED, resolve  # noqa: PLC0415
 
+    is_file = isinstance(scenario, (str, Path)) and str(scenario) not in NAMED
     scn = resolve(load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario,
-                  duration_s, resolution)
+                  duration_s, resolution, source=scenario if is_file else "scenario")
     return simulate(scn, out_dir, seed, progress)
 
 
@@ -173,7 +174,8 @@ def simulate(scenario: dict, out_dir, seed: int = 0, progress=None) -> dict:
         the manifest.
     """
     out_dir = Path(out_dir)
-    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+    check_output(out_dir, (), "-o", folder=True)
+    if out_dir.exists() and any(out_dir.iterdir()):
         raise UserError(f"{out_dir}: already exists and is not empty; choose a new -o folder")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
