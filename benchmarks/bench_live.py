@@ -7,9 +7,14 @@ at its own pace (looped, counters and clock running on), and its scene video is 
 the video encoding then shares the core.
 
     python benchmarks/bench_live.py [--minutes 2] [--record]
+    python benchmarks/bench_live.py --seconds 60 --eye-rate-x 10 --record --subscriber both
 
 Targets (issue 7): p95 latency <= 50 ms; memory flat over the run (one hour: --minutes 60);
 no sample that arrived intact is lost.
+
+Targets (issue 12), ``--subscriber both``: at 10x the eye rate (600 Hz), a TCP subscriber that
+never reads, then one that reads: 0 intact samples missing from the recording in either run,
+and the first run's p95 latency within 1.2x the second's.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import argparse  # noqa: E402
 import ctypes  # noqa: E402
 import io  # noqa: E402
+import socket  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
@@ -56,81 +62,150 @@ def rss_mb() -> float:
     return float("nan")
 
 
+class TcpListener:
+    """A ``--publish tcp://`` subscriber: one that reads every byte (``reading``), or one that
+    accepts the connection and never reads (``stalled``)."""
+
+    def __init__(self, reading: bool):
+        self.srv = socket.socket()
+        self.srv.bind(("127.0.0.1", 0))
+        self.srv.listen(1)
+        self.url = f"tcp://127.0.0.1:{self.srv.getsockname()[1]}"
+        self.reading = reading
+        self.bytes = 0
+        self.conn = None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        self.conn, _ = self.srv.accept()
+        if not self.reading:
+            return
+        while True:
+            try:
+                b = self.conn.recv(1 << 16)
+            except OSError:
+                return
+            if not b:
+                return
+            self.bytes += len(b)
+
+    def close(self):
+        for s in (self.conn, self.srv):
+            if s is not None:
+                s.close()
+
+
+def run_once(root: Path, cal: Path, tmp: Path, args, subscriber: str, label: str) -> dict:
+    """One live run; prints its figures and returns them."""
+    seconds = args.seconds if args.seconds else args.minutes * 60
+    listener = TcpListener(subscriber == "reading") if subscriber in ("reading", "stalled") else None
+    emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), loop=True, duration_s=seconds)
+    url = emu.listen_tcp()
+    rec_dir = tmp / f"rec-{label}"
+    live = LiveSession(url, str(root / "scene.mp4"), cal / "camera.json", cal / "eyes.json", root / "markers.json",
+                       record=rec_dir if args.record else None, stdout=False, stream=io.StringIO(),
+                       publish=listener.url if listener else None)
+    live.frames.loop = True
+    mem = []
+    stop = threading.Event()
+    frame_mb = live.frames.size[0] * live.frames.size[1] / 2 ** 20       # a grey frame
+    queues = []
+
+    def sample_memory():
+        while not stop.is_set():
+            # what the bounded queues hold at this moment: frames waiting for the video encoder
+            # and for tracking (grey and colour), eye records waiting for the loop, samples waiting for a pose
+            vq = live.recorder.video_q.qsize() if live.recorder else 0
+            cq, rq, pend = live.frames.queue.qsize(), live.reader.queue.qsize(), len(live.pending)
+            queues.append((vq, cq, rq, pend, len(live.targets)))
+            mem.append((time.monotonic(), rss_mb(), rss_mb() - (vq + 4 * cq) * frame_mb, malloc_in_use_mb()))
+            stop.wait(5.0)
+    threading.Thread(target=sample_memory, daemon=True).start()
+    st = live.run(duration_s=seconds + 1.5)          # the emulator's last records arrive before the end
+    stop.set()
+    emu.stop()
+    if listener is not None:
+        listener.close()
+    n_rec = len(read_eye_csv(rec_dir / "eye.csv")[0]) if args.record else live.stats.samples
+    n_frames_rec = len(load_session(rec_dir).frame_times()) if args.record else None
+    lat = np.array(st.latencies_ms)
+    m = np.array(mem)
+    half = len(m) // 2
+    rate = 60 * args.eye_rate_x
+    print(f"live session [{label}], {_onecore.CORES} core(s), {seconds:g} s of 30 fps 1280x720 video and {rate:g} Hz "
+          f"eye data{', recorded' if args.record else ''}"
+          + (f", TCP subscriber {subscriber}" if listener else ""))
+    h = st.latency_all
+    print(f"  latency arrival -> published estimate, whole run ({h.n} estimates): median {h.percentile(50):.1f} ms, "
+          f"p95 {h.percentile(95):.1f} ms, p99 {h.percentile(99):.1f} ms, max {h.percentile(100):.1f} ms")
+    if len(lat):
+        print(f"  last {len(lat)} estimates: median {np.median(lat):.1f} ms, p95 {np.percentile(lat, 95):.1f} ms")
+    missing = emu.sent - n_rec
+    print(f"  eye samples sent {emu.sent}, received intact {st.eye_records}, "
+          f"{'recorded' if args.record else 'processed'} {n_rec} (missing {missing}), corrupt {st.corrupt}, "
+          f"dropped by the reader (still recorded) {st.reader_dropped}, processed by the loop {st.samples}")
+    print(f"  messages published {st.published}, dropped by publishing {st.publish_dropped}"
+          + (f", subscriber read {listener.bytes} bytes" if listener and listener.reading else "")
+          + (f"; disconnected: {', '.join(live.publisher.disconnected)}" if live.publisher.disconnected else ""))
+    print(f"  frames {st.frames}, skipped by tracking (a newer one waiting, or the camera queue full) "
+          f"{st.frames_skipped}, stalls {st.camera_stalls}" + (f", recorded {n_frames_rec}" if args.record else ""))
+    if len(m) >= 4:
+        print(f"  memory (RSS): first half mean {m[:half, 1].mean():.0f} MB, second half {m[half:, 1].mean():.0f} MB, "
+              f"max {m[:, 1].max():.0f} MB")
+        tm = (m[:, 0] - m[0, 0]) / 60.0
+        late = tm >= min(5.0, tm[-1] / 2)           # past the warm-up (caches, allocator pools)
+        slope = np.polyfit(tm[late], m[late, 1], 1)[0] * 60.0 if late.sum() >= 3 else float("nan")
+        edges = np.linspace(0.0, tm[-1] + 1e-9, 7)
+        slices = [f"{m[(tm >= a) & (tm < b), 1].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
+                  if ((tm >= a) & (tm < b)).any()]
+        print(f"  memory by sixths of the run: {' / '.join(slices)} MB; trend after warm-up {slope:+.1f} MB/hour")
+        slices = [f"{m[(tm >= a) & (tm < b), 2].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
+                  if ((tm >= a) & (tm < b)).any()]
+        slope = np.polyfit(tm[late], m[late, 2], 1)[0] * 60.0 if late.sum() >= 3 else float("nan")
+        q = np.array(queues)
+        print(f"  less the frames queued at that moment: {' / '.join(slices)} MB; trend {slope:+.1f} MB/hour")
+        slices = [f"{m[(tm >= a) & (tm < b), 3].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
+                  if ((tm >= a) & (tm < b)).any()]
+        print(f"  C allocator in use (malloc, queued frames included): {' / '.join(slices)} MB")
+        print(f"  queues, most seen: video encoder {q[:, 0].max()} frames (bound "
+              f"{live.recorder.video_q.maxsize if live.recorder else 0}), tracking {q[:, 1].max()}, eye records "
+              f"{q[:, 2].max()}, samples waiting for a pose {q[:, 3].max()}; target ids {q[-1, 4]}")
+    ok = (h.percentile(95) <= 50 and missing == 0
+          and (not args.record or n_frames_rec == st.frames))
+    print(f"  target p95 <= 50 ms and nothing intact lost: {'PASS' if ok else 'FAIL'}")
+    return {"p95": h.percentile(95), "missing": missing, "sent": emu.sent, "recorded": n_rec}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=2.0)
+    ap.add_argument("--seconds", type=float, default=None, help="run length in seconds (instead of --minutes)")
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--record", action="store_true", help="also record the session (video encoding shares the core)")
+    ap.add_argument("--eye-rate-x", type=float, default=1.0, metavar="X",
+                    help="eye rate as a multiple of the normal 60 Hz (10: a 600 Hz flood)")
+    ap.add_argument("--subscriber", choices=["none", "reading", "stalled", "both"], default="none",
+                    help="a --publish tcp:// subscriber that reads, one that never reads, or both runs in turn "
+                         "(stalled first) with their p95 ratio")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp) / "s"
-        simulate_scenario({"base": "lab-walkabout", "duration_s": 20.0}, root, args.seed)
-        cal = Path(tmp) / "cal"
+        tmp = Path(tmp)
+        root = tmp / "s"
+        simulate_scenario({"base": "lab-walkabout", "duration_s": 20.0, "eyes": {"rate_hz": 60.0 * args.eye_rate_x}},
+                          root, args.seed)
+        cal = tmp / "cal"
         process_session(root, cal, report=False)
-        emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), loop=True, duration_s=args.minutes * 60)
-        url = emu.listen_tcp()
-        live = LiveSession(url, str(root / "scene.mp4"), cal / "camera.json",
-                           cal / "eyes.json", root / "markers.json", record=Path(tmp) / "rec" if args.record else None, stdout=False,
-                           stream=io.StringIO())
-        live.frames.loop = True
-        mem = []
-        stop = threading.Event()
-
-        frame_mb = live.frames.size[0] * live.frames.size[1] / 2 ** 20       # a grey frame
-        queues = []
-
-        def sample_memory():
-            while not stop.is_set():
-                # what the bounded queues hold at this moment: frames waiting for the video encoder
-                # and for tracking (grey and colour), eye records waiting for the loop, samples waiting for a pose
-                vq = live.recorder.video_q.qsize() if live.recorder else 0
-                cq, rq, pend = live.frames.queue.qsize(), live.reader.queue.qsize(), len(live.pending)
-                queues.append((vq, cq, rq, pend, len(live.targets)))
-                mem.append((time.monotonic(), rss_mb(), rss_mb() - (vq + 4 * cq) * frame_mb, malloc_in_use_mb()))
-                time.sleep(5.0)
-        threading.Thread(target=sample_memory, daemon=True).start()
-        st = live.run(duration_s=args.minutes * 60 + 1.0)
-        stop.set()
-        n_rec = len(read_eye_csv(Path(tmp) / "rec" / "eye.csv")[0]) if args.record else live.stats.samples
-        n_frames_rec = len(load_session(Path(tmp) / "rec").frame_times()) if args.record else None
-        lat = np.array(st.latencies_ms)
-        m = np.array(mem)
-        half = len(m) // 2
-        print(f"live session, {_onecore.CORES} core(s), {args.minutes:g} min of 30 fps 1280x720 video and 60 Hz eye data"
-              f"{', recorded' if args.record else ''}")
-        h = st.latency_all
-        print(f"  latency arrival -> published estimate, whole run ({h.n} estimates): median {h.percentile(50):.1f} ms, "
-              f"p95 {h.percentile(95):.1f} ms, p99 {h.percentile(99):.1f} ms, max {h.percentile(100):.1f} ms")
-        print(f"  last {len(lat)} estimates: median {np.median(lat):.1f} ms, p95 {np.percentile(lat, 95):.1f} ms")
-        print(f"  eye samples sent {emu.sent}, received intact {live.reader.stats.records}, {'recorded' if args.record else 'processed'} {n_rec}, "
-              f"corrupt {live.reader.stats.corrupt}, dropped by the reader {live.reader.stats.dropped}")
-        print(f"  frames {live.frames.stats.frames}, dropped by a full camera queue {live.frames.stats.dropped}, "
-              f"skipped by tracking for a newer one {st.frames_skipped}"
-              + (f", recorded {n_frames_rec}" if args.record else ""))
-        if len(m) >= 4:
-            print(f"  memory (RSS): first half mean {m[:half, 1].mean():.0f} MB, second half {m[half:, 1].mean():.0f} MB, "
-                  f"max {m[:, 1].max():.0f} MB")
-            tm = (m[:, 0] - m[0, 0]) / 60.0
-            late = tm >= min(5.0, tm[-1] / 2)           # past the warm-up (caches, allocator pools)
-            slope = np.polyfit(tm[late], m[late, 1], 1)[0] * 60.0 if late.sum() >= 3 else float("nan")
-            edges = np.linspace(0.0, tm[-1] + 1e-9, 7)
-            slices = [f"{m[(tm >= a) & (tm < b), 1].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
-                      if ((tm >= a) & (tm < b)).any()]
-            print(f"  memory by sixths of the run: {' / '.join(slices)} MB; trend after warm-up {slope:+.1f} MB/hour")
-            slices = [f"{m[(tm >= a) & (tm < b), 2].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
-                      if ((tm >= a) & (tm < b)).any()]
-            slope = np.polyfit(tm[late], m[late, 2], 1)[0] * 60.0 if late.sum() >= 3 else float("nan")
-            q = np.array(queues)
-            print(f"  less the frames queued at that moment: {' / '.join(slices)} MB; trend {slope:+.1f} MB/hour")
-            slices = [f"{m[(tm >= a) & (tm < b), 3].mean():.0f}" for a, b in zip(edges[:-1], edges[1:], strict=True)
-                      if ((tm >= a) & (tm < b)).any()]
-            print(f"  C allocator in use (malloc, queued frames included): {' / '.join(slices)} MB")
-            print(f"  queues, most seen: video encoder {q[:, 0].max()} frames (bound "
-                  f"{live.recorder.video_q.maxsize if live.recorder else 0}), tracking {q[:, 1].max()}, eye records "
-                  f"{q[:, 2].max()}, samples waiting for a pose {q[:, 3].max()}; target ids {q[-1, 4]}")
-        ok = (h.percentile(95) <= 50 and n_rec == live.reader.stats.records
-              and (not args.record or n_frames_rec == live.frames.stats.frames))
-        print(f"  target p95 <= 50 ms and nothing intact lost: {'PASS' if ok else 'FAIL'}")
+        if args.subscriber != "both":
+            run_once(root, cal, tmp, args, args.subscriber, args.subscriber)
+            return
+        stalled = run_once(root, cal, tmp, args, "stalled", "stalled")
+        reading = run_once(root, cal, tmp, args, "reading", "reading")
+        ratio = stalled["p95"] / reading["p95"]
+        ok = stalled["missing"] == 0 and reading["missing"] == 0 and ratio <= 1.2
+        print(f"never-reading vs reading subscriber: missing {stalled['missing']} / {reading['missing']} intact "
+              f"samples (sent {stalled['sent']} / {reading['sent']}), p95 {stalled['p95']:.1f} / "
+              f"{reading['p95']:.1f} ms, ratio {ratio:.2f} (target <= 1.2): {'PASS' if ok else 'FAIL'}")
 
 
 if __name__ == "__main__":

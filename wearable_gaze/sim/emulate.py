@@ -38,6 +38,8 @@ class RecorderEmulator:
         duration_s: stop after this much stream time (default: the data's length, or forever
             when looping).
         inject: fault injection, ``{k: bytes}``: bytes sent right after the k-th record.
+        log_sent: keep ``sent_log``, ``(time.monotonic(), k)`` as the k-th record of the stream
+            has been written (tests compare a recording with what was sent when).
 
     Bytes that are not a valid record (a live recording keeps the garbage it received) are
     replayed after the record before them. The first pass sends the bytes as they are; looped
@@ -48,7 +50,7 @@ class RecorderEmulator:
     """
 
     def __init__(self, data: bytes, protocol: LineProtocol = DEFAULT_PROTOCOL, loop: bool = False,
-                 duration_s: float | None = None, inject: dict | None = None):
+                 duration_s: float | None = None, inject: dict | None = None, log_sent: bool = False):
         term, prefix = protocol.terminator.encode(), protocol.prefix.encode()
         self.records: list[EyeRecord] = []
         self.raw: list[bytes] = []            # each record's bytes as received, then any garbage after it
@@ -89,6 +91,7 @@ class RecorderEmulator:
         self.duration_s = duration_s
         self.inject = dict(inject or {})
         self.sent = 0
+        self.sent_log: list[tuple[float, int]] | None = [] if log_sent else None
         self.finished = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -116,7 +119,7 @@ class RecorderEmulator:
 
     def _play(self, write, t0: float) -> None:
         """Write each record at ``t0`` + its time; ``write`` returns False when nobody reads."""
-        for dt, chunk in self._schedule():
+        for k, (dt, chunk) in enumerate(self._schedule()):
             while True:
                 wait = t0 + dt - time.monotonic()
                 if wait <= 0 or self._stop.wait(min(wait, 0.1)):
@@ -125,6 +128,8 @@ class RecorderEmulator:
                 return
             if write(chunk):
                 self.sent += 1
+                if self.sent_log is not None:
+                    self.sent_log.append((time.monotonic(), k))
 
     # --- transports -------------------------------------------------------------------------
 
