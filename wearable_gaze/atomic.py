@@ -1,11 +1,26 @@
-"""Write files so that a reader never sees half a file: write a temporary sibling, then rename."""
+"""Write files so that a reader never sees half a file: write a temporary sibling, then rename.
+
+A writer that fails (an exception, ``KeyboardInterrupt``) leaves no temporary file and does not
+touch the file under the final name. A writer that is killed (SIGKILL, power loss) cannot clean
+up: its temporary sibling is named ``.NAME.XXXXXXXX.SUFFIX`` and ``remove_temporaries`` removes
+such leftovers at the next run.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def _temp_prefix(path: Path) -> str:
+    return f".{path.name}."
 
 
 @contextmanager
@@ -13,10 +28,12 @@ def atomic_path(path, suffix: str | None = None):
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it goes.
 
     ``suffix`` defaults to ``path``'s own (writers such as Open3D pick the format from it).
+    Use it only in a ``with`` block: driving ``__exit__(None, None, None)`` by hand after an
+    error would commit a partial file.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=suffix or path.suffix, dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
@@ -25,7 +42,7 @@ def atomic_path(path, suffix: str | None = None):
         os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; give the file the usual mode
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
 
@@ -34,3 +51,31 @@ def write_text(path, text: str) -> None:
     """Write ``text`` to ``path`` atomically (UTF-8)."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def remove_temporaries(folder, names) -> list[Path]:
+    """Remove the temporary siblings ``atomic_path`` made for ``folder/NAME`` (each of ``names``)
+    and left behind when its writer was killed. Returns the removed paths.
+
+    Only names of the exact pattern ``.NAME.<8 random characters>SUFFIX`` are removed, so a
+    user's own file that merely starts with a dot is never touched.
+    """
+    folder = Path(folder)
+    removed = []
+    if not folder.is_dir():
+        return removed
+    for name in names:
+        p = Path(name)
+        pattern = re.compile(re.escape(_temp_prefix(p)) + r"[a-z0-9_]{8}" + re.escape(p.suffix) + r"\Z")
+        for q in folder.glob(glob_escape(_temp_prefix(p)) + "*"):
+            if pattern.match(q.name) and q.is_file():
+                with contextlib.suppress(FileNotFoundError):
+                    q.unlink()
+                removed.append(q)
+                log.info("removed %s, left by a writer that was killed", q)
+    return removed
+
+
+def glob_escape(text: str) -> str:
+    """``text`` with the glob metacharacters ``*?[`` taken literally."""
+    return re.sub(r"([*?\[])", r"[\1]", text)

@@ -200,8 +200,9 @@ def cmd_track(args) -> int:
     from .track_cmd import track_video  # noqa: PLC0415
 
     with progress_bar("tracking", 1) as cb:
-        counts = track_video(args.video, args.camera, args.out, args.markers, args.reference, args.reference_size_mm,
-                             args.overlay, args.timestamps, cb, args.smooth)
+        counts = track_video(args.video, args.camera, args.out, markers=args.markers, reference=args.reference,
+                             reference_size_mm=args.reference_size_mm, overlay=args.overlay,
+                             timestamps=args.timestamps, progress=cb, smooth_s=args.smooth)
     print(f"wrote {args.out}: {counts['posed']} of {counts['frames']} frames with a pose"
           + (f"; overlay {args.overlay}" if args.overlay else ""))
     return 0
@@ -279,7 +280,7 @@ def cmd_process(args) -> int:
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
-    return 2 if res.problems and not res.targets else 0
+    return res.exit_status                  # 2 when no target could be estimated
 
 
 def cmd_demo(args) -> int:

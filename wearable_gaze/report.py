@@ -16,6 +16,8 @@ from .session import read_eye_csv, read_poses_csv
 from .tables import read_table
 from .viewlines_csv import read_viewlines_csv
 
+PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png")
+REPORT_FILES = ("report.html", *PLOTS, "overlay.webp", "overlay_error.txt")   # everything write_report writes
 COLOURS = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"]
 
 
@@ -132,11 +134,13 @@ def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progres
         progress(3, 5)
 
     video_name = None
+    for name in ("overlay.webp", "overlay_error.txt"):        # an earlier run's: this report may have neither
+        (out / name).unlink(missing_ok=True)
     if overlay and cam_path is not None:
         try:
             video_name = _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p)
         except Exception as exc:  # noqa: BLE001  (a report without a video is still a report)
-            (out / "overlay_error.txt").write_text(str(exc))
+            write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
     if progress:
         progress(4, 5)
     _html(out, session, targets, images, video_name)
@@ -206,20 +210,20 @@ def _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p) -> str | None
             for tg in targets:
                 if tg["t_start"] - 0.2 <= t <= tg["t_end"] + 0.2:
                     pc = Tcw[:3, :3] @ np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]]) + Tcw[:3, 3]
-                    if pc[2] > 100:
-                        u, v = cam.project(pc[None])[0]
-                        cv2.drawMarker(img, (int(u), int(v)), (0, 0, 255), cv2.MARKER_CROSS, 50, 5)
+                    uv = _pixel(cam.project(pc[None])[0]) if pc[2] > 100 else None
+                    if uv is not None:
+                        cv2.drawMarker(img, uv, (0, 0, 255), cv2.MARKER_CROSS, 50, 5)
                         cv2.putText(img, f"target {tg['target']}: {np.linalg.norm(pc) / 1000:.2f} m",
-                                    (int(u) + 15, int(v) - 15), cv2.FONT_HERSHEY_SIMPLEX, 1.3, (0, 0, 255), 3)
+                                    (uv[0] + 15, uv[1] - 15), cv2.FONT_HERSHEY_SIMPLEX, 1.3, (0, 0, 255), 3)
         if eyes is not None:
             j = int(np.searchsorted(eye.t, t))
             if j < len(eye.t):
                 for e, col in ((0, (255, 128, 0)), (1, (255, 0, 255))):
                     if eye.valid[j, e]:
                         q = eyes[e].image_points(eye.raw[j:j + 1, e])
-                        px = cam.project(np.column_stack([q, np.ones(1)]))[0]
-                        if np.all(np.isfinite(px)):
-                            cv2.circle(img, (int(px[0]), int(px[1])), 14, col, 3, cv2.LINE_AA)
+                        uv = _pixel(cam.project(np.column_stack([q, np.ones(1)]))[0])
+                        if uv is not None:
+                            cv2.circle(img, uv, 14, col, 3, cv2.LINE_AA)
         small = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
         frames.append(Image.fromarray(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)))
         i += 1
@@ -231,6 +235,15 @@ def _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p) -> str | None
         frames[0].save(tmp, format="WEBP", save_all=True, append_images=frames[1:],
                        duration=int(round(1000 * step / fps)), loop=0, method=0, quality=60)
     return name
+
+
+def _pixel(px, limit: float = 1e5) -> tuple[int, int] | None:
+    """A projected point (2,) as OpenCV drawing coordinates, or None when it is not finite or
+    absurdly far outside any image (OpenCV takes only 32-bit integer coordinates)."""
+    px = np.asarray(px, float)
+    if not np.all(np.isfinite(px)) or np.abs(px).max() > limit:
+        return None
+    return int(round(px[0])), int(round(px[1]))
 
 
 def _html(out: Path, session, targets, images, video_name) -> None:
