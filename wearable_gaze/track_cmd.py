@@ -3,6 +3,8 @@ marker sheets)."""
 
 from __future__ import annotations
 
+import contextlib
+import functools
 from pathlib import Path
 
 import cv2
@@ -31,7 +33,7 @@ def load_marker_map(path) -> MarkerMap:
         raise UserError(f"{path}: {exc} (docs/formats.md, marker map)") from None
 
 
-def _frame_times(video: Path, timestamps, n_hint: int, fps: float):
+def _frame_times(video: Path, timestamps):
     if timestamps is None:
         cand = video.parent / "scene_timestamps.csv"
         timestamps = cand if cand.is_file() else None
@@ -51,12 +53,39 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
     averages poses over a centred window of that length (no lag offline). ``every`` > 1 tracks
     one frame in ``every`` and fills the others by SLERP between tracked neighbours (status
     'interpolated'; smooth head motion moves a few hundredths of a degree off the line between
-    two poses 1/15 s apart). Returns counts.
+    two poses 1/15 s apart); with ``overlay`` every frame is tracked. Returns counts.
+
+    ``out`` and ``overlay`` are written under temporary names and renamed once both are
+    complete: an error or an interruption leaves neither half-written, and an earlier file
+    under either name untouched.
     """
     video = Path(video)
     if (markers is None) == (reference is None):
         raise UserError("give either --markers MAP.json or --reference IMAGE --reference-size-mm W H")
     camera = load_camera(camera_path)
+    with contextlib.ExitStack() as stack:
+        cap, fps, n_total = _open_video(video, camera)
+        stack.callback(cap.release)
+        times = _frame_times(video, timestamps)
+        step = _pose_step(camera, markers, reference, reference_size_mm)
+        draw = None
+        if overlay is not None:
+            tmp = stack.enter_context(atomic_path(overlay))         # left last: renamed after the poses
+            writer = stack.enter_context(_overlay_writer(tmp, fps, camera.image_size))
+            draw = functools.partial(_write_overlay_frame, writer, camera)
+        rows = _track_frames(cap, step, times, fps, n_total, every, progress, draw)
+        if not rows["frame"]:
+            raise UserError(f"{video}: no frame could be decoded (corrupt or empty video)")
+        T_all, status = _fill_poses(rows, every, fps, smooth_s)
+        write_poses_csv(out, rows["t"], rows["frame"], T_all,
+                        {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
+                         "reproj_rms_px": np.array(rows["reproj_rms_px"]), "status": status})
+    n_ok = sum(st in ("ok", "interpolated") for st in status)
+    return {"frames": len(rows["frame"]), "posed": n_ok}
+
+
+def _open_video(video: Path, camera):
+    """(capture, fps, frame count or 0) of a video made by ``camera``'s calibration size."""
     if not video.is_file():
         raise UserError(f"{video}: no such video")
     cap = cv2.VideoCapture(str(video))
@@ -64,11 +93,14 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
         raise UserError(f"{video}: OpenCV cannot open this video (corrupt, or a codec FFMPEG lacks)")
     w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
     if (w, h) != tuple(camera.image_size):
+        cap.release()
         raise UserError(f"{video} is {w}x{h} but the camera calibration is for {camera.image_size[0]}x"
                         f"{camera.image_size[1]}: calibrate this camera at this resolution")
-    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
-    n_total = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 0
-    times = _frame_times(video, timestamps, n_total, fps)
+    return cap, cap.get(cv2.CAP_PROP_FPS) or 30.0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 0
+
+
+def _pose_step(camera, markers, reference, reference_size_mm):
+    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay)."""
     if markers is not None:
         mm = load_marker_map(markers)
         detector = MarkerDetector(mm.dictionary)
@@ -77,68 +109,74 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
         def step(grey):
             found = detector.detect(grey)
             return estimator.estimate(found), found
-    else:
-        ref = cv2.imread(str(reference), cv2.IMREAD_GRAYSCALE)
-        if ref is None:
-            raise UserError(f"{reference}: missing or unreadable reference image")
-        if reference_size_mm is None or min(reference_size_mm) <= 0:
-            raise UserError("--reference-size-mm W H: the surface's physical width and height in mm")
-        try:
-            tracker = PlanarTracker(ref, reference_size_mm, camera)
-        except ValueError as exc:
-            raise UserError(f"{reference}: {exc}") from None
-
-        def step(grey):
-            return tracker.estimate(grey), {}
-    writer = None
-    if overlay is not None:
-        ov_tmp = atomic_path(overlay)
-        ov_path = ov_tmp.__enter__()
-        writer = cv2.VideoWriter(str(ov_path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
-    rows = {"t": [], "frame": [], "T": [], "n_markers": [], "n_points": [], "reproj_rms_px": [], "status": []}
-    i = 0
+        return step
+    ref = cv2.imread(str(reference), cv2.IMREAD_GRAYSCALE)
+    if ref is None:
+        raise UserError(f"{reference}: missing or unreadable reference image")
+    if reference_size_mm is None or min(reference_size_mm) <= 0:
+        raise UserError("--reference-size-mm W H: the surface's physical width and height in mm")
     try:
-        while True:
-            if every > 1 and i % every and writer is None:
-                if not cap.grab():
-                    break
-                rows["t"].append(times.get(i, np.nan) if times is not None else i / fps)
-                rows["frame"].append(i)
-                rows["T"].append(np.full((4, 4), np.nan))
-                rows["n_markers"].append(0)
-                rows["n_points"].append(0)
-                rows["reproj_rms_px"].append(np.nan)
-                rows["status"].append("interpolated")
-                i += 1
-                continue
+        tracker = PlanarTracker(ref, reference_size_mm, camera)
+    except ValueError as exc:
+        raise UserError(f"{reference}: {exc}") from None
+
+    def step(grey):
+        return tracker.estimate(grey), []
+    return step
+
+
+@contextlib.contextmanager
+def _overlay_writer(path: Path, fps: float, size):
+    """An MPEG-4 video writer on ``path``, released on leaving (also on error)."""
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"mp4v"), fps, tuple(size))
+    try:
+        if not writer.isOpened():
+            raise UserError(f"--overlay: OpenCV cannot write an MPEG-4 video named {path.suffix!r}; use .mp4 or .avi")
+        yield writer
+    finally:
+        writer.release()
+
+
+POSE_ROW = ("t", "frame", "T", "n_markers", "n_points", "reproj_rms_px", "status")
+
+
+def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progress, draw) -> dict:
+    """Track the frames of ``cap``: one in ``every`` (all when ``draw``), the others get a NaN
+    pose marked 'interpolated'. ``draw(frame, found, res)`` is called on every tracked frame.
+    Returns the columns ``POSE_ROW``, one entry per frame."""
+    rows = {k: [] for k in POSE_ROW}
+    i = 0
+    while True:
+        t = times.get(i, np.nan) if times is not None else i / fps
+        if every > 1 and i % every and draw is None:
+            if not cap.grab():
+                break
+            values = (t, i, np.full((4, 4), np.nan), 0, 0, np.nan, "interpolated")
+        else:
             ok, frame = cap.read()
             if not ok:
                 break
             grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
             res, found = step(grey)
-            rows["t"].append(times.get(i, np.nan) if times is not None else i / fps)
-            rows["frame"].append(i)
-            rows["T"].append(res.T_world_from_cam if res.ok else np.full((4, 4), np.nan))
-            rows["n_markers"].append(len(res.markers))
-            rows["n_points"].append(res.n_points)
-            rows["reproj_rms_px"].append(res.reproj_rms_px)
-            rows["status"].append(res.status if res.ok else f"{res.status}: {res.reason}")
-            if writer is not None:
-                writer.write(_draw_overlay(frame, found, res, camera))
-            i += 1
+            values = (t, i, res.T_world_from_cam if res.ok else np.full((4, 4), np.nan), len(res.markers),
+                      res.n_points, res.reproj_rms_px, res.status if res.ok else f"{res.status}: {res.reason}")
+            if draw is not None:
+                draw(frame, found, res)
             if progress:
-                progress(i, max(n_total, i))
-    finally:
-        cap.release()
-        if writer is not None:
-            writer.release()
-            ov_tmp.__exit__(None, None, None)
-    if i == 0:
-        raise UserError(f"{video}: no frame could be decoded (corrupt or empty video)")
+                progress(i + 1, max(n_total, i + 1))
+        for k, v in zip(POSE_ROW, values, strict=True):
+            rows[k].append(v)
+        i += 1
+    return rows
+
+
+def _fill_poses(rows: dict, every: int, fps: float, smooth_s: float):
+    """(T_world_from_cam (N, 4, 4), status (N,)): the frames passed over SLERPed between tracked
+    neighbours at most ``every`` + 0.5 frames apart, then smoothed over ``smooth_s`` if > 0."""
     T_all = np.array(rows["T"])
-    status = rows["status"]
+    status = list(rows["status"])
+    t_all = np.array(rows["t"])
     if every > 1:
-        t_all = np.array(rows["t"])
         fill = np.array([st == "interpolated" for st in status])
         T_i, ok_i = interpolate_poses(t_all[~fill], T_all[~fill], t_all[fill], max_gap_s=(every + 0.5) / fps)
         T_all[fill] = T_i
@@ -146,31 +184,74 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
             if not good:
                 status[k] = "no_pose: no tracked frame on both sides"
     if smooth_s > 0:
-        T_all = smooth_poses(np.array(rows["t"]), T_all, smooth_s)
-    write_poses_csv(out, rows["t"], rows["frame"], T_all,
-                    {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
-                     "reproj_rms_px": np.array(rows["reproj_rms_px"]),
-                     "status": rows["status"]})
-    n_ok = sum(st in ("ok", "interpolated") for st in status)
-    return {"frames": i, "posed": n_ok}
+        T_all = smooth_poses(t_all, T_all, smooth_s)
+    return T_all, status
+
+
+def _write_overlay_frame(writer, camera, frame, found, res) -> None:
+    writer.write(_draw_overlay(frame, found, res, camera))
+
+
+AXIS_MM = 300.0          # length of the world axes drawn on the overlay
+AXIS_SAMPLES = 16        # points per axis: an axis leaving the view is cut where it leaves
+MIN_DEPTH_MM = 50.0
+MAX_PX = 1e5             # beyond this a drawing coordinate is an error, not a point off screen
 
 
 def _draw_overlay(frame, found, res, camera) -> np.ndarray:
+    """A copy of ``frame`` (BGR) with the detections ``found`` ((id, corners (4, 2) px) each),
+    the world axes when ``res`` has a pose, and the pose status."""
     img = frame.copy() if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
     for mid, c in found:                 # every detection, repeated ids included
         cv2.polylines(img, [np.round(c * 16).astype(np.int32)], True, (0, 255, 0), 2, cv2.LINE_AA, shift=4)
         cv2.putText(img, str(mid), tuple(int(v) for v in c[0]), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 255, 0), 2)
     if res.ok:
-        T_cw = np.linalg.inv(res.T_world_from_cam)
-        axes = np.array([[0, 0, 0], [300, 0, 0], [0, 300, 0], [0, 0, 300.0]])
-        pc = axes @ T_cw[:3, :3].T + T_cw[:3, 3]
-        if np.all(pc[:, 2] > 50):
-            px = camera.project(pc)
-            for k, col in ((1, (0, 0, 255)), (2, (0, 255, 0)), (3, (255, 0, 0))):
-                cv2.line(img, tuple(int(v) for v in px[0]), tuple(int(v) for v in px[k]), col, 3, cv2.LINE_AA)
+        _draw_world_axes(img, np.linalg.inv(res.T_world_from_cam), camera)
     txt = "pose ok" if res.ok else f"no pose: {res.reason}"
     cv2.putText(img, txt, (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 255, 255), 2)
     return img
+
+
+def _draw_world_axes(img, T_cam_from_world, camera) -> None:
+    """Draw the world's x (red), y (green) and z (blue) axes, ``AXIS_MM`` long, on ``img``.
+
+    Each axis is a polyline through points sampled along it; only the pieces in front of the
+    camera and inside the calibrated field of view are drawn. Outside that field the distortion
+    polynomial sends points to huge or non-finite pixels (or folds them back into the image),
+    which OpenCV cannot draw ("Can't parse 'pt2'") and which would be wrong if it could.
+    """
+    r_max = _field_radius(camera)
+    s = np.linspace(0.0, AXIS_MM, AXIS_SAMPLES)
+    for k, col in ((0, (0, 0, 255)), (1, (0, 255, 0)), (2, (255, 0, 0))):
+        pts_world = np.zeros((AXIS_SAMPLES, 3))
+        pts_world[:, k] = s
+        pc = pts_world @ T_cam_from_world[:3, :3].T + T_cam_from_world[:3, 3]
+        vis = pc[:, 2] > MIN_DEPTH_MM
+        vis[vis] = np.linalg.norm(pc[vis, :2], axis=1) / pc[vis, 2] <= r_max
+        px = np.full((AXIS_SAMPLES, 2), np.nan)
+        if vis.any():
+            px[vis] = camera.project(pc[vis])
+        vis &= np.all(np.isfinite(px), axis=1) & np.all(np.abs(np.nan_to_num(px)) < MAX_PX, axis=1)
+        for run in _runs(vis):
+            if len(run) > 1:
+                cv2.polylines(img, [np.round(px[run] * 16).astype(np.int32)], False, col, 3, cv2.LINE_AA, shift=4)
+
+
+def _field_radius(camera) -> float:
+    """The largest normalised radius (x/z, y/z) the image shows: that of its corners and edge
+    midpoints, undistorted."""
+    w, h = camera.image_size
+    border = np.array([[0, 0], [w / 2, 0], [w, 0], [w, h / 2], [w, h], [w / 2, h], [0, h], [0, h / 2]], float)
+    xy = camera.undistort_points(border)
+    return float(np.max(np.linalg.norm(xy, axis=1)))
+
+
+def _runs(mask) -> list:
+    """Index arrays of the runs of consecutive True values in a (N,) bool mask."""
+    idx = np.flatnonzero(mask)
+    if len(idx) == 0:
+        return []
+    return np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
 
 
 # --- printable markers -------------------------------------------------------------------------
