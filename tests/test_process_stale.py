@@ -13,6 +13,7 @@ import pytest
 import wearable_gaze.process as process_mod
 from wearable_gaze.cli import main
 from wearable_gaze.process import process_session
+from wearable_gaze.session import read_poses_csv
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}
@@ -154,9 +155,14 @@ def test_temporary_files_of_a_killed_step_are_removed_at_the_next_run(processed)
 def test_a_recording_cut_short_is_read_with_a_problem_line(processed, capsys):
     s, out = processed
     man = json.loads((s / "session.json").read_text())
-    man["complete"] = False                                     # a live recording that was killed
+    man["complete"] = False                                     # a live recording that was killed:
     (s / "session.json").write_text(json.dumps(man))
+    for name, cut in (("scene_timestamps.csv", 20), ("eye.csv", 30)):     # its video ahead of its timestamps
+        lines = (s / name).read_text().splitlines(keepends=True)
+        (s / name).write_text("".join(lines[:-cut]))
     capsys.readouterr()
     assert main(["process", str(s), "--no-overlay"]) == 0
     cap = capsys.readouterr()
     assert "cut short" in cap.err and not cap.out.startswith("0 fixated")
+    t, frames, _, _ = read_poses_csv(out / "poses.csv")
+    assert list(frames) == list(range(120 - 20)) and np.all(np.isfinite(t))   # frames without a time left out

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import logging
 from pathlib import Path
 
 import cv2
@@ -23,6 +24,8 @@ from .errors import UserError, check_output
 from .jsonio import load_json
 from .session import write_json, write_poses_csv
 from .tables import read_table
+
+log = logging.getLogger(__name__)
 
 
 def load_marker_map(path) -> MarkerMap:
@@ -143,11 +146,19 @@ POSE_ROW = ("t", "frame", "T", "n_markers", "n_points", "reproj_rms_px", "status
 def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progress, draw) -> dict:
     """Track the frames of ``cap``: one in ``every`` (all when ``draw``), the others get a NaN
     pose marked 'interpolated'. ``draw(frame, found, res)`` is called on every tracked frame.
-    Returns the columns ``POSE_ROW``, one entry per frame."""
+    A frame ``times`` has no time for (a recording cut short saves its video ahead of its
+    timestamps) cannot be placed in time: it is left out, with a warning. Returns the columns
+    ``POSE_ROW``, one entry per frame kept."""
     rows = {k: [] for k in POSE_ROW}
-    i = 0
+    i = untimed = 0
     while True:
-        t = times.get(i, np.nan) if times is not None else i / fps
+        if times is not None and i not in times:
+            if not cap.grab():
+                break
+            untimed += 1
+            i += 1
+            continue
+        t = times[i] if times is not None else i / fps
         if every > 1 and i % every and draw is None:
             if not cap.grab():
                 break
@@ -167,6 +178,8 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
         for k, v in zip(POSE_ROW, values, strict=True):
             rows[k].append(v)
         i += 1
+    if untimed:
+        log.warning("%d of %d video frames have no time in the frame-timestamp CSV; they get no pose", untimed, i)
     return rows
 
 
