@@ -233,8 +233,9 @@ def test_live_bad_inputs_are_one_line(tmp_path, capsys, live_run):
     cases = [
         (["live", "--serial", "/dev/does-not-exist", "--camera", str(root / "scene.mp4")] + base, "cannot open"),
         (["live", "--serial", "loop://", "--camera", str(tmp_path / "none.mp4")] + base, "will not open"),
-        (["live", "--serial", "loop://", "--camera", str(root / "scene.mp4"), "--camera-calib", str(tmp_path / "x.json"),
-          "--eyes", str(cal / "eyes.json"), "--markers", str(root / "markers.json")], "no such camera file"),
+        (["live", "--serial", "loop://", "--camera", str(root / "scene.mp4"), "--camera-calib",
+          str(tmp_path / "x.json"), "--eyes", str(cal / "eyes.json"), "--markers", str(root / "markers.json")],
+         "no such camera file"),
         (["live", "--serial", "loop://", "--camera", str(root / "scene.mp4"), "--publish", "http://x"] + base,
          "udp://HOST:PORT"),
     ]
@@ -242,3 +243,58 @@ def test_live_bad_inputs_are_one_line(tmp_path, capsys, live_run):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and needle in err[0], err
+
+
+def test_a_recording_killed_at_a_random_moment_loses_at_most_a_second_and_process_reads_it(live_run, tmp_path):
+    """SIGKILL at a seeded random moment: every eye sample sent, and every message published,
+    more than 1 s before the kill is in the recording; ``process`` reads what is there."""
+    import subprocess
+    import sys
+
+    root = live_run[0]
+    cal = root.parent / "cal"
+    kill_after = float(np.random.default_rng(12).uniform(1.5, 6.0))
+    emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), inject={100: b"\x00junk"}, log_sent=True)
+    url = emu.listen_tcp()
+    rec = tmp_path / "rec"
+    proc = subprocess.Popen([sys.executable, "-m", "wearable_gaze.cli", "live", "--serial", url, "--camera",
+                             str(root / "scene.mp4"), "--camera-calib", str(cal / "camera.json"), "--eyes",
+                             str(cal / "eyes.json"), "--markers", str(root / "markers.json"), "--record", str(rec),
+                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    lines = []                                                   # (time received, line) of stdout
+
+    def read():
+        for line in proc.stdout:
+            lines.append((time.monotonic(), line))
+    th = threading.Thread(target=read, daemon=True)
+    th.start()
+    t0 = time.monotonic()
+    while not emu.sent_log and time.monotonic() - t0 < 60:
+        time.sleep(0.01)
+    time.sleep(kill_after)
+    kill_t = time.monotonic()
+    proc.kill()
+    proc.wait()
+    th.join(5)
+    emu.stop()
+    assert proc.returncode == -9
+
+    man = json.loads((rec / "session.json").read_text())
+    assert man["complete"] is False
+    eye, _ = read_eye_csv(rec / "eye.csv")
+    sent_before = [emu.records[k].counter for t, k in emu.sent_log if t <= kill_t - 1.0]
+    assert len(sent_before) > 50
+    assert set(sent_before) <= set(eye.counter.tolist())         # at most the last second lost
+    assert set(eye.counter.tolist()) <= {emu.records[k].counter for _, k in emu.sent_log}
+    assert len(sent_before) <= man["n_eye_samples"] <= len(eye)  # the manifest's count is on the same schedule
+    assert (rec / "eye_serial.bin").read_bytes().count(b"$EMR8") >= len(sent_before)
+    published_before = [line for t, line in lines if t <= kill_t - 1.0]
+    recorded = (rec / "live.jsonl").read_bytes().splitlines(keepends=True)
+    assert published_before and recorded[:len(published_before)] == published_before
+    assert len(published_before) <= man["n_messages"] <= len(recorded)
+
+    res = process_session(rec, tmp_path / "processed", report=False)
+    assert all("cut short" in p for p in res.problems), res.problems     # said, and nothing else went wrong
+    poses = (tmp_path / "processed" / "poses.csv").read_text().splitlines()
+    assert len(poses) - 1 >= len(sent_before) // 2 - 30                  # a pose row per recorded frame (30 fps)
+    assert (tmp_path / "processed" / "viewlines.csv").is_file()

@@ -72,6 +72,8 @@ class Recorder:
         self.messages = open(self.root / FILES["live_messages"], "wb", buffering=_BUFFER)
         self.n_frames = self.n_eye = self.n_messages = 0
         self.lock = threading.Lock()
+        self.frames_flushed = 0          # frames whose timestamp rows have been flushed: the video may hold these
+        self.timestamps_out = threading.Condition(self.lock)
         self.fps = fps
         self.size = size
         self.flush_s = flush_s
@@ -101,13 +103,15 @@ class Recorder:
                 self.n_eye += 1
 
     def frame(self, t: float, index: int, grey) -> None:
-        """A captured frame at session time ``t``, s (the video thread encodes it)."""
-        if self.closed:
-            return
-        self.video_q.put(grey)
+        """A captured frame at session time ``t``, s (the video thread encodes it once its
+        timestamp row has been flushed, so that a killed recording's video holds no frame
+        without a time)."""
         with self.lock:
+            if self.closed:
+                return
             self.ts.write(f"{index},{t:.6f}\n")
             self.n_frames += 1
+        self.video_q.put(grey)
 
     def message(self, line: bytes) -> None:
         """A published message, one encoded JSON line."""
@@ -119,11 +123,15 @@ class Recorder:
     # --- the schedule ----------------------------------------------------------------------------
 
     def _video_worker(self):
+        written = 0
         while True:
             item = self.video_q.get()
             if item is None:
                 return
+            with self.timestamps_out:
+                self.timestamps_out.wait_for(lambda w=written: self.frames_flushed > w)
             self.video.write(item)
+            written += 1
 
     def _flush_loop(self):
         while not self._stop.wait(self.flush_s):
@@ -139,6 +147,8 @@ class Recorder:
                 return
             for fh in (self.ts, self.eye, self.raw, self.messages):
                 fh.flush()
+            self.frames_flushed = self.n_frames
+            self.timestamps_out.notify_all()
             self._write_manifest(complete=False)
 
     def _write_manifest(self, complete: bool) -> None:
@@ -156,6 +166,7 @@ class Recorder:
         ended cleanly."""
         self._stop.set()
         self.flusher.join(2.0)
+        self.flush()
         self.video_q.put(None)
         self.video_thread.join()
         self.video.release()
