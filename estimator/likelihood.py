@@ -213,7 +213,7 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
     cost = cost_and_weights(x, True)
     it = 0
     converged = False
-    for it in range(1, config.max_iterations + 1):
+    for it in range(1, config.max_iterations + 1):  # noqa: B007 (it is reported after the loop)
         _, H, g = normal_equations(x)
         step_ok = False
         for _ in range(30):

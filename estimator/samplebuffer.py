@@ -1,0 +1,109 @@
+"""The voxel estimator's kept samples: growable per-sample arrays of both eyes' world lines, with
+the running line count and the line statistics that the seed test reads in O(1)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .lines import BinocularSample, BinocularSamples, ViewLines
+
+
+class _SampleBuffer:
+    """Growable per-sample arrays: times, both eyes' lines (world), validity, reliability weight."""
+
+    def __init__(self, capacity: int = 256):
+        self.n = 0
+        self.n_lines = 0
+        # running sums over the valid lines (origin o, unit direction d, P = I - d d^T): the
+        # least-squares point solves sum_P x = sum_Po; sum_d . x - sum_do is the summed distance
+        # of x ahead of the eyes along the lines
+        self.sum_P = np.zeros((3, 3))
+        self.sum_Po = np.zeros(3)
+        self.sum_d = np.zeros(3)
+        self.sum_do = 0.0
+        self._alloc(capacity)
+
+    def _alloc(self, cap):
+        old = getattr(self, "t", None)
+        new = {"t": np.zeros(cap), "o": np.zeros((cap, 2, 3)), "d": np.zeros((cap, 2, 3)),
+               "valid": np.zeros((cap, 2), bool), "weight": np.ones(cap)}
+        if old is not None:
+            for k, arr in new.items():
+                arr[:self.n] = getattr(self, k)[:self.n]
+        for k, arr in new.items():
+            setattr(self, k, arr)
+
+    def _add_sums(self, o, d):
+        """Add lines (L, 3) origins, (L, 3) unit directions to the running sums."""
+        P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+        self.sum_P += P.sum(axis=0)
+        self.sum_Po += np.einsum("nij,nj->i", P, o)
+        self.sum_d += d.sum(axis=0)
+        self.sum_do += float(np.einsum("ij,ij->", d, o))
+        self.n_lines += len(d)
+
+    def append_one(self, sample: BinocularSample) -> int:
+        """Append one streaming sample (validated here: the hot path skips ``BinocularSamples``)."""
+        if self.n + 1 > len(self.t):
+            self._alloc(2 * len(self.t))
+        i = self.n
+        self.t[i] = float(sample.t_s)
+        for eye, (o, d) in enumerate(((sample.left_origin_mm, sample.left_direction),
+                                      (sample.right_origin_mm, sample.right_direction))):
+            if o is None or d is None:
+                self.valid[i, eye] = False
+                self.o[i, eye] = np.nan
+                self.d[i, eye] = np.nan
+                continue
+            o = np.asarray(o, dtype=np.float64)
+            d = np.asarray(d, dtype=np.float64)
+            if o.shape != (3,) or d.shape != (3,):
+                raise ValueError(f"sample origins and directions must have shape (3,), got {o.shape} and {d.shape}")
+            nd = float(np.sqrt(d @ d))
+            if not (np.isfinite(nd) and nd > 1e-12 and np.all(np.isfinite(o))):
+                raise ValueError(f"sample at t={sample.t_s} has a zero or non-finite {('left', 'right')[eye]} line")
+            self.o[i, eye] = o
+            self.d[i, eye] = d / nd
+            self.valid[i, eye] = True
+        self.weight[i] = 1.0
+        self.n += 1
+        v = self.valid[i]
+        if v.any():
+            self._add_sums(self.o[i][v], self.d[i][v])
+        return i
+
+    def append(self, samples: BinocularSamples):
+        m = len(samples)
+        if self.n + m > len(self.t):
+            self._alloc(max(2 * len(self.t), self.n + m))
+        sl = slice(self.n, self.n + m)
+        self.t[sl] = samples.t_s
+        self.o[sl, 0], self.o[sl, 1] = samples.left_origin_mm, samples.right_origin_mm
+        self.d[sl, 0], self.d[sl, 1] = samples.left_direction, samples.right_direction
+        self.valid[sl, 0], self.valid[sl, 1] = samples.left_valid, samples.right_valid
+        self.weight[sl] = 1.0
+        self.n += m
+        v = self.valid[sl]
+        self._add_sums(self.o[sl][v], self.d[sl][v])
+        return sl
+
+    def lines(self, sl=slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(origins (L, 3), directions (L, 3), sample index (L,)) of the valid lines in ``sl``."""
+        start, stop, step = sl.indices(self.n)
+        idx = np.arange(start, stop, step)          # O(len(sl)), not O(n): the streaming path
+        valid = self.valid[idx]
+        rows, eyes = np.nonzero(valid)
+        return self.o[idx][rows, eyes], self.d[idx][rows, eyes], idx[rows]
+
+    def view_lines(self) -> ViewLines:
+        o, d, si = self.lines()
+        return ViewLines(o, d, "world", si)
+
+
+def _as_samples(sample) -> BinocularSamples:
+    if isinstance(sample, BinocularSamples):
+        return sample
+    if isinstance(sample, BinocularSample):
+        from .lines import samples_from_stream  # noqa: PLC0415
+        return samples_from_stream([sample])
+    raise TypeError(f"expected a BinocularSample or BinocularSamples, got {type(sample).__name__}")
