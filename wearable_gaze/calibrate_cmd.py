@@ -131,12 +131,12 @@ def _frames(files, max_video_frames: int, progress=None):
         if f.suffix.lower() in IMAGE_EXT:
             img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
             if img is None:
-                raise UserError(f"{f}: not a readable image")
+                raise UserError(f"{f}: not a readable image; pass PNG, JPEG, BMP or TIFF images of the board")
             yield f.name, img
             continue
         cap = cv2.VideoCapture(str(f))
         if not cap.isOpened():
-            raise UserError(f"{f}: neither an image nor a video OpenCV can open")
+            raise UserError(f"{f}: neither an image nor a video OpenCV can open; pass images or a video of the board")
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 1
         step = max(n // max_video_frames, 1)
         i = 0
@@ -160,7 +160,7 @@ def calibrate_camera_files(inputs, board: str, out, model: str = "pinhole", max_
     try:
         spec = parse_board(board)
     except ValueError as exc:
-        raise UserError(f"--board: {exc}") from None
+        raise UserError(f"--board {ascii(board)}: {exc}; e.g. chessboard:9x6:25 (inner corners, square mm)") from None
     files = _input_files(inputs)
     out = Path(out)
     preview = out.with_name(out.stem + "_undistorted.png")
@@ -295,7 +295,9 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
             ids, vals, _ = target_readings(extra["target"][sel], eye.raw[sel, e], eye.valid[sel, e], eye.t[sel])
             readings[e].append(vals)
         if ids.min() < 0 or ids.max() >= len(P):
-            raise UserError(f"{csv_path}: target {ids.max()} in recording {r}, but walls.json lists {len(P)} dots")
+            bad = ids.min() if ids.min() < 0 else ids.max()
+            raise UserError(f"{csv_path}: target {bad} in recording {r}, but walls.json lists {len(P)} dots (0-"
+                            f"{len(P) - 1}); fix the target column")
         targets_cam.append(P[ids])
         wall_report.append({"recording": r, "image": rec.get("image"), "nominal_distance_mm": rec.get("distance_mm"),
                             "measured_distance_mm": float(wp.T_cam_from_wall[2, 3]), "tilt_deg": wp.tilt_deg,
@@ -407,8 +409,8 @@ def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1) 
     T_wc, ok = interpolate_poses(t_p, T_p, eye.t, max_gap_s)
     keep = ok & eye.valid.any(axis=1)
     if not keep.any():
-        raise UserError(f"{poses_csv}: no head pose within {max_gap_s} s of any valid eye sample; are the eye "
-                        "samples and the poses on the same clock?")
+        raise UserError(f"{poses_csv}: no head pose within {max_gap_s} s of any valid eye sample; check that the eye "
+                        "samples and the poses share one clock (or raise --max-gap)")
     idx = np.flatnonzero(keep)
     T_cw = np.stack([invert(T) for T in T_wc[idx]])
     arrays = []

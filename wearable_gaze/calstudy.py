@@ -38,8 +38,9 @@ class StudyResult:
 
     def format(self) -> str:
         s = self.settings
-        lines = [f"Eye calibration errors, {s['trials']} simulated calibrations (wall at {s['wall_mm']:.0f} mm turned "
-                 f"{s['tilt_deg']:.0f} deg, {s['target_noise_px']} px target noise, {s['sigma_deg']} deg eye noise over "
+        lines = [f"Eye calibration errors, {s['trials']} simulated calibrations (wall at {s['wall_mm']:.0f} mm "
+                 f"turned {s['tilt_deg']:.0f} deg, {s['target_noise_px']} px target noise, {s['sigma_deg']} deg eye "
+                 "noise over "
                  f"{s['samples_per_target']} samples per target; gaze at 0.5-4 m within +-20 deg)",
                  "",
                  "| correction | mean view-direction error (deg) | 95th percentile over trials |",
@@ -122,7 +123,8 @@ def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000
                 cal = calibrate_eye(("left", "right")[e], raw_t[:, e], P, model.centres[e], plane_mm=wall_mm)
                 X = _test_points(rng, n_test, model.centres[e])
                 raw_x, true_dirs, _ = _noise_free(model, X)
-                errs.append(np.degrees(np.arccos(np.clip((cal.directions(raw_x[:, e]) * true_dirs[:, e]).sum(1), -1, 1))))
+                cos = (cal.directions(raw_x[:, e]) * true_dirs[:, e]).sum(1)
+                errs.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
             errors[variant].append(float(np.mean(errs)))
         # the eye centres from 5x5 grids at two more distances (both corrections)
         Ps, raws = [], []

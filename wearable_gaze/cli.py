@@ -89,7 +89,8 @@ def cmd_estimate(args) -> int:
     from .estimate_cmd import estimate_file, format_table  # noqa: PLC0415
 
     if args.export_density and args.method not in ("voxel", "paper"):
-        raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no density)")
+        raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no "
+                        "density); add one of them or drop --export-density")
     results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density)
     if args.json:
         for r in results:
@@ -464,6 +465,19 @@ OUTPUTS = {
 OPTION = {"out": "-o", "export_density": "--export-density", "overlay": "--overlay", "record": "--record"}
 
 
+# Input files whose readers (in files other code owns) do not name a fix: checked here first.
+INPUT_FILES = {"track": [("video", "VIDEO", "the scene video"), ("reference", "--reference", "the reference image")]}
+
+
+def _check_inputs(args) -> None:
+    for attr, opt, what in INPUT_FILES.get(args.command, ()):
+        p = getattr(args, attr, None)
+        if p is None or Path(p).is_file():
+            continue
+        hint = "is a folder" if Path(p).is_dir() else "no such file"
+        raise UserError(f"{opt} {p}: {hint}; pass {what} (check the path)")
+
+
 def _check_outputs(args) -> None:
     for attr, folder, input_attrs in OUTPUTS.get(args.command, ()):
         out = getattr(args, attr, None)
@@ -514,6 +528,7 @@ def main(argv=None) -> int:
         import cv2  # noqa: PLC0415
 
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+        _check_inputs(args)
         _check_outputs(args)
         return args.func(args)
     except UserError as exc:

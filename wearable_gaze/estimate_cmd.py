@@ -33,7 +33,7 @@ def estimate_file(path, method: str = "voxel", sigma_deg: float = 1.0, export_de
     if export_density is not None:
         export_density = Path(export_density)
         if export_density.suffix.lower() != ".ply":
-            raise UserError(f"--export-density {export_density}: the file name must end in .ply")
+            raise UserError(f"--export-density {export_density}: the file name must end in .ply; give a .ply name")
     out = []
     for seg in segments:
         est, r = run_estimator(seg.samples, method, sigma_deg)
@@ -54,7 +54,8 @@ def estimate_file(path, method: str = "voxel", sigma_deg: float = 1.0, export_de
 
 def format_table(results: list[dict]) -> str:
     """A readable table of ``estimate_file`` results."""
-    head = f"{'segment':>10} {'method':>9} {'status':>17} {'x mm':>9} {'y mm':>9} {'z mm':>9} {'95% radii mm':>22} {'samples':>8}"
+    head = (f"{'segment':>10} {'method':>9} {'status':>17} {'x mm':>9} {'y mm':>9} {'z mm':>9} {'95% radii mm':>22} "
+            f"{'samples':>8}")
     rows = [head, "-" * len(head)]
     for r in results:
         seg = "-" if r["segment"] is None else str(r["segment"])
@@ -64,7 +65,8 @@ def format_table(results: list[dict]) -> str:
         x, y, z = r["position_mm"]
         radii = r["ellipsoid95_radii_mm"]
         rad = "-" if radii is None else " ".join(f"{v:.1f}" for v in np.sort(radii))
-        rows.append(f"{seg:>10} {r['method']:>9} {r['status']:>17} {x:>9.1f} {y:>9.1f} {z:>9.1f} {rad:>22} {r['n_samples']:>8}")
+        rows.append(f"{seg:>10} {r['method']:>9} {r['status']:>17} {x:>9.1f} {y:>9.1f} {z:>9.1f} {rad:>22} "
+                    f"{r['n_samples']:>8}")
         if r.get("density_ply"):
             rows.append(f"{'':>10} density written to {r['density_ply']}")
     return "\n".join(rows)

@@ -164,7 +164,7 @@ def read_json_text(path, what: str = "JSON file"):
     path = Path(path)
     if not path.is_file():
         hint = "it is a folder, not a file" if path.is_dir() else "no such file"
-        raise UserError(f"{path}: {hint}; expected the {what}")
+        raise UserError(f"{path}: {hint}; pass the {what} (check the path)")
     data = path.read_bytes()
     if data[:2] in (b"\xff\xfe", b"\xfe\xff") or (len(data) > 1 and (data[0] == 0 or data[1] == 0)):
         raise UserError(f"{path}: the {what} is UTF-16 (or binary); save it as UTF-8 JSON")

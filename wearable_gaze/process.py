@@ -25,8 +25,9 @@ from estimator.segments import SegmentConfig, same_target, segment_fixations
 from .atomic import atomic_path, remove_temporaries, write_text
 from .calibrate_cmd import calibrate_camera_files, calibrate_eyes_files, viewlines_files
 from .errors import UserError
+from .jsonio import load_json
 from .report import REPORT_FILES
-from .session import load_session, read_json, write_json
+from .session import load_session, write_json
 from .tables import write_table
 from .track_cmd import track_video
 from .viewlines_csv import read_viewlines_csv, write_viewlines_csv
@@ -297,7 +298,7 @@ def _run_steps(s, out: Path, steps: _Steps, res: ProcessResult, camera, eyes, cf
             if not board_file.is_file():
                 raise UserError(f"{board_file}: no camera-calibration recording in the session; pass --camera "
                                 "camera.json")
-            board = read_json(board_file, "board description")["board"]
+            board = load_json(board_file, "board")["board"]        # schema: wearable_gaze/schemas/board
             calibrate_camera_files([views], _board_text(board), cam_path, progress=cb)
         steps.run("camera", [views], {}, do_camera)
     else:

@@ -33,10 +33,17 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
             UTF-8 text, a cell that is not a finite number or beyond ``max_abs``.
     """
     path = Path(path)
-    names, reader = open_csv(path, required, what, fix or f"expected a {what}")
+    names, reader = open_csv(path, required, what, fix or f"pass a {what} (check the path)")
     rows = [r for r in reader if any(c.strip() for c in r)]
+    if not rows:
+        raise UserError(f"{path}: the {what} has a header but no data rows; add one row per record")
     out = {}
     width = len(names)
+    short = [i for i, r in enumerate(rows) if len(r) < width]
+    if short and any(c in required for c in names[len(rows[short[0]]):]):
+        i = short[0]
+        raise UserError(f"{path} line {i + 2}: {len(rows[i])} cells, the header has {width} (truncated file?); "
+                        "complete or remove the row")
     for j, name in enumerate(names):
         if not name:
             continue
@@ -54,20 +61,17 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
                 try:
                     float(c)
                 except ValueError:
-                    raise UserError(f"{path} line {i + 2}, column {name}: '{printable(c)}' is not a number") from None
+                    raise UserError(f"{path} line {i + 2}, column {name}: '{printable(c)}' is not a number; write a "
+                                    "number there") from None
         bad = np.flatnonzero(~np.isfinite(vals) & ~(np.array([c == "" for c in cells], bool) & (name in empty_ok)))
         if len(bad) and name in required:
             raise UserError(f"{path} line {bad[0] + 2}, column {name}: '{printable(cells[bad[0]])}' is not a finite "
-                            "number")
+                            "number; write a finite number there")
         huge = np.flatnonzero(np.abs(np.nan_to_num(vals)) > max_abs)
         if len(huge) and name in required:
             raise UserError(f"{path} line {huge[0] + 2}, column {name}: {cells[huge[0]]} is beyond +-{max_abs:g}, "
                             "not a plausible value; fix the cell")
         out[name] = vals
-    short = [i for i, r in enumerate(rows) if len(r) < width]
-    if short and any(c in required for c in names[min(len(rows[short[0]]), width - 1):]):
-        i = short[0]
-        raise UserError(f"{path} line {i + 2}: {len(rows[i])} cells, the header has {width} (truncated file?)")
     return out
 
 
@@ -93,16 +97,18 @@ def open_csv(path, required, what: str, fix: str):
     except csv.Error as exc:
         raise UserError(f"{path} line 1: the {what} header is not CSV ({exc})") from None
     if header is None or not any(h.strip() for h in header):
-        raise UserError(f"{path}: the {what} is empty; expected a header line with columns {', '.join(required)}")
+        raise UserError(f"{path}: the {what} is empty; write a header line with columns {', '.join(required)} and "
+                        "the data below it")
     names = [h.strip() for h in header]
     dup = sorted({n for n in names if n and names.count(n) > 1})
     if dup:
         raise UserError(f"{path}: column {printable(dup[0])} appears more than once in the {what} header; "
-                        "keep one column of each name")
+                        "remove the repeated column")
     missing = [c for c in required if c not in names]
     if missing:
         has = printable(", ".join(n for n in names if n), 120) if any(names) else "nothing"
-        raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the {what} header (it has: {has})")
+        raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the {what} header (it has: {has}); "
+                        "add them to the header line")
     return names, _rows(path, reader, what)
 
 

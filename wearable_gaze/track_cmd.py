@@ -33,7 +33,7 @@ def load_marker_map(path) -> MarkerMap:
     try:
         return MarkerMap.from_dict(load_json(path, "marker-map"))
     except MarkerMapError as exc:
-        raise UserError(f"{path}: {exc} (docs/formats.md, marker map)") from None
+        raise UserError(f"{path}: {exc}; fix the marker map (see docs/session.md, marker map)") from None
 
 
 def _frame_times(video: Path, timestamps):
@@ -293,12 +293,12 @@ def parse_ids(text: str) -> list[int]:
             else:
                 ids.append(int(part))
         except ValueError:
-            raise UserError(f"--ids {safe}: expected ids like 0-11 or 3,5,7-9") from None
+            raise UserError(f"--ids {safe}: give ids like 0-11 or 3,5,7-9") from None
     neg = [i for i in ids if i < 0]
     if neg:
-        raise UserError(f"--ids {safe}: id {neg[0]} is negative; marker ids start at 0")
+        raise UserError(f"--ids {safe}: id {neg[0]} is negative; give ids of 0 or more")
     if not ids:
-        raise UserError(f"--ids {safe}: no ids; expected ids like 0-11 or 3,5,7-9")
+        raise UserError(f"--ids {safe}: no ids; give ids like 0-11 or 3,5,7-9")
     if len(ids) > MAX_IDS:
         raise UserError(f"--ids {safe}: more than {MAX_IDS} ids; print fewer at a time")
     return list(dict.fromkeys(ids))
@@ -320,13 +320,13 @@ def write_marker_sheets(dictionary: str, ids, size_mm: float, out, page: str = "
     n_ids = dic.bytesList.shape[0]
     bad = [i for i in ids if not 0 <= i < n_ids]
     if bad:
-        raise UserError(f"ids {bad[:5]} are not in {dictionary} (0-{n_ids - 1})")
+        raise UserError(f"--ids: ids {bad[:5]} are not in {dictionary}; use ids 0-{n_ids - 1} or a larger --dict")
     if not 5 <= size_mm <= 1000:
-        raise UserError(f"--size-mm {size_mm}: marker side in millimetres, 5-1000")
+        raise UserError(f"--size-mm {size_mm:g}: give the marker side in millimetres, 5-1000")
     if not 50 <= dpi <= MAX_DPI:
         raise UserError(f"--dpi {dpi}: give a resolution of 50-{MAX_DPI} dots per inch (default 300)")
     if not ids:
-        raise UserError("--ids: no ids to print; expected ids like 0-11 or 3,5,7-9")
+        raise UserError("--ids: no ids to print; give ids like 0-11 or 3,5,7-9")
     out = Path(out)
     if out.suffix.lower() not in (".pdf", ".png"):
         raise UserError(f"-o {out}: write .pdf or .png")

@@ -63,7 +63,9 @@ def read_viewlines_csv(path) -> list[Segment]:
     for line_no, row in enumerate(reader, start=2):
         if not any(cell.strip() for cell in row):
             continue
-        row = row + [""] * (len(names) - len(row))
+        if len(row) < len(names) and any(c in REQUIRED for c in names[len(row):]):
+            raise UserError(f"{path} line {line_no}: {len(row)} cells, the header has {len(names)} (truncated file?); "
+                            "complete or remove the row")
 
         def number(name, allow_empty=False, row=row, line_no=line_no):
             cell = row[col[name]].strip()
@@ -72,9 +74,11 @@ def read_viewlines_csv(path) -> list[Segment]:
             try:
                 v = float(cell)
             except ValueError:
-                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a number") from None
+                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a number; write a "
+                                "number there") from None
             if not np.isfinite(v):
-                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a finite number")
+                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a finite number; "
+                                "write a finite number there")
             if abs(v) > MAX_ABS:
                 raise UserError(f"{path} line {line_no}, column {name}: {cell} is beyond +-{MAX_ABS:g}, not a "
                                 "plausible time, position (mm) or direction; fix the cell")
@@ -93,8 +97,11 @@ def read_viewlines_csv(path) -> list[Segment]:
                                 f"cells are not; leave all six {side}_* cells empty for a monocular sample")
             if not np.linalg.norm(vals[3:]) > 1e-12:
                 raise UserError(f"{path} line {line_no}, columns {side}_dx..{side}_dz: the direction is zero; "
-                                "a view direction must be non-zero")
+                                "fix the direction or leave that eye's six cells empty")
             eyes[side] = vals
+        if eyes["left"] is None and eyes["right"] is None:
+            raise UserError(f"{path} line {line_no}: both eyes' cells are empty; give at least one eye's six values "
+                            "or remove the row")
         key = _segment_value(row[col["segment"]].strip()) if has_segment else None
         if key not in rows:
             rows[key] = []
