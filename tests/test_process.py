@@ -115,7 +115,7 @@ def test_bad_eye_samples_get_one_clear_line(processed, tmp_path, capsys):
     (s / "eye.csv").write_text("\n".join(lines) + "\n")
     assert main(["process", str(s), "-o", str(tmp_path / "out"), "--no-overlay"]) == 2
     err = capsys.readouterr().err
-    assert "sorted" in err and "eye.csv line 7" in err
+    assert "sort" in err and "eye.csv line 7" in err
     assert (tmp_path / "out" / "poses.csv").is_file()                       # tracking still ran
     # samples outside the video's time span: no pose for them, said plainly
     shifted = [lines[0]] + [",".join([f"{float(r.split(',')[0]) + 500:.6f}"] + r.split(",")[1:]) for r in

@@ -166,3 +166,23 @@ def test_a_recording_cut_short_is_read_with_a_problem_line(processed, capsys):
     assert "cut short" in cap.err and not cap.out.startswith("0 fixated")
     t, frames, _, _ = read_poses_csv(out / "poses.csv")
     assert list(frames) == list(range(120 - 20)) and np.all(np.isfinite(t))   # frames without a time left out
+
+
+def test_a_calibration_given_as_a_file_is_checked_once_and_never_removed(processed, capsys):
+    s, out = processed
+    cam = out / "camera.json"                                   # an earlier run's output, given as an input
+    before = cam.read_bytes()
+    capsys.readouterr()
+    assert main(["process", str(s), "--no-overlay", "--camera", str(cam), "--eyes", str(s / "nope.json")]) == 2
+    cap = capsys.readouterr()
+    assert cam.read_bytes() == before and (out / "eyes.json").is_file()          # neither touched
+    assert "eyes:" in cap.err and "nope.json" in cap.err and not (out / "targets.json").exists()
+    summary = _summary(out)
+    assert summary["failed_steps"] == ["eyes"] and summary["steps_not_done"] == ["viewlines", "targets", "report"]
+    bad = s / "bad_camera.json"
+    bad.write_text(json.dumps({"format": "wearable-gaze-camera", "version": 1}))
+    assert main(["process", str(s), "--no-overlay", "--camera", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("wearable-gaze process: camera:") and "bad_camera.json" in err[0]
+    assert _summary(out)["steps_not_done"] == ["eyes", "tracking", "viewlines", "targets", "report"]
+    assert cam.read_bytes() == before

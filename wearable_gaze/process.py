@@ -23,7 +23,7 @@ from estimator import BinocularSamples, cramer_rao_bound, make_estimator, run_es
 from estimator.segments import SegmentConfig, same_target, segment_fixations
 
 from .atomic import atomic_path, remove_temporaries, write_text
-from .calibrate_cmd import calibrate_camera_files, calibrate_eyes_files, viewlines_files
+from .calibrate_cmd import calibrate_camera_files, calibrate_eyes_files, load_camera, load_eyes, viewlines_files
 from .errors import UserError
 from .jsonio import load_json
 from .report import REPORT_FILES
@@ -172,15 +172,21 @@ class _Steps:
         self._save()
         return True
 
-    def external(self, name, path: Path) -> bool:
-        """The step is replaced by a file the user gave (its outputs in OUT are left alone)."""
+    def external(self, name, path: Path, load) -> bool:
+        """The step is replaced by a file the user gave (its outputs in OUT are left alone),
+        checked once here with ``load(path)`` rather than by every step that reads it."""
         self.given.add(name)
-        if path.is_file():
-            self.status[name] = "external"
-            return True
-        self.status[name] = "failed"
-        self.result.problems.append(f"{name}: {path}: no such file")
-        return False
+        if not path.is_file():
+            self.fail(name, f"{path}: no such file; check the --{name} path, or leave the option out to calibrate "
+                            "from the session")
+            return False
+        try:
+            load(path)
+        except UserError as exc:
+            self.fail(name, str(exc))
+            return False
+        self.status[name] = "external"
+        return True
 
     def fail(self, name, message: str | None = None) -> None:
         self.status[name] = "failed"
@@ -302,7 +308,7 @@ def _run_steps(s, out: Path, steps: _Steps, res: ProcessResult, camera, eyes, cf
             calibrate_camera_files([views], _board_text(board), cam_path, progress=cb)
         steps.run("camera", [views], {}, do_camera)
     else:
-        steps.external("camera", cam_path)
+        steps.external("camera", cam_path, load_camera)
 
     # 2. eyes
     eyes_path = Path(eyes) if eyes else out / "eyes.json"
@@ -311,7 +317,7 @@ def _run_steps(s, out: Path, steps: _Steps, res: ProcessResult, camera, eyes, cf
         steps.run("eyes", [cal_dir, cam_path], {},
                   lambda cb: calibrate_eyes_files(root, cam_path, eyes_path, progress=cb))
     else:
-        steps.external("eyes", eyes_path)
+        steps.external("eyes", eyes_path, load_eyes)
 
     if not s.manifest.get("has_recording", True):
         res.problems.append("session: a calibration-only session has no recording to process")

@@ -76,9 +76,13 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
             tmp = stack.enter_context(atomic_path(overlay))         # left last: renamed after the poses
             writer = stack.enter_context(_overlay_writer(tmp, fps, camera.image_size))
             draw = functools.partial(_write_overlay_frame, writer, camera)
-        rows = _track_frames(cap, step, times, fps, n_total, every, progress, draw)
+        rows, untimed = _track_frames(cap, step, times, fps, n_total, every, progress, draw)
+        if untimed and not rows["frame"]:
+            raise UserError(f"{video}: none of its {untimed} frames has a time in the frame-timestamp CSV; give "
+                            "--timestamps with a row (frame,t) per frame")
         if not rows["frame"]:
-            raise UserError(f"{video}: no frame could be decoded (corrupt or empty video)")
+            raise UserError(f"{video}: no frame could be decoded (corrupt or empty video); check that it plays, or "
+                            "re-encode it")
         T_all, status = _fill_poses(rows, every, fps, smooth_s)
         write_poses_csv(out, rows["t"], rows["frame"], T_all,
                         {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
@@ -90,15 +94,16 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
 def _open_video(video: Path, camera):
     """(capture, fps, frame count or 0) of a video made by ``camera``'s calibration size."""
     if not video.is_file():
-        raise UserError(f"{video}: no such video")
+        raise UserError(f"{video}: no such video; check the path")
     cap = cv2.VideoCapture(str(video))
     if not cap.isOpened():
-        raise UserError(f"{video}: OpenCV cannot open this video (corrupt, or a codec FFMPEG lacks)")
+        raise UserError(f"{video}: OpenCV cannot open this video (corrupt, or a codec FFMPEG lacks); re-encode it, "
+                        "e.g. ffmpeg -i IN -c:v mpeg4 OUT.mp4")
     w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
     if (w, h) != tuple(camera.image_size):
         cap.release()
         raise UserError(f"{video} is {w}x{h} but the camera calibration is for {camera.image_size[0]}x"
-                        f"{camera.image_size[1]}: calibrate this camera at this resolution")
+                        f"{camera.image_size[1]}; calibrate this camera at this resolution (calibrate-camera)")
     return cap, cap.get(cv2.CAP_PROP_FPS) or 30.0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 0
 
 
@@ -115,7 +120,8 @@ def _pose_step(camera, markers, reference, reference_size_mm):
         return step
     ref = cv2.imread(str(reference), cv2.IMREAD_GRAYSCALE)
     if ref is None:
-        raise UserError(f"{reference}: missing or unreadable reference image")
+        raise UserError(f"{reference}: missing or unreadable reference image; give a PNG or JPEG photo of the "
+                        "surface")
     if reference_size_mm is None or min(reference_size_mm) <= 0:
         raise UserError("--reference-size-mm W H: the surface's physical width and height in mm")
     try:
@@ -143,12 +149,12 @@ def _overlay_writer(path: Path, fps: float, size):
 POSE_ROW = ("t", "frame", "T", "n_markers", "n_points", "reproj_rms_px", "status")
 
 
-def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progress, draw) -> dict:
+def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progress, draw) -> tuple[dict, int]:
     """Track the frames of ``cap``: one in ``every`` (all when ``draw``), the others get a NaN
     pose marked 'interpolated'. ``draw(frame, found, res)`` is called on every tracked frame.
     A frame ``times`` has no time for (a recording cut short saves its video ahead of its
     timestamps) cannot be placed in time: it is left out, with a warning. Returns the columns
-    ``POSE_ROW``, one entry per frame kept."""
+    ``POSE_ROW``, one entry per frame kept, and the number of frames left out."""
     rows = {k: [] for k in POSE_ROW}
     i = untimed = 0
     while True:
@@ -178,9 +184,9 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
         for k, v in zip(POSE_ROW, values, strict=True):
             rows[k].append(v)
         i += 1
-    if untimed:
+    if untimed and rows["frame"]:
         log.warning("%d of %d video frames have no time in the frame-timestamp CSV; they get no pose", untimed, i)
-    return rows
+    return rows, untimed
 
 
 def _fill_poses(rows: dict, every: int, fps: float, smooth_s: float):
