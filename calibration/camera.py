@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from estimator._checks import check_points
+
 ARUCO_DICTS = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco) if name.startswith("DICT_")}
 
 
@@ -210,7 +212,7 @@ class CameraCalibration:
 
     def project(self, pts_cam_mm) -> np.ndarray:
         """(N, 3) camera-frame points -> (N, 2) distorted pixels."""
-        p = np.asarray(pts_cam_mm, float).reshape(-1, 1, 3)
+        p = check_points(pts_cam_mm, "pts_cam_mm").reshape(-1, 1, 3)
         if self.model == "fisheye":
             px, _ = cv2.fisheye.projectPoints(p, np.zeros(3), np.zeros(3), self.camera_matrix, self.dist_coeffs)
         else:
@@ -220,9 +222,10 @@ class CameraCalibration:
 
 def undistort_points(px, camera_matrix, dist_coeffs, model: str = "pinhole") -> np.ndarray:
     """(N, 2) distorted pixels -> (N, 2) undistorted normalised coordinates, iterated to 1e-10."""
-    p = np.asarray(px, np.float64).reshape(-1, 1, 2)
-    if len(p) == 0:
+    p = np.asarray(px, np.float64)
+    if p.size == 0:
         return np.zeros((0, 2))
+    p = check_points(p, "px", 2).reshape(-1, 1, 2)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
     if model == "fisheye":
         out = cv2.fisheye.undistortPoints(p, camera_matrix, dist_coeffs, criteria=crit)
@@ -253,7 +256,8 @@ def _calibrate_once(views, image_size, model, flags):
         obj = [o.reshape(1, -1, 3) for o in obj]
         img = [i.reshape(1, -1, 2) for i in img]
         rms, K, D, rv, tv = cv2.fisheye.calibrate(
-            obj, img, tuple(image_size), np.zeros((3, 3)), np.zeros((4, 1)), flags=flags | cv2.CALIB_RECOMPUTE_EXTRINSIC,
+            obj, img, tuple(image_size), np.zeros((3, 3)), np.zeros((4, 1)),
+            flags=flags | cv2.CALIB_RECOMPUTE_EXTRINSIC,
             criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10))
         std = None
     else:

@@ -27,6 +27,7 @@ from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares
 
 from estimator import ViewLines
+from estimator._checks import check_points, check_vector
 
 MIN_TARGETS = 6
 MODELS = ("quadratic", "cubic", "tps")
@@ -64,7 +65,7 @@ class RawMap:
     tps: tuple | None = None
 
     def __call__(self, raw) -> np.ndarray:
-        r = (np.asarray(raw, float).reshape(-1, 2) - self.centre) / self.scale
+        r = (check_points(raw, "raw", 2) - self.centre) / self.scale
         order = 3 if self.model == "cubic" else 2
         q = _monomials(r, order) @ self.coef
         if self.tps is not None:
@@ -110,8 +111,10 @@ def fit_raw_map(raw, q, model: str = "quadratic", smoothing: float = 1e-3) -> Ra
     Raises:
         CalibrationError: too few targets for the model, or targets too close to a line.
     """
-    raw = np.asarray(raw, float).reshape(-1, 2)
-    q = np.asarray(q, float).reshape(-1, 2)
+    raw = check_points(raw, "raw", 2)
+    q = check_points(q, "q", 2)
+    if len(raw) != len(q):
+        raise ValueError(f"raw and q must have the same length, got {len(raw)} and {len(q)}")
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
     centre = raw.mean(axis=0)
@@ -193,8 +196,8 @@ class EyeCalibration:
 def plane_points(targets_cam_mm, centre_mm, plane_mm: float) -> np.ndarray:
     """(K, 2) normalised image points q where the lines from the eye centre through the targets
     (K, 3) meet the calibration plane z = l_c (so that eq. 3-4 reproduce those lines)."""
-    P = np.asarray(targets_cam_mm, float).reshape(-1, 3)
-    e = np.asarray(centre_mm, float)
+    P = check_points(targets_cam_mm, "targets_cam_mm")
+    e = check_vector(centre_mm, "centre_mm")
     s = (plane_mm - e[2]) / (P[:, 2] - e[2])
     p = e + s[:, None] * (P - e)
     return p[:, :2] / plane_mm
@@ -222,8 +225,11 @@ def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | No
     Raises:
         CalibrationError: fewer than 6 targets, collinear targets, missing readings.
     """
-    raw = np.asarray(raw, float).reshape(-1, 2)
-    P = np.asarray(targets_cam_mm, float).reshape(-1, 3)
+    raw = check_points(raw, "raw", 2)
+    P = check_points(targets_cam_mm, "targets_cam_mm")
+    if len(raw) != len(P):
+        raise ValueError(f"raw and targets_cam_mm must have one row per target, got {len(raw)} and {len(P)}")
+    centre_mm = check_vector(centre_mm, "centre_mm")
     ok = np.all(np.isfinite(raw), axis=1)
     if not ok.any():
         raise CalibrationError(f"no valid {eye}-eye readings at any target: check the {eye} eye's sensor "
@@ -308,7 +314,7 @@ class WallPose:
 
     def to_camera(self, pts_wall_mm) -> np.ndarray:
         """(N, 2) wall points -> (N, 3) camera-frame points, mm."""
-        p = np.asarray(pts_wall_mm, float).reshape(-1, 2)
+        p = check_points(pts_wall_mm, "pts_wall_mm", 2)
         return p @ self.T_cam_from_wall[:3, :2].T + self.T_cam_from_wall[:3, 3]
 
 
@@ -322,8 +328,10 @@ def wall_pose(points_wall_mm, points_norm) -> WallPose:
 
     Uses the planar homography (IPPE, ``cv2.SOLVEPNP_IPPE``) refined by Levenberg-Marquardt.
     """
-    W = np.asarray(points_wall_mm, float).reshape(-1, 2)
-    x = np.asarray(points_norm, float).reshape(-1, 2)
+    W = check_points(points_wall_mm, "points_wall_mm", 2)
+    x = check_points(points_norm, "points_norm", 2)
+    if len(W) != len(x):
+        raise ValueError(f"points_wall_mm and points_norm must have the same length, got {len(W)} and {len(x)}")
     if len(W) < 4:
         raise CalibrationError(f"{len(W)} reference points on the wall, need 4: make the wall's markers visible")
     obj = np.column_stack([W, np.zeros(len(W))])
@@ -358,8 +366,11 @@ def estimate_centre(raw, targets_cam_mm, initial_mm, model: str = "quadratic") -
     Returns:
         centre (3,) mm and its (3, 3) covariance, mm^2 (from the residual spread).
     """
-    raw = np.asarray(raw, float).reshape(-1, 2)
-    P = np.asarray(targets_cam_mm, float).reshape(-1, 3)
+    raw = check_points(raw, "raw", 2)
+    P = check_points(targets_cam_mm, "targets_cam_mm")
+    if len(raw) != len(P):
+        raise ValueError(f"raw and targets_cam_mm must have one row per target, got {len(raw)} and {len(P)}")
+    check_vector(initial_mm, "initial_mm")
     z = P[:, 2]
     if np.ptp(z) < 0.2 * np.median(z):
         raise CalibrationError("the eye centres need calibration targets at two wall distances (e.g. 1 m and "
@@ -414,9 +425,15 @@ def target_readings(target, raw, valid, t=None, settle_s: float = 0.2, clip: flo
     Returns:
         ids (K,), readings (K, 2) (NaN where no sample survived), counts (K,).
     """
-    target = np.asarray(target).astype(int)
-    raw = np.asarray(raw, float).reshape(-1, 2)
+    target = np.asarray(target)
+    if target.ndim != 1:
+        raise ValueError(f"target must have shape (N,), got {target.shape}")
+    target = target.astype(int)
+    raw = check_points(raw, "raw", 2)
     valid = np.asarray(valid, bool)
+    if len(raw) != len(target) or valid.shape != target.shape or (t is not None and np.shape(t) != target.shape):
+        raise ValueError(f"target {target.shape}, raw {raw.shape}, valid {valid.shape} and t "
+                         f"{None if t is None else np.shape(t)} must have one row per sample")
     ids = np.unique(target)
     out = np.full((len(ids), 2), np.nan)
     counts = np.zeros(len(ids), int)

@@ -16,6 +16,16 @@ def check_points(points, name: str = "points", dim: int = 3) -> np.ndarray:
     return a
 
 
+def check_array(a, name: str, shape: tuple) -> np.ndarray:
+    """Return ``a`` as a float64 array of ``shape``, where ``None`` stands for any length (``(None,
+    4, 4)``: N transforms). Raises ``ValueError`` naming the expected and the received shape."""
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape, strict=True)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    return arr
+
+
 def check_vector(v, name: str = "vector", dim: int = 3) -> np.ndarray:
     """Return ``v`` as a float64 array of shape (dim,)."""
     a = np.asarray(v, dtype=np.float64)

@@ -81,7 +81,8 @@ def test_rendered_board_views_recover_the_true_intrinsics(session, tmp_path, cap
     # the lens model, not its coefficients: a true ray lands within 1.5 px of where the calibrated
     # model puts it, over the part of the image the boards covered
     w, h = truth.image_size
-    px = np.array([[0.15, 0.15], [0.85, 0.15], [0.85, 0.85], [0.15, 0.85], [0.5, 0.15], [0.15, 0.5], [0.5, 0.5]]) * [w, h]
+    px = np.array([[0.15, 0.15], [0.85, 0.15], [0.85, 0.85], [0.15, 0.85], [0.5, 0.15], [0.15, 0.5],
+                   [0.5, 0.5]]) * [w, h]
     n = truth.undistort_points(px)
     assert np.linalg.norm(cal.project(np.column_stack([n, np.ones(len(n))])) - px, axis=1).max() < 1.5
     assert cal.rms_px < 0.15
@@ -128,6 +129,47 @@ def test_quadratic_raw_map_is_exact_on_quadratic_data_and_refuses_degenerate_des
     line = np.column_stack([np.linspace(1000, 3000, 9), np.linspace(1000, 3000, 9)])
     with pytest.raises(CalibrationError, match="line"):
         fit_raw_map(line, q)
+
+
+def test_transposed_inputs_are_refused_naming_the_shape():
+    """A (2, 9) array where (9, 2) is meant used to be reshaped into 9 scrambled rows: every public
+    function of calibration and tracking now checks the shape and names the one it received."""
+    from calibration.camera import undistort_points
+    from calibration.eyes import plane_points
+    from tracking.corners import refine_markers
+    from tracking.timeline import smooth_poses
+
+    rng = np.random.default_rng(0)
+    model, _, P = _eye_setup(rng)
+    model.sigma_deg = 0.05
+    raw, _, _ = model.measure(P, rng, with_bias=False)
+    raw = raw[:, 0]                                                      # (9, 2)
+    cal = calibrate_eye("left", raw, P, model.centres[0])
+    assert cal.directions(raw).shape == (9, 3)
+    q = cal.image_points(raw)
+    bad = r"must have shape \(N, 2\), got \(2, 9\)"
+    for call in (lambda: cal.directions(raw.T), lambda: cal.image_points(raw.T), lambda: cal.lines(raw.T),
+                 lambda: fit_raw_map(raw.T, q), lambda: fit_raw_map(raw, q.T),
+                 lambda: calibrate_eye("left", raw.T, P, model.centres[0]),
+                 lambda: estimate_centre(raw.T, P, model.centres[0]),
+                 lambda: wall_pose(P[:, :2].T, q), lambda: wall_pose(P[:, :2], q.T),
+                 lambda: target_readings(np.arange(9), raw.T, np.ones(9, bool)),
+                 lambda: undistort_points(q.T, np.eye(3), np.zeros(5))):
+        with pytest.raises(ValueError, match=bad):
+            call()
+    with pytest.raises(ValueError, match=r"targets_cam_mm must have shape \(N, 3\), got \(3, 9\)"):
+        calibrate_eye("left", raw, P.T, model.centres[0])
+    with pytest.raises(ValueError, match=r"targets_cam_mm must have shape \(N, 3\), got \(3, 9\)"):
+        plane_points(P.T, model.centres[0], 1000.0)
+    with pytest.raises(ValueError, match=r"one row per target, got 9 and 8"):
+        calibrate_eye("left", raw, P[:8], model.centres[0])
+    with pytest.raises(ValueError, match=r"corners must have shape \(N, 4, 2\), got \(2, 4, 3\)"):
+        refine_markers(np.zeros((50, 50), np.uint8), np.zeros((2, 4, 3)), 6)
+    T = np.tile(np.eye(4), (5, 1, 1))
+    with pytest.raises(ValueError, match=r"T_src must have shape \(N, 4, 4\), got \(4, 4, 5\)"):
+        interpolate_poses(np.arange(5.0), T.transpose(1, 2, 0), [1.5])
+    with pytest.raises(ValueError, match=r"t and T must have one entry per pose, got 4 and 5"):
+        smooth_poses(np.arange(4.0), T, 1.0)
 
 
 def _eye_setup(rng, tilt_deg=10.0):
@@ -264,7 +306,7 @@ def test_calibration_cli_errors_are_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and needle in err, err
     (tmp_path / "bad.json").write_text('{"camera_matrix": [[1, 0], [0, 1]]}')
-    with pytest.raises(Exception):
+    with pytest.raises(ValueError):
         CameraCalibration.from_dict(json.loads((tmp_path / "bad.json").read_text()))
     assert main(["calibrate-eyes", str(tmp_path), "--camera", str(tmp_path / "bad.json"), "-o", "x"]) == 2
 
@@ -272,7 +314,8 @@ def test_calibration_cli_errors_are_one_line(tmp_path, capsys):
 def test_calibrate_camera_from_a_video_picks_views_for_coverage_and_fits_fisheye(session, tmp_path):
     from wearable_gaze.calibrate_cmd import calibrate_camera_files
 
-    frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted((session / "calibration" / "camera").glob("*.png"))]
+    frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+              for p in sorted((session / "calibration" / "camera").glob("*.png"))]
     video = tmp_path / "boards.avi"
     w = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (1280, 720), isColor=False)
     for f in frames:

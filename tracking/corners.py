@@ -15,6 +15,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from estimator._checks import check_array
+
 
 def refine_markers(image, corners, modules: int, span=(0.06, 0.4), samples: int = 12, n_offsets: int = 25):
     """Refine many square markers' corners at once, from their outer edges.
@@ -31,7 +33,8 @@ def refine_markers(image, corners, modules: int, span=(0.06, 0.4), samples: int 
     Returns:
         (N, 4, 2) refined corners; a corner whose edges cannot be measured keeps its input.
     """
-    c = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
+    c = np.asarray(corners, dtype=np.float64)
+    c = c.reshape(0, 4, 2) if c.size == 0 else check_array(c, "corners", (None, 4, 2))
     out = c.copy()
     N = len(c)
     if N == 0:
@@ -99,4 +102,4 @@ def refine_markers(image, corners, modules: int, span=(0.06, 0.4), samples: int 
 def refine_marker_corners(image, corners, modules: int, span=(0.06, 0.4), samples: int = 12) -> np.ndarray:
     """Refine one square marker's four corners (4, 2) px, in ``cv2.aruco`` order, from its
     outer edges (``refine_markers`` for one marker)."""
-    return refine_markers(image, np.asarray(corners, float).reshape(1, 4, 2), modules, span, samples)[0]
+    return refine_markers(image, check_array(corners, "corners", (4, 2))[None], modules, span, samples)[0]

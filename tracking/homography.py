@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration
+from estimator._checks import check_transform, check_vector
 from estimator.frames import invert
 
 from .pose import OK, REJECTED, TOO_FEW, PoseResult, _covariance, _residuals, _rt_to_T
@@ -31,6 +32,11 @@ class PlanarTracker:
     def __init__(self, reference, size_mm, camera: CameraCalibration, T_world_from_plane=None,
                  features: str = "sift", min_inliers: int = 15, max_reproj_px: float = 2.0, n_features: int = 4000):
         ref = np.asarray(reference)
+        size_mm = check_vector(size_mm, "size_mm", 2)
+        if not np.all(size_mm > 0):
+            raise ValueError(f"size_mm must be a positive (width, height), got {size_mm.tolist()}")
+        if ref.ndim not in (2, 3):
+            raise ValueError(f"reference must have shape (H, W) or (H, W, 3), got {ref.shape}")
         if ref.ndim == 3:
             ref = cv2.cvtColor(ref, cv2.COLOR_BGR2GRAY)
         if features == "sift":
@@ -51,7 +57,8 @@ class PlanarTracker:
         self.obj_ref = np.column_stack([(pts[:, 0] + 0.5) * sx, (pts[:, 1] + 0.5) * sy, np.zeros(len(pts))])
         self.camera = camera
         self.f = float(camera.camera_matrix[0, 0])
-        self.T_world_from_plane = np.eye(4) if T_world_from_plane is None else np.asarray(T_world_from_plane, float)
+        self.T_world_from_plane = (np.eye(4) if T_world_from_plane is None
+                                   else check_transform(T_world_from_plane, "T_world_from_plane"))
         self.min_inliers = min_inliers
         self.max_reproj_px = max_reproj_px
 

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration
+from estimator._checks import check_transform
 from estimator.frames import invert
 
 from .markermap import MarkerMap, square_corners
@@ -123,7 +124,7 @@ class MarkerPoseEstimator:
         more than once is ambiguous: all its detections are left out, counted in
         ``repeated_ids`` / ``n_repeated_dropped`` and logged. ``previous`` (default: this
         estimator's last good pose) resolves the single-marker ambiguity."""
-        prev = self._predicted() if previous is None else previous
+        prev = self._predicted() if previous is None else check_transform(previous, "previous")
         items = detections.items() if isinstance(detections, Mapping) else detections
         dets = [detection(i, c) for i, c in items]
         in_map = [d for d in dets if d.marker_id in self.map.poses]

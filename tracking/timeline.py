@@ -5,6 +5,19 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from estimator._checks import check_array
+
+
+def _times_and_poses(t, T, t_name: str, T_name: str):
+    """(N,) times and (N, 4, 4) poses, checked (an empty sequence is 0 poses)."""
+    T = np.asarray(T, float)
+    T = T.reshape(0, 4, 4) if T.size == 0 else check_array(T, T_name, (None, 4, 4))
+    t = np.asarray(t, float)
+    t = t.reshape(0) if t.size == 0 else check_array(t, t_name, (None,))
+    if len(t) != len(T):
+        raise ValueError(f"{t_name} and {T_name} must have one entry per pose, got {len(t)} and {len(T)}")
+    return t, T
+
 
 def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
     """``T_world_from_cam`` at query times: SLERP for rotation, linear for translation, between
@@ -20,9 +33,10 @@ def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
     Returns:
         T (M, 4, 4) (NaN where unanswered) and ok (M,) bool.
     """
-    t_src = np.asarray(t_src, float)
-    T_src = np.asarray(T_src, float).reshape(-1, 4, 4)
+    t_src, T_src = _times_and_poses(t_src, T_src, "t_src", "T_src")
     tq = np.atleast_1d(np.asarray(t_query, float))
+    if tq.ndim != 1:
+        raise ValueError(f"t_query must have shape (M,), got {tq.shape}")
     good = np.all(np.isfinite(T_src.reshape(len(T_src), -1)), axis=1)
     out = np.full((len(tq), 4, 4), np.nan)
     ok = np.zeros(len(tq), bool)
@@ -59,8 +73,7 @@ def smooth_poses(t, T, window_s: float, causal: bool = False):
     uses only past poses and lags by about ``window_s / 2``. Frames without a pose stay NaN
     and are left out of their neighbours' averages.
     """
-    t = np.asarray(t, float)
-    T = np.asarray(T, float).reshape(-1, 4, 4)
+    t, T = _times_and_poses(t, T, "t", "T")
     out = np.full_like(T, np.nan)
     good = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
     if not good.any() or window_s <= 0:
