@@ -159,25 +159,49 @@ def live_run(tmp_path_factory):
     simulate_scenario({"base": "lab-walkabout", "duration_s": 7.0, "targets": {"random_count": 2},
                        "calibration": {"camera_views": 10}}, root, seed=77)
     cal = process_session(root, base / "cal", report=False)      # the calibrations the wearer made
-    emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), inject={100: b"\x00junk"})   # the EMR-8
+    emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), inject={100: b"\x00junk"},   # the EMR-8
+                           log_sent=True)
     url = emu.listen_tcp()
     rec_dir = base / "recording"
     out = base / "stdout.jsonl"
     import contextlib
     import io
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
+    buf = _TimedStream()
+    err = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(err):
         code = main(["live", "--serial", url, "--camera", str(root / "scene.mp4"),
                      "--camera-calib", str(base / "cal" / "camera.json"), "--eyes", str(base / "cal" / "eyes.json"),
                      "--markers", str(root / "markers.json"), "--record", str(rec_dir), "--quiet"])
     emu.stop()
     out.write_text(buf.getvalue())
-    msgs = [json.loads(x) for x in buf.getvalue().splitlines() if x.startswith("{")]
-    return root, rec_dir, msgs, code, cal
+    msgs = [json.loads(x) for x in buf.lines]
+    extra = {"emu": emu, "written_at": buf.times, "stderr": err.getvalue()}
+    return root, rec_dir, msgs, code, cal, extra
+
+
+class _TimedStream:
+    """stdout for the live session: keeps each line and the time it was written."""
+
+    def __init__(self):
+        self.lines: list[str] = []
+        self.times: list[float] = []
+        self.part = ""
+
+    def write(self, text):
+        now = time.monotonic()
+        *done, self.part = (self.part + text).split("\n")
+        self.lines += done
+        self.times += [now] * len(done)
+
+    def flush(self):
+        pass
+
+    def getvalue(self):
+        return "".join(x + "\n" for x in self.lines) + self.part
 
 
 def test_live_estimates_converge_to_the_targets(live_run):
-    root, _, msgs, code, _ = live_run
+    root, rec, msgs, code, _, extra = live_run
     assert code == 0
     assert all(m["version"] == 1 for m in msgs)
     targets = [m for m in msgs if m["type"] == "target"]
@@ -191,11 +215,33 @@ def test_live_estimates_converge_to_the_targets(live_run):
         err = np.linalg.norm(np.array(m["position_mm"]) - tt["position_mm"])
         assert err < 2.0 * max(m["ellipsoid95_radii_mm"])          # within twice its own 95 % ellipsoid
     est = [m for m in msgs if m["type"] == "estimate"]
-    assert len(est) > 100 and all(m["latency_ms"] >= 0 for m in est)
+    assert len(est) > 100
+
+
+def test_latency_runs_from_the_samples_arrival_to_its_message(live_run):
+    """Each estimate's ``latency_ms`` lies within the time from its sample's sending (by the
+    emulator, before it arrived) to its message's writing (after it was published), and makes up
+    most of it: a latency in the wrong unit, from the wrong start or on another clock fails."""
+    _, rec, msgs, _, _, extra = live_run
+    emu = extra["emu"]
+    sent_at = {emu.records[k].counter: t for t, k in emu.sent_log}
+    eye, _ = read_eye_csv(rec / "eye.csv")
+    lat, window = [], []
+    for m, t_written in zip(msgs, extra["written_at"], strict=True):
+        if m["type"] != "estimate":
+            continue
+        i = int(np.argmin(np.abs(eye.t - m["t"])))          # its sample: the recorded one at its time
+        assert abs(eye.t[i] - m["t"]) < 1e-4
+        lat.append(m["latency_ms"])
+        window.append((t_written - sent_at[int(eye.counter[i])]) * 1000)
+    lat, window = np.array(lat), np.array(window)
+    assert len(lat) > 100
+    assert np.all(lat <= window + 0.01)                      # never more than from sent to written
+    assert lat.sum() >= 0.5 * window.sum()                   # and most of it (the transport is fast)
 
 
 def test_live_recording_is_complete_and_process_finds_the_same_targets(live_run):
-    root, rec, msgs, _, _ = live_run
+    root, rec, msgs, _, _, extra = live_run
     fixations = [m["fixation"] for m in msgs if m["type"] == "target"]
     assert fixations == list(range(len(fixations)))             # no fixation split in short pieces
     man = json.loads((rec / "session.json").read_text())
@@ -226,7 +272,7 @@ def test_live_recording_is_complete_and_process_finds_the_same_targets(live_run)
 
 
 def test_live_bad_inputs_are_one_line(tmp_path, capsys, live_run):
-    root, _, _, _, _ = live_run
+    root = live_run[0]
     cal = root.parent / "cal"
     base = ["--camera-calib", str(cal / "camera.json"), "--eyes", str(cal / "eyes.json"), "--markers",
             str(root / "markers.json"), "--quiet"]
@@ -240,7 +286,11 @@ def test_live_bad_inputs_are_one_line(tmp_path, capsys, live_run):
          "udp://HOST:PORT"),
     ]
     for argv, needle in cases:
-        assert main(argv) == 2
+        try:
+            code = main(argv)
+        except SystemExit as exc:                                 # refused by the argument parser
+            code = exc.code
+        assert code == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and needle in err[0], err
 
@@ -298,3 +348,81 @@ def test_a_recording_killed_at_a_random_moment_loses_at_most_a_second_and_proces
     poses = (tmp_path / "processed" / "poses.csv").read_text().splitlines()
     assert len(poses) - 1 >= len(sent_before) // 2 - 30                  # a pose row per recorded frame (30 fps)
     assert (tmp_path / "processed" / "viewlines.csv").is_file()
+
+
+def test_the_closing_line_shows_every_counter_once_and_counts_distinct_targets(live_run):
+    _, _, msgs, _, _, extra = live_run
+    targets = [m for m in msgs if m["type"] == "target"]
+    ids = {m["target"] for m in targets}
+    assert len(targets) > len(ids)                           # a target seen again: published again, same id
+    closing = [x for x in extra["stderr"].splitlines() if x.startswith("live: ended")]
+    assert len(closing) == 1
+    line = closing[0]
+    assert f"{len(ids)} distinct targets ({len(targets)} target messages)" in line
+    for counter in ("skipped", "missed", "stalls", "corrupt", "lost", "dropped", "reconnects", "no pose"):
+        assert f"{counter} 0" in line or f"{counter} " in line
+    assert "corrupt 0" in line and "lost 0" in line          # the injected junk is garbage between records
+    assert "ended: the camera ended" in line
+
+
+def _short_video(src, dst, n=15):
+    import cv2
+
+    cap = cv2.VideoCapture(str(src))
+    w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    out = cv2.VideoWriter(str(dst), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (w, h))
+    for _ in range(n):
+        out.write(cap.read()[1])
+    out.release()
+    cap.release()
+
+
+def test_a_camera_file_that_ends_while_no_eye_data_arrive_ends_the_session(live_run, tmp_path):
+    import contextlib
+    import io
+
+    root = live_run[0]
+    cal = root.parent / "cal"
+    _short_video(root / "scene.mp4", tmp_path / "short.avi")
+    result, err = [], io.StringIO()
+
+    def run():
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            result.append(main(["live", "--serial", "loop://", "--camera", str(tmp_path / "short.avi"),
+                                "--camera-calib", str(cal / "camera.json"), "--eyes", str(cal / "eyes.json"),
+                                "--markers", str(root / "markers.json"), "--record", str(tmp_path / "rec"),
+                                "--quiet"]))
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    th.join(30)
+    assert not th.is_alive(), "live did not end after its camera file ended"
+    assert result == [0]
+    lines = err.getvalue().strip().splitlines()
+    assert len(lines) == 1 and "no eye data ever arrived from loop://" in lines[0], lines
+    assert json.loads((tmp_path / "rec" / "session.json").read_text())["complete"] is True
+
+
+def test_an_error_inside_the_loop_ends_the_session_with_one_line_and_an_incomplete_recording(
+        live_run, tmp_path, capsys, monkeypatch):
+    import wearable_gaze.live.app as app
+
+    root = live_run[0]
+    cal = root.parent / "cal"
+    monkeypatch.setattr(app, "load_eyes", lambda path: [])    # an eyes.json with an empty 'eyes' list got through
+    emu = RecorderEmulator((root / "eye_serial.bin").read_bytes())
+    url = emu.listen_tcp()
+    rec = tmp_path / "rec"
+    t0 = time.monotonic()
+    code = main(["live", "--serial", url, "--camera", str(root / "scene.mp4"), "--camera-calib",
+                 str(cal / "camera.json"), "--eyes", str(cal / "eyes.json"), "--markers", str(root / "markers.json"),
+                 "--record", str(rec), "--quiet"])
+    emu.stop()
+    assert code == 2 and time.monotonic() - t0 < 6.0                   # at the first sample, not the video's end
+    out = capsys.readouterr()
+    err = out.err.strip().splitlines()
+    assert len(err) == 1 and "IndexError" in err[0] and "marked incomplete" in err[0], err
+    assert "Traceback" not in out.err
+    man = json.loads((rec / "session.json").read_text())
+    assert man["complete"] is False
+    eye, _ = read_eye_csv(rec / "eye.csv")
+    assert len(eye) >= 1 and man["n_eye_samples"] == len(eye)          # what was received is kept

@@ -38,8 +38,8 @@ class RecorderEmulator:
         duration_s: stop after this much stream time (default: the data's length, or forever
             when looping).
         inject: fault injection, ``{k: bytes}``: bytes sent right after the k-th record.
-        log_sent: keep ``sent_log``, ``(time.monotonic(), k)`` as the k-th record of the stream
-            has been written (tests compare a recording with what was sent when).
+        log_sent: keep ``sent_log``, ``(time.monotonic(), k)`` just before the k-th record of the
+            stream was written (tests compare a recording with what was sent when).
 
     Bytes that are not a valid record (a live recording keeps the garbage it received) are
     replayed after the record before them. The first pass sends the bytes as they are; looped
@@ -126,10 +126,11 @@ class RecorderEmulator:
                     break
             if self._stop.is_set():
                 return
+            t_send = time.monotonic()
             if write(chunk):
                 self.sent += 1
                 if self.sent_log is not None:
-                    self.sent_log.append((time.monotonic(), k))
+                    self.sent_log.append((t_send, k))
 
     # --- transports -------------------------------------------------------------------------
 
