@@ -234,6 +234,36 @@ def test_pose_drops_every_detection_of_a_repeated_id_and_says_so(walk):
     assert not only.ok and str(k) in only.reason and "more than once" in only.reason
 
 
+def test_homography_mode_places_the_camera_through_a_non_identity_plane_pose():
+    """The surface hung anywhere in the world (turned 35 deg about y and 20 deg about x, moved
+    metres away): the camera comes out in the world, T_world_from_plane @ T_plane_from_cam. The
+    composition on the wrong side puts it metres and tens of degrees off."""
+    rng = np.random.default_rng(3)
+    cam = Camera.wide_scene_camera()
+    cal = CameraCalibration(cam.camera_matrix, cam.dist_coeffs, cam.image_size)
+    tex = poster_texture(rng, (800, 600))
+    T_wp = np.eye(4)
+    T_wp[:3, :3] = rotation_about_axis([0, 1, 0], np.deg2rad(35)) @ rotation_about_axis([1, 0, 0], np.deg2rad(20))
+    T_wp[:3, 3] = [1500.0, -400.0, 3000.0]
+    plane = Plane(T_wp, (800.0, 600.0), tex, "poster")
+    tracker = PlanarTracker(tex, (800.0, 600.0), cal, T_world_from_plane=T_wp)
+    noise = SensorNoise(cam.image_size, rng)
+    centre_p = np.array([400.0, 300.0, 0.0])
+    rot, tr = [], []
+    for _ in range(6):
+        d = rng.uniform(1000, 1800)
+        yaw = np.deg2rad(rng.uniform(-25, 25))
+        c_p = centre_p + d * np.array([np.sin(yaw), 0.1, -np.cos(yaw)])          # in the plane's frame
+        T_pc = look_at(c_p, centre_p + rng.normal(0, 50, 3))
+        T_wc = T_wp @ T_pc                                                      # the camera in the world
+        r = tracker.estimate(noise.apply(render(cam, T_wc, [plane])))
+        assert r.ok, r.reason
+        rot.append(rotation_angle_deg(r.T_world_from_cam[:3, :3], T_wc[:3, :3]))
+        tr.append(np.linalg.norm(r.T_world_from_cam[:3, 3] - T_wc[:3, 3]))
+    # the identity-pose test's targets (median <= 0.5 deg, <= 10 mm), and no view far off
+    assert np.median(rot) <= 0.5 and np.median(tr) <= 10.0 and max(tr) < 40.0, (rot, tr)
+
+
 # --- real photos -------------------------------------------------------------------------------
 
 def _aruco_gold(real_data):
