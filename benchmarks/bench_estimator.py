@@ -1,9 +1,16 @@
 """Estimator speed, on one core, against a naive full-grid numpy update measured in the same run.
 
-    python benchmarks/bench_estimator.py [--samples 4000] [--depth 2000]
+    python benchmarks/bench_estimator.py [--samples 4000] [--depth 2000] [--tufts PATH]
 
 Targets (issue 2): voxel >= 2,000 binocular samples/s; ML on 400 lines < 20 ms; speed-up of the
 voxel update over the naive full-grid update >= 20x.
+
+Issue 12: lines that never fix a point must not make the voxel update grow with the stream. The
+per-update cost at samples 100, 650 and 2000 of a still head looking at 5 m with the eyes
+diverging by 1 degree (median of the 20 updates before each), and the total over 1,036 real
+samples (Tufts Gaze Depth, the first 1,036 rows in file order, each a binocular sample in the
+tracker's frame), are printed against a baseline measured in the same run: the same estimator
+on a fixation at 2 m whose lines do fix the point (paper protocol), at the same sample counts.
 
 The naive baseline is what one writes first: one fixed, axis-aligned cube of 64^3 voxels around
 the seed (voxel = 1/8 of the final depth std, so the cube spans +-4 std in depth), and for every
@@ -16,11 +23,21 @@ from __future__ import annotations
 
 import argparse  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np  # noqa: E402
 
-from estimator import BinocularSamples, MLConfig, PaperVoxelEstimator, VoxelEstimator, cramer_rao_bound, ml_point  # noqa: E402
+from estimator import (  # noqa: E402
+    BinocularSample,
+    BinocularSamples,
+    MLConfig,
+    PaperVoxelEstimator,
+    VoxelEstimator,
+    cramer_rao_bound,
+    ml_point,
+    perturb_directions,
+)
 from estimator._open3d import import_open3d  # noqa: E402
 from wearable_gaze.sim.protocol import Protocol, simulate_lines  # noqa: E402
 
@@ -59,12 +76,81 @@ def bench_stream(make, stream, repeat=1):
     return best, r
 
 
+def diverging_stream(n, rng, depth=5000.0, diverge_deg=1.0, sigma_deg=1.0, ipd=65.0):
+    """A still head looking at ``depth`` mm with the two lines turned apart by ``diverge_deg``."""
+    lo, ro = np.array([-ipd / 2, 0, 0]), np.array([ipd / 2, 0, 0])
+    X = np.array([0, 0, depth])
+    half = np.deg2rad(diverge_deg) / 2
+
+    def turn(v, a):
+        return np.array([np.cos(a) * v[0] + np.sin(a) * v[2], v[1], -np.sin(a) * v[0] + np.cos(a) * v[2]])
+
+    dl = turn((X - lo) / np.linalg.norm(X - lo), -half)
+    dr = turn((X - ro) / np.linalg.norm(X - ro), half)
+    s = np.deg2rad(sigma_deg)
+    L = perturb_directions(np.tile(dl, (n, 1)), s, rng)
+    R = perturb_directions(np.tile(dr, (n, 1)), s, rng)
+    return [BinocularSample(i / 60, lo, L[i], ro, R[i]) for i in range(n)]
+
+
+def tufts_stream(path, n=1036):
+    """The first ``n`` rows of the Tufts Gaze Depth test split as binocular samples (eye centres,
+    mm, and gaze normals, in the tracker's world-camera frame), or None if the file is absent."""
+    if not path.exists():
+        return None
+    a = np.loadtxt(path, delimiter=",", skiprows=1)[:n]
+    return [BinocularSample(i / 120, r[1:4], r[4:7], r[7:10], r[10:13]) for i, r in enumerate(a)]
+
+
+def update_times(stream):
+    """Seconds taken by each ``update`` of a new VoxelEstimator over the stream, and the estimator."""
+    est = VoxelEstimator()
+    out = np.empty(len(stream))
+    for i, s in enumerate(stream):
+        t0 = time.perf_counter()
+        est.update(s)
+        out[i] = time.perf_counter() - t0
+    return out, est
+
+
+def bench_lines_that_fix_no_point(tufts_path):
+    at, win = (100, 650, 2000), 20
+    regular = streamed(simulate_lines(np.array([0.0, 0, 2000]), np.random.default_rng(2),
+                                      Protocol(n_samples=max(at), step_mm=200.0 / max(at))))
+    t_reg, _ = update_times(regular)
+    t_div, est = update_times(diverging_stream(max(at), np.random.default_rng(3)))
+    print("\nvoxel per-update cost (median of the 20 updates before each count), lines that fix no point:")
+    print(f"  {'sample':>6}  {'diverging 1 deg, 5 m':>21}  {'baseline: fixation at 2 m':>26}  {'ratio':>6}")
+    for k in at:
+        d, r = np.median(t_div[k - win:k]) * 1e3, np.median(t_reg[k - win:k]) * 1e3
+        print(f"  {k:>6}  {d:>18.3f} ms  {r:>23.3f} ms  {d / r:>6.2f}")
+    growth = np.median(t_div[max(at) - win:max(at)]) / np.median(t_div[at[0] - win:at[0]])
+    print(f"  diverging, cost at {max(at)} / cost at {at[0]}: x{growth:.2f}; worst single update "
+          f"{t_div.max() * 1e3:.1f} ms; work over the kept lines {getattr(est, 'work', 'n/a')}")
+    tufts = tufts_stream(tufts_path)
+    if tufts is None:
+        print(f"\nTufts: {tufts_path} not found (set --tufts): skipped")
+        return
+    t_tufts, est = update_times(tufts)
+    base = t_reg[:len(tufts)].sum()
+    print(f"\nTufts Gaze Depth, {len(tufts)} real samples: total {t_tufts.sum():.2f} s "
+          f"(baseline, {len(tufts)} samples of the fixation at 2 m: {base:.2f} s; ratio {t_tufts.sum() / base:.1f}); "
+          f"worst single update {t_tufts.max() * 1e3:.1f} ms; last status {est.estimate().status.value}; "
+          f"{getattr(est, 'work', 'n/a')}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=4000)
     ap.add_argument("--depth", type=float, default=2000.0)
+    ap.add_argument("--tufts", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+                    / "tufts_gaze_depth" / "test.csv")
+    ap.add_argument("--only-no-point", action="store_true", help="run only the issue 12 part")
     args = ap.parse_args()
     import_open3d()
+    if args.only_no_point:
+        bench_lines_that_fix_no_point(args.tufts)
+        return
     rng = np.random.default_rng(0)
     X = np.array([0.0, 0.0, args.depth])
     prot = Protocol(n_samples=args.samples, step_mm=200.0 / args.samples)
@@ -124,6 +210,7 @@ def main():
     print(f"\nspeed-up of the voxel update over the naive full-grid update: x{vox_rate / naive_rate:.1f} "
           f"(aim >= 20x): {'PASS' if vox_rate / naive_rate >= 20 else 'FAIL'}")
     _ = p_naive
+    bench_lines_that_fix_no_point(args.tufts)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 
 from calibration.camera import CameraCalibration  # noqa: E402
 from tracking.markermap import MarkerMap  # noqa: E402
-from tracking.markers import MarkerDetector  # noqa: E402
+from tracking.markers import MarkerDetector, detection  # noqa: E402
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg  # noqa: E402
 from wearable_gaze.session import grey_frames, load_session, read_poses_csv  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
@@ -67,7 +67,8 @@ def main():
 
         def detect(self, grey):
             c, ids, _ = self.det.detectMarkers(grey)
-            return {} if ids is None else {int(i): q.reshape(4, 2).astype(float) for i, q in zip(ids.ravel(), c, strict=True)}
+            # every detection, as MarkerDetector.detect returns them
+            return [] if ids is None else [detection(i, q.reshape(4, 2)) for i, q in zip(ids.ravel(), c, strict=True)]
 
     ours = run(MarkerDetector(mm.dictionary))
     base = run(OpenCVDefault())
