@@ -38,6 +38,8 @@ def match_targets(found: list, truth: list) -> list:
 
 
 def run_demo(out: Path, seed: int = 0, duration_s: float = 20.0) -> int:
+    """Simulate the default session into OUT/session (once), process it into OUT/processed and print each
+    target next to the truth. Returns the exit status: 2 when no target could be estimated, else 0."""
     t0 = time.perf_counter()
     session = out / "session"
     print("wearable-gaze demo: a simulated lab session (markers on the walls, four targets at 0.5-4 m, head "
@@ -61,5 +63,6 @@ def run_demo(out: Path, seed: int = 0, duration_s: float = 20.0) -> int:
               f"{np.linalg.norm(E - X):>9.1f} {f['crb_mm']:>7.1f}")
     for p in res.problems:
         print(f"problem: {p}")
-    print(f"\nopen {res.out / 'report.html'} in a browser to see the result ({time.perf_counter() - t0:.0f} s)")
-    return 0
+    if "report" in res.summary:
+        print(f"\nopen {res.out / 'report.html'} in a browser to see the result ({time.perf_counter() - t0:.0f} s)")
+    return res.exit_status                                    # 2 when no target could be estimated

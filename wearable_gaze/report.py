@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import html
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -34,48 +35,100 @@ def _save(fig, path: Path):
     _plt().close(fig)
 
 
-def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progress=None) -> None:
-    out = Path(out)
-    plt = _plt()
-    targets = json.loads((out / "targets.json").read_text())["targets"]
-    segs = read_viewlines_csv(out / "viewlines.csv")
-    from estimator import BinocularSamples  # noqa: PLC0415
-    samples = BinocularSamples.concatenate([s.samples for s in segs])
-    order = np.argsort(samples.t_s, kind="stable")
-    samples = samples.select(order)
-    tlabels = np.load(out / "target_labels.npy") if (out / "target_labels.npy").is_file() else np.full(len(samples), -1)
-    t_p, _, T_p, _ = read_poses_csv(out / "poses.csv")
-    ok = np.isfinite(T_p[:, 0, 0])
-    head = T_p[ok, :3, 3]
-    est = read_table(out / "estimates.csv", ["t", "segment", "x", "y", "z", "radius95_mm"])
-    images = []
+@dataclass(frozen=True)
+class _ReportData:
+    """What the plots read from the processing outputs (world frame, mm).
 
-    # 1. depth against observations, per fixation
+    Attributes:
+        targets: rows of targets.json.
+        samples: the view lines (N,), sorted by time; tlabels (N,): target index, -1 none.
+        head: (M, 3) head positions with a pose; centre (3,): their mean.
+        est: the running estimates (estimates.csv columns).
+        orig, cyc: (N, 3) each sample's origin and direction (left eye, else right).
+    """
+
+    targets: list
+    samples: object
+    tlabels: np.ndarray
+    head: np.ndarray
+    centre: np.ndarray
+    est: dict
+    orig: np.ndarray
+    cyc: np.ndarray
+
+
+def _report_data(out: Path, T_p: np.ndarray) -> _ReportData:
+    from estimator import BinocularSamples  # noqa: PLC0415
+
+    targets = json.loads((out / "targets.json").read_text(encoding="utf-8"))["targets"]
+    samples = BinocularSamples.concatenate([s.samples for s in read_viewlines_csv(out / "viewlines.csv")])
+    samples = samples.select(np.argsort(samples.t_s, kind="stable"))
+    labels = out / "target_labels.npy"
+    tlabels = np.load(labels) if labels.is_file() else np.full(len(samples), -1)
+    head = T_p[np.isfinite(T_p[:, 0, 0]), :3, 3]
+    est = read_table(out / "estimates.csv", ["t", "segment", "x", "y", "z", "radius95_mm"])
+    cyc = samples.left_direction.copy()
+    cyc[~samples.left_valid] = samples.right_direction[~samples.left_valid]
+    orig = np.where(samples.left_valid[:, None], samples.left_origin_mm, samples.right_origin_mm)
+    return _ReportData(targets, samples, tlabels, head, head.mean(axis=0) if len(head) else np.zeros(3), est,
+                       orig, cyc)
+
+
+def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progress=None) -> None:
+    """The plots (``PLOTS``), the overlay (if ``overlay`` and a camera) and report.html in ``out``,
+    from the outputs of the earlier steps there."""
+    out = Path(out)
+    t_p, _, T_p, _ = read_poses_csv(out / "poses.csv")
+    d = _report_data(out, T_p)
+    images = [_plot_depth(d, out), _plot_density(d, out)]
+    if progress:
+        progress(2, 5)
+    images += [_plot_3d(d, out), _plot_top(d, out)]
+    if progress:
+        progress(3, 5)
+    video_name = None
+    for name in ("overlay.webp", "overlay_error.txt"):        # an earlier run's: this report may have neither
+        (out / name).unlink(missing_ok=True)
+    if overlay and cam_path is not None:
+        try:
+            video_name = _overlay(out, session, cam_path, eyes_path, d.targets, t_p, T_p)
+        except Exception as exc:  # noqa: BLE001  (a report without a video is still a report)
+            write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
+    if progress:
+        progress(4, 5)
+    _html(out, session, d.targets, images, video_name)
+
+
+def _plot_depth(d: _ReportData, out: Path) -> tuple[str, str]:
+    """Depth against the number of observations, per fixation (running estimate, 95 % band)."""
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
-    centre = head.mean(axis=0) if len(head) else np.zeros(3)
-    for k in np.unique(est["segment"]).astype(int):
-        sel = est["segment"] == k
-        P = np.column_stack([est["x"][sel], est["y"][sel], est["z"][sel]])
-        depth = np.linalg.norm(P - centre, axis=1) / 1000
-        n = np.arange(1, sel.sum() + 1) * max(int(np.sum(tlabels >= 0) / max(len(est["t"]), 1)), 1)
+    for k in np.unique(d.est["segment"]).astype(int):
+        sel = d.est["segment"] == k
+        P = np.column_stack([d.est["x"][sel], d.est["y"][sel], d.est["z"][sel]])
+        depth = np.linalg.norm(P - d.centre, axis=1) / 1000
+        n = np.arange(1, sel.sum() + 1) * max(int(np.sum(d.tlabels >= 0) / max(len(d.est["t"]), 1)), 1)
         ax.plot(n, depth, "-o", ms=3, color=COLOURS[k % len(COLOURS)], label=f"fixation {k}")
-        r = est["radius95_mm"][sel] / 1000
+        r = d.est["radius95_mm"][sel] / 1000
         ax.fill_between(n, depth - r, depth + r, color=COLOURS[k % len(COLOURS)], alpha=0.15)
     ax.set_xlabel("observations (binocular samples)")
     ax.set_ylabel("estimated distance from the head (m)")
     ax.set_title("Running estimate per fixation (band: 95 % radius)")
-    if len(est["t"]):
+    if len(d.est["t"]):
         ax.legend(fontsize=7, ncol=2)
     _save(fig, out / "plot_depth_vs_observations.png")
-    images.append(("plot_depth_vs_observations.png", "Depth against the number of observations"))
+    return ("plot_depth_vs_observations.png", "Depth against the number of observations")
 
-    # 2. density (likelihood) slices through each target, horizontal plane
-    n_t = max(len(targets), 1)
+
+def _plot_density(d: _ReportData, out: Path) -> tuple[str, str]:
+    """Log-likelihood slices (horizontal) through each of the first four targets."""
+    plt = _plt()
+    n_t = max(len(d.targets), 1)
     fig, axes = plt.subplots(1, min(n_t, 4), figsize=(3.2 * min(n_t, 4), 3.2), squeeze=False)
-    for i, tg in enumerate(targets[:4]):
+    for i, tg in enumerate(d.targets[:4]):
         ax = axes[0, i]
         X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
-        lines = samples.select(np.flatnonzero(tlabels == tg["target"])).lines()
+        lines = d.samples.select(np.flatnonzero(d.tlabels == tg["target"])).lines()
         half = max(1.5 * (tg["axis3_mm"] if np.isfinite(tg["axis3_mm"]) else 100.0), 30.0)
         gx, gz = np.meshgrid(np.linspace(-half, half, 45), np.linspace(-half, half, 45))
         P = X + np.column_stack([gx.ravel(), np.zeros(gx.size), gz.ravel()])
@@ -88,22 +141,20 @@ def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progres
         ax.set_ylabel("z (mm)", fontsize=7)
         ax.tick_params(labelsize=6)
     _save(fig, out / "plot_density_slices.png")
-    images.append(("plot_density_slices.png", "Log-likelihood of the gazed point (to -30), horizontal slice "
-                   "through each target: narrow across the view lines, long along them"))
-    if progress:
-        progress(2, 5)
+    return ("plot_density_slices.png", "Log-likelihood of the gazed point (to -30), horizontal slice through each "
+            "target: narrow across the view lines, long along them")
 
-    # 3. 3D view and 4. top view
-    cyc = samples.left_direction.copy()
-    cyc[~samples.left_valid] = samples.right_direction[~samples.left_valid]
-    orig = np.where(samples.left_valid[:, None], samples.left_origin_mm, samples.right_origin_mm)
+
+def _plot_3d(d: _ReportData, out: Path) -> tuple[str, str]:
+    """3D view: head path, every 10th view line of each target, the targets."""
+    plt = _plt()
     fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
-    ax.plot(head[:, 0], head[:, 2], -head[:, 1], "k-", lw=1, label="head")
-    for i, tg in enumerate(targets):
+    ax.plot(d.head[:, 0], d.head[:, 2], -d.head[:, 1], "k-", lw=1, label="head")
+    for i, tg in enumerate(d.targets):
         X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
         c = COLOURS[i % len(COLOURS)]
-        for a, b in _line_segments(tg, X, orig, cyc, tlabels):
+        for a, b in _line_segments(tg, X, d.orig, d.cyc, d.tlabels):
             ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], color=c, lw=0.3, alpha=0.5)
         ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {i}")
     ax.set_xlabel("x (mm)")
@@ -112,38 +163,29 @@ def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progres
     ax.legend(fontsize=7)
     ax.set_title("Head path, view lines and targets")
     _save(fig, out / "plot_3d.png")
-    images.append(("plot_3d.png", "3D view: head trajectory, view lines, targets"))
+    return ("plot_3d.png", "3D view: head trajectory, view lines, targets")
+
+
+def _plot_top(d: _ReportData, out: Path) -> tuple[str, str]:
+    """Top view: head path, view lines, targets with their largest 95 % semi-axis."""
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 6))
-    ax.plot(head[:, 0], head[:, 2], "k-", lw=1, label="head")
-    for i, tg in enumerate(targets):
+    ax.plot(d.head[:, 0], d.head[:, 2], "k-", lw=1, label="head")
+    for i, tg in enumerate(d.targets):
         X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
         c = COLOURS[i % len(COLOURS)]
-        for a, b in _line_segments(tg, X, orig, cyc, tlabels):
+        for a, b in _line_segments(tg, X, d.orig, d.cyc, d.tlabels):
             ax.plot([a[0], b[0]], [a[2], b[2]], color=c, lw=0.3, alpha=0.4)
         r = tg["axis3_mm"] if np.isfinite(tg["axis3_mm"]) else 0
         ax.add_patch(plt.Circle((X[0], X[2]), r, fill=False, color=c, lw=1))
-        ax.plot(X[0], X[2], "o", color=c, label=f"target {i} ({np.linalg.norm(X - centre) / 1000:.2f} m)")
+        ax.plot(X[0], X[2], "o", color=c, label=f"target {i} ({np.linalg.norm(X - d.centre) / 1000:.2f} m)")
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("z (mm)")
     ax.legend(fontsize=7)
     ax.set_title("Top view (circles: largest 95 % semi-axis)")
     _save(fig, out / "plot_top_view.png")
-    images.append(("plot_top_view.png", "Top view"))
-    if progress:
-        progress(3, 5)
-
-    video_name = None
-    for name in ("overlay.webp", "overlay_error.txt"):        # an earlier run's: this report may have neither
-        (out / name).unlink(missing_ok=True)
-    if overlay and cam_path is not None:
-        try:
-            video_name = _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p)
-        except Exception as exc:  # noqa: BLE001  (a report without a video is still a report)
-            write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
-    if progress:
-        progress(4, 5)
-    _html(out, session, targets, images, video_name)
+    return ("plot_top_view.png", "Top view")
 
 
 def _line_segments(tg, X, orig, directions, tlabels, every: int = 10):
