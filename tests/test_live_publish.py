@@ -211,3 +211,22 @@ def test_a_camera_stall_is_one_stall_not_a_run_of_missed_frames(tmp_path):
     src.join(2)
     assert src.stats.frames >= 15
     assert src.stats.stalls == 1 and src.stats.missed == 0 and src.stats.skipped == 0
+
+
+def test_closing_does_not_wait_long_for_a_subscriber_that_does_not_read():
+    """The session's end (SIGTERM) waits at most ``timeout_s`` per subscriber; what it could not
+    send is counted as dropped (the old publisher took 43 s to exit after SIGTERM)."""
+    srv, url = _listener()
+    pub = Publisher(url, stdout=False, maxsize=100000, stuck_s=60.0)
+    conn, _ = srv.accept()
+    th = _send_all(pub, 20000)
+    assert not th.is_alive()
+    t0 = time.monotonic()
+    closer = threading.Thread(target=pub.close, kwargs={"timeout_s": 0.5}, daemon=True)
+    closer.start()
+    closer.join(10)
+    assert not closer.is_alive(), "close waited for a subscriber that does not read"
+    sub = pub.subscribers[0]
+    assert time.monotonic() - t0 < 5 and sub.closed and sub.sent + sub.dropped == 20000 and sub.dropped > 0
+    conn.close()
+    srv.close()

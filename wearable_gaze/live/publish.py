@@ -24,6 +24,8 @@ from ..errors import UserError
 
 log = logging.getLogger(__name__)
 
+SEND_BUFFER_BYTES = 1 << 18     # a TCP subscriber's kernel send buffer
+
 
 def parse_publish_url(url: str) -> tuple[str, str, int]:
     """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` -> (scheme, host, port).
@@ -74,6 +76,7 @@ class Subscriber:
         self.cond = threading.Condition()
         self.sent = 0
         self.dropped = 0
+        self.inflight = 0                      # lines taken from the queue and being sent
         self.closed = False
         self.why: str | None = None            # why it was disconnected
         self.finishing = False
@@ -104,6 +107,7 @@ class Subscriber:
                 return None
             batch = list(self.queue)
             self.queue.clear()
+            self.inflight = len(batch)
             return batch
 
     def _run(self) -> None:
@@ -114,14 +118,16 @@ class Subscriber:
                     return
                 try:
                     self._send(batch)
-                    self.sent += len(batch)
-                    self.last_progress = time.monotonic()
                 except _Stuck as exc:
-                    self._disconnect(str(exc), unsent=len(batch))
+                    self._disconnect(str(exc))
                     return
                 except OSError as exc:
-                    self._disconnect(f"{exc.strerror or exc}", unsent=len(batch))
+                    self._disconnect(f"{exc.strerror or exc}")
                     return
+                with self.cond:
+                    self.sent += self.inflight         # 0 if a disconnect counted them as dropped meanwhile
+                    self.inflight = 0
+                self.last_progress = time.monotonic()
         finally:
             self._close_transport()
 
@@ -131,13 +137,14 @@ class Subscriber:
     def _close_transport(self) -> None:
         pass
 
-    def _disconnect(self, why: str, unsent: int = 0) -> None:
+    def _disconnect(self, why: str) -> None:
         with self.cond:
             if self.closed:
                 return
             self.closed = True
             self.why = why
-            self.dropped += unsent + len(self.queue)
+            self.dropped += self.inflight + len(self.queue)
+            self.inflight = 0
             self.queue.clear()
         log.warning("publish: %s disconnected (%s); %d messages sent, %d dropped; the session goes on",
                     self.name, why, self.sent, self.dropped)
@@ -214,6 +221,9 @@ class TcpSubscriber(Subscriber):
             raise UserError(f"--publish tcp://{host}:{port}: cannot connect ({exc}); start the listener "
                             f"first") from None
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        # the kernel holds at most this much for the subscriber (Linux doubles it): a subscriber that
+        # lags gets fresh messages from the queue, not a backlog of megabytes (minutes old at 600 Hz)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
         self.sock.setblocking(False)
 
     def _send(self, batch):
