@@ -280,8 +280,10 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     for p in remove_temporaries(out, [f for fs in OUTPUTS.values() for f in fs] + list(OTHER_FILES)):
         log.warning("removed %s, a temporary file left by an earlier run that was stopped", p)
     if s.manifest.get("complete") is False:
+        counts = ", ".join(f"{s.manifest[k]} {w}" for k, w in (("n_frames", "frames"), ("n_eye_samples", "eye samples"))
+                           if isinstance(s.manifest.get(k), int))
         res.problems.append(f"session: {s.root / 'session.json'} says the recording was cut short (complete: "
-                            "false); processing what was recorded")
+                            f"false{'; ' + counts + ' saved' if counts else ''}); processing what was recorded")
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config or SegmentConfig())
     try:
         _run_steps(s, out, steps, res, camera, eyes, cfg)
