@@ -186,3 +186,17 @@ def test_a_calibration_given_as_a_file_is_checked_once_and_never_removed(process
     assert len(err) == 1 and err[0].startswith("wearable-gaze process: camera:") and "bad_camera.json" in err[0]
     assert _summary(out)["steps_not_done"] == ["eyes", "tracking", "viewlines", "targets", "report"]
     assert cam.read_bytes() == before
+
+
+def test_a_calibration_only_session_keeps_its_calibrations_and_no_recording_result(processed, capsys):
+    s, out = processed
+    man = json.loads((s / "session.json").read_text())
+    man["has_recording"] = False                 # the same folder, now declared calibration-only
+    (s / "session.json").write_text(json.dumps(man))
+    capsys.readouterr()
+    assert main(["process", str(s), "--no-overlay"]) == 2
+    cap = capsys.readouterr()
+    assert "no recording" in cap.err and "FAILED" not in cap.out and "not done" not in cap.out
+    assert (out / "camera.json").is_file() and (out / "eyes.json").is_file()
+    for name in ("poses.csv",) + RESULTS:
+        assert not (out / name).exists(), name

@@ -65,7 +65,7 @@ class ProcessResult:
         timings: seconds per step run.
         summary: the contents of summary.json.
         status: per step: done, cached, external (a file given instead), failed, not_done (a step
-            it needs failed), or absent (not asked for).
+            it needs failed), no_recording (a calibration-only session), or absent (not asked for).
         removed: outputs of an earlier run removed because this run invalidated them.
     """
 
@@ -206,7 +206,7 @@ class _Steps:
             if st is None and any(u not in GOOD for u in upstream):
                 if aborted or any(u in ("failed", "not_done") for u in upstream):
                     self.status[name] = "not_done"
-            if self.status.get(name) in ("failed", "not_done") or (st is None and "done" in upstream):
+            if self.status.get(name) in ("failed", "not_done", "no_recording") or (st is None and "done" in upstream):
                 self._remove(name)
 
     def _remove(self, name) -> None:
@@ -324,7 +324,7 @@ def _run_steps(s, out: Path, steps: _Steps, res: ProcessResult, camera, eyes, cf
     if not s.manifest.get("has_recording", True):
         res.problems.append("session: a calibration-only session has no recording to process")
         for name in ("tracking", "viewlines", "targets", "report"):
-            steps.status[name] = "not_done"
+            steps.status[name] = "no_recording"
         return
 
     # 3. head tracking
