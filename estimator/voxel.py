@@ -159,7 +159,7 @@ class VoxelConfig:
     max_extent_mm: float = 40000.0
     max_relayouts: int = 12
     work_per_line: float = 16.0
-    work_initial: float = 2000.0
+    work_initial: float = 0.0
     work_burst: float = 4.0
 
     def __post_init__(self):
