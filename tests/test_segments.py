@@ -65,8 +65,8 @@ def test_offline_and_online_segmentation_find_the_fixations_a_walking_head_makes
     s, truth = _session(seed)
     # the near target drifts by far more than the jump threshold while it is fixated
     d = cyclopean_directions(s)[truth == 0]
-    drift = np.degrees(np.arccos(np.clip(np.median(d[:10], 0) @ np.median(d[-10:], 0)
-                                         / np.linalg.norm(np.median(d[:10], 0)) / np.linalg.norm(np.median(d[-10:], 0)), -1, 1)))
+    a, b = np.median(d[:10], 0), np.median(d[-10:], 0)
+    drift = np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1)))
     assert drift > 2 * SegmentConfig().jump_deg
     _check(segment_fixations(s), truth)
     _check(_online_labels(s), truth)
