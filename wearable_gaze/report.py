@@ -66,12 +66,23 @@ def _report_data(out: Path, T_p: np.ndarray) -> _ReportData:
     labels = out / "target_labels.npy"
     tlabels = np.load(labels) if labels.is_file() else np.full(len(samples), -1)
     head = T_p[np.isfinite(T_p[:, 0, 0]), :3, 3]
-    est = read_table(out / "estimates.csv", ["t", "segment", "x", "y", "z", "radius95_mm"])
+    est = _read_estimates(out / "estimates.csv")
     cyc = samples.left_direction.copy()
     cyc[~samples.left_valid] = samples.right_direction[~samples.left_valid]
     orig = np.where(samples.left_valid[:, None], samples.left_origin_mm, samples.right_origin_mm)
     return _ReportData(targets, samples, tlabels, head, head.mean(axis=0) if len(head) else np.zeros(3), est,
                        orig, cyc)
+
+
+ESTIMATE_COLUMNS = ["t", "segment", "x", "y", "z", "radius95_mm"]
+
+
+def _read_estimates(path: Path) -> dict:
+    """estimates.csv; a header alone (no fixation gave an estimate) is no estimate, not an error."""
+    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]
+    if len(lines) <= 1:
+        return {k: np.zeros(0) for k in ESTIMATE_COLUMNS}
+    return read_table(path, ESTIMATE_COLUMNS)
 
 
 def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progress=None) -> None:
