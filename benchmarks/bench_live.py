@@ -173,9 +173,12 @@ def run_once(root: Path, cal: Path, tmp: Path, args, subscriber: str, label: str
         print(f"  queues, most seen: video encoder {q[:, 0].max()} frames (bound "
               f"{live.recorder.video_q.maxsize if live.recorder else 0}), tracking {q[:, 1].max()}, eye records "
               f"{q[:, 2].max()}, samples waiting for a pose {q[:, 3].max()}; target ids {q[-1, 4]}")
-    ok = (h.percentile(95) <= 50 and missing == 0
-          and (not args.record or n_frames_rec == st.frames))
-    print(f"  target p95 <= 50 ms and nothing intact lost: {'PASS' if ok else 'FAIL'}")
+    kept = missing == 0 and (not args.record or n_frames_rec == st.frames)
+    if args.eye_rate_x == 1:
+        ok = h.percentile(95) <= 50 and kept
+        print(f"  target p95 <= 50 ms and nothing intact lost: {'PASS' if ok else 'FAIL'}")
+    else:                                       # the 50 ms target is for the normal eye rate
+        print(f"  nothing intact lost: {'PASS' if kept else 'FAIL'}")
     return {"p95": h.percentile(95), "missing": missing, "sent": emu.sent, "recorded": n_rec, "hist": h}
 
 

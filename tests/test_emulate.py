@@ -122,3 +122,20 @@ def test_emulate_cli_serves_a_session_and_bad_input_is_one_line(tmp_path, capsys
     with pytest.raises(SystemExit) as exc:
         main(["emulate", str(root), "--listen", "localhost"])
     assert exc.value.code == 2 and "HOST:PORT" in capsys.readouterr().err
+
+
+def test_the_send_log_has_each_record_once_in_order_before_it_arrives():
+    emu = RecorderEmulator(b"".join(_rec(i) for i in range(40)), log_sent=True)
+    reader = EyeReader(emu.listen_tcp())
+    arrivals = []
+    reader.on_record = lambda t, r: arrivals.append((t, r.counter)) or (t, r)
+    reader.start()
+    recs = drain_reader(reader, 40)
+    assert emu.finished.wait(5)
+    reader.stop()
+    reader.join(2)
+    emu.stop()
+    assert [k for _, k in emu.sent_log] == list(range(40)) and [r.counter for r in recs] == list(range(40))
+    sent_t = [t for t, _ in emu.sent_log]
+    assert sent_t == sorted(sent_t)
+    assert all(t_sent <= t_arr for t_sent, (t_arr, _) in zip(sent_t, arrivals, strict=True))
