@@ -1,5 +1,6 @@
 import itertools
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -97,7 +98,8 @@ GOOD_ROW = "0,-32.5,0,0,0,0,1,32.5,0,0,0,0,1"
     ("", "empty"),
     ("t,left_ox\n0,1\n", "missing column(s) left_oy"),
     (HEADER + "\n" + GOOD_ROW.replace("-32.5", "abc", 1) + "\n", "line 2, column left_ox: 'abc' is not a number"),
-    (HEADER + "\n" + GOOD_ROW + "\n" + "0.1,-32.5,0,0,0,0,0,32.5,0,0,0,0,1\n", "line 3, columns left_dx..left_dz: the direction is zero"),
+    (HEADER + "\n" + GOOD_ROW + "\n" + "0.1,-32.5,0,0,0,0,0,32.5,0,0,0,0,1\n",
+     "line 3, columns left_dx..left_dz: the direction is zero"),
     (HEADER + "\n" + "0,-32.5,,0,0,0,1,32.5,0,0,0,0,1\n", "line 2, column left_oy: empty"),
     (HEADER + "\n" + GOOD_ROW.replace("1", "inf", 1) + "\n", "not a finite number"),
     (HEADER + "\n", "no data rows"),
@@ -159,3 +161,146 @@ def test_reproduce_table1_prints_all_columns_and_writes_figures(tmp_path, capsys
     data = json.loads((tmp_path / "table1.json").read_text())
     lse_z = [r["methods"]["lse"]["mean_mm"][2] for r in data["rows"]]
     assert lse_z[-1] < 0.5 * 5000                     # LSE biased toward the head at 5 m
+
+
+# --- one validation mechanism for JSON files (wearable_gaze/jsonio.py, wearable_gaze/schemas) -----
+
+def test_every_schema_is_valid_and_shipped_as_package_data():
+    from importlib import resources
+
+    from jsonschema import Draft202012Validator
+
+    from wearable_gaze.jsonio import SCHEMA_NAMES, schema
+
+    shipped = {p.name for p in resources.files("wearable_gaze").joinpath("schemas").iterdir()}
+    assert shipped == {f"{n}.schema.json" for n in SCHEMA_NAMES}
+    for n in SCHEMA_NAMES:
+        Draft202012Validator.check_schema(schema(n))
+        assert schema(n)["title"] and schema(n)["x-doc"]
+    toml = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
+    assert 'wearable_gaze = ["schemas/*.schema.json"]' in toml and '"jsonschema>=4.18"' in toml
+
+
+@pytest.fixture(scope="module")
+def sim_session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("schemas") / "s"
+    assert main(["simulate", "-o", str(root), "--resolution", "320x180", "--duration", "1"]) == 0
+    return root
+
+
+def test_files_the_program_writes_pass_their_schemas(sim_session, tmp_path, capsys):
+    """The schemas accept what the simulator, calibrate-camera and calibrate-eyes write (a schema
+    stricter than the writers would refuse good sessions)."""
+    from wearable_gaze.jsonio import load_json, validate
+    from wearable_gaze.sim.scenario import resolve
+
+    s = sim_session
+    load_json(s / "session.json", "session")
+    load_json(s / "truth" / "camera.json", "camera")
+    load_json(s / "markers.json", "marker-map")
+    load_json(s / "calibration" / "camera" / "board.json", "board")
+    load_json(s / "calibration" / "eye" / "walls.json", "walls")
+    for name in ("paper-table1", "lab-walkabout", "moving-target", "calibration-only"):
+        validate(resolve(name), "scenario", name)
+    assert main(["calibrate-eyes", str(s), "--camera", str(s / "truth" / "camera.json"), "-o",
+                 str(tmp_path / "eyes.json")]) == 0
+    load_json(tmp_path / "eyes.json", "eyes")
+    code = main(["calibrate-camera", str(s / "calibration" / "camera"), "--board", "chessboard:9x6:30", "-o",
+                 str(tmp_path / "camera.json")])
+    assert code == 0
+    d = load_json(tmp_path / "camera.json", "camera")
+    assert isinstance(d["trusted"], bool) and isinstance(d["warnings"], list)
+    capsys.readouterr()
+
+
+def test_load_json_names_file_field_expectation_and_fix(tmp_path):
+    from wearable_gaze.errors import UserError
+    from wearable_gaze.jsonio import load_json
+
+    p = tmp_path / "map.json"
+    p.write_text(json.dumps({"dictionary": "DICT_4X4_50", "marker_size_mm": 200,
+                             "markers": [{"id": 0, "T_world_from_marker": [[1, 0, 0, 0], [0, 1, 0], [0, 0, 1, 0],
+                                                                           [0, 0, 0, 1]]}]}))
+    with pytest.raises(UserError) as exc:
+        load_json(p, "marker-map")
+    msg = str(exc.value)
+    assert msg.startswith(str(p)) and "'markers[0].T_world_from_marker[1]'" in msg
+    assert "row of 4 numbers" in msg and "got 3 item(s)" in msg and "docs/session.md" in msg
+    assert "\n" not in msg
+
+
+def test_paths_in_a_session_must_stay_inside_it(sim_session, tmp_path):
+    import shutil
+
+    from wearable_gaze.errors import UserError
+    from wearable_gaze.session import load_session
+
+    s = tmp_path / "s"
+    shutil.copytree(sim_session, s)
+    man = json.loads((s / "session.json").read_text())
+    for rel in ("/etc/passwd", "../s/eye.csv", "truth/../../x", "/"):
+        man["files"]["eye_samples"] = rel
+        (s / "session.json").write_text(json.dumps(man))
+        with pytest.raises(UserError) as exc:
+            load_session(s)
+        assert "files.eye_samples" in str(exc.value) and "root:" not in str(exc.value)
+    man["files"]["eye_samples"] = "eye.csv"
+    (s / "session.json").write_text(json.dumps(man))
+    assert load_session(s).path("eye_samples") == s / "eye.csv"
+
+
+def test_plainly_wrong_camera_calibration_is_marked_untrusted():
+    from calibration.camera import CameraCalibration
+    from wearable_gaze.calibrate_cmd import camera_json, format_camera_report, plausibility_warnings
+
+    bad = CameraCalibration(np.array([[1304.0, 0, 640], [0, 469.0, 360], [0, 0, 1]]), np.zeros(5), (1280, 720),
+                            "pinhole", 1.9, [], None)
+    w = plausibility_warnings(bad)
+    assert any("fx 1304 and fy 469" in x for x in w) and any("RMS 1.90 px" in x for x in w)
+    d = camera_json(bad)
+    assert d["trusted"] is False and d["warnings"] == w
+    assert format_camera_report(bad).startswith("NOT TRUSTED: ")
+    good = CameraCalibration(np.array([[900.0, 0, 640], [0, 902.0, 360], [0, 0, 1]]), np.zeros(5), (1280, 720),
+                             "pinhole", 0.3, [], None)
+    assert plausibility_warnings(good) == [] and camera_json(good)["trusted"] is True
+
+
+# --- the CLI's safety net ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("errno_, fix", [(13, "not writable"), (28, "disk is full"), (21, "is a folder"),
+                                          (20, "not a folder"), (17, "exists already"), (30, "read-only")])
+def test_os_errors_on_output_are_one_line(monkeypatch, capsys, tmp_path, errno_, fix):
+    import wearable_gaze.cli as cli
+
+    def boom(args):
+        raise OSError(errno_, os.strerror(errno_), str(tmp_path / "out.csv"))
+    monkeypatch.setattr(cli, "cmd_markers", boom)
+    code = main(["markers", "--ids", "0", "--size-mm", "50", "-o", str(tmp_path / "m.pdf")])
+    assert code == 2
+    line = _one_line_error(capsys)
+    assert str(tmp_path / "out.csv") in line and fix in line
+
+
+def test_an_unexpected_exception_is_a_bug_not_a_bad_input(monkeypatch, capsys, tmp_path):
+    import wearable_gaze.cli as cli
+
+    def bug(args):
+        raise ZeroDivisionError("division by zero")
+    monkeypatch.setattr(cli, "cmd_markers", bug)
+    argv = ["markers", "--ids", "0", "--size-mm", "50", "-o", str(tmp_path / "m.pdf")]
+    assert main(argv) == 1                                        # not 2: not the user's fault
+    line = _one_line_error(capsys)
+    assert "internal error" in line and "ZeroDivisionError" in line and "-v" in line
+    with pytest.raises(ZeroDivisionError):
+        main(["-v", *argv])
+
+
+def test_parse_ids():
+    from wearable_gaze.errors import UserError
+    from wearable_gaze.track_cmd import parse_ids
+
+    assert parse_ids("0-3,7,2") == [0, 1, 2, 3, 7]
+    assert parse_ids(" 5 ") == [5]
+    for bad in ("5-3", "-1", "", "a", "1-2-3", "0-99999999"):
+        with pytest.raises(UserError):
+            parse_ids(bad)

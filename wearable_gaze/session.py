@@ -83,7 +83,7 @@ def read_eye_csv(path, extra_required=(), text_columns=()) -> tuple[EyeSamples, 
     if len(bad):
         i = bad[0]
         raise UserError(f"{path} line {i + 3}: time {float(t[i + 1])!r} s does not increase after {float(t[i])!r} s; "
-                        "sort the eye samples by time and remove repeated times")
+                        "eye samples must be sorted in time: sort them and remove repeated times")
     raw = np.stack([np.column_stack([tab["left_x"], tab["left_y"]]),
                     np.column_stack([tab["right_x"], tab["right_y"]])], axis=1)
     valid = np.column_stack([tab["left_valid"] != 0, tab["right_valid"] != 0])
