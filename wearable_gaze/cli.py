@@ -514,16 +514,42 @@ def _quiet_opencv() -> None:
             pass
 
 
+class _LogFormatter(logging.Formatter):
+    """``wearable-gaze COMMAND: warning: message`` (with -v: the logger's name too)."""
+
+    def __init__(self, prog: str, verbose: bool):
+        super().__init__()
+        self.prog, self.verbose = prog, verbose
+
+    def format(self, record):
+        where = f" {record.name}" if self.verbose else ""
+        text = f"{self.prog}: {record.levelname.lower()}{where}: {record.getMessage()}"
+        if record.exc_info and self.verbose:
+            text += "\n" + self.formatException(record.exc_info)
+        return text
+
+
+def _log_to_stderr(args) -> logging.Handler:
+    """A handler writing log lines to the current stderr while a command runs (main() removes it
+    afterwards, so that running main() again in one process never writes to a stale stream)."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_LogFormatter(f"wearable-gaze {args.command or ''}".strip(), args.verbose))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(logging.INFO if args.verbose else logging.WARNING)
+    return handler
+
+
 def main(argv=None) -> int:
     _quiet_opencv()
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
     name = f"wearable-gaze {args.command}"
+    level = logging.getLogger().level
+    handler = _log_to_stderr(args)
     try:
         import cv2  # noqa: PLC0415
 
@@ -549,6 +575,9 @@ def main(argv=None) -> int:
         print(f"{name}: internal error ({type(exc).__name__}: {msg}); this is a bug: rerun with -v for the "
               "traceback and report it", file=sys.stderr)
         return 1
+    finally:
+        logging.getLogger().removeHandler(handler)
+        logging.getLogger().setLevel(level)
 
 
 if __name__ == "__main__":  # pragma: no cover
