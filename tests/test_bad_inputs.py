@@ -930,6 +930,12 @@ add("demo-duration-0_01", "demo", lambda e, d: ["demo", "--out", str(d / "demo")
     ("duration_s", "too short"))
 
 add("no-command-option", "estimate", lambda e, d: ["estimate", e["viewlines"], "--bogus"], "unrecognized")
+add("unknown-option-with-escape", "estimate", lambda e, d: ["estimate", e["viewlines"], "--bogus\x1b[2J"],
+    ("unrecognized", "\\x1b"))
+add("estimate-path-with-escape", "estimate", lambda e, d: ["estimate", str(d / "lines\x1b[2J.csv")],
+    ("no such file", "\\x1b"))
+add("viewlines-out-path-with-newline", "viewlines",
+    lambda e, d: argv_viewlines(e, d, out=str(_mkdir(d / "a\nfolder"))), ("is a folder",))
 
 
 def _emulate_with_stream(data: bytes):

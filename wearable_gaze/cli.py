@@ -19,11 +19,18 @@ from .errors import UserError, check_output
 log = logging.getLogger("wearable_gaze")
 
 
+def _one_line(text: str) -> str:
+    """``text`` as one printable line: whitespace runs become one space, control characters
+    (a terminal escape in a file name or a header) are shown escaped."""
+    text = " ".join(text.split())
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse, but a usage error is one line naming the fix, exit status 2."""
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: {message} (see `{self.prog} --help`)\n")
+        self.exit(2, f"{self.prog}: {_one_line(message)} (see `{self.prog} --help`)\n")
 
 
 def _float(text):
@@ -558,12 +565,12 @@ def main(argv=None) -> int:
         _check_outputs(args)
         return args.func(args)
     except UserError as exc:
-        print(f"{name}: {' '.join(str(exc).split())}", file=sys.stderr)
+        print(f"{name}: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except OSError as exc:                      # an output that cannot be written (or a device gone)
         where = exc.filename if exc.filename is not None else "?"
         fix = OS_FIX.get(exc.errno, "check the path and try again")
-        print(f"{name}: cannot write or read {ascii(str(where))[1:-1]}: {exc.strerror or exc}; {fix}", file=sys.stderr)
+        print(_one_line(f"{name}: cannot write or read {where}: {exc.strerror or exc}; {fix}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)
@@ -571,7 +578,7 @@ def main(argv=None) -> int:
     except Exception as exc:                     # a bug, not a bad input: say so, keep the traceback for -v
         if args.verbose:
             raise
-        msg = " ".join(str(exc).split())[:200]
+        msg = _one_line(str(exc))[:200]
         print(f"{name}: internal error ({type(exc).__name__}: {msg}); this is a bug: rerun with -v for the "
               "traceback and report it", file=sys.stderr)
         return 1
