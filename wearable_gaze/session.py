@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from .atomic import write_text
 from .errors import UserError
-from .jsonio import load_json, read_json_text
+from .jsonio import load_json
 from .tables import read_table, write_table
 
 FORMAT = "wearable-gaze-session"
@@ -30,12 +30,6 @@ POSE_COLUMNS = ["t", "frame", "qw", "qx", "qy", "qz", "tx", "ty", "tz"]
 def write_json(path, obj) -> None:
     """JSON, indented, atomically."""
     write_text(path, json.dumps(obj, indent=1) + "\n")
-
-
-def read_json(path, what: str):
-    """A JSON file without a schema (strict: UTF-8, no NaN); formats with a schema use
-    ``jsonio.load_json``."""
-    return read_json_text(path, what)
 
 
 # --- eye samples ---------------------------------------------------------------------------------
