@@ -17,7 +17,7 @@ from pathlib import Path  # noqa: E402
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 
-from wearable_gaze.process import process_session  # noqa: E402
+from wearable_gaze.pipeline.process import process_session  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
 
 

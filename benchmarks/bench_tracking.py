@@ -25,7 +25,7 @@ from calibration.camera import CameraCalibration  # noqa: E402
 from tracking.markermap import MarkerMap  # noqa: E402
 from tracking.markers import MarkerDetector, detection  # noqa: E402
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg  # noqa: E402
-from wearable_gaze.session import grey_frames, load_session, read_poses_csv  # noqa: E402
+from wearable_gaze.formats.session import grey_frames, load_session, read_poses_csv  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
 
 

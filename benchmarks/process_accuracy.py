@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wearable_gaze.demo import match_targets
-from wearable_gaze.process import process_session
+from wearable_gaze.pipeline.demo import match_targets
+from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 
 

@@ -46,7 +46,7 @@ def walkabout_samples(target, rng, n=300, sigma_deg=1.0, ipd=64.0):
 def eye_record_bytes(i: int, rate_hz: float = 60.0) -> bytes:
     """Record ``i`` of a synthetic recorder stream in the default protocol: counter i, time
     i / rate_hz s, the right eye invalid every 7th record."""
-    from wearable_gaze.emr import DEFAULT_PROTOCOL, EyeRecord
+    from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL, EyeRecord
 
     return DEFAULT_PROTOCOL.format(EyeRecord(i, i / rate_hz, (2000.0 + i, 1990.5), (2010.25, 1980.0), True,
                                              i % 7 != 0))

@@ -11,11 +11,11 @@ from calibration.camera import BoardView, CameraCalibration, calibrate_camera, d
 from calibration.eyes import CalibrationError, calibrate_eye, estimate_centre, fit_raw_map, target_readings, wall_pose
 from estimator.frames import rotation_about_axis
 from tracking.timeline import interpolate_poses
-from wearable_gaze.calibrate_cmd import load_camera, load_eyes
 from wearable_gaze.cli import main
+from wearable_gaze.formats.tables import read_table
+from wearable_gaze.formats.viewlines import read_viewlines_csv
+from wearable_gaze.pipeline.calibrate import load_camera, load_eyes
 from wearable_gaze.sim.simulate import simulate_scenario
-from wearable_gaze.tables import read_table
-from wearable_gaze.viewlines_csv import read_viewlines_csv
 
 # --- real photos -------------------------------------------------------------------------------
 
@@ -230,7 +230,7 @@ def test_target_readings_skip_the_saccade_and_blinks():
 def test_calibration_study_meets_the_issue_targets():
     """Done-when: mean view-direction error <= 0.15 deg with both corrections (paper error sources),
     each correction helps, and the two-distance centres land within 3 mm (median)."""
-    from wearable_gaze.calstudy import run_calibration_study
+    from wearable_gaze.paper.calstudy import run_calibration_study
 
     r = run_calibration_study(trials=12, seed=3)
     e = {k: float(np.mean(v)) for k, v in r.errors_deg.items()}
@@ -312,7 +312,7 @@ def test_calibration_cli_errors_are_one_line(tmp_path, capsys):
 
 
 def test_calibrate_camera_from_a_video_picks_views_for_coverage_and_fits_fisheye(session, tmp_path):
-    from wearable_gaze.calibrate_cmd import calibrate_camera_files
+    from wearable_gaze.pipeline.calibrate import calibrate_camera_files
 
     frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
               for p in sorted((session / "calibration" / "camera").glob("*.png"))]

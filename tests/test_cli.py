@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from wearable_gaze.cli import main
+from wearable_gaze.formats.viewlines import REQUIRED, read_viewlines_csv, write_viewlines_csv
 from wearable_gaze.sim.protocol import simulate_lines
-from wearable_gaze.viewlines_csv import REQUIRED, read_viewlines_csv, write_viewlines_csv
 
 
 @pytest.fixture
@@ -163,22 +163,22 @@ def test_reproduce_table1_prints_all_columns_and_writes_figures(tmp_path, capsys
     assert lse_z[-1] < 0.5 * 5000                     # LSE biased toward the head at 5 m
 
 
-# --- one validation mechanism for JSON files (wearable_gaze/jsonio.py, wearable_gaze/schemas) -----
+# --- one validation mechanism for JSON files (wearable_gaze/formats/jsonio.py, wearable_gaze/formats/schemas) -----
 
 def test_every_schema_is_valid_and_shipped_as_package_data():
     from importlib import resources
 
     from jsonschema import Draft202012Validator
 
-    from wearable_gaze.jsonio import SCHEMA_NAMES, schema
+    from wearable_gaze.formats.jsonio import SCHEMA_NAMES, schema
 
-    shipped = {p.name for p in resources.files("wearable_gaze").joinpath("schemas").iterdir()}
+    shipped = {p.name for p in resources.files("wearable_gaze.formats").joinpath("schemas").iterdir()}
     assert shipped == {f"{n}.schema.json" for n in SCHEMA_NAMES}
     for n in SCHEMA_NAMES:
         Draft202012Validator.check_schema(schema(n))
         assert schema(n)["title"] and schema(n)["x-doc"]
     toml = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
-    assert 'wearable_gaze = ["schemas/*.schema.json"]' in toml and '"jsonschema>=4.18"' in toml
+    assert '"wearable_gaze.formats" = ["schemas/*.schema.json"]' in toml and '"jsonschema>=4.18"' in toml
 
 
 @pytest.fixture(scope="module")
@@ -191,7 +191,7 @@ def sim_session(tmp_path_factory):
 def test_files_the_program_writes_pass_their_schemas(sim_session, tmp_path, capsys):
     """The schemas accept what the simulator, calibrate-camera and calibrate-eyes write (a schema
     stricter than the writers would refuse good sessions)."""
-    from wearable_gaze.jsonio import load_json, validate
+    from wearable_gaze.formats.jsonio import load_json, validate
     from wearable_gaze.sim.scenario import resolve
 
     s = sim_session
@@ -215,7 +215,7 @@ def test_files_the_program_writes_pass_their_schemas(sim_session, tmp_path, caps
 
 def test_load_json_names_file_field_expectation_and_fix(tmp_path):
     from wearable_gaze.errors import UserError
-    from wearable_gaze.jsonio import load_json
+    from wearable_gaze.formats.jsonio import load_json
 
     p = tmp_path / "map.json"
     p.write_text(json.dumps({"dictionary": "DICT_4X4_50", "marker_size_mm": 200,
@@ -233,7 +233,7 @@ def test_paths_in_a_session_must_stay_inside_it(sim_session, tmp_path):
     import shutil
 
     from wearable_gaze.errors import UserError
-    from wearable_gaze.session import load_session
+    from wearable_gaze.formats.session import load_session
 
     s = tmp_path / "s"
     shutil.copytree(sim_session, s)
@@ -251,7 +251,7 @@ def test_paths_in_a_session_must_stay_inside_it(sim_session, tmp_path):
 
 def test_plainly_wrong_camera_calibration_is_marked_untrusted():
     from calibration.camera import CameraCalibration
-    from wearable_gaze.calibrate_cmd import camera_json, format_camera_report, plausibility_warnings
+    from wearable_gaze.pipeline.calibrate import camera_json, format_camera_report, plausibility_warnings
 
     bad = CameraCalibration(np.array([[1304.0, 0, 640], [0, 469.0, 360], [0, 0, 1]]), np.zeros(5), (1280, 720),
                             "pinhole", 1.9, [], None)
@@ -297,7 +297,7 @@ def test_an_unexpected_exception_is_a_bug_not_a_bad_input(monkeypatch, capsys, t
 
 def test_parse_ids():
     from wearable_gaze.errors import UserError
-    from wearable_gaze.track_cmd import parse_ids
+    from wearable_gaze.pipeline.track import parse_ids
 
     assert parse_ids("0-3,7,2") == [0, 1, 2, 3, 7]
     assert parse_ids(" 5 ") == [5]

@@ -10,8 +10,8 @@ import pytest
 
 from tests.helpers import drain_reader, eye_record_bytes
 from wearable_gaze.cli import main
-from wearable_gaze.emr import DEFAULT_PROTOCOL
 from wearable_gaze.errors import UserError
+from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL
 from wearable_gaze.live.serial_in import EyeReader
 from wearable_gaze.sim.emulate import RecorderEmulator
 

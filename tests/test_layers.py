@@ -1,5 +1,7 @@
-"""The design's layering: estimator < calibration < tracking < wearable_gaze, and the three
-libraries do no printing (they report through return values, logging and callbacks)."""
+"""The design's layering: estimator < calibration < tracking < wearable_gaze, the three libraries
+do no printing (they report through return values, logging and callbacks), and inside the
+application data flows one way: formats < sim < pipeline < live, paper < cli
+(docs/architecture.md)."""
 
 import ast
 from pathlib import Path
@@ -8,6 +10,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 ORDER = ["estimator", "calibration", "tracking", "wearable_gaze"]
+
+# Inside wearable_gaze: a module may import modules of a lower rank, and its own subpackage.
+# Rank 0 holds the few modules everything may use (errors, progress bars, the version).
+APP_RANK = {"__init__": 0, "errors": 0, "progress": 0, "formats": 1, "sim": 2, "pipeline": 3,
+            "live": 4, "paper": 4, "cli": 5, "__main__": 5}
 
 
 def _imports(path: Path):
@@ -35,4 +42,51 @@ def test_libraries_do_not_print(package):
         for node in ast.walk(ast.parse(p.read_text())):
             if isinstance(node, ast.Call) and getattr(node.func, "id", None) in ("print", "open", "input"):
                 bad.append(f"{p.relative_to(ROOT)}:{node.lineno} calls {node.func.id}")
+    assert not bad, bad
+
+
+def _app_part(dotted: list) -> str:
+    """'wearable_gaze.formats.session' -> 'formats'; 'wearable_gaze.cli' -> 'cli'."""
+    return dotted[1] if len(dotted) > 1 else "__init__"
+
+
+def _app_imports(path: Path):
+    """(imported part of wearable_gaze, line) for every import of the application in ``path``."""
+    rel = path.relative_to(ROOT).with_suffix("").parts
+    pkg = list(rel[:-1]) if rel[-1] != "__init__" else list(rel[:-1])
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg[:len(pkg) - node.level + 1]
+                mod = base + (node.module.split(".") if node.module else [])
+                if not node.module:                         # from . import x: x a module or a name
+                    for a in node.names:
+                        sub = ROOT.joinpath(*mod, a.name)
+                        is_module = sub.with_suffix(".py").is_file() or sub.is_dir()
+                        yield _app_part(mod + [a.name] if is_module else mod), node.lineno
+                    continue
+            elif node.module and node.module.split(".")[0] == "wearable_gaze":
+                mod = node.module.split(".")
+            else:
+                continue
+            yield _app_part(mod), node.lineno
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] == "wearable_gaze":
+                    yield _app_part(a.name.split(".")), node.lineno
+
+
+def test_every_part_of_the_application_has_a_rank():
+    parts = {p.stem if p.is_file() else p.name for p in (ROOT / "wearable_gaze").iterdir()
+             if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists()))}
+    assert parts <= set(APP_RANK), f"give these a rank in APP_RANK and docs/architecture.md: {parts - set(APP_RANK)}"
+
+
+def test_the_application_imports_only_downward():
+    bad = []
+    for p in (ROOT / "wearable_gaze").rglob("*.py"):
+        own = _app_part(list(p.relative_to(ROOT).with_suffix("").parts))
+        for part, line in _app_imports(p):
+            if part != own and APP_RANK.get(part, 99) >= APP_RANK[own]:
+                bad.append(f"{p.relative_to(ROOT)}:{line} ({own}) imports {part}")
     assert not bad, bad

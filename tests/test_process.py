@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from wearable_gaze.cli import main
-from wearable_gaze.demo import match_targets
-from wearable_gaze.process import process_session
+from wearable_gaze.formats.tables import read_table
+from wearable_gaze.pipeline.demo import match_targets
+from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
-from wearable_gaze.tables import read_table
 
 SCENARIO = {"base": "lab-walkabout", "duration_s": 12.0,
             "room": {"size_mm": [4500.0, 2700.0, 5500.0], "markers_per_wall": 5},

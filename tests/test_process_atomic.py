@@ -1,4 +1,4 @@
-"""Atomic writes (wearable_gaze.atomic), which every writer of ``process`` uses: a writer that
+"""Atomic writes (wearable_gaze.formats.atomic), which every writer of ``process`` uses: a writer that
 fails leaves no temporary file and the earlier file untouched; a killed writer's temporary file
 is recognised by its exact pattern and nothing else is."""
 
@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from wearable_gaze.atomic import atomic_path, remove_temporaries, write_text
+from wearable_gaze.formats.atomic import atomic_path, remove_temporaries, write_text
 
 
 @pytest.mark.parametrize("error", [RuntimeError("writer failed"), KeyboardInterrupt()])

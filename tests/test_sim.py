@@ -13,14 +13,14 @@ from scipy.spatial.transform import Rotation
 
 from estimator.frames import tangent_basis
 from wearable_gaze.cli import main
-from wearable_gaze.emr import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
-from wearable_gaze.session import load_session, read_eye_csv, read_poses_csv
+from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
+from wearable_gaze.formats.session import load_session, read_eye_csv, read_poses_csv
+from wearable_gaze.formats.tables import read_table
 from wearable_gaze.sim.eyes import EyeModel, EyeSensor, plan_gaze
 from wearable_gaze.sim.motion import make_motion
 from wearable_gaze.sim.render import aruco_dictionary, marker_corners_world
 from wearable_gaze.sim.scenario import DEFAULTS, NAMED, resolve
 from wearable_gaze.sim.simulate import simulate, simulate_scenario
-from wearable_gaze.tables import read_table
 
 SMALL = {"camera": {"resolution": [320, 180]}, "calibration": {"camera_views": 3}}
 

@@ -8,13 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-import wearable_gaze.track_cmd as track_cmd
+import wearable_gaze.pipeline.track as track_cmd
 from calibration.camera import CameraCalibration
 from estimator.frames import rotation_about_axis
 from wearable_gaze.cli import main
-from wearable_gaze.session import read_poses_csv
+from wearable_gaze.formats.session import read_poses_csv
+from wearable_gaze.pipeline.track import track_video
 from wearable_gaze.sim.simulate import simulate_scenario
-from wearable_gaze.track_cmd import track_video
 
 # the simulated lab camera at 640x360: 90 degrees across, strong barrel distortion
 CAMERA = CameraCalibration(np.array([[320.0, 0, 320], [0, 320, 180], [0, 0, 1]]),

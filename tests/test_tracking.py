@@ -14,7 +14,7 @@ from tracking.markermap import MarkerMap, MarkerMapError
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg
 from wearable_gaze.cli import main
-from wearable_gaze.session import grey_frames, load_session, read_poses_csv
+from wearable_gaze.formats.session import grey_frames, load_session, read_poses_csv
 from wearable_gaze.sim.render import Camera, Plane, SensorNoise, marker_plane, poster_texture, render
 from wearable_gaze.sim.simulate import simulate_scenario
 from wearable_gaze.sim.world import look_at
@@ -428,7 +428,7 @@ def test_track_cli_bad_inputs_are_one_line(walk, tmp_path, capsys):
 
 
 def test_marker_sheets_print_at_exact_scale(tmp_path):
-    from wearable_gaze.track_cmd import write_marker_sheets
+    from wearable_gaze.pipeline.track import write_marker_sheets
 
     paths = write_marker_sheets("DICT_4X4_50", [3, 4], 80.0, tmp_path / "sheet.png", dpi=200)
     img = cv2.imread(str(paths[0]), cv2.IMREAD_GRAYSCALE)

@@ -93,7 +93,7 @@ def _publish_url(text):
 # --- estimate ---------------------------------------------------------------------------------
 
 def cmd_estimate(args) -> int:
-    from .estimate_cmd import estimate_file, format_table  # noqa: PLC0415
+    from .pipeline.estimate import estimate_file, format_table  # noqa: PLC0415
 
     if args.export_density and args.method not in ("voxel", "paper"):
         raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no "
@@ -110,8 +110,8 @@ def cmd_estimate(args) -> int:
 # --- reproduce --------------------------------------------------------------------------------
 
 def cmd_reproduce(args) -> int:
+    from .paper.reproduce import reproduce_figure5, reproduce_table1  # noqa: PLC0415
     from .progress import progress_bar  # noqa: PLC0415
-    from .reproduce import reproduce_figure5, reproduce_table1  # noqa: PLC0415
 
     out = Path(args.out)
     if args.what == "table1":
@@ -119,11 +119,11 @@ def cmd_reproduce(args) -> int:
             result, paths = reproduce_table1(out, args.trials, args.seed, progress=cb)
         print(result.format())
     elif args.what == "calibration":
-        from .atomic import write_text  # noqa: PLC0415
-        from .calibrate_cmd import study_table  # noqa: PLC0415
+        from .formats.atomic import write_text  # noqa: PLC0415
+        from .paper.calstudy import run_calibration_study  # noqa: PLC0415
 
         with progress_bar("calibration trials", args.trials) as cb:
-            result = study_table(args.trials, args.seed, cb)
+            result = run_calibration_study(trials=args.trials, seed=args.seed, progress=cb)
         text = result.format()
         print(text)
         paths = [out / "calibration_study.md"]
@@ -165,7 +165,7 @@ def cmd_simulate(args) -> int:
 # --- calibration ------------------------------------------------------------------------------
 
 def cmd_calibrate_camera(args) -> int:
-    from .calibrate_cmd import calibrate_camera_files, format_camera_report  # noqa: PLC0415
+    from .pipeline.calibrate import calibrate_camera_files, format_camera_report  # noqa: PLC0415
     from .progress import progress_bar  # noqa: PLC0415
 
     with progress_bar("detecting the board", 1) as cb:
@@ -181,7 +181,7 @@ def cmd_calibrate_camera(args) -> int:
 
 
 def cmd_calibrate_eyes(args) -> int:
-    from .calibrate_cmd import calibrate_eyes_files, format_eyes_report  # noqa: PLC0415
+    from .pipeline.calibrate import calibrate_eyes_files, format_eyes_report  # noqa: PLC0415
     from .progress import progress_bar  # noqa: PLC0415
 
     with progress_bar("calibrating the eyes", 1) as cb:
@@ -192,7 +192,7 @@ def cmd_calibrate_eyes(args) -> int:
 
 
 def cmd_viewlines(args) -> int:
-    from .calibrate_cmd import viewlines_files  # noqa: PLC0415
+    from .pipeline.calibrate import viewlines_files  # noqa: PLC0415
 
     counts = viewlines_files(args.eye, args.eyes, args.poses, args.out, args.max_gap)
     print(f"wrote {args.out}: {counts['written']} of {counts['samples']} samples "
@@ -204,8 +204,8 @@ def cmd_viewlines(args) -> int:
 # --- tracking ---------------------------------------------------------------------------------
 
 def cmd_track(args) -> int:
+    from .pipeline.track import track_video  # noqa: PLC0415
     from .progress import progress_bar  # noqa: PLC0415
-    from .track_cmd import track_video  # noqa: PLC0415
 
     with progress_bar("tracking", 1) as cb:
         counts = track_video(args.video, args.camera, args.out, markers=args.markers, reference=args.reference,
@@ -217,7 +217,7 @@ def cmd_track(args) -> int:
 
 
 def cmd_markers(args) -> int:
-    from .track_cmd import parse_ids, write_marker_sheets  # noqa: PLC0415
+    from .pipeline.track import parse_ids, write_marker_sheets  # noqa: PLC0415
 
     for p in write_marker_sheets(args.dict, parse_ids(args.ids), args.size_mm, args.out, args.page, args.dpi):
         print(f"wrote {p}")
@@ -252,7 +252,7 @@ def _host_port(text):
 
 
 def cmd_emulate(args) -> int:
-    from .session import load_session  # noqa: PLC0415
+    from .formats.session import load_session  # noqa: PLC0415
     from .sim.emulate import RecorderEmulator  # noqa: PLC0415
 
     sess = load_session(args.session)
@@ -279,7 +279,7 @@ def cmd_emulate(args) -> int:
 # --- demo -------------------------------------------------------------------------------------
 
 def cmd_process(args) -> int:
-    from .process import format_result, process_session  # noqa: PLC0415
+    from .pipeline.process import format_result, process_session  # noqa: PLC0415
     from .progress import progress_bar  # noqa: PLC0415
 
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
@@ -292,7 +292,7 @@ def cmd_process(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .demo import run_demo  # noqa: PLC0415
+    from .pipeline.demo import run_demo  # noqa: PLC0415
 
     return run_demo(Path(args.out), args.seed, args.duration)
 

@@ -23,9 +23,9 @@ from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
 from tracking.timeline import interpolate_poses
 
-from ..calibrate_cmd import load_camera, load_eyes
 from ..errors import UserError
-from ..track_cmd import load_marker_map
+from ..pipeline.calibrate import load_camera, load_eyes
+from ..pipeline.track import load_marker_map
 from .camera_in import FrameSource
 from .clock import SessionClock
 from .publish import Publisher

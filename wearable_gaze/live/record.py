@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 
 from ..errors import UserError
-from ..session import EYE_COLUMNS, EYE_FORMATS, FORMAT, VERSION, marker_map_dict
+from ..formats.session import EYE_COLUMNS, EYE_FORMATS, FORMAT, VERSION, marker_map_dict
 
 log = logging.getLogger(__name__)
 

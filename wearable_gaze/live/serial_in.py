@@ -19,7 +19,7 @@ from urllib.parse import urlparse
 
 import serial
 
-from ..emr import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
+from ..formats.serial_protocol import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
 
 log = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ import tty
 
 import numpy as np
 
-from ..emr import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
 from ..errors import UserError
+from ..formats.serial_protocol import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
 
 CONNECT_SETTLE_S = 0.05   # pyserial's socket:// clears its input buffer just after connecting
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import copy
 
 from ..errors import UserError
-from ..jsonio import fail, short, validate
+from ..formats.jsonio import fail, short, validate
 
 SCENARIO_VERSION = 1
 
@@ -177,7 +177,7 @@ def resolve(scenario, duration_s=None, resolution=None, source="scenario") -> di
         source: the file (or "scenario") named in messages.
 
     Raises:
-        UserError: naming the offending field (the schema wearable_gaze/schemas/scenario.schema.json,
+        UserError: naming the offending field (the schema wearable_gaze/formats/schemas/scenario.schema.json,
             then ``check_scenario``).
     """
     if isinstance(scenario, str):

@@ -17,10 +17,10 @@ import numpy as np
 from estimator import BinocularSamples
 
 from .. import __version__
-from ..emr import encode_stream
 from ..errors import UserError, check_output
-from ..jsonio import read_json_text
-from ..session import (
+from ..formats.jsonio import read_json_text
+from ..formats.serial_protocol import encode_stream
+from ..formats.session import (
     FORMAT,
     VERSION,
     EyeSamples,
@@ -30,8 +30,8 @@ from ..session import (
     write_json,
     write_poses_csv,
 )
-from ..tables import write_table
-from ..viewlines_csv import write_viewlines_csv
+from ..formats.tables import write_table
+from ..formats.viewlines import write_viewlines_csv
 from .eyes import EyeModel, gaze_points, plan_gaze
 from .motion import make_motion
 from .render import Camera, SensorNoise, render

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..progress import progress_bar
+from ..sim.simulate import simulate_scenario
 from .process import format_result, process_session
-from .progress import progress_bar
-from .sim.simulate import simulate_scenario
 
 
 def match_targets(found: list, truth: list) -> list:

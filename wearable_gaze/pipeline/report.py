@@ -11,11 +11,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .atomic import atomic_path, write_text
-from .calibrate_cmd import load_camera, load_eyes
-from .session import read_eye_csv, read_poses_csv
-from .tables import read_table
-from .viewlines_csv import read_viewlines_csv
+from ..formats.atomic import atomic_path, write_text
+from ..formats.session import read_eye_csv, read_poses_csv
+from ..formats.tables import read_table
+from ..formats.viewlines import read_viewlines_csv
+from .calibrate import load_camera, load_eyes
 
 PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png")
 REPORT_FILES = ("report.html", *PLOTS, "overlay.webp", "overlay_error.txt")   # everything write_report writes

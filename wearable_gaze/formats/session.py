@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..errors import UserError
 from .atomic import write_text
-from .errors import UserError
 from .jsonio import load_json
 from .tables import read_table, write_table
 

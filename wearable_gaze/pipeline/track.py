@@ -18,12 +18,12 @@ from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
 from tracking.timeline import interpolate_poses, smooth_poses
 
-from .atomic import atomic_path
-from .calibrate_cmd import load_camera
-from .errors import UserError, check_output
-from .jsonio import load_json
-from .session import write_json, write_poses_csv
-from .tables import read_table
+from ..errors import UserError, check_output
+from ..formats.atomic import atomic_path
+from ..formats.jsonio import load_json
+from ..formats.session import write_json, write_poses_csv
+from ..formats.tables import read_table
+from .calibrate import load_camera
 
 log = logging.getLogger(__name__)
 

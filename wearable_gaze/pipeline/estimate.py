@@ -8,9 +8,9 @@ import numpy as np
 
 from estimator import density_point_cloud, run_estimator
 
-from .atomic import atomic_path
-from .errors import UserError
-from .viewlines_csv import read_viewlines_csv
+from ..errors import UserError
+from ..formats.atomic import atomic_path
+from ..formats.viewlines import read_viewlines_csv
 
 
 def _density_path(base: Path, key, n_segments: int) -> Path:

@@ -22,8 +22,8 @@ import numpy as np
 
 from estimator import BinocularSamples
 
+from ..errors import UserError
 from .atomic import atomic_path
-from .errors import UserError
 from .tables import open_csv, printable
 
 EYE_COLUMNS = {side: [f"{side}_{k}" for k in ("ox", "oy", "oz", "dx", "dy", "dz")] for side in ("left", "right")}

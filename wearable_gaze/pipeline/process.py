@@ -22,15 +22,15 @@ import numpy as np
 from estimator import BinocularSamples, cramer_rao_bound, make_estimator, run_estimator
 from estimator.segments import SegmentConfig, same_target, segment_fixations
 
-from .atomic import atomic_path, remove_temporaries, write_text
-from .calibrate_cmd import calibrate_camera_files, calibrate_eyes_files, load_camera, load_eyes, viewlines_files
-from .errors import UserError
-from .jsonio import load_json
+from ..errors import UserError
+from ..formats.atomic import atomic_path, remove_temporaries, write_text
+from ..formats.jsonio import load_json
+from ..formats.session import load_session, write_json
+from ..formats.tables import write_table
+from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
+from .calibrate import calibrate_camera_files, calibrate_eyes_files, load_camera, load_eyes, viewlines_files
 from .report import REPORT_FILES
-from .session import load_session, write_json
-from .tables import write_table
-from .track_cmd import track_video
-from .viewlines_csv import read_viewlines_csv, write_viewlines_csv
+from .track import track_video
 
 log = logging.getLogger(__name__)
 
@@ -306,7 +306,7 @@ def _run_steps(s, out: Path, steps: _Steps, res: ProcessResult, camera, eyes, cf
             if not board_file.is_file():
                 raise UserError(f"{board_file}: no camera-calibration recording in the session; pass --camera "
                                 "camera.json")
-            board = load_json(board_file, "board")["board"]        # schema: wearable_gaze/schemas/board
+            board = load_json(board_file, "board")["board"]        # schema: wearable_gaze/formats/schemas/board
             calibrate_camera_files([views], _board_text(board), cam_path, progress=cb)
         steps.run("camera", [views], {}, do_camera)
     else:

@@ -16,7 +16,7 @@ import numpy as np
 
 from estimator import closest_point_two_lines, cramer_rao_bound, make_estimator, run_estimator
 
-from .sim.protocol import PAPER_DEPTHS_MM, PAPER_TABLE1, Protocol, simulate_lines
+from ..sim.protocol import PAPER_DEPTHS_MM, PAPER_TABLE1, Protocol, simulate_lines
 
 log = logging.getLogger(__name__)
 
@@ -278,7 +278,7 @@ def plot_figure5(result: Figure5Result, out_path):
 def _save(fig, out_path):
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    from .atomic import atomic_path  # noqa: PLC0415
+    from ..formats.atomic import atomic_path  # noqa: PLC0415
 
     with atomic_path(out_path) as tmp:
         fig.savefig(tmp, dpi=110, format=Path(out_path).suffix.lstrip(".") or "png")
@@ -291,7 +291,7 @@ def reproduce_table1(out_dir, trials: int = 20, seed: int = 0,
     ``fig13_convergence.png`` into ``out_dir``; return the result and the written paths."""
     import json  # noqa: PLC0415
 
-    from .atomic import write_text  # noqa: PLC0415
+    from ..formats.atomic import write_text  # noqa: PLC0415
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,6 @@
 """Reading the project's JSON files: one mechanism for every format.
 
-Each format has a JSON Schema in ``wearable_gaze/schemas/NAME.schema.json`` (session, camera,
+Each format has a JSON Schema in ``wearable_gaze/formats/schemas/NAME.schema.json`` (session, camera,
 eyes, marker-map, board, walls, scenario). ``load_json(path, name)`` reads the file, checks it
 against its schema and then runs the format's numeric checks that a schema cannot express
 (matrix consistency, principal point inside the image, ...). Any problem is a ``UserError``
@@ -17,7 +17,7 @@ from functools import cache
 from importlib import resources
 from pathlib import Path
 
-from .errors import UserError
+from ..errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -29,8 +29,8 @@ def schema(name: str) -> dict:
     """The parsed JSON Schema of format ``name`` (one of ``SCHEMA_NAMES``)."""
     if name not in SCHEMA_NAMES:
         raise ValueError(f"no schema {name!r}; known: {', '.join(SCHEMA_NAMES)}")
-    text = resources.files("wearable_gaze").joinpath("schemas", f"{name}.schema.json").read_text(encoding="utf-8")
-    return json.loads(text)
+    text = resources.files(__package__).joinpath("schemas", f"{name}.schema.json")
+    return json.loads(text.read_text(encoding="utf-8"))
 
 
 @cache

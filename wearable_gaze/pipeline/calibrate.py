@@ -31,11 +31,11 @@ from estimator.frames import invert
 from tracking.markers import MarkerDetector
 from tracking.timeline import interpolate_poses
 
-from .atomic import atomic_path
-from .errors import UserError, check_output
-from .jsonio import inside, load_json, validate
-from .session import read_eye_csv, read_poses_csv, write_json
-from .viewlines_csv import write_viewlines_csv
+from ..errors import UserError, check_output
+from ..formats.atomic import atomic_path
+from ..formats.jsonio import inside, load_json, validate
+from ..formats.session import read_eye_csv, read_poses_csv, write_json
+from ..formats.viewlines import write_viewlines_csv
 
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 NOMINAL_CENTRES_MM = np.array([[-32.0, 30.0, -20.0], [32.0, 30.0, -20.0]])
@@ -49,7 +49,7 @@ log = logging.getLogger(__name__)
 def load_camera(path) -> CameraCalibration:
     """A camera file: our JSON, or an OpenCV FileStorage YAML/XML (``camera_matrix`` and
     ``distortion_coefficients`` / ``dist_coeffs``, ``image_width`` / ``image_height``). Both are
-    checked against the camera schema (wearable_gaze/schemas/camera.schema.json)."""
+    checked against the camera schema (wearable_gaze/formats/schemas/camera.schema.json)."""
     path = Path(path)
     if not path.is_file():
         what = "a folder" if path.is_dir() else "no such camera file"
@@ -422,11 +422,3 @@ def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1) 
     write_viewlines_csv(out, samples)
     return {"samples": int(len(eye)), "written": int(len(idx)), "no_pose": int((~ok).sum()),
             "both_eyes_invalid": int((ok & ~eye.valid.any(axis=1)).sum())}
-
-
-def study_table(trials: int, seed: int, progress=None):
-    from .calstudy import run_calibration_study  # noqa: PLC0415
-
-    return run_calibration_study(trials=trials, seed=seed, progress=progress)
-
-

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import UserError
 from .atomic import atomic_path
-from .errors import UserError
 
 
 def read_table(path, required, text_columns=(), what: str = "table", fix: str = "", empty_ok=(),
