@@ -1,0 +1,135 @@
+"""Typed values the pipeline steps pass to each other (and ``live`` publishes): fixations,
+targets and step results. World frame of the marker map, mm and s throughout.
+
+A ``Target`` is what ``process`` writes as one row of targets.json / targets.csv
+(``Target.row`` / ``Target.from_row``: the row's keys are the file format's column names, and
+nothing else in the application indexes a target by string keys).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from estimator import BinocularSamples, GazeEstimate
+
+TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "n_samples", "t_start",
+                  "t_end", "fixations", "method", "status", "crb_mm")
+
+
+@dataclass
+class Fixation:
+    """One fixation: a run of view lines the segmenter put on one gazed point.
+
+    Attributes:
+        index: the fixation's number (its label in viewlines.csv).
+        samples: (K,) indices of its view lines in the session's view lines, increasing.
+        estimate: the estimate from its lines (fed in chunks as a live session would), or None.
+    """
+
+    index: int
+    samples: np.ndarray
+    estimate: GazeEstimate | None
+
+    @property
+    def usable(self) -> bool:
+        return self.estimate is not None and self.estimate.ok
+
+
+@dataclass(frozen=True)
+class Target:
+    """A fixated 3D target: one or more fixations of the same point, merged and estimated again
+    from all their view lines.
+
+    Attributes:
+        index: the target's number (0, 1, ... in order of first fixation).
+        position_mm: (3,) estimate, world frame, mm; NaN when there is no usable estimate.
+        covariance_mm2: (3, 3) covariance, mm^2, or None (no covariance, or read from a file,
+            which keeps only the ellipsoid's semi-axes).
+        axes95_mm: (3,) semi-axes of the 95 % confidence ellipsoid, increasing, mm; NaN without
+            a covariance.
+        status: the estimator's status ('ok' or why not).
+        n_samples: binocular samples (view lines) of its fixations.
+        t_start, t_end: time of its first and last sample, s.
+        fixations: the fixation indices merged into it.
+        method: the estimator.
+        crb_mm: square root of the trace of the Cramér-Rao bound at the estimate, mm (NaN when
+            the lines do not fix a point).
+        samples: (n_samples,) indices of its view lines, or None when read from a file (the
+            view lines' target labels are in target_labels.npy).
+    """
+
+    index: int
+    position_mm: np.ndarray
+    covariance_mm2: np.ndarray | None
+    axes95_mm: np.ndarray
+    status: str
+    n_samples: int
+    t_start: float
+    t_end: float
+    fixations: tuple
+    method: str
+    crb_mm: float
+    samples: np.ndarray | None = field(default=None, compare=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok" and bool(np.all(np.isfinite(self.position_mm)))
+
+    def row(self) -> dict:
+        """The row of targets.json / targets.csv (keys ``TARGET_COLUMNS``, plain Python values)."""
+        x, y, z = (float(v) for v in self.position_mm)
+        a1, a2, a3 = (float(v) for v in self.axes95_mm)
+        return {"target": int(self.index), "x_mm": x, "y_mm": y, "z_mm": z, "axis1_mm": a1, "axis2_mm": a2,
+                "axis3_mm": a3, "n_samples": int(self.n_samples), "t_start": float(self.t_start),
+                "t_end": float(self.t_end), "fixations": ";".join(str(f) for f in self.fixations),
+                "method": self.method, "status": self.status, "crb_mm": float(self.crb_mm)}
+
+    @classmethod
+    def from_row(cls, row: dict) -> Target:
+        """A target from a row of targets.json (no covariance, no sample indices)."""
+        fix = str(row["fixations"])
+        return cls(index=int(row["target"]),
+                   position_mm=np.array([row["x_mm"], row["y_mm"], row["z_mm"]], float),
+                   covariance_mm2=None,
+                   axes95_mm=np.array([row["axis1_mm"], row["axis2_mm"], row["axis3_mm"]], float),
+                   status=str(row["status"]), n_samples=int(row["n_samples"]), t_start=float(row["t_start"]),
+                   t_end=float(row["t_end"]), fixations=tuple(int(f) for f in fix.split(";") if f),
+                   method=str(row["method"]), crb_mm=float(row["crb_mm"]))
+
+
+@dataclass(frozen=True)
+class ViewLinesResult:
+    """The view-lines step: the session's eye samples as world view lines.
+
+    Attributes:
+        samples: the view lines (N,) of the samples with a head pose and a valid eye.
+        counts: {'samples', 'written', 'no_pose', 'both_eyes_invalid'}: eye samples read, view
+            lines written, dropped without a pose, dropped with both eyes invalid.
+    """
+
+    samples: BinocularSamples
+    counts: dict
+
+
+@dataclass(frozen=True)
+class TargetsResult:
+    """The fixations-and-targets step.
+
+    Attributes:
+        samples: the view lines (N,) segmented.
+        labels: (N,) fixation index of each view line, -1 in a saccade or a short fixation.
+        fixations: the fixations, in order.
+        running: the running estimates (columns of estimates.csv: t, segment, x, y, z,
+            radius95_mm; one entry per usable estimate).
+        targets: the targets, fixations of one point merged.
+        target_labels: (N,) target index of each view line, -1 none.
+    """
+
+    samples: BinocularSamples
+    labels: np.ndarray
+    fixations: list
+    running: dict
+    targets: list
+    target_labels: np.ndarray
