@@ -22,9 +22,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calibration.camera import CameraCalibration  # noqa: E402
-from tracking.markermap import MarkerMap  # noqa: E402
 from tracking.markers import MarkerDetector, detection  # noqa: E402
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg  # noqa: E402
+from wearable_gaze.formats.markermap import load_marker_map  # noqa: E402
 from wearable_gaze.formats.session import grey_frames, load_session, read_poses_csv  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
 
@@ -40,7 +40,7 @@ def main():
                            "calibration": {"eye": False, "camera_views": 0}}, root, args.seed)
         s = load_session(root)
         cam = CameraCalibration.from_dict(json.loads((root / "truth" / "camera.json").read_text()))
-        mm = MarkerMap.from_dict(s.marker_map())
+        mm = load_marker_map(s.path("marker_map"))
         _, _, T_true, _ = read_poses_csv(root / "truth" / "head_poses.csv")
         frames = list(grey_frames(s.path("scene_video")))
 

@@ -12,9 +12,10 @@ from calibration.eyes import CalibrationError, calibrate_eye, estimate_centre, f
 from estimator.frames import rotation_about_axis
 from tracking.timeline import interpolate_poses
 from wearable_gaze.cli import main
+from wearable_gaze.formats.camera import load_camera
+from wearable_gaze.formats.eyes import load_eyes
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.formats.viewlines import read_viewlines_csv
-from wearable_gaze.pipeline.calibrate import load_camera, load_eyes
 from wearable_gaze.sim.simulate import simulate_scenario
 
 # --- real photos -------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from tracking.markermap import MarkerMap, MarkerMapError
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg
 from wearable_gaze.cli import main
+from wearable_gaze.formats.markermap import load_marker_map, marker_map_dict, marker_map_from_dict
 from wearable_gaze.formats.session import grey_frames, load_session, read_poses_csv
 from wearable_gaze.sim.render import Camera, Plane, SensorNoise, marker_plane, poster_texture, render
 from wearable_gaze.sim.simulate import simulate_scenario
@@ -41,18 +42,19 @@ def test_marker_map_validation_names_the_problem():
     ]
     for d, needle in cases:
         with pytest.raises(MarkerMapError, match=needle):
-            MarkerMap.from_dict(d)
+            marker_map_from_dict(d)
 
 
 def test_marker_map_from_corners_matches_the_pose():
     T = np.eye(4)
     T[:3, :3] = rotation_about_axis([0, 1, 0], 0.4)
     T[:3, 3] = [100, -50, 2000]
-    m = MarkerMap.from_dict(_map(markers=[{"id": 3, "T_world_from_marker": T.tolist()}]))
+    m = marker_map_from_dict(_map(markers=[{"id": 3, "T_world_from_marker": T.tolist()}]))
     corners = m.corners(3)
-    m2 = MarkerMap.from_dict(_map(markers=[{"id": 3, "corners_mm": corners.tolist()}]))
+    m2 = marker_map_from_dict(_map(markers=[{"id": 3, "corners_mm": corners.tolist()}]))
     assert np.allclose(m2.poses[3], T, atol=1e-9)
-    assert np.allclose(MarkerMap.from_dict(m.to_dict()).poses[3], T, atol=1e-8)
+    d = marker_map_dict(m.dictionary, m.marker_size_mm, m.poses, m.labels)
+    assert np.allclose(marker_map_from_dict(d).poses[3], T, atol=1e-8)
 
 
 # --- rendered sessions -------------------------------------------------------------------------
@@ -64,7 +66,7 @@ def walk(tmp_path_factory):
                       root, seed=4)
     s = load_session(root)
     cam = CameraCalibration.from_dict(json.loads((root / "truth" / "camera.json").read_text()))
-    mm = MarkerMap.from_dict(s.marker_map())
+    mm = load_marker_map(s.path("marker_map"))
     _, _, T, extra = read_poses_csv(root / "truth" / "head_poses.csv")
     return root, cam, mm, T, list(grey_frames(s.path("scene_video")))
 

@@ -1,11 +1,11 @@
-"""Reading the project's JSON files: one mechanism for every format.
+"""Reading and writing the project's JSON files: one mechanism for every format.
 
 Each format has a JSON Schema in ``wearable_gaze/formats/schemas/NAME.schema.json`` (session, camera,
 eyes, marker-map, board, walls, scenario). ``load_json(path, name)`` reads the file, checks it
 against its schema and then runs the format's numeric checks that a schema cannot express
 (matrix consistency, principal point inside the image, ...). Any problem is a ``UserError``
 whose message is one line: the file, the JSON path of the bad field, what was expected and how
-to fix it.
+to fix it. ``write_json`` writes every JSON file the same way (indent 1, atomically).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from importlib import resources
 from pathlib import Path
 
 from ..errors import UserError
+from .atomic import write_text
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +197,11 @@ def load_json(path, name: str):
     obj = read_json_text(path, schema(name)["title"])
     validate(obj, name, path)
     return obj
+
+
+def write_json(path, obj) -> None:
+    """Write ``obj`` as JSON (indent 1, a final newline), atomically: the one JSON writer."""
+    write_text(path, json.dumps(obj, indent=1) + "\n")
 
 
 def inside(root, rel: str, source, name: str, where) -> Path:

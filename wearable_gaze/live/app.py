@@ -24,8 +24,9 @@ from tracking.pose import MarkerPoseEstimator
 from tracking.timeline import interpolate_poses
 
 from ..errors import UserError
-from ..pipeline.calibrate import load_camera, load_eyes
-from ..pipeline.track import load_marker_map
+from ..formats.camera import load_camera
+from ..formats.eyes import load_eyes
+from ..formats.markermap import load_marker_map
 from .camera_in import FrameSource
 from .clock import SessionClock
 from .publish import Publisher

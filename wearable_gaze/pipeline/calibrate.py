@@ -19,7 +19,6 @@ from calibration.camera import (
 )
 from calibration.eyes import (
     CalibrationError,
-    EyeCalibration,
     calibrate_eye,
     compare_models,
     estimate_centre,
@@ -33,78 +32,16 @@ from tracking.timeline import interpolate_poses
 
 from ..errors import UserError, check_output
 from ..formats.atomic import atomic_path
-from ..formats.jsonio import inside, load_json, validate
-from ..formats.session import read_eye_csv, read_poses_csv, write_json
+from ..formats.camera import calibration_dict, load_camera, write_camera
+from ..formats.eyes import eyes_dict, load_eyes, write_eyes
+from ..formats.jsonio import inside, load_json
+from ..formats.session import read_eye_csv, read_poses_csv
 from ..formats.viewlines import write_viewlines_csv
 
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 NOMINAL_CENTRES_MM = np.array([[-32.0, 30.0, -20.0], [32.0, 30.0, -20.0]])
-EYES_FORMAT = "wearable-gaze-eyes"
 
 log = logging.getLogger(__name__)
-
-
-# --- camera files ------------------------------------------------------------------------------
-
-def load_camera(path) -> CameraCalibration:
-    """A camera file: our JSON, or an OpenCV FileStorage YAML/XML (``camera_matrix`` and
-    ``distortion_coefficients`` / ``dist_coeffs``, ``image_width`` / ``image_height``). Both are
-    checked against the camera schema (wearable_gaze/formats/schemas/camera.schema.json)."""
-    path = Path(path)
-    if not path.is_file():
-        what = "a folder" if path.is_dir() else "no such camera file"
-        raise UserError(f"{path}: {what}; pass a camera JSON, or run 'wearable-gaze calibrate-camera' to make one")
-    if path.suffix.lower() == ".json":
-        d = load_json(path, "camera")
-    else:
-        d = _read_opencv_camera(path)
-        validate(d, "camera", path)
-    try:
-        return CameraCalibration.from_dict(d)
-    except ValueError as exc:
-        raise UserError(f"{path}: {exc} (see docs/formats.md, camera JSON)") from None
-
-
-def _read_opencv_camera(path: Path) -> dict:
-    """The fields of an OpenCV FileStorage camera file as a camera-JSON dict (not yet checked)."""
-    bad = UserError(f"{path}: not a camera JSON or an OpenCV YAML/XML camera file OpenCV can parse; pass "
-                    "camera.json from 'wearable-gaze calibrate-camera' (docs/calibration.md)")
-    head = path.read_bytes()[:64].lstrip()
-    if not head.startswith((b"%YAML", b"<?xml", b"<opencv_storage")) and path.suffix.lower() not in (
-            ".yml", ".yaml", ".xml"):
-        raise bad
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError):         # OpenCV's parser raises SystemError on some garbage
-        raise bad from None
-    if not fs.isOpened():
-        raise bad
-    try:
-        K = _fs_mat(fs, ("camera_matrix", "cameraMatrix", "K", "M1"))
-        D = _fs_mat(fs, ("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "D1"))
-        w, h = (fs.getNode(k).real() for k in ("image_width", "image_height"))
-        model = "fisheye" if fs.getNode("model").isString() and fs.getNode("model").string() == "fisheye" else "pinhole"
-    except (cv2.error, SystemError):
-        raise bad from None
-    finally:
-        fs.release()
-    if K is None or K.shape != (3, 3):
-        raise UserError(f"{path}: no 3x3 camera_matrix in this OpenCV file; add one (docs/calibration.md)")
-    if not (w and h) and np.all(np.isfinite(K)):
-        w, h = 2 * K[0, 2] + 1, 2 * K[1, 2] + 1          # best guess; said in the JSON we write
-    size = [int(round(v)) if np.isfinite(v) and abs(v) < 1e9 else -1 for v in (w, h)]
-    return {"camera_matrix": K.tolist(), "dist_coeffs": [] if D is None else D.ravel().tolist(),
-            "image_size": size, "model": model}
-
-
-def _fs_mat(fs, names):
-    for n in names:
-        node = fs.getNode(n)
-        if not node.empty() and node.isMap():
-            m = node.mat()
-            if m is not None:
-                return np.asarray(m, float)
-    return None
 
 
 # --- calibrate-camera --------------------------------------------------------------------------
@@ -190,7 +127,7 @@ def calibrate_camera_files(inputs, board: str, out, model: str = "pinhole", max_
     warnings = plausibility_warnings(cal, spec)
     for w in warnings:
         log.warning("%s: camera calibration cannot be trusted: %s", out, w)
-    write_json(out, camera_json(cal, warnings))
+    write_camera(out, camera_json(cal, warnings))
     und, _ = undistort_image(first, cal, alpha=0.0)
     side = np.hstack([cv2.cvtColor(first, cv2.COLOR_GRAY2BGR), cv2.cvtColor(und, cv2.COLOR_GRAY2BGR)])
     cv2.putText(side, "original", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 1, (0, 0, 255), 2)
@@ -233,10 +170,7 @@ def camera_json(cal: CameraCalibration, warnings=None) -> dict:
     """The camera JSON of a calibration, with ``trusted`` and the ``warnings`` that make it
     untrusted (docs/formats.md)."""
     warnings = plausibility_warnings(cal) if warnings is None else list(warnings)
-    d = cal.to_dict()
-    d["trusted"] = not warnings
-    d["warnings"] = warnings
-    return d
+    return calibration_dict(cal, trusted=not warnings, warnings=warnings)
 
 
 def format_camera_report(cal: CameraCalibration) -> str:
@@ -306,7 +240,6 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
             progress(r + 1, len(recs) + 2)
     P = np.vstack(targets_cam)
     depths = np.array([w["measured_distance_mm"] for w in wall_report])
-    result = {"format": EYES_FORMAT, "version": 1, "camera": camera.to_dict(), "walls": wall_report, "eyes": []}
     eyes_out = []
     for e, name in enumerate(("left", "right")):
         raw = np.vstack(readings[e])
@@ -330,9 +263,9 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
         cal.report["centre_sd_mm"] = None if cov is None else np.sqrt(np.diag(cov)).tolist()
         if len(raw) > 9:
             cal.report["model_loo_rms_deg"] = compare_models(name, raw, P, c, float(depths[0]))
-        eyes_out.append(cal.to_dict())
-    result["eyes"] = eyes_out
-    write_json(out, result)
+        eyes_out.append(cal)
+    result = eyes_dict(calibration_dict(camera), wall_report, eyes_out)
+    write_eyes(out, result)
     if progress:
         progress(len(recs) + 2, len(recs) + 2)
     return result
@@ -363,15 +296,6 @@ def _wall_targets(img_path: Path, walls_path: Path, rec: dict, camera: CameraCal
     except CalibrationError as exc:
         raise UserError(f"{img_path}: {exc}") from None
     return wp.to_camera(np.asarray(rec["targets_wall_mm"], float)), wp
-
-
-def load_eyes(path) -> list[EyeCalibration]:
-    """The two eye calibrations (left, right) of an eyes.json, checked against its schema."""
-    d = load_json(path, "eyes")
-    try:
-        return [EyeCalibration.from_dict(e) for e in d["eyes"]]
-    except ValueError as exc:
-        raise UserError(f"{path}: malformed eye calibration ({exc}); run 'wearable-gaze calibrate-eyes'") from None
 
 
 def format_eyes_report(result: dict) -> str:

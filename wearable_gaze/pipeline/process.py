@@ -24,11 +24,13 @@ from estimator.segments import SegmentConfig, same_target, segment_fixations
 
 from ..errors import UserError
 from ..formats.atomic import atomic_path, remove_temporaries, write_text
-from ..formats.jsonio import load_json
-from ..formats.session import load_session, write_json
+from ..formats.camera import load_camera
+from ..formats.eyes import load_eyes
+from ..formats.jsonio import load_json, write_json
+from ..formats.session import load_session
 from ..formats.tables import write_table
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
-from .calibrate import calibrate_camera_files, calibrate_eyes_files, load_camera, load_eyes, viewlines_files
+from .calibrate import calibrate_camera_files, calibrate_eyes_files, viewlines_files
 from .report import REPORT_FILES
 from .track import track_video
 

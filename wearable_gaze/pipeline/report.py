@@ -12,10 +12,12 @@ import cv2
 import numpy as np
 
 from ..formats.atomic import atomic_path, write_text
+from ..formats.camera import load_camera
+from ..formats.eyes import load_eyes
+from ..formats.markermap import marker_map_from_dict
 from ..formats.session import read_eye_csv, read_poses_csv
 from ..formats.tables import read_table
 from ..formats.viewlines import read_viewlines_csv
-from .calibrate import load_camera, load_eyes
 
 PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png")
 REPORT_FILES = ("report.html", *PLOTS, "overlay.webp", "overlay_error.txt")   # everything write_report writes
@@ -231,8 +233,7 @@ def _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p) -> str | None
     mm = session.marker_map()
     corners = []
     if mm:
-        from tracking.markermap import MarkerMap  # noqa: PLC0415
-        m = MarkerMap.from_dict(mm)
+        m = marker_map_from_dict(mm)
         corners = [m.corners(i) for i in m.poses]
     cap = cv2.VideoCapture(str(session.path("scene_video")))
     fps = cap.get(cv2.CAP_PROP_FPS) or 30.0

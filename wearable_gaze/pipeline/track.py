@@ -13,27 +13,18 @@ import numpy as np
 
 from calibration.camera import aruco_dictionary
 from tracking.homography import PlanarTracker
-from tracking.markermap import MarkerMap, MarkerMapError
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
 from tracking.timeline import interpolate_poses, smooth_poses
 
 from ..errors import UserError, check_output
 from ..formats.atomic import atomic_path
-from ..formats.jsonio import load_json
-from ..formats.session import write_json, write_poses_csv
+from ..formats.camera import load_camera
+from ..formats.markermap import load_marker_map, marker_map_template, write_marker_map
+from ..formats.session import write_poses_csv
 from ..formats.tables import read_table
-from .calibrate import load_camera
 
 log = logging.getLogger(__name__)
-
-
-def load_marker_map(path) -> MarkerMap:
-    """A marker map JSON, checked against its schema, then loaded (rigid poses, square corners)."""
-    try:
-        return MarkerMap.from_dict(load_json(path, "marker-map"))
-    except MarkerMapError as exc:
-        raise UserError(f"{path}: {exc}; fix the marker map (see docs/session.md, marker map)") from None
 
 
 def _frame_times(video: Path, timestamps):
@@ -393,11 +384,6 @@ def write_marker_sheets(dictionary: str, ids, size_mm: float, out, page: str = "
             plt.close(fig)
             written.append(path)
     template = out.with_name(out.stem + "_map_template.json")
-    write_json(template, {"format": "wearable-gaze-marker-map", "version": 1, "dictionary": dictionary,
-                          "marker_size_mm": size_mm,
-                          "_help": "Measure each marker's four corners (top-left, top-right, bottom-right, "
-                                   "bottom-left of the printed square) in the room's frame, in mm, or give "
-                                   "T_world_from_marker; see docs/formats.md.",
-                          "markers": [{"id": int(i), "label": "", "corners_mm": [[0, 0, 0]] * 4} for i in ids]})
+    write_marker_map(template, marker_map_template(dictionary, size_mm, ids))
     written.append(template)
     return written
