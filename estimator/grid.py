@@ -9,8 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._open3d import import_open3d
-
-_MAX_TAN2 = 1e6   # tan^2 of the angle for points behind an eye (about 89.94 degrees)
+from .likelihood import tan2_from_local
 
 
 class DensityGrid:
@@ -64,30 +63,11 @@ class DensityGrid:
     def tan2_of_lines(self, origins_mm, directions) -> np.ndarray:
         """tan^2 of the angle (L, n^3) between each of L lines (origins (L, 3) mm, unit directions
         (L, 3), world) and the ray from its origin to every voxel centre (rows in the order of
-        ``values.ravel()``); at most ``1e6`` (89.94 deg), which is also the value behind the origin.
-
-        With ``w = x - e = P - f`` (``f = e - center``): ``d . w = P d - f . d`` and
-        ``|w|^2 = |P|^2 - 2 P f + |f|^2``, so one matrix product serves a whole batch of lines.
-        """
+        ``values.ravel()``); at most ``likelihood.MAX_TAN2`` (89.94 deg), also the value behind the
+        origin. ``likelihood.tan2_from_local`` with the box centre as reference point."""
         PT, Psq = self._local_points()
-        d = np.atleast_2d(np.asarray(directions, float))
         f = np.atleast_2d(np.asarray(origins_mm, float)) - self.center_mm
-        m = np.concatenate([d, f]) @ PT                        # (2L, n^3)
-        L = len(d)
-        a = m[:L]
-        a -= (f * d).sum(1)[:, None]
-        s = m[L:]
-        s *= -2.0
-        s += Psq
-        s += (f * f).sum(1)[:, None]
-        # cos^2 with the sign of d . w; clamping it bounds tan^2 and sends "behind" to the bound
-        out = np.abs(a)
-        out *= a
-        out /= s
-        np.maximum(out, 1.0 / (_MAX_TAN2 + 1.0), out=out)
-        np.reciprocal(out, out=out)
-        out -= 1.0
-        return out
+        return tan2_from_local(PT, Psq, f, directions)
 
     def add_lines(self, origins_mm, directions, coefficients, chunk: int = 64) -> None:
         """``values += sum_l coefficients[l] * tan2_l`` for lines (L, 3) origins and (L, 3) unit

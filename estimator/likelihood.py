@@ -57,26 +57,42 @@ def cramer_rao_bound(origins_mm, point_mm, sigma_deg: float) -> np.ndarray:
     return np.linalg.inv(F)
 
 
+MAX_TAN2 = 1e6
+"""Bound on tan^2 of the angle between a view line and the ray to a point (about 89.94 degrees):
+a point behind a line's origin, or nearly perpendicular to it, counts as this far off; never inf or
+NaN. The one bound for the residuals, the grids and the log-likelihood."""
+
+_BEHIND_RESIDUAL = math.sqrt(MAX_TAN2)   # |r| = tan(angle) for a point behind a line's origin
+
+
 def angular_residuals(point_mm, lines: ViewLines) -> np.ndarray:
     """Gnomonic residuals (N, 2), radians for small angles, of each line at ``point_mm`` (3,).
 
     Lines for which the point lies behind the origin (or within 0.06 deg of perpendicular to it)
-    get a residual of norm 1e3, far outside any sensible noise level; never NaN.
+    get a residual of norm ``sqrt(MAX_TAN2)`` (1e3), far outside any sensible noise level; never NaN.
     """
     b1, b2 = tangent_basis(lines.directions)
-    return _residuals(check_vector(point_mm, "point_mm"), lines.origins_mm, lines.directions, b1, b2)[0]
+    return gnomonic_residuals(check_vector(point_mm, "point_mm"), lines.origins_mm, lines.directions, b1, b2)[0]
 
 
-_BEHIND_RESIDUAL = 1e3   # |r| = tan(angle) for a point behind a line's origin (the grid's bound too)
+def gnomonic_residuals(point_mm, origins_mm, directions, b1, b2) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (N, 2) of lines at one point and each line's ``d . u`` (N,), for the ML fit.
 
+    Args:
+        point_mm: (3,) the point, world, mm.
+        origins_mm, directions: (N, 3) lines, world frame, mm and unit vectors.
+        b1, b2: (N, 3) each, the tangent basis of ``directions`` (``frames.tangent_basis``).
 
-def _residuals(X, e, d, b1, b2):
-    """Residuals (N, 2) and ``d . u`` (N,), floored; behind an origin the residual is the
-    constant ``_BEHIND_RESIDUAL`` (its Jacobian rows are zeroed by the caller via ``a``)."""
-    w = X - e
-    a = np.einsum("ij,ij->i", w, d)
+    Returns:
+        ``r`` (N, 2): ``(b1 . u, b2 . u) / (d . u)`` with ``u = point - origin``, so
+        ``|r|^2`` is tan^2 of the angle; a point behind an origin (``d . u <= |u| / sqrt(MAX_TAN2)``)
+        gets the constant norm ``sqrt(MAX_TAN2)``. ``a`` (N,): ``d . u``, ``inf`` behind the origin
+        (so the Jacobian rows ``(b_k - r_k d) / a`` of those lines are zero).
+    """
+    w = point_mm - origins_mm
+    a = np.einsum("ij,ij->i", w, directions)
     norm = np.linalg.norm(w, axis=1)
-    floor = 1e-3 * np.maximum(norm, 1e-9)
+    floor = (1.0 / _BEHIND_RESIDUAL) * np.maximum(norm, 1e-9)   # 1e-3 |u|
     behind = a <= floor
     a_safe = np.where(behind, np.inf, a)
     t = np.column_stack([np.einsum("ij,ij->i", w, b1), np.einsum("ij,ij->i", w, b2)])
@@ -86,6 +102,82 @@ def _residuals(X, e, d, b1, b2):
         unit = np.where(tn > 0, t[behind] / np.maximum(tn, 1e-300), [[1.0, 0.0]])
         r[behind] = _BEHIND_RESIDUAL * unit
     return r, a_safe
+
+
+def tan2_from_local(points_local_T, points_sq, origins_local, directions) -> np.ndarray:
+    """tan^2 of the angle (L, M) between each of L lines and the ray from its origin to each of M
+    points, all given relative to one reference point ``c`` (any point near the points: it keeps
+    the arithmetic exact). At most ``MAX_TAN2``, which is also the value behind an origin.
+
+    Args:
+        points_local_T: (3, M) the points minus ``c``, transposed (the long axis innermost: numpy is
+            fast only then), mm.
+        points_sq: (M,) their squared norms, mm^2.
+        origins_local: (L, 3) line origins minus ``c``, mm.
+        directions: (L, 3) unit line directions (same axes as the points).
+
+    With ``w = x - e = P - f`` (``P`` a local point, ``f`` a local origin): ``d . w = P . d - f . d``
+    and ``|w|^2 = |P|^2 - 2 P . f + |f|^2``, so one matrix product serves a whole batch of lines
+    (and a caller may keep ``points_local_T``, ``points_sq`` across batches, as the grids do).
+    """
+    d = np.atleast_2d(np.asarray(directions, float))
+    f = np.atleast_2d(np.asarray(origins_local, float))
+    m = np.concatenate([d, f]) @ points_local_T               # (2L, M)
+    L = len(d)
+    a = m[:L]
+    a -= (f * d).sum(1)[:, None]
+    s = m[L:]
+    s *= -2.0
+    s += points_sq
+    s += (f * f).sum(1)[:, None]
+    # cos^2 with the sign of d . w; clamping it bounds tan^2 and sends "behind" to the bound
+    out = np.abs(a)
+    out *= a
+    out /= s
+    np.maximum(out, 1.0 / (MAX_TAN2 + 1.0), out=out)
+    np.reciprocal(out, out=out)
+    out -= 1.0
+    return out
+
+
+def angular_tan2(points_mm, origins_mm, directions) -> np.ndarray:
+    """tan^2 of the angle (L, M) between each of L view lines (origins (L, 3) mm, unit directions
+    (L, 3)) and the ray from its origin to each of M points (M, 3), all in one frame (world, mm);
+    at most ``MAX_TAN2`` (also the value behind an origin). See ``tan2_from_local``."""
+    P = np.atleast_2d(np.asarray(points_mm, float))
+    c = P.mean(axis=0)
+    local = P - c
+    return tan2_from_local(np.ascontiguousarray(local.T), np.einsum("ij,ij->i", local, local),
+                           np.atleast_2d(np.asarray(origins_mm, float)) - c, directions)
+
+
+_POINT_CHUNK, _LINE_CHUNK = 4096, 256
+
+
+def angular_log_likelihood(points_mm, origins_mm, directions, sigma_rad: float, weights=None) -> np.ndarray:
+    """Log-likelihood (M,) of M candidate gazed points (M, 3) under the angular noise model:
+    ``-sum_l w_l tan^2(angle_l) / (2 sigma^2)`` (the gnomonic residual's squared norm is tan^2),
+    up to a constant; each term bounded by ``MAX_TAN2`` (points behind an eye).
+
+    Args:
+        points_mm: (M, 3) points, world, mm.
+        origins_mm, directions: (L, 3) lines, world frame, mm and unit vectors.
+        sigma_rad: angular noise standard deviation per tangent axis, radians.
+        weights: optional (L,) line weights (reliability); 1 each by default.
+    """
+    pts = check_points(points_mm, "points_mm")
+    o = check_points(origins_mm, "origins_mm")
+    d = check_points(directions, "directions")
+    if len(o) != len(d):
+        raise ValueError(f"origins_mm and directions must have as many rows, got {len(o)} and {len(d)}")
+    w = np.ones(len(o)) if weights is None else np.asarray(weights, float).reshape(len(o))
+    out = np.zeros(len(pts))
+    for start in range(0, len(pts), _POINT_CHUNK):        # bounded memory: (256 lines, 4096 points)
+        p = pts[start:start + _POINT_CHUNK]
+        for ls in range(0, len(o), _LINE_CHUNK):
+            out[start:start + _POINT_CHUNK] += w[ls:ls + _LINE_CHUNK] @ angular_tan2(p, o[ls:ls + _LINE_CHUNK],
+                                                                                     d[ls:ls + _LINE_CHUNK])
+    return (-0.5 / sigma_rad**2) * out
 
 
 def reliability_weights(chi2_values, dof, sigma_rad: float, outlier_prob: float) -> np.ndarray:
@@ -192,7 +284,7 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
     line_w = np.ones(n)
 
     def cost_and_weights(X, update_weights):
-        r, _ = _residuals(X, e, d, b1, b2)
+        r, _ = gnomonic_residuals(X, e, d, b1, b2)
         r2 = np.einsum("ij,ij->i", r, r) / sigma**2
         if update_weights and config.loss != "gaussian":
             chi2_s = np.bincount(inverse, weights=r2, minlength=ns)
@@ -202,7 +294,7 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
     def normal_equations(X):
         """Residuals (N, 2), Gauss-Newton matrix J^T W J and gradient J^T W r at X, with
         d r_k / d X = (b_k - r_k d) / (d . u)."""
-        r, a = _residuals(X, e, d, b1, b2)
+        r, a = gnomonic_residuals(X, e, d, b1, b2)
         J1 = (b1 - r[:, [0]] * d) / a[:, None]
         J2 = (b2 - r[:, [1]] * d) / a[:, None]
         H = (np.einsum("n,ni,nj->ij", line_w, J1, J1) + np.einsum("n,ni,nj->ij", line_w, J2, J2)) / sigma**2

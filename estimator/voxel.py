@@ -27,8 +27,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .grid import _MAX_TAN2, DensityGrid, _quadratic_fit_local
-from .likelihood import MLConfig, fisher_information, ml_point, reliability_weight, reliability_weights
+from .grid import DensityGrid, _quadratic_fit_local
+from .likelihood import (
+    MAX_TAN2,
+    MLConfig,
+    angular_log_likelihood,
+    angular_tan2,
+    fisher_information,
+    ml_point,
+    reliability_weight,
+    reliability_weights,
+)
 from .lines import BinocularSample, BinocularSamples, ViewLines
 from .paper_voxel import PaperVoxelConfig, PaperVoxelEstimator
 from .result import GazeEstimate, Status, failed
@@ -80,9 +89,8 @@ def reliability_weights_at(center_mm, cov_mm2, origins_mm, directions, sample_in
     d = np.asarray(directions, float).reshape(-1, 3)
     si = np.asarray(sample_index, int)
     v = center - o
-    s2 = np.einsum("ij,ij->i", v, v)
-    a = np.maximum(np.einsum("ij,ij->i", v, d), 1e-6 * np.sqrt(s2))
-    tan2 = np.minimum(s2 / (a * a) - 1.0, _MAX_TAN2)
+    a = np.maximum(np.einsum("ij,ij->i", v, d), 1e-6 * np.sqrt(np.einsum("ij,ij->i", v, v)))
+    tan2 = angular_tan2(center, o, d)[:, 0]
     lateral = 0.5 * (np.trace(cov) - np.einsum("ij,jk,ik->i", d, cov, d))
     chi2_line = tan2 / (sigma_rad**2 + np.maximum(lateral, 0) / (a * a))
     chi2_s = np.bincount(si, weights=chi2_line, minlength=n_samples)
@@ -111,7 +119,7 @@ def reliability_weight_at(center_mm, cov_mm2, origins_mm, directions, valid, sig
         vx, vy, vz = cx - ox, cy - oy, cz - oz
         s2 = vx * vx + vy * vy + vz * vz
         a = max(vx * dx + vy * dy + vz * dz, 1e-6 * math.sqrt(s2))
-        tan2 = min(s2 / (a * a) - 1.0, _MAX_TAN2)
+        tan2 = min(s2 / (a * a) - 1.0, MAX_TAN2)   # angular_tan2, in scalars
         dCd = (dx * (C[0][0] * dx + C[0][1] * dy + C[0][2] * dz) + dy * (C[1][0] * dx + C[1][1] * dy + C[1][2] * dz)
                + dz * (C[2][0] * dx + C[2][1] * dy + C[2][2] * dz))
         lateral = max(0.5 * (tr - dCd), 0.0)
@@ -244,18 +252,8 @@ class VoxelEstimator:
 
     def log_density_at(self, pts_mm) -> np.ndarray:
         """The weighted log-likelihood (M,) at world points (M, 3), evaluated from the kept lines."""
-        pts = np.atleast_2d(np.asarray(pts_mm, float))
         o, d, si = self._buf.lines()
-        w = self._buf.weight[si]
-        out = np.zeros(len(pts))
-        for start in range(0, len(pts), 4096):
-            p = pts[start:start + 4096]
-            v = p[:, None, :] - o[None]
-            a = np.einsum("mlk,lk->ml", v, d)
-            s = np.einsum("mlk,mlk->ml", v, v)
-            tan2 = np.where(a > 0, s / np.maximum(a * a, 1e-300) - 1.0, _MAX_TAN2)
-            out[start:start + 4096] = -0.5 * (np.minimum(tan2, _MAX_TAN2) @ w) / self._sigma**2
-        return out
+        return angular_log_likelihood(pts_mm, o, d, self._sigma, weights=self._buf.weight[si])
 
     # --- internals ----------------------------------------------------------------------------
 

@@ -4,7 +4,13 @@ from scipy.stats import chi2
 
 from estimator import MLConfig, Status, cramer_rao_bound, ml_point, perturb_directions
 from estimator.frames import tangent_basis
-from estimator.likelihood import angular_residuals, reliability_weights
+from estimator.likelihood import (
+    MAX_TAN2,
+    angular_log_likelihood,
+    angular_residuals,
+    angular_tan2,
+    reliability_weights,
+)
 from estimator.lines import ViewLines
 from tests.helpers import lines_toward, walkabout_samples
 from wearable_gaze.sim.protocol import simulate_lines
@@ -52,6 +58,42 @@ def test_ml_residuals_are_gnomonic(rng):
     assert np.isclose(np.hypot(*r[0]), np.tan(0.01))
     behind = angular_residuals([0, 0, -1000.0], lines)
     assert np.all(np.isfinite(behind)) and np.hypot(*behind[0]) >= 1e3
+
+
+def test_angular_log_likelihood_is_the_residuals_norm_with_weights_and_the_behind_bound(rng):
+    """The log-likelihood at many points equals -sum w |r|^2 / (2 sigma^2) from the ML fit's gnomonic
+    residuals (a separate formula), in all directions around a target and over many lines; a point
+    behind an eye costs exactly MAX_TAN2 for that line."""
+    X = np.array([150.0, -80.0, 2500.0])
+    o = rng.normal(size=(300, 3)) * [200.0, 60.0, 100.0]
+    d = perturb_directions(X - o, np.deg2rad(2.0), rng)
+    lines = ViewLines(o, d)
+    pts = X + rng.normal(size=(50, 3)) * [300.0, 300.0, 900.0]
+    w = rng.uniform(0.1, 1.0, size=len(o))
+    sigma = np.deg2rad(0.7)
+    want = np.array([-0.5 * np.sum(w * np.sum(angular_residuals(p, lines) ** 2, axis=1)) / sigma**2 for p in pts])
+    got = angular_log_likelihood(pts, o, d, sigma, weights=w)
+    assert got.shape == (50,)
+    assert np.allclose(got, want, rtol=1e-9, atol=0)
+    assert np.allclose(angular_log_likelihood(pts, o, d, sigma), angular_log_likelihood(pts, o, d, sigma, np.ones(300)))
+    # behind the only eye: the bound, and never inf or NaN
+    behind = angular_tan2([[0, 0, -1000.0], [0, 0, 1000.0]], [[0, 0, 0.0]], [[0, 0, 1.0]])
+    assert behind.shape == (1, 2) and np.isclose(behind[0, 0], MAX_TAN2, rtol=1e-12) and behind[0, 1] == 0.0
+    ll = angular_log_likelihood([[0, 0, -1000.0]], [[0, 0, 0.0]], [[0, 0, 1.0]], 1.0)
+    assert np.isclose(ll[0], -0.5 * MAX_TAN2, rtol=1e-12)
+    with pytest.raises(ValueError, match="as many rows"):
+        angular_log_likelihood(pts, o, d[:-1], sigma)
+
+
+def test_angular_log_likelihood_is_exact_far_from_the_origin():
+    """Points and eyes metres from the world origin: the expansion stays exact (reference point
+    at the points), tan^2 of 1 degree at 4 m to 1e-9."""
+    off = np.array([3.0e6 + 0.3141, -2.0e6 - 0.2718, 1.0e6 + 0.1414])
+    o = off + np.array([[0.0, 0.0, 0.0]])
+    ang = np.deg2rad([1.0, 2.0])
+    X = off + np.column_stack([np.tan(ang) * 4000.0, [0.0, 0.0], [4000.0, 4000.0]])
+    t = angular_tan2(X, o, [[0.0, 0.0, 1.0]])
+    assert np.allclose(t[0], np.tan(ang) ** 2, rtol=1e-9, atol=0)
 
 
 def test_ml_degenerate_lines_are_reported():
