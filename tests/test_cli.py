@@ -270,7 +270,7 @@ def test_plainly_wrong_camera_calibration_is_marked_untrusted():
 @pytest.mark.parametrize("errno_, fix", [(13, "not writable"), (28, "disk is full"), (21, "is a folder"),
                                           (20, "not a folder"), (17, "exists already"), (30, "read-only")])
 def test_os_errors_on_output_are_one_line(monkeypatch, capsys, tmp_path, errno_, fix):
-    import wearable_gaze.cli as cli
+    import wearable_gaze.cli.track as cli
 
     def boom(args):
         raise OSError(errno_, os.strerror(errno_), str(tmp_path / "out.csv"))
@@ -282,7 +282,7 @@ def test_os_errors_on_output_are_one_line(monkeypatch, capsys, tmp_path, errno_,
 
 
 def test_an_unexpected_exception_is_a_bug_not_a_bad_input(monkeypatch, capsys, tmp_path):
-    import wearable_gaze.cli as cli
+    import wearable_gaze.cli.track as cli
 
     def bug(args):
         raise ZeroDivisionError("division by zero")

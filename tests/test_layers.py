@@ -14,7 +14,7 @@ ORDER = ["estimator", "calibration", "tracking", "wearable_gaze"]
 # Inside wearable_gaze: a module may import modules of a lower rank, and its own subpackage.
 # Rank 0 holds the few modules everything may use (errors, progress bars, the version).
 APP_RANK = {"__init__": 0, "errors": 0, "progress": 0, "formats": 1, "sim": 2, "pipeline": 3,
-            "live": 4, "paper": 4, "cli": 5, "__main__": 5}
+            "live": 4, "paper": 4, "cli": 5, "__main__": 6}
 
 
 def _imports(path: Path):

@@ -1,0 +1,94 @@
+"""Argument types shared by the commands: each refuses a bad value with one line naming the fix."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def one_line(text: str) -> str:
+    """``text`` as one printable line: whitespace runs become one space, control characters
+    (a terminal escape in a file name or a header) are shown escaped."""
+    text = " ".join(text.split())
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line naming the fix, exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: {one_line(message)} (see `{self.prog} --help`)\n")
+
+
+def finite_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a number") from None
+    if not math.isfinite(v) or abs(v) > 1e9:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a finite number of a sensible size")
+    return v
+
+
+def positive_float(text):
+    v = finite_float(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {ascii(text)}")
+    return v
+
+
+def non_negative_float(text):
+    v = finite_float(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 (off) or positive, got {ascii(text)}")
+    return v
+
+
+def positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a whole number") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {ascii(text)}")
+    if v > 10**9:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is too large")
+    return v
+
+
+def seed(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a whole number") from None
+    if not 0 <= v < 2**63:
+        raise argparse.ArgumentTypeError(f"a seed is a whole number from 0 to 2^63-1, got {ascii(text)}")
+    return v
+
+
+def publish_url(text):
+    """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` with a port 0-65535."""
+    scheme, sep, rest = text.partition("://")
+    host, colon, port = rest.rpartition(":")
+    if not sep or scheme not in ("udp", "tcp") or not colon or not host or not port.isdigit() \
+            or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not udp://HOST:PORT or tcp://HOST:PORT with a port "
+                                         "0-65535, e.g. udp://127.0.0.1:5555")
+    return text
+
+
+def resolution(text):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT, e.g. 1280x720") from None
+    if not (64 <= w <= 8192 and 64 <= h <= 8192):
+        raise argparse.ArgumentTypeError(f"{text!r}: width and height must be 64-8192 pixels")
+    return w, h
+
+
+def host_port(text):
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not HOST:PORT, e.g. 127.0.0.1:5555 (port 0: any free one)")
+    return host, int(port)

@@ -1,0 +1,45 @@
+"""``wearable-gaze live``: the live session."""
+
+from __future__ import annotations
+
+import sys
+
+from ..errors import UserError
+from . import args as A
+
+
+def cmd_live(args) -> int:
+    from ..live.app import run_live  # noqa: PLC0415
+
+    status = None if args.quiet else sys.stderr
+    try:
+        st = run_live(args.serial, args.camera, args.camera_calib, args.eyes, args.markers, args.record, args.publish,
+                      args.baud, args.duration, status_stream=status)
+    except UserError:
+        if status is not None:
+            print(file=sys.stderr)            # past the status line
+        raise
+    print(f"\nlive: ended: {st.end_reason}; {st.samples} eye samples, {st.published} messages, "
+          f"{st.distinct_targets} distinct targets ({st.targets} target messages), latency median "
+          f"{st.latency_all.percentile(50):.1f} ms, p95 {st.latency_all.percentile(95):.1f} ms; {st.counters()}"
+          + (f"; recorded {args.record}" if args.record else ""), file=sys.stderr)
+    return 0
+
+
+def add_live(sub) -> None:
+    """Declare the command and its arguments."""
+    lv = sub.add_parser("live", help="live session: serial eye data + scene camera -> 3D targets, published and "
+                                     "recorded")
+    lv.add_argument("--serial", required=True, metavar="PORT",
+                    help="serial port or pyserial URL (socket://, rfc2217://, loop://)")
+    lv.add_argument("--baud", type=A.positive_int, default=115200, metavar="N", help="baud rate (default 115200)")
+    lv.add_argument("--camera", required=True, metavar="SOURCE", help="camera index, device path, URL or video file")
+    lv.add_argument("--camera-calib", required=True, metavar="camera.json", help="scene-camera calibration")
+    lv.add_argument("--eyes", required=True, metavar="eyes.json", help="eye calibration")
+    lv.add_argument("--markers", required=True, metavar="map.json", help="marker map")
+    lv.add_argument("--record", metavar="DIR", help="record everything as a session folder")
+    lv.add_argument("--publish", type=A.publish_url, metavar="udp://HOST:PORT",
+                    help="also send the JSON lines to udp:// or tcp://")
+    lv.add_argument("--duration", type=A.positive_float, default=None, metavar="S", help="stop after S seconds")
+    lv.add_argument("--quiet", action="store_true", help="no status line")
+    lv.set_defaults(func=cmd_live)

@@ -1,0 +1,53 @@
+"""``wearable-gaze process`` and ``demo``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from estimator import METHODS
+
+from . import args as A
+
+
+def cmd_process(args) -> int:
+    from ..pipeline.process import format_result, process_session  # noqa: PLC0415
+    from ..progress import progress_bar  # noqa: PLC0415
+
+    res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
+                          overlay=not args.no_overlay, track_every=args.track_every,
+                          progress_factory=lambda name: progress_bar(name, 1))
+    print(format_result(res))
+    for p in res.problems:
+        print(f"wearable-gaze process: {p}", file=sys.stderr)
+    return res.exit_status                  # 2 when no target could be estimated
+
+
+def cmd_demo(args) -> int:
+    from ..pipeline.demo import run_demo  # noqa: PLC0415
+
+    return run_demo(Path(args.out), args.seed, args.duration)
+
+
+def add_process(sub) -> None:
+    """Declare the command and its arguments."""
+    pr = sub.add_parser("process", help="a recorded session -> fixated 3D targets, plots and a report")
+    pr.add_argument("session", metavar="SESSION", help="session folder (docs/session.md)")
+    pr.add_argument("-o", "--out", default=None, metavar="OUT", help="output folder (default SESSION/processed)")
+    pr.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")
+    pr.add_argument("--camera", metavar="camera.json", help="use this camera calibration instead of the session's")
+    pr.add_argument("--eyes", metavar="eyes.json", help="use this eye calibration instead of the session's")
+    pr.add_argument("--force", action="store_true", help="redo every step")
+    pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
+    pr.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",
+                    help="track one scene frame in N and interpolate the rest (default 2)")
+    pr.set_defaults(func=cmd_process)
+
+
+def add_demo(sub) -> None:
+    """Declare the command and its arguments."""
+    d = sub.add_parser("demo", help="simulate the default session (lab-walkabout), process it, compare with the truth")
+    d.add_argument("--seed", type=A.seed, default=0, metavar="S", help="random seed (default: 0)")
+    d.add_argument("--duration", type=A.positive_float, default=20.0, metavar="S", help="session length (default: 20)")
+    d.add_argument("--out", default="wearable-gaze-demo", metavar="DIR", help="output folder")
+    d.set_defaults(func=cmd_demo)

@@ -1,0 +1,75 @@
+"""``wearable-gaze simulate`` and ``emulate``."""
+
+from __future__ import annotations
+
+import sys
+
+from ..errors import UserError
+from . import args as A
+
+
+def cmd_simulate(args) -> int:
+    from ..progress import progress_bar  # noqa: PLC0415
+    from ..sim.simulate import simulate_scenario  # noqa: PLC0415
+
+    with progress_bar("rendering", 1) as cb:
+        manifest = simulate_scenario(args.scenario, args.out, args.seed, args.duration, args.resolution, cb)
+    files = manifest["files"]
+    print(f"wrote session {args.out} (scenario {manifest['scenario']['name']}, seed {args.seed}): "
+          f"{manifest.get('n_frames', 0)} frames, {manifest.get('n_eye_samples', 0)} eye samples, "
+          f"{len(files)} files")
+    return 0
+
+
+def cmd_emulate(args) -> int:
+    from ..formats.session import load_session  # noqa: PLC0415
+    from ..sim.emulate import RecorderEmulator  # noqa: PLC0415
+
+    sess = load_session(args.session)
+    path = sess.path("eye_serial")
+    if path is None or not path.is_file():
+        raise UserError(f"{args.session}: no recorder byte stream (eye_serial.bin); simulated sessions and "
+                        f"'live --record' recordings have one")
+    emu = RecorderEmulator(path.read_bytes(), loop=args.loop, duration_s=args.duration)
+    where = emu.open_pty() if args.pty else emu.listen_tcp(*args.listen)
+    video = sess.path("scene_video")
+    print(f"emulating the eye recorder of {args.session} on {where} ({len(emu.records)} records, "
+          f"{emu.period_s:.1f} s{', looped' if args.loop else ''}); Ctrl-C stops. Try (docs/live.md):\n"
+          f"  wearable-gaze live --serial {where} --camera {video} --markers {sess.path('marker_map') or 'map.json'} "
+          f"--camera-calib CAL/camera.json --eyes CAL/eyes.json", file=sys.stderr, flush=True)
+    try:
+        while not emu.finished.wait(0.2):
+            pass
+    finally:
+        emu.stop()
+    print(f"emulate: {emu.sent} records sent", file=sys.stderr)
+    return 0
+
+
+def add_simulate(sub) -> None:
+    """Declare the command and its arguments."""
+    sm = sub.add_parser("simulate", help="write a synthetic session (video, eye data, calibration, truth)")
+    sm.add_argument("--scenario", default="lab-walkabout", metavar="NAME|FILE.json",
+                    help="paper-table1, lab-walkabout, moving-target, calibration-only, or a scenario "
+                         "JSON file (docs/scenarios.md); default lab-walkabout")
+    sm.add_argument("-o", "--out", required=True, metavar="SESSION_DIR", help="new session folder")
+    sm.add_argument("--seed", type=A.seed, default=0, metavar="S", help="random seed (default: 0)")
+    sm.add_argument("--duration", type=A.positive_float, default=None, metavar="S",
+                    help="session length in seconds (default: the scenario's)")
+    sm.add_argument("--resolution", type=A.resolution, default=None, metavar="WxH",
+                    help="scene-camera resolution (default: the scenario's, 1280x720)")
+    sm.set_defaults(func=cmd_simulate)
+
+
+def add_emulate(sub) -> None:
+    """Declare the command and its arguments."""
+    em = sub.add_parser("emulate", help="play a session's eye-recorder stream at its own pace, for 'live' "
+                                        "without the hardware")
+    em.add_argument("session", metavar="SESSION", help="session folder with eye_serial.bin (simulated or recorded)")
+    where = em.add_mutually_exclusive_group()
+    where.add_argument("--listen", type=A.host_port, default=("127.0.0.1", 5555), metavar="HOST:PORT",
+                       help="serve one reader over TCP (default 127.0.0.1:5555); 'live --serial socket://HOST:PORT'")
+    where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal, read as a serial port")
+    em.add_argument("--loop", action="store_true", help="start again at the end, clock and counter running on")
+    em.add_argument("--duration", type=A.positive_float, default=None, metavar="S", help="stop after S seconds")
+    em.set_defaults(func=cmd_emulate)

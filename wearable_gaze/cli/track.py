@@ -1,0 +1,57 @@
+"""``wearable-gaze track`` and ``markers``."""
+
+from __future__ import annotations
+
+from . import args as A
+
+
+def cmd_track(args) -> int:
+    from ..pipeline.track import track_video  # noqa: PLC0415
+    from ..progress import progress_bar  # noqa: PLC0415
+
+    with progress_bar("tracking", 1) as cb:
+        counts = track_video(args.video, args.camera, args.out, markers=args.markers, reference=args.reference,
+                             reference_size_mm=args.reference_size_mm, overlay=args.overlay,
+                             timestamps=args.timestamps, progress=cb, smooth_s=args.smooth)
+    print(f"wrote {args.out}: {counts['posed']} of {counts['frames']} frames with a pose"
+          + (f"; overlay {args.overlay}" if args.overlay else ""))
+    return 0
+
+
+def cmd_markers(args) -> int:
+    from ..pipeline.track import parse_ids, write_marker_sheets  # noqa: PLC0415
+
+    for p in write_marker_sheets(args.dict, parse_ids(args.ids), args.size_mm, args.out, args.page, args.dpi):
+        print(f"wrote {p}")
+    return 0
+
+
+def add_track(sub) -> None:
+    """Declare the command and its arguments."""
+    tk = sub.add_parser("track", help="head pose for every frame of a scene video (markers or a flat reference)")
+    tk.add_argument("video", metavar="VIDEO", help="scene-camera video")
+    tk.add_argument("--camera", required=True, metavar="camera.json", help="scene-camera calibration")
+    src = tk.add_mutually_exclusive_group(required=True)
+    src.add_argument("--markers", metavar="map.json", help="marker map (docs/formats.md)")
+    src.add_argument("--reference", metavar="IMAGE", help="image of a flat textured surface in the room")
+    tk.add_argument("--reference-size-mm", type=A.positive_float, nargs=2, metavar=("W", "H"),
+                    help="the reference surface's width and height in mm")
+    tk.add_argument("-o", "--out", required=True, metavar="poses.csv", help="pose CSV to write")
+    tk.add_argument("--overlay", metavar="OUT.mp4", help="also write a video with markers and world axes drawn")
+    tk.add_argument("--timestamps", metavar="CSV", help="frame times (frame,t); default the session's "
+                    "scene_timestamps.csv beside the video, else frame / fps")
+    tk.add_argument("--smooth", type=A.non_negative_float, default=0.0, metavar="S",
+                    help="average poses over a centred window of S seconds (no lag offline; default off)")
+    tk.set_defaults(func=cmd_track)
+
+
+def add_markers(sub) -> None:
+    """Declare the command and its arguments."""
+    mk = sub.add_parser("markers", help="printable marker sheets at exact scale, and a marker-map template")
+    mk.add_argument("--dict", default="DICT_4X4_50", metavar="DICT", help="cv2.aruco dictionary (default DICT_4X4_50)")
+    mk.add_argument("--ids", required=True, metavar="IDS", help="e.g. 0-11 or 3,5,7-9")
+    mk.add_argument("--size-mm", type=A.positive_float, required=True, metavar="MM", help="black square side, mm")
+    mk.add_argument("-o", "--out", required=True, metavar="sheet.pdf|sheet.png", help="PDF, or PNG at --dpi")
+    mk.add_argument("--page", choices=("a4", "letter", "a3"), default="a4", help="paper size (default a4)")
+    mk.add_argument("--dpi", type=A.positive_int, default=300, metavar="N", help="raster resolution (default 300)")
+    mk.set_defaults(func=cmd_markers)
