@@ -36,6 +36,7 @@ from ..formats.camera import calibration_dict, load_camera, write_camera
 from ..formats.eyes import eyes_dict, load_eyes, write_eyes
 from ..formats.jsonio import inside, load_json
 from ..formats.session import read_eye_csv, read_poses_csv
+from ..formats.video import as_grey
 from ..formats.viewlines import write_viewlines_csv
 
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
@@ -84,7 +85,7 @@ def _frames(files, max_video_frames: int, progress=None):
             if i % step == 0:
                 ok, frame = cap.retrieve()
                 if ok:
-                    yield f"{f.name}#{i}", cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+                    yield f"{f.name}#{i}", as_grey(frame)
             i += 1
         cap.release()
 

@@ -22,7 +22,7 @@ from ..formats.atomic import atomic_path
 from ..formats.camera import load_camera
 from ..formats.markermap import load_marker_map, marker_map_template, write_marker_map
 from ..formats.session import write_poses_csv
-from ..formats.tables import read_table
+from ..formats.video import as_grey, open_video, open_video_writer, read_frame_times
 
 log = logging.getLogger(__name__)
 
@@ -33,8 +33,8 @@ def _frame_times(video: Path, timestamps):
         timestamps = cand if cand.is_file() else None
     if timestamps is None:
         return None
-    tab = read_table(timestamps, ["frame", "t"], what="frame-timestamp CSV")
-    return dict(zip(tab["frame"].astype(int), tab["t"], strict=True))
+    frames, t = read_frame_times(timestamps)
+    return dict(zip(frames, t, strict=True))
 
 
 def track_video(video, camera_path, out, markers=None, reference=None, reference_size_mm=None, overlay=None,
@@ -58,14 +58,16 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
         raise UserError("give either --markers MAP.json or --reference IMAGE --reference-size-mm W H")
     camera = load_camera(camera_path)
     with contextlib.ExitStack() as stack:
-        cap, fps, n_total = _open_video(video, camera)
+        cap, fps, n_total = open_video(video, camera.image_size)
         stack.callback(cap.release)
         times = _frame_times(video, timestamps)
         step = _pose_step(camera, markers, reference, reference_size_mm)
         draw = None
         if overlay is not None:
             tmp = stack.enter_context(atomic_path(overlay))         # left last: renamed after the poses
-            writer = stack.enter_context(_overlay_writer(tmp, fps, camera.image_size))
+            writer = open_video_writer(tmp, "mp4v", fps, camera.image_size, refused=(
+                f"--overlay: OpenCV cannot write an MPEG-4 video named {tmp.suffix!r}; use .mp4 or .avi"))
+            stack.callback(writer.release)
             draw = functools.partial(_write_overlay_frame, writer, camera)
         rows, untimed = _track_frames(cap, step, times, fps, n_total, every, progress, draw)
         if untimed and not rows["frame"]:
@@ -80,22 +82,6 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
                          "reproj_rms_px": np.array(rows["reproj_rms_px"]), "status": status})
     n_ok = sum(st in ("ok", "interpolated") for st in status)
     return {"frames": len(rows["frame"]), "posed": n_ok}
-
-
-def _open_video(video: Path, camera):
-    """(capture, fps, frame count or 0) of a video made by ``camera``'s calibration size."""
-    if not video.is_file():
-        raise UserError(f"{video}: no such video; check the path")
-    cap = cv2.VideoCapture(str(video))
-    if not cap.isOpened():
-        raise UserError(f"{video}: OpenCV cannot open this video (corrupt, or a codec FFMPEG lacks); re-encode it, "
-                        "e.g. ffmpeg -i IN -c:v mpeg4 OUT.mp4")
-    w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
-    if (w, h) != tuple(camera.image_size):
-        cap.release()
-        raise UserError(f"{video} is {w}x{h} but the camera calibration is for {camera.image_size[0]}x"
-                        f"{camera.image_size[1]}; calibrate this camera at this resolution (calibrate-camera)")
-    return cap, cap.get(cv2.CAP_PROP_FPS) or 30.0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 0
 
 
 def _pose_step(camera, markers, reference, reference_size_mm):
@@ -125,18 +111,6 @@ def _pose_step(camera, markers, reference, reference_size_mm):
     return step
 
 
-@contextlib.contextmanager
-def _overlay_writer(path: Path, fps: float, size):
-    """An MPEG-4 video writer on ``path``, released on leaving (also on error)."""
-    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"mp4v"), fps, tuple(size))
-    try:
-        if not writer.isOpened():
-            raise UserError(f"--overlay: OpenCV cannot write an MPEG-4 video named {path.suffix!r}; use .mp4 or .avi")
-        yield writer
-    finally:
-        writer.release()
-
-
 POSE_ROW = ("t", "frame", "T", "n_markers", "n_points", "reproj_rms_px", "status")
 
 
@@ -164,8 +138,7 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
             ok, frame = cap.read()
             if not ok:
                 break
-            grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
-            res, found = step(grey)
+            res, found = step(as_grey(frame))
             values = (t, i, res.T_world_from_cam if res.ok else np.full((4, 4), np.nan), len(res.markers),
                       res.n_points, res.reproj_rms_px, res.status if res.ok else f"{res.status}: {res.reason}")
             if draw is not None:

@@ -1,0 +1,105 @@
+"""Scene videos and their frame timestamps (docs/session.md, "scene video" and
+``scene_timestamps.csv``; listed in docs/formats.md).
+
+Video frames are read as grey images (``grey_frames``, ``open_video`` + ``as_grey``) and written
+through ``open_video_writer`` (OpenCV's FFMPEG backend). The frame-timestamp CSV (columns
+``frame, t``; ``t`` in s on the session clock) has one reader, ``read_frame_times``, and one
+writer, ``write_frame_times``; a recorder that streams it writes ``FRAME_TIME_HEADER`` and one
+``frame_time_line`` per frame, the same text.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from calibration.images import to_grey
+
+from ..errors import UserError
+from .tables import read_table, write_table
+
+FRAME_TIME_COLUMNS = ["frame", "t"]
+FRAME_TIME_FORMATS = {"t": ".6f"}
+FRAME_TIME_HEADER = ",".join(FRAME_TIME_COLUMNS) + "\n"
+
+log = logging.getLogger(__name__)
+
+
+def as_grey(frame) -> np.ndarray:
+    """A decoded frame (H, W, 3) BGR or (H, W) grey as (H, W) grey, uint8."""
+    return to_grey(frame)
+
+
+def grey_frames(path):
+    """Yield every frame of a video as a (H, W) uint8 grey image."""
+    import cv2  # noqa: PLC0415
+
+    cap = cv2.VideoCapture(str(path))
+    try:
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                return
+            yield as_grey(frame)
+    finally:
+        cap.release()
+
+
+def open_video(video: Path, image_size):
+    """(capture, fps, frame count or 0) of a video whose frames are ``image_size`` (width, height),
+    the size of the camera calibration that will measure them.
+
+    Raises:
+        UserError: no such file, a video OpenCV cannot open, or frames of another size.
+    """
+    import cv2  # noqa: PLC0415
+
+    if not video.is_file():
+        raise UserError(f"{video}: no such video; check the path")
+    cap = cv2.VideoCapture(str(video))
+    if not cap.isOpened():
+        raise UserError(f"{video}: OpenCV cannot open this video (corrupt, or a codec FFMPEG lacks); re-encode it, "
+                        "e.g. ffmpeg -i IN -c:v mpeg4 OUT.mp4")
+    w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    if (w, h) != tuple(image_size):
+        cap.release()
+        raise UserError(f"{video} is {w}x{h} but the camera calibration is for {image_size[0]}x"
+                        f"{image_size[1]}; calibrate this camera at this resolution (calibrate-camera)")
+    return cap, cap.get(cv2.CAP_PROP_FPS) or 30.0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 0
+
+
+def open_video_writer(path, codec: str, fps: float, size, is_color: bool = True, refused: str | None = None):
+    """A ``cv2.VideoWriter`` (FFMPEG backend) on ``path`` with the four-character ``codec``
+    ('mp4v', 'MJPG', 'FFV1'), ``fps`` frames per second and frames of ``size`` (width, height).
+    The caller releases it.
+
+    Raises:
+        UserError: OpenCV refused to open it (``refused`` is the message, naming the fix).
+    """
+    import cv2  # noqa: PLC0415
+
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*codec), float(fps),
+                             tuple(int(v) for v in size), isColor=is_color)
+    if not writer.isOpened():
+        writer.release()
+        raise UserError(refused or f"cannot write {codec} video {path}: OpenCV's FFMPEG backend refused it")
+    return writer
+
+
+def frame_time_line(frame: int, t: float) -> str:
+    """One row of the frame-timestamp CSV: frame number, time (s, 6 decimals), newline."""
+    return f"{frame},{t:.6f}\n"
+
+
+def write_frame_times(path, frames, t) -> None:
+    """Write the frame-timestamp CSV: frame numbers (N,) and times (N,), s, atomically."""
+    write_table(path, {"frame": np.asarray(frames), "t": np.asarray(t, float)}, FRAME_TIME_FORMATS)
+
+
+def read_frame_times(path) -> tuple[np.ndarray, np.ndarray]:
+    """(frame (N,) int, t (N,) s) of a frame-timestamp CSV, in file order (not checked to
+    increase: ``Session.frame_times`` does that)."""
+    tab = read_table(path, FRAME_TIME_COLUMNS, what="frame-timestamp CSV")
+    return tab["frame"].astype(int), tab["t"]
