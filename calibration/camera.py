@@ -15,6 +15,8 @@ import numpy as np
 
 from estimator._checks import check_points
 
+from .images import to_grey
+
 ARUCO_DICTS = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco) if name.startswith("DICT_")}
 
 
@@ -122,18 +124,13 @@ class BoardView:
         return not self.reason
 
 
-def _grey(image) -> np.ndarray:
-    img = np.asarray(image)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
-
-
 def detect_board(image, spec: BoardSpec, name: str = "", min_corners: int = 8) -> BoardView:
     """Find the board's corners in an image.
 
     Chessboard: ``cv2.findChessboardCorners`` then ``cv2.cornerSubPix`` (5x5 window, as OpenCV's
     own calibration test). ChArUco: ``cv2.aruco.CharucoDetector`` and ``board.matchImagePoints``.
     """
-    grey = _grey(image)
+    grey = to_grey(image)
     empty = BoardView(name, np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, int))
     if spec.type == "chessboard":
         ok, corners = cv2.findChessboardCorners(grey, (spec.cols, spec.rows))

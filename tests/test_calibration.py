@@ -333,3 +333,21 @@ def test_calibrate_camera_from_a_video_picks_views_for_coverage_and_fits_fisheye
                                      tmp_path / "fish.json", model="fisheye")
     assert fish.model == "fisheye" and len(fish.dist_coeffs) == 4 and fish.rms_px < 1.0
     assert load_camera(tmp_path / "fish.json").model == "fisheye"
+
+
+def test_to_grey_is_opencv_luma_of_bgr_and_leaves_grey_images_alone():
+    """One conversion for every image: BGR (OpenCV's channel order) to luma 0.299 R + 0.587 G +
+    0.114 B; a grey image passes through untouched (the same array)."""
+    from calibration.images import to_grey
+
+    img = np.zeros((2, 3, 3), np.uint8)
+    img[0, 0] = (255, 0, 0)            # blue
+    img[0, 1] = (0, 0, 255)            # red
+    img[0, 2] = (0, 255, 0)            # green
+    img[1] = (10, 200, 90)
+    g = to_grey(img)
+    assert g.shape == (2, 3) and g.dtype == np.uint8
+    assert g[0].tolist() == [29, 76, 150]
+    assert g[1, 0] == round(0.299 * 90 + 0.587 * 200 + 0.114 * 10)
+    grey = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    assert to_grey(grey) is grey

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration
+from calibration.images import to_grey
 from estimator._checks import check_transform, check_vector
 from estimator.frames import invert
 
@@ -37,8 +38,7 @@ class PlanarTracker:
             raise ValueError(f"size_mm must be a positive (width, height), got {size_mm.tolist()}")
         if ref.ndim not in (2, 3):
             raise ValueError(f"reference must have shape (H, W) or (H, W, 3), got {ref.shape}")
-        if ref.ndim == 3:
-            ref = cv2.cvtColor(ref, cv2.COLOR_BGR2GRAY)
+        ref = to_grey(ref)
         if features == "sift":
             self.det = cv2.SIFT_create(nfeatures=n_features)
             self.matcher = cv2.BFMatcher(cv2.NORM_L2)
@@ -63,9 +63,7 @@ class PlanarTracker:
         self.max_reproj_px = max_reproj_px
 
     def estimate(self, image) -> PoseResult:
-        img = np.asarray(image)
-        if img.ndim == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        img = to_grey(image)
         kp, des = self.det.detectAndCompute(img, None)
         if des is None or len(kp) < self.min_inliers:
             return PoseResult(None, TOO_FEW, f"{0 if des is None else len(kp)} features in the frame")

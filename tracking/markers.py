@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import aruco_dictionary as get_dictionary
+from calibration.images import to_grey
 
 from .corners import refine_markers
 
@@ -97,7 +98,7 @@ class MarkerDetector:
         img = np.asarray(image)
         if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
             raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
-        grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+        grey = to_grey(img)
         k = self.downscale or (2 if grey.shape[1] >= 1200 and self.refine != "apriltag" else 1)
         small = grey if k == 1 else cv2.resize(grey, (grey.shape[1] // k, grey.shape[0] // k),
                                                interpolation=cv2.INTER_AREA)

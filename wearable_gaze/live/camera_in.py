@@ -13,6 +13,8 @@ from pathlib import Path
 
 import cv2
 
+from calibration.images import to_grey
+
 log = logging.getLogger(__name__)
 
 @dataclass
@@ -94,7 +96,7 @@ class FrameSource(threading.Thread):
                     self.stats.missed += int(round((now - last) / period)) - 1
                 failing = False
                 last = now
-                grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+                grey = to_grey(frame)
                 if self.sink is not None:
                     self.sink(t - self.t0, i, grey)
                 item = (t, i, grey, frame)
