@@ -31,7 +31,8 @@ from pathlib import Path  # noqa: E402
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np  # noqa: E402
 
-from wearable_gaze.formats.session import load_session, read_eye_csv  # noqa: E402
+from wearable_gaze.formats.eye_samples import read_eye_csv  # noqa: E402
+from wearable_gaze.formats.session import load_session  # noqa: E402
 from wearable_gaze.live.app import LatencyHistogram, LiveSession  # noqa: E402
 from wearable_gaze.pipeline.process import process_session  # noqa: E402
 from wearable_gaze.sim.emulate import RecorderEmulator  # noqa: E402

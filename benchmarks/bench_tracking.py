@@ -25,7 +25,9 @@ from calibration.camera import CameraCalibration  # noqa: E402
 from tracking.markers import MarkerDetector, detection  # noqa: E402
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg  # noqa: E402
 from wearable_gaze.formats.markermap import load_marker_map  # noqa: E402
-from wearable_gaze.formats.session import grey_frames, load_session, read_poses_csv  # noqa: E402
+from wearable_gaze.formats.poses import read_poses_csv  # noqa: E402
+from wearable_gaze.formats.session import load_session  # noqa: E402
+from wearable_gaze.formats.video import grey_frames  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
 
 

@@ -15,7 +15,7 @@ import serial
 from tests.helpers import drain_reader, eye_record_bytes
 from wearable_gaze.cli import main
 from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL
-from wearable_gaze.formats.session import read_eye_csv
+from wearable_gaze.formats.eye_samples import read_eye_csv
 from wearable_gaze.live.app import LatencyHistogram
 from wearable_gaze.live.serial_in import EyeReader, LineSplitter
 from wearable_gaze.pipeline.demo import match_targets

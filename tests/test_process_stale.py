@@ -12,7 +12,7 @@ import pytest
 
 import wearable_gaze.pipeline.process as process_mod
 from wearable_gaze.cli import main
-from wearable_gaze.formats.session import read_poses_csv
+from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 

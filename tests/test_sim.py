@@ -13,8 +13,10 @@ from scipy.spatial.transform import Rotation
 
 from estimator.frames import tangent_basis
 from wearable_gaze.cli import main
+from wearable_gaze.formats.eye_samples import read_eye_csv
+from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
-from wearable_gaze.formats.session import load_session, read_eye_csv, read_poses_csv
+from wearable_gaze.formats.session import load_session
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.sim.eyes import EyeModel, EyeSensor, plan_gaze
 from wearable_gaze.sim.motion import make_motion

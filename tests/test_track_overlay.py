@@ -12,7 +12,7 @@ import wearable_gaze.pipeline.track as track_cmd
 from calibration.camera import CameraCalibration
 from estimator.frames import rotation_about_axis
 from wearable_gaze.cli import main
-from wearable_gaze.formats.session import read_poses_csv
+from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.pipeline.track import track_video
 from wearable_gaze.sim.simulate import simulate_scenario
 

@@ -15,7 +15,9 @@ from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg
 from wearable_gaze.cli import main
 from wearable_gaze.formats.markermap import load_marker_map, marker_map_dict, marker_map_from_dict
-from wearable_gaze.formats.session import grey_frames, load_session, read_poses_csv
+from wearable_gaze.formats.poses import read_poses_csv
+from wearable_gaze.formats.session import load_session
+from wearable_gaze.formats.video import grey_frames
 from wearable_gaze.sim.render import Camera, Plane, SensorNoise, marker_plane, poster_texture, render
 from wearable_gaze.sim.simulate import simulate_scenario
 from wearable_gaze.sim.world import look_at

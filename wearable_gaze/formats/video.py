@@ -1,7 +1,7 @@
 """Scene videos and their frame timestamps (docs/session.md, "scene video" and
 ``scene_timestamps.csv``; listed in docs/formats.md).
 
-Video frames are read as grey images (``grey_frames``, ``open_video`` + ``as_grey``) and written
+Video frames are read as grey images (``grey_frames``; ``open_video`` for a capture to step through) and written
 through ``open_video_writer`` (OpenCV's FFMPEG backend). The frame-timestamp CSV (columns
 ``frame, t``; ``t`` in s on the session clock) has one reader, ``read_frame_times``, and one
 writer, ``write_frame_times``; a recorder that streams it writes ``FRAME_TIME_HEADER`` and one
@@ -42,7 +42,7 @@ def grey_frames(path):
             ok, frame = cap.read()
             if not ok:
                 return
-            yield as_grey(frame)
+            yield to_grey(frame)
     finally:
         cap.release()
 

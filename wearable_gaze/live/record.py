@@ -9,18 +9,17 @@ reads it; ``complete`` is true in the manifest only once the session was closed 
 
 from __future__ import annotations
 
-import json
 import logging
-import os
 import queue
 import shutil
 import threading
 from pathlib import Path
 
-import cv2
-
 from ..errors import UserError
-from ..formats.session import EYE_COLUMNS, EYE_FORMATS, FORMAT, VERSION, marker_map_dict
+from ..formats.eye_samples import EYE_HEADER, eye_csv_line
+from ..formats.markermap import marker_map_dict, write_marker_map
+from ..formats.session import FORMAT, VERSION, write_manifest
+from ..formats.video import FRAME_TIME_HEADER, frame_time_line, open_video_writer
 
 log = logging.getLogger(__name__)
 
@@ -56,18 +55,19 @@ class Recorder:
         self.root.mkdir(parents=True, exist_ok=True)
         shutil.copy(camera_path, self.root / FILES["camera"])
         shutil.copy(eyes_path, self.root / FILES["eyes"])
-        (self.root / FILES["marker_map"]).write_text(json.dumps(marker_map_dict(
-            marker_map.dictionary, marker_map.marker_size_mm, marker_map.poses, marker_map.labels), indent=1))
-        self.video = cv2.VideoWriter(str(self.root / FILES["scene_video"]), cv2.CAP_FFMPEG,
-                                     cv2.VideoWriter_fourcc(*"MJPG"), fps, tuple(size), isColor=False)
+        write_marker_map(self.root / FILES["marker_map"], marker_map_dict(
+            marker_map.dictionary, marker_map.marker_size_mm, marker_map.poses, marker_map.labels))
+        self.video = open_video_writer(self.root / FILES["scene_video"], "MJPG", fps, size, is_color=False, refused=(
+            f"--record {self.root}: OpenCV cannot write an MJPG video there; check that the folder is writable and "
+            "that OpenCV has its FFMPEG backend"))
         # frames are encoded in their own thread (bounded: the live loop never waits on the disk)
         self.video_q: queue.Queue = queue.Queue(maxsize=60)
         self.video_thread = threading.Thread(target=self._video_worker, daemon=True, name="recorder-video")
         self.video_thread.start()
         self.ts = open(self.root / FILES["scene_timestamps"], "w", encoding="utf-8", buffering=_BUFFER)
-        self.ts.write("frame,t\n")
+        self.ts.write(FRAME_TIME_HEADER)
         self.eye = open(self.root / FILES["eye_samples"], "w", encoding="utf-8", buffering=_BUFFER)
-        self.eye.write(",".join(EYE_COLUMNS) + "\n")
+        self.eye.write(EYE_HEADER)
         self.raw = open(self.root / FILES["eye_serial"], "wb", buffering=_BUFFER)
         self.messages = open(self.root / FILES["live_messages"], "wb", buffering=_BUFFER)
         self.n_frames = self.n_eye = self.n_messages = 0
@@ -93,10 +93,7 @@ class Recorder:
 
     def eye_sample(self, t: float, rec) -> None:
         """One intact record at session time ``t``, s."""
-        f = EYE_FORMATS
-        line = (f"{format(t, f['t'])},{rec.counter},{format(rec.left[0], f['left_x'])},"
-                f"{format(rec.left[1], f['left_y'])},{format(rec.right[0], f['right_x'])},"
-                f"{format(rec.right[1], f['right_y'])},{int(rec.left_valid)},{int(rec.right_valid)}\n")
+        line = eye_csv_line(t, rec.counter, rec.left, rec.right, rec.left_valid, rec.right_valid)
         with self.lock:
             if not self.closed:
                 self.eye.write(line)
@@ -109,7 +106,7 @@ class Recorder:
         with self.lock:
             if self.closed:
                 return
-            self.ts.write(f"{index},{t:.6f}\n")
+            self.ts.write(frame_time_line(index, t))
             self.n_frames += 1
         self.video_q.put(grey)
 
@@ -156,10 +153,7 @@ class Recorder:
                "fps": self.fps, "has_recording": True, "complete": complete,
                "files": dict(FILES), "n_frames": self.n_frames, "n_eye_samples": self.n_eye,
                "n_messages": self.n_messages}
-        tmp = self.root / ".session.json.tmp"
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(json.dumps(man, indent=1))
-        os.replace(tmp, self.root / "session.json")
+        write_manifest(self.root, man)
 
     def close(self, complete: bool = True) -> None:
         """Finish the video and every file; the manifest says ``complete`` only when the session

@@ -25,6 +25,7 @@ from calibration.eyes import (
     target_readings,
     wall_pose,
 )
+from calibration.images import to_grey
 from estimator import BinocularSamples, view_lines_to_world
 from estimator.frames import invert
 from tracking.markers import MarkerDetector
@@ -35,8 +36,8 @@ from ..formats.atomic import atomic_path
 from ..formats.camera import calibration_dict, load_camera, write_camera
 from ..formats.eyes import eyes_dict, load_eyes, write_eyes
 from ..formats.jsonio import inside, load_json
-from ..formats.session import read_eye_csv, read_poses_csv
-from ..formats.video import as_grey
+from ..formats.eye_samples import read_eye_csv
+from ..formats.poses import read_poses_csv
 from ..formats.viewlines import write_viewlines_csv
 
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
@@ -85,7 +86,7 @@ def _frames(files, max_video_frames: int, progress=None):
             if i % step == 0:
                 ok, frame = cap.retrieve()
                 if ok:
-                    yield f"{f.name}#{i}", as_grey(frame)
+                    yield f"{f.name}#{i}", to_grey(frame)
             i += 1
         cap.release()
 

@@ -15,7 +15,8 @@ from ..formats.atomic import atomic_path, write_text
 from ..formats.camera import load_camera
 from ..formats.eyes import load_eyes
 from ..formats.markermap import marker_map_from_dict
-from ..formats.session import read_eye_csv, read_poses_csv
+from ..formats.eye_samples import read_eye_csv
+from ..formats.poses import read_poses_csv
 from ..formats.tables import read_table
 from ..formats.viewlines import read_viewlines_csv
 

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import aruco_dictionary
+from calibration.images import to_grey
 from tracking.homography import PlanarTracker
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
@@ -21,8 +22,8 @@ from ..errors import UserError, check_output
 from ..formats.atomic import atomic_path
 from ..formats.camera import load_camera
 from ..formats.markermap import load_marker_map, marker_map_template, write_marker_map
-from ..formats.session import write_poses_csv
-from ..formats.video import as_grey, open_video, open_video_writer, read_frame_times
+from ..formats.poses import write_poses_csv
+from ..formats.video import open_video, open_video_writer, read_frame_times
 
 log = logging.getLogger(__name__)
 
@@ -138,7 +139,7 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
             ok, frame = cap.read()
             if not ok:
                 break
-            res, found = step(as_grey(frame))
+            res, found = step(to_grey(frame))
             values = (t, i, res.T_world_from_cam if res.ok else np.full((4, 4), np.nan), len(res.markers),
                       res.n_points, res.reproj_rms_px, res.status if res.ok else f"{res.status}: {res.reason}")
             if draw is not None:

@@ -18,19 +18,15 @@ from estimator import BinocularSamples
 
 from .. import __version__
 from ..errors import UserError, check_output
-from ..formats.jsonio import read_json_text
+from ..formats.camera import camera_dict, write_camera
+from ..formats.eye_samples import EyeSamples, write_eye_csv
+from ..formats.jsonio import read_json_text, write_json
+from ..formats.markermap import marker_map_dict, write_marker_map
+from ..formats.poses import write_poses_csv
 from ..formats.serial_protocol import encode_stream
-from ..formats.session import (
-    FORMAT,
-    VERSION,
-    EyeSamples,
-    camera_dict,
-    marker_map_dict,
-    write_eye_csv,
-    write_json,
-    write_poses_csv,
-)
+from ..formats.session import FORMAT, VERSION, write_manifest
 from ..formats.tables import write_table
+from ..formats.video import open_video_writer, write_frame_times
 from ..formats.viewlines import write_viewlines_csv
 from .eyes import EyeModel, gaze_points, plan_gaze
 from .motion import make_motion
@@ -88,15 +84,6 @@ def build_world(scn: dict, rng: np.random.Generator, targets) -> World:  # noqa:
         world = World(dictionary=room["dictionary"], marker_size_mm=room["marker_size_mm"])
     world.targets = list(targets)
     return world
-
-
-def _open_writer(path: Path, codec: str, fps: float, size) -> cv2.VideoWriter:
-    w = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*codec), float(fps),
-                        tuple(int(v) for v in size), isColor=False)
-    if not w.isOpened():
-        raise UserError(f"cannot write {codec} video {path}: OpenCV's FFMPEG backend refused it; "
-                        "try --scenario with camera.codec MJPG")
-    return w
 
 
 def _render_frame(camera, world, T, t, noise, scn) -> np.ndarray:
@@ -211,7 +198,7 @@ def _simulate_into(scn: dict, root: Path, seed: int, progress) -> dict:
                 "files": files}
     truth = root / "truth"
     truth.mkdir()
-    write_json(truth / "camera.json", camera_dict(camera.camera_matrix, camera.dist_coeffs, camera.image_size,
+    write_camera(truth / "camera.json", camera_dict(camera.camera_matrix, camera.dist_coeffs, camera.image_size,
                                                   rms_px=0.0, source="simulation ground truth"))
     write_json(truth / "eyes.json", eye_model.to_dict())
     files["truth_camera"] = "truth/camera.json"
@@ -241,7 +228,7 @@ def _simulate_into(scn: dict, root: Path, seed: int, progress) -> dict:
     if scn["session"]:
         _session_recording(root, scn, camera, eye_model, noise, files, manifest,
                            (rng_world, rng_targets, rng_motion, rng_gaze, rng_meas), tick)
-    write_json(root / "session.json", manifest)
+    write_manifest(root, manifest)
     return manifest
 
 
@@ -343,7 +330,8 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     files["eye_samples"] = "eye.csv"
     files["eye_serial"] = "eye_serial.bin"
     labels = {}
-    write_json(root / "markers.json", marker_map_dict(world.dictionary, world.marker_size_mm, world.markers, labels))
+    write_marker_map(root / "markers.json",
+                     marker_map_dict(world.dictionary, world.marker_size_mm, world.markers, labels))
     files["marker_map"] = "markers.json"
 
     # truth: lines in the world frame
@@ -391,7 +379,9 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     T_frames = motion.poses(t_frames)
     codec = scn["camera"]["codec"]
     video = root / f"scene{VIDEO_EXT[codec]}"
-    writer = _open_writer(video, codec, fps, camera.image_size)
+    writer = open_video_writer(video, codec, fps, camera.image_size, is_color=False, refused=(
+        f"cannot write {codec} video {video}: OpenCV's FFMPEG backend refused it; try --scenario with camera.codec "
+        "MJPG"))
     visible = np.zeros(n_frames, int)
     corners = world.marker_corners()
     try:
@@ -401,7 +391,7 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
             tick()
     finally:
         writer.release()
-    write_table(root / "scene_timestamps.csv", {"frame": np.arange(n_frames), "t": t_frames}, {"t": ".6f"})
+    write_frame_times(root / "scene_timestamps.csv", np.arange(n_frames), t_frames)
     write_poses_csv(truth / "head_poses.csv", t_frames, np.arange(n_frames), T_frames,
                     {"n_markers": visible})
     files["scene_video"] = video.name

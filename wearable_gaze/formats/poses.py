@@ -1,0 +1,60 @@
+"""The pose CSV (docs/formats.md, "Pose CSV"): ``poses.csv`` of ``track`` and the simulator's
+``truth/head_poses.csv``. One row per frame: ``t`` (s), ``frame``, the quaternion ``qw, qx, qy,
+qz`` (w >= 0) and translation ``tx, ty, tz`` (mm) of ``T_world_from_cam``, empty where the
+frame has no pose, then extra columns (``n_markers``, ``n_points``, ``reproj_rms_px``,
+``status``).
+
+One reader, ``read_poses_csv``, and one writer, ``write_poses_csv``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .tables import read_table, write_table
+
+POSE_COLUMNS = ["t", "frame", "qw", "qx", "qy", "qz", "tx", "ty", "tz"]
+POSE_FORMATS = {"t": ".6f", "qw": ".12f", "qx": ".12f", "qy": ".12f", "qz": ".12f",
+                "tx": ".6f", "ty": ".6f", "tz": ".6f"}
+
+log = logging.getLogger(__name__)
+
+
+def pose_columns(t, frames, T_world_from_cam) -> dict:
+    """Columns of a pose table: quaternion (w, x, y, z) and translation (mm) of
+    ``T_world_from_cam`` (N, 4, 4) at times t (N,) and frame numbers (N,)."""
+    T = np.asarray(T_world_from_cam, float).reshape(-1, 4, 4)
+    ok = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
+    q = np.full((len(T), 4), np.nan)                           # x, y, z, w; NaN (empty) without a pose
+    if ok.any():
+        q[ok] = Rotation.from_matrix(T[ok, :3, :3]).as_quat()
+    q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)                  # w >= 0: one sign per rotation
+    return {"t": np.asarray(t, float), "frame": np.asarray(frames).astype(int),
+            "qw": q[:, 3], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2],
+            "tx": T[:, 0, 3], "ty": T[:, 1, 3], "tz": T[:, 2, 3]}
+
+
+def write_poses_csv(path, t, frames, T_world_from_cam, extra: dict | None = None) -> None:
+    """Write poses ``T_world_from_cam`` (N, 4, 4), mm, NaN where none, at times ``t`` (N,), s,
+    and ``frames`` (N,), then the ``extra`` columns, as a pose CSV, atomically."""
+    cols = pose_columns(t, frames, T_world_from_cam)
+    cols.update(extra or {})
+    write_table(path, cols, POSE_FORMATS)
+
+
+def read_poses_csv(path, text_columns=("status",)) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """(t (N,), frame (N,), T_world_from_cam (N, 4, 4) with NaN where there is no pose, extra
+    columns)."""
+    tab = read_table(path, POSE_COLUMNS, text_columns, "pose CSV",
+                     empty_ok=("qw", "qx", "qy", "qz", "tx", "ty", "tz"))
+    q = np.column_stack([tab["qx"], tab["qy"], tab["qz"], tab["qw"]])
+    T = np.full((len(q), 4, 4), np.nan)
+    ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0)
+    T[ok] = np.eye(4)
+    if ok.any():
+        T[ok, :3, :3] = Rotation.from_quat(q[ok]).as_matrix()
+        T[ok, :3, 3] = np.column_stack([tab["tx"], tab["ty"], tab["tz"]])[ok]
+    return tab["t"], tab["frame"].astype(int), T, {k: v for k, v in tab.items() if k not in POSE_COLUMNS}
