@@ -8,13 +8,14 @@ from . import args as A
 
 
 def cmd_calibrate_camera(args) -> int:
+    from ..formats.camera import calibration_dict  # noqa: PLC0415
     from ..pipeline.calibrate import calibrate_camera_files, format_camera_report  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
     with progress_bar("detecting the board", 1) as cb:
         cal, paths = calibrate_camera_files(args.inputs, args.board, args.out, args.model, args.max_views, cb)
     if args.json:
-        print(json.dumps(cal.to_dict()))
+        print(json.dumps(calibration_dict(cal)))
     else:
         print(format_camera_report(cal))
         print()
