@@ -16,7 +16,14 @@ from calibration.images import to_grey
 from estimator._checks import check_transform, check_vector
 from estimator.frames import invert
 
-from .pose import OK, REJECTED, TOO_FEW, PoseResult, _covariance, _residuals, _rt_to_T
+from .pnp import (
+    covariance_cam_from_obj,
+    covariance_world_from_cam,
+    reprojection_residuals,
+    rms_px,
+    transform_from_rvec_tvec,
+)
+from .pose import OK, REJECTED, TOO_FEW, PoseResult
 
 
 class PlanarTracker:
@@ -83,21 +90,21 @@ class PlanarTracker:
         if not ok:
             return PoseResult(None, REJECTED, "no pose from the homography's inliers")
         rvec, tvec = cv2.solvePnPRefineLM(obj_i, x_i, np.eye(3), None, rvec, tvec)
-        r = _residuals(obj_i, x_i, rvec, tvec)
+        r = reprojection_residuals(obj_i, x_i, rvec, tvec)
         # a second pass: drop matches beyond 3 sigma of the fitted pose, refine again
         e = np.linalg.norm(r, axis=1)
         keep = e < max(3 * np.sqrt(np.mean(e**2)), 0.5 / self.f)
         if keep.sum() >= self.min_inliers and not keep.all():
             obj_i, x_i = obj_i[keep], x_i[keep]
             rvec, tvec = cv2.solvePnPRefineLM(obj_i, x_i, np.eye(3), None, rvec, tvec)
-            r = _residuals(obj_i, x_i, rvec, tvec)
-        rms_px = float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) * self.f
-        T_cp = _rt_to_T(rvec, tvec)
+            r = reprojection_residuals(obj_i, x_i, rvec, tvec)
+        rms = rms_px(r, self.f)
+        T_cp = transform_from_rvec_tvec(rvec, tvec)
         if T_cp[2, 3] <= 0:
             return PoseResult(None, REJECTED, "the surface would be behind the camera")
-        if rms_px > self.max_reproj_px:
-            return PoseResult(None, REJECTED, f"reprojection RMS {rms_px:.1f} px > {self.max_reproj_px} px")
-        sigma = max(np.sqrt(np.sum(r**2) / max(2 * len(x_i) - 6, 1)), 0.05 / self.f)
-        cov = _covariance(obj_i, x_i, rvec, tvec, sigma)
+        if rms > self.max_reproj_px:
+            return PoseResult(None, REJECTED, f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px")
+        cov = covariance_world_from_cam(covariance_cam_from_obj(obj_i, rvec, tvec, r, self.f), rvec, tvec,
+                                        self.T_world_from_plane)
         T_wc = self.T_world_from_plane @ invert(T_cp)
-        return PoseResult(T_wc, OK, "", [], int(len(x_i)), rms_px, cov)
+        return PoseResult(T_wc, OK, "", [], int(len(x_i)), rms, cov)

@@ -12,6 +12,7 @@ import logging
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from enum import Enum
 
 import cv2
 import numpy as np
@@ -22,10 +23,35 @@ from estimator.frames import invert
 
 from .markermap import MarkerMap, square_corners
 from .markers import MarkerDetection, detection
+from .pnp import (
+    covariance_cam_from_obj,
+    covariance_world_from_cam,
+    reprojection_residuals,
+    rms_px,
+    transform_from_rvec_tvec,
+)
 
 log = logging.getLogger(__name__)
 
-OK, NO_MARKERS, TOO_FEW, REJECTED = "ok", "no_markers", "too_few_points", "rejected"
+
+
+class PoseStatus(str, Enum):
+    """Why a frame has (or has not) a pose. The values are the text written to pose files and
+    shown in messages (``str()`` and f-strings give the value)."""
+
+    OK = "ok"
+    NO_MARKERS = "no_markers"          # no marker of the map (or no reference feature) in view
+    TOO_FEW = "too_few_points"         # too few corners or matches to fix a pose
+    REJECTED = "rejected"              # a pose was found but failed a sanity check
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+
+OK, NO_MARKERS, TOO_FEW, REJECTED = PoseStatus.OK, PoseStatus.NO_MARKERS, PoseStatus.TOO_FEW, PoseStatus.REJECTED
 
 
 @dataclass
@@ -34,13 +60,14 @@ class PoseResult:
 
     Attributes:
         T_world_from_cam: (4, 4), or None when there is no pose.
-        status: 'ok', 'no_markers', 'too_few_points' or 'rejected'.
+        status: a ``PoseStatus`` (``ok``, ``no_markers``, ``too_few_points`` or ``rejected``).
         reason: why there is no pose ('' when ok).
         markers: ids used.
         n_points: corners used (inliers).
         reproj_rms_px: reprojection RMS of the inliers, pixels.
-        covariance: (6, 6) of (rotation vector, translation mm) of ``T_cam_from_world``, from
-            the residuals (None when not computed).
+        covariance: (6, 6) of (rotation vector rad, translation mm) of ``T_world_from_cam``, the
+            pose beside it: its translation block is the camera position's covariance in the world,
+            mm^2 (``pnp.covariance_world_from_cam``, from the residuals); None when not computed.
         ambiguous: a single-marker pose chosen between two IPPE solutions.
         repeated_ids: ids of the map detected more than once in the frame; every detection of such
             an id was left out (the map has one marker of each id, so at most one of them is it).
@@ -48,7 +75,7 @@ class PoseResult:
     """
 
     T_world_from_cam: np.ndarray | None
-    status: str
+    status: PoseStatus
     reason: str = ""
     markers: list = field(default_factory=list)
     n_points: int = 0
@@ -61,27 +88,6 @@ class PoseResult:
     @property
     def ok(self) -> bool:
         return self.status == OK
-
-
-def _rt_to_T(rvec, tvec) -> np.ndarray:
-    R, _ = cv2.Rodrigues(np.asarray(rvec, float))
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, np.asarray(tvec, float).ravel()
-    return T
-
-
-def _residuals(obj, x, rvec, tvec) -> np.ndarray:
-    proj, _ = cv2.projectPoints(obj, rvec, tvec, np.eye(3), None)
-    return proj.reshape(-1, 2) - x
-
-
-def _covariance(obj, x, rvec, tvec, sigma_norm) -> np.ndarray:
-    _, J = cv2.projectPoints(obj, rvec, tvec, np.eye(3), None)
-    J = J[:, :6]
-    try:
-        return np.linalg.inv(J.T @ J) * sigma_norm**2
-    except np.linalg.LinAlgError:
-        return np.full((6, 6), np.inf)
 
 
 def rotation_angle_deg(Ra, Rb) -> float:
@@ -175,20 +181,18 @@ class MarkerPoseEstimator:
         if refine:
             rvec, tvec = cv2.solvePnPRefineLM(obj_i, x_i, np.eye(3), None, rvec, tvec,
                                               (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-12))
-        T_cw = _rt_to_T(rvec, tvec)
-        r = _residuals(obj_i, x_i, rvec, tvec)
-        rms_px = float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) * self.f
+        T_cw = transform_from_rvec_tvec(rvec, tvec)
+        r = reprojection_residuals(obj_i, x_i, rvec, tvec)
+        rms = rms_px(r, self.f)
         depth = (obj @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
         used = sorted({ids[k // 4] for k in np.flatnonzero(inliers)})
         if np.any(depth <= 0):
-            return PoseResult(None, REJECTED, "a marker would be behind the camera", used, int(inliers.sum()), rms_px)
-        if rms_px > self.max_reproj_px:
-            return PoseResult(None, REJECTED, f"reprojection RMS {rms_px:.1f} px > {self.max_reproj_px} px", used,
-                              int(inliers.sum()), rms_px)
-        dof = max(2 * len(x_i) - 6, 1)
-        sigma = max(np.sqrt(np.sum(r**2) / dof), 0.05 / self.f)          # floor: 0.05 px
-        cov = _covariance(obj_i, x_i, rvec, tvec, sigma)
-        return PoseResult(invert(T_cw), OK, "", used, int(inliers.sum()), rms_px, cov, ambiguous)
+            return PoseResult(None, REJECTED, "a marker would be behind the camera", used, int(inliers.sum()), rms)
+        if rms > self.max_reproj_px:
+            return PoseResult(None, REJECTED, f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px", used,
+                              int(inliers.sum()), rms)
+        cov = covariance_world_from_cam(covariance_cam_from_obj(obj_i, rvec, tvec, r, self.f), rvec, tvec)
+        return PoseResult(invert(T_cw), OK, "", used, int(inliers.sum()), rms, cov, ambiguous)
 
     def _multi(self, ids, obj, x) -> PoseResult:
         ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, x, np.eye(3), None, iterationsCount=100,
@@ -213,7 +217,7 @@ class MarkerPoseEstimator:
         T_wm = self.map.poses[marker_id]
         cands = []
         for rv, tv, e in zip(rvecs, tvecs, np.ravel(errs), strict=True):
-            T_cm = _rt_to_T(rv, tv) @ flip
+            T_cm = transform_from_rvec_tvec(rv, tv) @ flip
             cands.append((float(e), T_wm @ invert(T_cm), rv, tv))
         cands.sort(key=lambda c: c[0])
         choice = cands[0]
@@ -241,14 +245,13 @@ class MarkerPoseEstimator:
         opts = pycolmap.AbsolutePoseEstimationOptions()
         opts.ransac.max_error = self.ransac_px
         opts.ransac.random_seed = 0
-        r = pycolmap.estimate_and_refine_absolute_pose(x * f, obj, cam, opts, return_covariance=True)
+        r = pycolmap.estimate_and_refine_absolute_pose(x * f, obj, cam, opts)
         if r is None:
             return PoseResult(None, REJECTED, "no consistent pose (pycolmap)", ids, 0)
         M = r["cam_from_world"].matrix()
         T_cw = np.eye(4)
         T_cw[:3] = M
         mask = np.asarray(r["inlier_mask"], bool)
-        res = self._finish(ids, obj, x, cv2.Rodrigues(T_cw[:3, :3])[0], T_cw[:3, 3].copy(), mask, refine=False)
-        if res.ok:
-            res.covariance = np.asarray(r["covariance"])     # pycolmap's own (rotation, translation)
-        return res
+        # the covariance is ours (_finish), in the same parameters as the OpenCV path's: pycolmap's
+        # own describes cam_from_world in its tangent space
+        return self._finish(ids, obj, x, cv2.Rodrigues(T_cw[:3, :3])[0], T_cw[:3, 3].copy(), mask, refine=False)
