@@ -17,7 +17,8 @@ import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV loa
 import numpy as np  # noqa: E402
 
 from wearable_gaze.sim.motion import make_motion  # noqa: E402
-from wearable_gaze.sim.render import SensorNoise, render  # noqa: E402
+from wearable_gaze.sim.noise import SensorNoise  # noqa: E402
+from wearable_gaze.sim.render import render  # noqa: E402
 from wearable_gaze.sim.scenario import resolve  # noqa: E402
 from wearable_gaze.sim.simulate import build_world, make_targets, scene_camera  # noqa: E402
 

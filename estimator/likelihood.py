@@ -14,6 +14,7 @@ the negative log-likelihood is ``sum |r_i|^2 / (2 sigma^2)`` and the Fisher info
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -26,6 +27,8 @@ from .result import GazeEstimate, Status, failed
 from .triangulation import _n_samples, _point_result, lse_point, nearest_point_to_lines
 
 LOSSES = ("gaussian", "mixture", "huber")
+
+log = logging.getLogger(__name__)
 
 
 def fisher_information(point_mm, origins_mm, sigma_rad: float, weights=None) -> np.ndarray:
@@ -249,6 +252,87 @@ class MLConfig:
             raise ValueError(f"outlier_prob must be in [0, 1), got {self.outlier_prob}")
 
 
+class _MLProblem:
+    """The weighted gnomonic least-squares problem of ``ml_point``: cost, robust weights and the
+    Gauss-Newton normal equations at a point. ``line_w`` (N,) holds the current line weights."""
+
+    def __init__(self, lines: ViewLines, config: MLConfig, n_samples: int):
+        self.config = config
+        self.sigma = np.deg2rad(config.sigma_deg)
+        self.e, self.d = lines.origins_mm, lines.directions
+        self.b1, self.b2 = tangent_basis(self.d)
+        self.ns = n_samples
+        _, self.inverse = np.unique(lines.sample_index, return_inverse=True)
+        self.dof = np.bincount(self.inverse, minlength=n_samples) * 2.0
+        self.line_w = np.ones(len(lines))
+
+    def cost(self, X, update_weights: bool) -> float:
+        """Half the weighted chi-square at ``X`` (3,); ``update_weights`` re-weights the samples
+        there first (robust losses)."""
+        cfg, sigma = self.config, self.sigma
+        r, _ = gnomonic_residuals(X, self.e, self.d, self.b1, self.b2)
+        r2 = np.einsum("ij,ij->i", r, r) / sigma**2
+        if update_weights and cfg.loss != "gaussian":
+            chi2_s = np.bincount(self.inverse, weights=r2, minlength=self.ns)
+            self.line_w[:] = _loss_weights(chi2_s, self.dof, sigma, cfg.loss, cfg.outlier_prob,
+                                           cfg.huber_k)[self.inverse]
+        return 0.5 * np.sum(self.line_w * r2)
+
+    def normal_equations(self, X):
+        """Residuals (N, 2), Gauss-Newton matrix J^T W J and gradient J^T W r at X, with
+        d r_k / d X = (b_k - r_k d) / (d . u)."""
+        b1, b2, d, w, sigma = self.b1, self.b2, self.d, self.line_w, self.sigma
+        r, a = gnomonic_residuals(X, self.e, d, b1, b2)
+        J1 = (b1 - r[:, [0]] * d) / a[:, None]
+        J2 = (b2 - r[:, [1]] * d) / a[:, None]
+        H = (np.einsum("n,ni,nj->ij", w, J1, J1) + np.einsum("n,ni,nj->ij", w, J2, J2)) / sigma**2
+        g = (np.einsum("n,ni->i", w * r[:, 0], J1) + np.einsum("n,ni->i", w * r[:, 1], J2)) / sigma**2
+        return r, H, g
+
+
+def _levenberg_marquardt(problem: _MLProblem, x, config: MLConfig):
+    """Minimise ``problem.cost`` from ``x`` (3,); returns (x, iterations, converged)."""
+    lam = 1e-3
+    cost = problem.cost(x, True)
+    it = 0
+    converged = False
+    for it in range(1, config.max_iterations + 1):  # noqa: B007 (it is reported after the loop)
+        _, H, g = problem.normal_equations(x)
+        step_ok = False
+        for _ in range(30):
+            try:
+                step = -np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            new_cost = problem.cost(x + step, False)
+            if new_cost <= cost:
+                x = x + step
+                lam = max(lam / 10, 1e-12)
+                step_ok = True
+                break
+            lam *= 10
+        cost = problem.cost(x, True)
+        if not step_ok or np.linalg.norm(step) < config.tolerance_mm:
+            converged = step_ok or np.linalg.norm(g) < 1e-9
+            break
+    return x, it, converged
+
+
+def _ml_start(lines: ViewLines, x0_mm, ns: int, n: int):
+    """The starting point (3,) of the ML fit: ``x0_mm``, or the geometric least-squares point
+    (the LSE point when that one fails); a failed ``GazeEstimate`` when the lines are degenerate."""
+    if x0_mm is not None:
+        return check_vector(x0_mm, "x0_mm").copy()
+    start = nearest_point_to_lines(lines)
+    if start.status is Status.DEGENERATE:
+        return failed("ml", Status.DEGENERATE, start.reason, ns, n)
+    if not start.ok:
+        alt = lse_point(lines)
+        start = alt if alt.ok else start
+    return start.position_mm.copy()
+
+
 def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> GazeEstimate:
     """Maximum-likelihood gazed point from view lines with Gaussian angular noise.
 
@@ -265,75 +349,21 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
     ns = _n_samples(lines)
     if n < 2:
         return failed("ml", Status.INSUFFICIENT, f"needs at least 2 view lines, got {n}", ns, n)
-    sigma = np.deg2rad(config.sigma_deg)
-    e, d = lines.origins_mm, lines.directions
-    b1, b2 = tangent_basis(d)
-    if x0_mm is None:
-        start = nearest_point_to_lines(lines)
-        if start.status is Status.DEGENERATE:
-            return failed("ml", Status.DEGENERATE, start.reason, ns, n)
-        if not start.ok:
-            alt = lse_point(lines)
-            start = alt if alt.ok else start
-        x = start.position_mm.copy()
-    else:
-        x = check_vector(x0_mm, "x0_mm").copy()
-
-    _, inverse = np.unique(lines.sample_index, return_inverse=True)
-    dof = np.bincount(inverse, minlength=ns) * 2.0
-    line_w = np.ones(n)
-
-    def cost_and_weights(X, update_weights):
-        r, _ = gnomonic_residuals(X, e, d, b1, b2)
-        r2 = np.einsum("ij,ij->i", r, r) / sigma**2
-        if update_weights and config.loss != "gaussian":
-            chi2_s = np.bincount(inverse, weights=r2, minlength=ns)
-            line_w[:] = _loss_weights(chi2_s, dof, sigma, config.loss, config.outlier_prob, config.huber_k)[inverse]
-        return 0.5 * np.sum(line_w * r2)
-
-    def normal_equations(X):
-        """Residuals (N, 2), Gauss-Newton matrix J^T W J and gradient J^T W r at X, with
-        d r_k / d X = (b_k - r_k d) / (d . u)."""
-        r, a = gnomonic_residuals(X, e, d, b1, b2)
-        J1 = (b1 - r[:, [0]] * d) / a[:, None]
-        J2 = (b2 - r[:, [1]] * d) / a[:, None]
-        H = (np.einsum("n,ni,nj->ij", line_w, J1, J1) + np.einsum("n,ni,nj->ij", line_w, J2, J2)) / sigma**2
-        g = (np.einsum("n,ni->i", line_w * r[:, 0], J1) + np.einsum("n,ni->i", line_w * r[:, 1], J2)) / sigma**2
-        return r, H, g
-
-    lam = 1e-3
-    cost = cost_and_weights(x, True)
-    it = 0
-    converged = False
-    for it in range(1, config.max_iterations + 1):  # noqa: B007 (it is reported after the loop)
-        _, H, g = normal_equations(x)
-        step_ok = False
-        for _ in range(30):
-            try:
-                step = -np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            new_cost = cost_and_weights(x + step, False)
-            if new_cost <= cost:
-                x = x + step
-                lam = max(lam / 10, 1e-12)
-                step_ok = True
-                break
-            lam *= 10
-        cost = cost_and_weights(x, True)
-        if not step_ok or np.linalg.norm(step) < config.tolerance_mm:
-            converged = step_ok or np.linalg.norm(g) < 1e-9
-            break
-
-    r, H, _ = normal_equations(x)
+    x = _ml_start(lines, x0_mm, ns, n)
+    if isinstance(x, GazeEstimate):
+        return x
+    problem = _MLProblem(lines, config, ns)
+    x, it, converged = _levenberg_marquardt(problem, x, config)
+    r, H, _ = problem.normal_equations(x)
     if np.linalg.cond(H) > 1e14:
         return failed("ml", Status.DEGENERATE, "the view lines do not fix a point (information matrix singular)", ns, n)
     cov = np.linalg.inv(H)
     info = {"iterations": it, "converged": bool(converged),
             "residual_rms_deg": float(np.rad2deg(np.sqrt(np.mean(np.sum(r * r, axis=1) / 2))))}
     if config.loss != "gaussian":
-        info["inlier_weight_mean"] = float(np.mean(line_w))
+        info["inlier_weight_mean"] = float(np.mean(problem.line_w))
+    log.debug("ml: %d lines, %d iterations, converged %s, residual RMS %.3f deg", n, it, converged,
+              info["residual_rms_deg"])
     return _point_result("ml", x, cov, lines, info)
 
 

@@ -10,8 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
+from calibration.camera import aruco_dictionary
 from estimator.frames import rotation_about_axis
-from wearable_gaze.sim.render import Camera, Plane, aruco_dictionary, finish, marker_corners_world, marker_plane, render
+from wearable_gaze.sim.camera import Camera
+from wearable_gaze.sim.noise import finish
+from wearable_gaze.sim.planes import Plane, marker_corners_world, marker_plane
+from wearable_gaze.sim.render import render
 
 
 def _detector():

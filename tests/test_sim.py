@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from calibration.camera import aruco_dictionary
 from estimator.frames import tangent_basis
 from wearable_gaze.cli import main
 from wearable_gaze.formats.eye_samples import read_eye_csv
@@ -20,7 +21,7 @@ from wearable_gaze.formats.session import load_session
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.sim.eyes import EyeModel, EyeSensor, plan_gaze
 from wearable_gaze.sim.motion import make_motion
-from wearable_gaze.sim.render import aruco_dictionary, marker_corners_world
+from wearable_gaze.sim.planes import marker_corners_world
 from wearable_gaze.sim.scenario import DEFAULTS, NAMED, resolve
 from wearable_gaze.sim.simulate import simulate, simulate_scenario
 
@@ -325,7 +326,9 @@ def test_simulate_refuses_a_non_empty_folder_and_leaves_no_partial_output(tmp_pa
 def test_rendered_board_corners_match_their_object_points(spec):
     """Board views for the intrinsics: detected corners against the board's object points
     projected with the true pose (the calibration of issue 4 relies on this)."""
-    from wearable_gaze.sim.render import Camera, finish, render
+    from wearable_gaze.sim.camera import Camera
+    from wearable_gaze.sim.noise import finish
+    from wearable_gaze.sim.render import render
     from wearable_gaze.sim.simulate import _board_views
     from wearable_gaze.sim.world import board_plane
 

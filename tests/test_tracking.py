@@ -18,8 +18,12 @@ from wearable_gaze.formats.markermap import load_marker_map, marker_map_dict, ma
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.session import load_session
 from wearable_gaze.formats.video import grey_frames
-from wearable_gaze.sim.render import Camera, Plane, SensorNoise, marker_plane, poster_texture, render
+from wearable_gaze.sim.camera import Camera
+from wearable_gaze.sim.noise import SensorNoise
+from wearable_gaze.sim.planes import Plane, marker_plane
+from wearable_gaze.sim.render import render
 from wearable_gaze.sim.simulate import simulate_scenario
+from wearable_gaze.sim.textures import poster_texture
 from wearable_gaze.sim.world import look_at
 
 
@@ -254,7 +258,8 @@ def test_homography_mode_on_a_textured_poster():
 def test_apriltag_refinement_gives_corners_in_opencvs_pixel_convention():
     """refine='apriltag' returns OpenCV's convention like the other refinements (AprilTag's own
     puts a pixel's centre at +0.5: a +0.5 px offset in x and y before the fix)."""
-    from wearable_gaze.sim.render import finish, marker_corners_world, marker_plane
+    from wearable_gaze.sim.noise import finish
+    from wearable_gaze.sim.planes import marker_corners_world, marker_plane
 
     cam = Camera.wide_scene_camera()
     rng = np.random.default_rng(0)

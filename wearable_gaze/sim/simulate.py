@@ -6,6 +6,7 @@ seed and scenario give the same bytes.
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import tempfile
@@ -28,12 +29,16 @@ from ..formats.session import FORMAT, VERSION, write_manifest
 from ..formats.tables import write_table
 from ..formats.video import open_video_writer, write_frame_times
 from ..formats.viewlines import write_viewlines_csv
+from .camera import Camera
 from .eyes import EyeModel, gaze_points, plan_gaze
 from .motion import make_motion
-from .render import Camera, SensorNoise, render
+from .noise import SensorNoise
+from .render import render
 from .world import CalibrationWall, Target, board_plane, fixed_point, lab_room, look_at, waypoint_path
 
 VIDEO_EXT = {"mp4v": ".mp4", "MJPG": ".avi", "FFV1": ".avi"}
+
+log = logging.getLogger(__name__)
 
 
 def scene_camera(scn: dict) -> Camera:
@@ -300,7 +305,6 @@ def _camera_views(root, scn, camera, noise, rng, tick) -> str:
 
 def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rngs, tick):
     rng_world, rng_targets, rng_motion, rng_gaze, rng_meas = rngs
-    fps = float(scn["camera"]["fps"])
     rate = float(scn["eyes"]["rate_hz"])
     dur = float(scn["duration_s"])
     targets = make_targets(scn, rng_targets)
@@ -334,11 +338,33 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
                      marker_map_dict(world.dictionary, world.marker_size_mm, world.markers, labels))
     files["marker_map"] = "markers.json"
 
-    # truth: lines in the world frame
-    centres_w = np.einsum("nij,ej->nei", T_eye[:, :3, :3], eye_model.centres) + T_eye[:, None, :3, 3]
+    truth = root / "truth"
+    _write_truth_lines(truth, t_eye, plan, gaze_w, T_eye, eye_model.centres, true_c, noisy_c, valid)
+    _write_truth_targets(truth, targets, plan, t_eye, dur)
+    files["truth_gaze"] = "truth/gaze.csv"
+    files["truth_viewlines"] = "truth/viewlines.csv"
+    files["truth_targets"] = "truth/targets.json"
+    video, n_frames = _write_scene_video(root, scn, camera, world, motion, noise, tick)
+    files["scene_video"] = video
+    files["scene_timestamps"] = "scene_timestamps.csv"
+    files["truth_head_poses"] = "truth/head_poses.csv"
+    manifest["n_frames"] = n_frames
+    manifest["n_eye_samples"] = len(t_eye)
+
+
+def _write_truth_lines(truth: Path, t_eye, plan, gaze_w, T_eye, centres_head, true_c, noisy_c, valid) -> None:
+    """truth/gaze.csv (the gazed point, each eye's centre, true and measured direction, world frame)
+    and truth/viewlines.csv (the measured lines of the samples that fixate a target).
+
+    Args:
+        t_eye: (N,) sample times, s.  plan: the gaze plan (target, phase per sample).
+        gaze_w: (N, 3) gazed points, world, mm.  T_eye: (N, 4, 4) ``T_world_from_head`` per sample.
+        centres_head: (2, 3) eye centres, head frame, mm.
+        true_c, noisy_c: (N, 2, 3) true and measured directions, head frame.  valid: (N, 2) bool.
+    """
+    centres_w = np.einsum("nij,ej->nei", T_eye[:, :3, :3], centres_head) + T_eye[:, None, :3, 3]
     true_w = np.einsum("nij,nej->nei", T_eye[:, :3, :3], true_c)
     noisy_w = np.einsum("nij,nej->nei", T_eye[:, :3, :3], noisy_c)
-    truth = root / "truth"
     cols = {"t": t_eye, "target": plan.target, "phase": plan.phase,
             "gaze_x": gaze_w[:, 0], "gaze_y": gaze_w[:, 1], "gaze_z": gaze_w[:, 2]}
     for e, side in enumerate(("left", "right")):
@@ -355,6 +381,10 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
         t_eye, centres_w[:, 0], np.where(valid[:, :1], noisy_w[:, 0], nan),
         centres_w[:, 1], np.where(valid[:, 1:], noisy_w[:, 1], nan))
     write_viewlines_csv(truth / "viewlines.csv", samples.select(np.flatnonzero(use)), plan.target[use])
+
+
+def _write_truth_targets(truth: Path, targets, plan, t_eye, dur: float) -> None:
+    """truth/targets.json: each target's name, fixation spans (s) and position (or path, mm)."""
     tg_out = []
     for k, tg in enumerate(targets):
         sel = np.flatnonzero(plan.target == k)
@@ -369,16 +399,18 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
             entry["position_mm"] = tg.at(0.0).tolist()
         tg_out.append(entry)
     write_json(truth / "targets.json", {"version": 1, "targets": tg_out})
-    files["truth_gaze"] = "truth/gaze.csv"
-    files["truth_viewlines"] = "truth/viewlines.csv"
-    files["truth_targets"] = "truth/targets.json"
 
-    # video
-    n_frames = int(round(dur * fps))
+
+def _write_scene_video(root: Path, scn: dict, camera: Camera, world, motion, noise, tick) -> tuple[str, int]:
+    """The scene video, scene_timestamps.csv and truth/head_poses.csv (with the markers in view);
+    returns the video's file name and the frame count."""
+    fps = float(scn["camera"]["fps"])
+    n_frames = int(round(float(scn["duration_s"]) * fps))
     t_frames = np.arange(n_frames) / fps
     T_frames = motion.poses(t_frames)
     codec = scn["camera"]["codec"]
     video = root / f"scene{VIDEO_EXT[codec]}"
+    log.info("rendering %d frames of %dx%d to %s", n_frames, *camera.image_size, video.name)
     writer = open_video_writer(video, codec, fps, camera.image_size, is_color=False, refused=(
         f"cannot write {codec} video {video}: OpenCV's FFMPEG backend refused it; try --scenario with camera.codec "
         "MJPG"))
@@ -392,13 +424,9 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     finally:
         writer.release()
     write_frame_times(root / "scene_timestamps.csv", np.arange(n_frames), t_frames)
-    write_poses_csv(truth / "head_poses.csv", t_frames, np.arange(n_frames), T_frames,
+    write_poses_csv(root / "truth" / "head_poses.csv", t_frames, np.arange(n_frames), T_frames,
                     {"n_markers": visible})
-    files["scene_video"] = video.name
-    files["scene_timestamps"] = "scene_timestamps.csv"
-    files["truth_head_poses"] = "truth/head_poses.csv"
-    manifest["n_frames"] = n_frames
-    manifest["n_eye_samples"] = len(t_eye)
+    return video.name, n_frames
 
 
 def _count_visible(camera: Camera, T_world_from_cam, corners: dict) -> int:

@@ -13,16 +13,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .render import (
-    Plane,
-    aruco_dictionary,
-    chessboard_texture,
-    marker_corners_world,
-    marker_plane,
-    noise_texture,
-    poster_texture,
-    target_texture,
-)
+from calibration.camera import aruco_dictionary
+
+from .planes import Plane, marker_corners_world, marker_plane
+from .textures import chessboard_texture, noise_texture, poster_texture, target_texture
 
 MM_PER_TEXEL_WALL = 4.0
 
