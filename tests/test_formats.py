@@ -1,0 +1,248 @@
+"""The file formats, one module each in wearable_gaze/formats (issue 13).
+
+tests/data/formats_1390a4c/ holds files the code of commit 1390a4c wrote, before the formats had
+their modules (a simulated session, seed 5, 1.5 s, 12 board views; calibrate-camera, calibrate-eyes,
+track and the marker-sheet template on it; eye_calibration.csv cut to its first 40 rows). Each is
+read with its format's reader and written with its writer: the bytes must be the old ones. The
+live recorder's streamed rows must be the table writer's rows, and each format's name and the
+video writer must live only in wearable_gaze/formats.
+"""
+
+import json
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.camera import CameraCalibration
+from estimator.frames import rotation_about_axis
+from wearable_gaze.errors import UserError
+from wearable_gaze.formats.camera import calibration_dict, camera_dict, load_camera, write_camera
+from wearable_gaze.formats.eye_samples import EYE_HEADER, EyeSamples, eye_csv_line, read_eye_csv, write_eye_csv
+from wearable_gaze.formats.eyes import eyes_dict, load_eyes, write_eyes
+from wearable_gaze.formats.markermap import (
+    load_marker_map,
+    marker_map_dict,
+    marker_map_template,
+    write_marker_map,
+)
+from wearable_gaze.formats.poses import read_poses_csv, write_poses_csv
+from wearable_gaze.formats.session import write_manifest
+from wearable_gaze.formats.video import (
+    FRAME_TIME_HEADER,
+    frame_time_line,
+    grey_frames,
+    open_video_writer,
+    read_frame_times,
+    write_frame_times,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+OLD = ROOT / "tests" / "data" / "formats_1390a4c"
+
+
+def _ints(extra: dict, names) -> dict:
+    return {k: (v.astype(int) if k in names else v) for k, v in extra.items()}
+
+
+@pytest.mark.parametrize("name, extra", [("eye.csv", ()), ("eye_calibration.csv", ("recording", "target"))])
+def test_eye_csv_written_back_as_the_old_code_wrote_it(tmp_path, name, extra):
+    eye, cols = read_eye_csv(OLD / name, extra)
+    write_eye_csv(tmp_path / name, eye, _ints(cols, extra))
+    assert (tmp_path / name).read_bytes() == (OLD / name).read_bytes()
+
+
+def test_frame_times_written_back_as_the_old_code_wrote_them(tmp_path):
+    write_frame_times(tmp_path / "ts.csv", *read_frame_times(OLD / "scene_timestamps.csv"))
+    assert (tmp_path / "ts.csv").read_bytes() == (OLD / "scene_timestamps.csv").read_bytes()
+
+
+@pytest.mark.parametrize("name", ["head_poses.csv", "poses.csv"])
+def test_poses_written_back_as_the_old_code_wrote_them(tmp_path, name):
+    """A quaternion read from 12 decimals and written again from its rotation matrix may move in
+    the last decimal; every other cell, the header and the line ends are the old bytes."""
+    t, frames, T, extra = read_poses_csv(OLD / name)
+    write_poses_csv(tmp_path / name, t, frames, T, _ints(extra, ("n_markers", "n_points")))
+    ours = (tmp_path / name).read_bytes().split(b"\r\n")
+    old = (OLD / name).read_bytes().split(b"\r\n")
+    assert len(ours) == len(old) > 3 and ours[0] == old[0]
+    for a, b in zip(ours[1:-1], old[1:-1], strict=True):
+        ca, cb = a.split(b","), b.split(b",")
+        assert ca[:2] == cb[:2] and ca[6:] == cb[6:] and [len(c) for c in ca] == [len(c) for c in cb]
+        if cb[2] == b"":
+            assert ca[2:6] == cb[2:6]
+        else:
+            assert np.allclose(np.array(ca[2:6], float), np.array(cb[2:6], float), rtol=0, atol=2e-12)
+    assert ours[-1] == old[-1] == b""
+
+
+def test_marker_map_written_back_as_the_old_code_wrote_it(tmp_path):
+    mm = load_marker_map(OLD / "markers.json")
+    write_marker_map(tmp_path / "m.json", marker_map_dict(mm.dictionary, mm.marker_size_mm, mm.poses, mm.labels))
+    assert (tmp_path / "m.json").read_bytes() == (OLD / "markers.json").read_bytes()
+    write_marker_map(tmp_path / "t.json", marker_map_template("DICT_4X4_50", 100.0, [0, 1, 2, 7]))
+    assert (tmp_path / "t.json").read_bytes() == (OLD / "sheet_map_template.json").read_bytes()
+
+
+def test_camera_files_written_back_as_the_old_code_wrote_them(tmp_path):
+    cal = load_camera(OLD / "camera.json")                         # calibrate-camera's, with its report
+    raw = json.loads((OLD / "camera.json").read_text())
+    write_camera(tmp_path / "c.json", calibration_dict(cal, trusted=raw["trusted"], warnings=raw["warnings"]))
+    assert (tmp_path / "c.json").read_bytes() == (OLD / "camera.json").read_bytes()
+    cam = load_camera(OLD / "truth_camera.json")                   # the simulator's
+    source = json.loads((OLD / "truth_camera.json").read_text())["source"]
+    write_camera(tmp_path / "t.json", camera_dict(cam.camera_matrix, cam.dist_coeffs, cam.image_size, cam.model,
+                                                  cam.rms_px, source=source))
+    assert (tmp_path / "t.json").read_bytes() == (OLD / "truth_camera.json").read_bytes()
+
+
+def test_eyes_json_written_back_as_the_old_code_wrote_it(tmp_path):
+    raw = json.loads((OLD / "eyes.json").read_text())
+    camera = calibration_dict(CameraCalibration.from_dict(raw["camera"]))
+    write_eyes(tmp_path / "e.json", eyes_dict(camera, raw["walls"], load_eyes(OLD / "eyes.json")))
+    assert (tmp_path / "e.json").read_bytes() == (OLD / "eyes.json").read_bytes()
+
+
+def test_manifest_written_as_the_old_code_wrote_it(tmp_path):
+    write_manifest(tmp_path, json.loads((OLD / "session.json").read_text()))
+    assert (tmp_path / "session.json").read_bytes() == (OLD / "session.json").read_bytes()
+
+
+def test_live_eye_rows_are_the_old_table_rows():
+    """The recorder streams rows (LF) that are, cell for cell, the rows the table writer wrote (CRLF)."""
+    eye, _ = read_eye_csv(OLD / "eye.csv")
+    lines = [eye_csv_line(eye.t[i], eye.counter[i], eye.raw[i, 0], eye.raw[i, 1], eye.valid[i, 0], eye.valid[i, 1])
+             for i in range(len(eye))]
+    assert EYE_HEADER + "".join(lines) == (OLD / "eye.csv").read_bytes().decode().replace("\r\n", "\n")
+    frames, t = read_frame_times(OLD / "scene_timestamps.csv")
+    assert FRAME_TIME_HEADER + "".join(frame_time_line(f, s) for f, s in zip(frames, t, strict=True)) == \
+        (OLD / "scene_timestamps.csv").read_bytes().decode().replace("\r\n", "\n")
+
+
+def _calibration():
+    K = np.array([[640.5, 0, 639.2], [0, 641.0, 360.7], [0, 0, 1]])
+    return CameraCalibration(K, np.array([-0.28, 0.09, 1e-4, -2e-4, -0.01]), (1280, 720), "pinhole", 0.062,
+                             [{"view": "view_000.png", "used": True, "rms_px": 0.05, "n_points": 54, "reason": None},
+                              {"view": "view_001.png", "used": False, "rms_px": None, "n_points": 0,
+                               "reason": "board not found"}],
+                             {"type": "chessboard", "cols": 9, "rows": 6, "square_mm": 30.0},
+                             {"fx": 0.54, "fy": 0.54, "cx": 0.65, "cy": 0.63, "dist": [6e-4, 1e-3, 6e-5, 4e-5, 7e-4]})
+
+
+def test_camera_json_of_a_calibration_round_trips_in_its_field_order(tmp_path):
+    cal = _calibration()
+    d = calibration_dict(cal, trusted=False, warnings=["fx and fy differ"])
+    assert list(d) == ["format", "version", "model", "camera_matrix", "dist_coeffs", "image_size", "rms_px", "std",
+                       "board", "views", "trusted", "warnings"]
+    write_camera(tmp_path / "a.json", d)
+    back = load_camera(tmp_path / "a.json")
+    write_camera(tmp_path / "b.json", calibration_dict(back, trusted=False, warnings=["fx and fy differ"]))
+    assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
+    assert np.array_equal(back.camera_matrix, cal.camera_matrix) and back.views == cal.views and back.std == cal.std
+
+
+@pytest.mark.parametrize("suffix", [".yml", ".xml"])
+def test_opencv_camera_files_read_as_camera_json(tmp_path, suffix):
+    cal = _calibration()
+    path = tmp_path / f"cam{suffix}"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 1280)
+    fs.write("image_height", 720)
+    fs.write("camera_matrix", cal.camera_matrix)
+    fs.write("distortion_coefficients", cal.dist_coeffs.reshape(1, -1))
+    fs.release()
+    got = load_camera(path)
+    assert np.array_equal(got.camera_matrix, cal.camera_matrix) and np.array_equal(got.dist_coeffs, cal.dist_coeffs)
+    assert got.image_size == (1280, 720) and got.model == "pinhole"
+    (tmp_path / "bad.yml").write_text("%YAML:1.0\n---\nimage_width: 1280\n")
+    with pytest.raises(UserError, match="no 3x3 camera_matrix"):
+        load_camera(tmp_path / "bad.yml")
+
+
+def test_live_streamed_rows_are_the_table_writers_rows(tmp_path):
+    """The recorder writes eye samples and frame times row by row (LF); the table writer (CRLF)
+    writes the same cells, and the reader gives the same values for both."""
+    rng = np.random.default_rng(0)
+    n = 7
+    eye = EyeSamples(np.cumsum(rng.uniform(0.001, 0.02, n)), np.arange(n) % 5, rng.uniform(-50, 4000, (n, 2, 2)),
+                     rng.random((n, 2)) > 0.3)
+    write_eye_csv(tmp_path / "table.csv", eye)
+    lines = [eye_csv_line(eye.t[i], eye.counter[i], eye.raw[i, 0], eye.raw[i, 1], eye.valid[i, 0], eye.valid[i, 1])
+             for i in range(n)]
+    (tmp_path / "stream.csv").write_text(EYE_HEADER + "".join(lines))
+    table = (tmp_path / "table.csv").read_bytes().decode()
+    assert table.replace("\r\n", "\n") == (tmp_path / "stream.csv").read_text()
+    a, _ = read_eye_csv(tmp_path / "table.csv")
+    b, _ = read_eye_csv(tmp_path / "stream.csv")
+    for k in ("t", "counter", "raw", "valid"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)), k
+    t = np.cumsum(rng.uniform(0.01, 0.04, n))
+    write_frame_times(tmp_path / "ft_table.csv", np.arange(n), t)
+    (tmp_path / "ft_stream.csv").write_text(FRAME_TIME_HEADER + "".join(frame_time_line(i, t[i]) for i in range(n)))
+    assert (tmp_path / "ft_table.csv").read_bytes().decode().replace("\r\n", "\n") == \
+        (tmp_path / "ft_stream.csv").read_text()
+
+
+def test_marker_map_template_filled_in_loads(tmp_path):
+    write_marker_map(tmp_path / "template.json", marker_map_template("DICT_4X4_50", 150.0, [3, 5]))
+    with pytest.raises(UserError, match="marker 3: corners"):        # four zero corners: to be measured first
+        load_marker_map(tmp_path / "template.json")
+    d = json.loads((tmp_path / "template.json").read_text())
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis([0, 1, 0], 0.3)
+    T[:3, 3] = [400.0, -20.0, 1800.0]
+    s = 75.0
+    corners = np.array([[-s, -s, 0], [s, -s, 0], [s, s, 0], [-s, s, 0]]) @ T[:3, :3].T + T[:3, 3]
+    for m in d["markers"]:
+        m["corners_mm"] = corners.tolist()
+    d["markers"][1]["corners_mm"] = (corners + [0, 0, 500.0]).tolist()
+    (tmp_path / "filled.json").write_text(json.dumps(d))
+    mm = load_marker_map(tmp_path / "filled.json")
+    assert sorted(mm.poses) == [3, 5] and np.allclose(mm.poses[3], T, atol=1e-9)
+    assert np.allclose(mm.poses[5][:3, 3], T[:3, 3] + [0, 0, 500.0], atol=1e-9)
+
+
+def test_video_writer_and_grey_frames(tmp_path):
+    frames = [np.full((48, 64), 40 * k, np.uint8) for k in range(4)]
+    w = open_video_writer(tmp_path / "v.avi", "FFV1", 10.0, (64, 48), is_color=False)
+    for f in frames:
+        w.write(f)
+    w.release()
+    got = list(grey_frames(tmp_path / "v.avi"))
+    assert len(got) == 4 and all(np.array_equal(g, f) for g, f in zip(got, frames, strict=True))
+    with pytest.raises(UserError, match="use another name"):
+        open_video_writer(tmp_path / "no_such_folder" / "v.avi", "FFV1", 10.0, (64, 48), refused="use another name")
+
+
+FORMAT_NAMES = ("wearable-gaze-camera", "wearable-gaze-marker-map", "wearable-gaze-eyes", "wearable-gaze-session")
+
+
+def test_each_format_has_its_one_home():
+    """A format's name, the video writer and hand-written CSV/JSON of a format appear only in
+    wearable_gaze/formats; the tracking library holds no file format."""
+    offenders = []
+    for p in sorted((ROOT / "wearable_gaze").rglob("*.py")):
+        rel = p.relative_to(ROOT).as_posix()
+        if rel.startswith("wearable_gaze/formats/"):
+            continue
+        text = p.read_text(encoding="utf-8")
+        for needle in (*FORMAT_NAMES, "cv2.VideoWriter(", '"frame,t', "EYE_FORMATS", "FileStorage("):
+            if needle in text:
+                offenders.append(f"{rel}: {needle}")
+    for p in sorted((ROOT / "tracking").rglob("*.py")):
+        text = p.read_text(encoding="utf-8")
+        if any(n in text for n in FORMAT_NAMES) or re.search(r"def (to|from)_dict\b", text):
+            offenders.append(f"{p.relative_to(ROOT).as_posix()}: file format code in the tracking library")
+    assert offenders == []
+
+
+def test_each_format_module_names_its_doc():
+    docs = (ROOT / "docs" / "formats.md").read_text(encoding="utf-8")
+    for name in ("camera", "eyes", "markermap", "eye_samples", "poses", "video", "session", "viewlines",
+                 "serial_protocol", "jsonio", "tables", "atomic"):
+        module = (ROOT / "wearable_gaze" / "formats" / f"{name}.py").read_text(encoding="utf-8")
+        doc = module.split('"""')[1]
+        assert "docs/" in doc or name in ("jsonio", "tables", "atomic"), name
+        assert f"formats/{name}.py" in docs, f"docs/formats.md does not name formats/{name}.py"
