@@ -9,6 +9,7 @@ video writer must live only in wearable_gaze/formats.
 """
 
 import json
+import os
 import re
 from pathlib import Path
 
@@ -246,3 +247,16 @@ def test_each_format_module_names_its_doc():
         doc = module.split('"""')[1]
         assert "docs/" in doc or name in ("jsonio", "tables", "atomic"), name
         assert f"formats/{name}.py" in docs, f"docs/formats.md does not name formats/{name}.py"
+
+
+def test_atomic_writes_take_the_umask_without_changing_it(tmp_path):
+    from wearable_gaze.formats.atomic import _umask, write_text
+
+    old = os.umask(0o027)
+    try:
+        assert _umask() == 0o027
+        write_text(tmp_path / "a.txt", "x")
+        assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o640
+        assert _umask() == 0o027
+    finally:
+        os.umask(old)

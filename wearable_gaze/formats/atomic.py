@@ -19,6 +19,20 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
+def _umask() -> int:
+    """The process's umask, read without setting it where the system allows (setting it to read
+    it, as ``os.umask`` does, would briefly change it for every thread, e.g. the live recorder's)."""
+    try:
+        for line in Path("/proc/self/status").read_text(encoding="ascii").splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
+
+
 def _temp_prefix(path: Path) -> str:
     return f".{path.name}."
 
@@ -37,9 +51,7 @@ def atomic_path(path, suffix: str | None = None):
     os.close(fd)
     try:
         yield Path(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; give the file the usual mode
+        os.chmod(tmp, 0o666 & ~_umask())   # mkstemp makes 0600; give the file the usual mode
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
