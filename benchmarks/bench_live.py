@@ -33,7 +33,8 @@ import numpy as np  # noqa: E402
 
 from wearable_gaze.formats.eye_samples import read_eye_csv  # noqa: E402
 from wearable_gaze.formats.session import load_session  # noqa: E402
-from wearable_gaze.live.app import LatencyHistogram, LiveSession  # noqa: E402
+from wearable_gaze.live.app import open_session  # noqa: E402
+from wearable_gaze.live.stats import LatencyHistogram  # noqa: E402
 from wearable_gaze.pipeline.process import process_session  # noqa: E402
 from wearable_gaze.sim.emulate import RecorderEmulator  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
@@ -106,9 +107,9 @@ def run_once(root: Path, cal: Path, tmp: Path, args, subscriber: str, label: str
     emu = RecorderEmulator((root / "eye_serial.bin").read_bytes(), loop=True, duration_s=seconds)
     url = emu.listen_tcp()
     rec_dir = tmp / f"rec-{label}"
-    live = LiveSession(url, str(root / "scene.mp4"), cal / "camera.json", cal / "eyes.json", root / "markers.json",
-                       record=rec_dir if args.record else None, stdout=False, stream=io.StringIO(),
-                       publish=listener.url if listener else None)
+    live = open_session(url, str(root / "scene.mp4"), cal / "camera.json", cal / "eyes.json", root / "markers.json",
+                        record=rec_dir if args.record else None, stdout=False, stream=io.StringIO(),
+                        publish=listener.url if listener else None)
     live.frames.loop = True
     mem = []
     stop = threading.Event()
@@ -121,7 +122,7 @@ def run_once(root: Path, cal: Path, tmp: Path, args, subscriber: str, label: str
             # and for tracking (grey and colour), eye records waiting for the loop, samples waiting for a pose
             vq = live.recorder.video_q.qsize() if live.recorder else 0
             cq, rq, pend = live.frames.queue.qsize(), live.reader.queue.qsize(), len(live.pending)
-            queues.append((vq, cq, rq, pend, len(live.targets)))
+            queues.append((vq, cq, rq, pend, len(live.estimation.targets)))
             mem.append((time.monotonic(), rss_mb(), rss_mb() - (vq + 4 * cq) * frame_mb, malloc_in_use_mb()))
             stop.wait(5.0)
     threading.Thread(target=sample_memory, daemon=True).start()

@@ -14,10 +14,10 @@ import serial
 
 from tests.helpers import drain_reader, eye_record_bytes
 from wearable_gaze.cli import main
-from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL
 from wearable_gaze.formats.eye_samples import read_eye_csv
-from wearable_gaze.live.app import LatencyHistogram
+from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL
 from wearable_gaze.live.serial_in import EyeReader, LineSplitter
+from wearable_gaze.live.stats import LatencyHistogram
 from wearable_gaze.pipeline.demo import match_targets
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.sim.emulate import RecorderEmulator

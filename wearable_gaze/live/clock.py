@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import logging
+
+log = logging.getLogger(__name__)
+
 
 class SessionClock:
     """Maps recorder times onto the session clock: the offset is the smallest arrival-minus-

@@ -1,0 +1,173 @@
+"""Estimation in the live session (docs/live.md, The loop): an eye record and the head pose at
+its time -> world view lines (the paper's eq. 1-8, through ``calibration`` and
+``estimator.view_lines_to_world``), fixations detected online, a streaming estimator per
+fixation, and target ids kept across fixations."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator import BinocularSample, make_estimator, view_lines_to_world
+from estimator.frames import invert
+from estimator.segments import OnlineSegmenter, same_target
+
+from ..pipeline.types import Target
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LiveEstimate:
+    """The running estimate of the current fixation's target after one sample.
+
+    Attributes:
+        t_s: the sample's session time, s.
+        fixation: the fixation's index (0, 1, ... in the session).
+        position_mm: (3,) estimated point, world frame, mm.
+        radius95_mm: the largest radius of its 95 % ellipsoid, mm (None without a covariance).
+        n_samples: samples the fixation's estimator has taken.
+    """
+
+    t_s: float
+    fixation: int
+    position_mm: np.ndarray
+    radius95_mm: float | None
+    n_samples: int
+
+
+def world_sample(eyes, t_s: float, rec, T_world_from_cam) -> BinocularSample:
+    """One eye record as world view lines: each valid eye's camera-frame line (eq. 1-4,
+    ``EyeCalibration.lines``) moved into the world by the head pose (eq. 7-8,
+    ``estimator.view_lines_to_world``).
+
+    Args:
+        eyes: [left, right] ``EyeCalibration``.
+        t_s: session time, s.
+        rec: an ``EyeRecord`` (raw readings and validity per eye).
+        T_world_from_cam: (4, 4) head pose at ``t_s``, mm.
+    """
+    T_cam_from_world = invert(np.asarray(T_world_from_cam, float))
+    parts: list = []
+    for e, (raw, valid) in enumerate(((rec.left, rec.left_valid), (rec.right, rec.right_valid))):
+        if not valid:
+            parts += [None, None]
+            continue
+        world = view_lines_to_world(eyes[e].lines(np.array([raw], float)), T_cam_from_world)
+        parts += [world.origins_mm[0], world.directions[0]]
+    return BinocularSample(t_s, *parts)
+
+
+class TargetIds:
+    """Target ids: an estimate that is a target seen before (``estimator.segments.same_target``,
+    as ``process`` merges fixations) gets that target's id, any other a new one."""
+
+    def __init__(self):
+        self.known: list = []        # (position_mm (3,), covariance_mm2 (3, 3) or None) of each id
+
+    def __len__(self) -> int:
+        return len(self.known)
+
+    def id_for(self, position_mm, covariance_mm2, origin_mm=None) -> int:
+        """The id of the target at ``position_mm`` (world, mm), seen from ``origin_mm``."""
+        for k, (x, c) in enumerate(self.known):
+            if same_target(position_mm, covariance_mm2, x, c, origin=origin_mm):
+                return k
+        self.known.append((position_mm, covariance_mm2))
+        return len(self.known) - 1
+
+
+def warm_up(method: str) -> None:
+    """Run the estimator once on synthetic lines before the session starts: its first update
+    in a process pays one-time costs (about 1.5 s for ``voxel``) that would otherwise hold up the
+    first eye samples of the session."""
+    est = make_estimator(method)
+    X = np.array([100.0, -50.0, 1500.0])                       # a point 1.5 m ahead, mm
+    for k in range(30):
+        lo = np.array([-32.0 + 3.0 * np.sin(k), 0.0, 0.0])
+        ro = lo + [64.0, 0.0, 0.0]
+        est.update(BinocularSample(k / 60.0, lo, (X - lo) / np.linalg.norm(X - lo), ro,
+                                   (X - ro) / np.linalg.norm(X - ro)))
+
+
+class GazeEstimation:
+    """Eye records with their head poses in; running estimates and finished fixations' targets out.
+
+    Fixations are found online (``OnlineSegmenter``, on binocular samples' cyclopean
+    directions); a sample inside a saccade belongs to no target; each fixation gets a fresh
+    streaming estimator (``estimator.make_estimator(method)``).
+
+    Args:
+        eyes: [left, right] ``EyeCalibration``.
+        method: the streaming estimator.
+    """
+
+    def __init__(self, eyes, method: str = "voxel"):
+        self.eyes = eyes
+        self.method = method
+        self.segmenter = OnlineSegmenter()
+        self.targets = TargetIds()
+        self.fixation = 0                 # the current fixation's index
+        self.head_mm = None               # (3,) an eye's origin at the latest sample, world, mm
+        self._new_fixation()
+
+    def _new_fixation(self) -> None:
+        self.estimator = make_estimator(self.method)
+        self.n_samples = 0
+        self.t_start: float | None = None
+        self.last: tuple | None = None    # (GazeEstimate, t_s) of the latest estimate
+
+    @property
+    def current_mm(self) -> np.ndarray | None:
+        """(3,) the current fixation's latest estimate, world, mm (None before one)."""
+        return None if self.last is None else self.last[0].position_mm
+
+    def add(self, t_s: float, rec, T_world_from_cam) -> tuple[Target | None, LiveEstimate | None]:
+        """One eye record at session time ``t_s`` with at least one valid eye, and the head pose
+        (4, 4) at that time.
+
+        Returns:
+            (the target of the fixation this sample ended, or None; the running estimate after
+            this sample, or None: in a saccade, or the estimator has none yet).
+        """
+        sample = world_sample(self.eyes, t_s, rec, T_world_from_cam)
+        self.head_mm = sample.left_origin_mm if sample.left_origin_mm is not None else sample.right_origin_mm
+        ended = None
+        if rec.left_valid and rec.right_valid:              # one eye alone is off the cyclopean line by
+            cyc = sample.left_direction + sample.right_direction    # half the vergence: not a saccade
+            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc)):
+                ended = self.end_fixation()
+        if self.segmenter.in_saccade:                       # between fixations: no target's line
+            return ended, None
+        if self.t_start is None:
+            self.t_start = t_s
+        est = self.estimator.update(sample)
+        self.n_samples += 1
+        if not est.ok:
+            return ended, None
+        self.last = (est, t_s)
+        r = est.ellipsoid(0.95)
+        return ended, LiveEstimate(t_s, self.fixation, est.position_mm,
+                                   None if r is None else float(r.radii_mm.max()), self.n_samples)
+
+    def end_fixation(self) -> Target | None:
+        """End the current fixation (a saccade, or the session's end): its target when it lasted
+        ``min_fixation_s`` and had an estimate, else None. The next fixation starts afresh.
+
+        The target (``pipeline.types.Target``) has the id of the same target seen before, or a
+        new one, as ``index``; its one fixation in ``fixations``; no Cramér-Rao bound (NaN)."""
+        target = None
+        if (self.last is not None and self.t_start is not None
+                and self.last[1] - self.t_start >= self.segmenter.config.min_fixation_s):
+            est, t_end = self.last
+            r = est.ellipsoid(0.95)
+            target = Target(index=self.targets.id_for(est.position_mm, est.covariance_mm2, self.head_mm),
+                            position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
+                            axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm, status=str(est.status.value),
+                            n_samples=self.n_samples, t_start=self.t_start, t_end=t_end, fixations=(self.fixation,),
+                            method=self.method, crb_mm=float("nan"))
+        self.fixation += 1
+        self._new_fixation()
+        return target

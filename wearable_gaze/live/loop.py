@@ -1,0 +1,218 @@
+"""The live loop (docs/live.md, The loop): frames to head tracking, eye samples with their head
+pose to estimation, what comes out published and recorded. The parts are built and wired by
+``app.open_session``; each is tested alone, the loop with fakes of them."""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from ..errors import UserError
+from .messages import estimate_message, target_message
+from .stats import LiveStats
+
+log = logging.getLogger(__name__)
+
+QUIET_END_S = 0.5       # after the camera file ends, the session ends once eye data have been quiet this long
+
+
+class LiveSession:
+    """Runs until the camera file ends, ``duration_s`` passes, or ``stop()`` (Ctrl-C, SIGTERM).
+
+    Readers (serial, camera) run in threads; the recorder takes every intact eye record and
+    every frame from them directly, so nothing the loop or the subscribers do can keep a
+    sample out of the recording. The loop tracks, estimates and publishes; publishing never
+    blocks it (``publish.Publisher``). Any error inside the loop ends the session: the
+    recording is kept, marked incomplete, and ``run`` raises a ``UserError`` saying so.
+
+    Args:
+        reader: the eye reader (``serial_in.EyeReader``): a thread whose queue holds
+            ``(arrival_s, t_s, EyeRecord)``.
+        frames: the camera (``camera_in.FrameSource``): a thread whose queue holds
+            ``(t_monotonic_s, index, grey, colour)``.
+        head: ``head.HeadTracker``; estimation: ``estimation.GazeEstimation``.
+        publisher: ``publish.Publisher``; recorder: ``record.Recorder`` or None.
+        status_stream: where the one-line status goes every 0.5 s (None: nowhere).
+    """
+
+    def __init__(self, reader, frames, head, estimation, publisher, recorder=None, status_stream=None):
+        self.reader, self.frames = reader, frames
+        self.head, self.estimation = head, estimation
+        self.publisher, self.recorder = publisher, recorder
+        self.status_stream = status_stream
+        self.stats = LiveStats()
+        self.stop_event = threading.Event()
+        self.pending: deque = deque()                # (arrival, t_s, record) waiting for a pose
+        self.last_arrival: float | None = None       # monotonic time the newest eye record arrived
+        self.camera_ended_at: float | None = None
+
+    def stop(self, *_):
+        self.stop_event.set()
+
+    def _publish(self, msg: dict) -> None:
+        line = self.publisher.send(msg)
+        if self.recorder is not None:
+            self.recorder.message(line)
+        self.stats.published += 1
+
+    def update_stats(self) -> LiveStats:
+        """Copy the readers' and the publisher's counters into ``stats``."""
+        s, r, c = self.stats, self.reader.stats, self.frames.stats
+        s.frames, s.frames_missed, s.camera_stalls = c.frames, c.missed, c.stalls
+        s.eye_records, s.corrupt, s.lost, s.reader_dropped, s.reconnects = (r.records, r.corrupt, r.lost, r.dropped,
+                                                                            r.reconnects)
+        s.publish_dropped = self.publisher.dropped
+        s.distinct_targets = len(self.estimation.targets)
+        return s
+
+    def run(self, duration_s: float | None = None) -> LiveStats:
+        """Run the session; returns its counters.
+
+        Raises:
+            UserError: the serial port will not open, or an error inside the session (the
+                recording is kept and marked incomplete).
+        """
+        self.reader.start()
+        self.reader.connected.wait(5.0)
+        if self.reader.error and self.reader.error.startswith("cannot open"):
+            self._close(complete=False)
+            raise UserError(f"--serial: {self.reader.error}")
+        self.frames.start()
+        failure = None
+        try:
+            self._loop(duration_s)
+            self._ended(self.estimation.end_fixation())
+        except Exception as exc:  # noqa: BLE001  (one line to the user; the recording kept, not complete)
+            log.debug("live session failed", exc_info=True)
+            failure = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        finally:
+            self._close(complete=failure is None)
+        self.update_stats()
+        if failure is not None:
+            kept = f"; the recording in {self.recorder.root} is kept, marked incomplete" if self.recorder else ""
+            raise UserError(f"the session stopped on an error ({failure}){kept}")
+        return self.stats
+
+    def _loop(self, duration_s: float | None) -> None:
+        t_start = time.monotonic()
+        last_status = 0.0
+        while not self.stop_event.is_set():
+            for th, what in ((self.reader, "the eye reader"), (self.frames, "the camera")):
+                if th.failure:
+                    raise RuntimeError(f"{what} failed: {th.failure}")
+            busy = self._drain_frames()
+            busy |= self._drain_eye()
+            now = time.monotonic()
+            if duration_s is not None and now - t_start >= duration_s:
+                self.stats.end_reason = f"{duration_s:g} s passed"
+                return
+            if self._camera_over(now):
+                return
+            if self.status_stream is not None and now - last_status > 0.5:
+                self._status()
+                last_status = now
+            if not busy:
+                time.sleep(0.002)
+        self.stats.end_reason = "stopped"
+
+    def _camera_over(self, now: float) -> bool:
+        """The camera file has ended and its frames are done; the session ends once the eye
+        data have been quiet for ``QUIET_END_S`` (at once if none ever came)."""
+        if not (self.frames.finished.is_set() and self.frames.queue.empty()):
+            return False
+        if self.camera_ended_at is None:
+            self.camera_ended_at = now
+        if not (self.reader.queue.empty() and not self.pending):
+            return False
+        since = now - max(self.camera_ended_at, self.last_arrival or 0.0)
+        if since <= QUIET_END_S:
+            return False
+        if self.last_arrival is None:
+            self.stats.end_reason = (f"the camera ended and no eye data ever arrived from {self.reader.port} "
+                                     f"(check --serial and --baud, and that the recorder is sending)")
+        else:
+            self.stats.end_reason = "the camera ended"
+        return True
+
+    def _drain_frames(self) -> bool:
+        """Track the newest waiting frame; older waiting frames are skipped (counted): under
+        load, a fresh pose serves the waiting eye samples better than a backlog of old ones
+        (every frame is still recorded)."""
+        items = []
+        while True:
+            try:
+                items.append(self.frames.queue.get_nowait())
+            except queue.Empty:
+                break
+        if not items:
+            return False
+        self.stats.frames_skipped += len(items) - 1
+        t, _, grey, _ = items[-1]
+        self.head.track(t - self.frames.t0, grey)
+        return True
+
+    def _drain_eye(self) -> bool:
+        """Take the waiting eye records; each is processed once the head pose at its time is
+        known (or it has waited long enough: ``HeadTracker.must_wait``)."""
+        busy = False
+        while True:
+            try:
+                item = self.reader.queue.get_nowait()
+            except queue.Empty:
+                break
+            busy = True
+            self.last_arrival = item[0]
+            self.pending.append(item)
+        while self.pending:
+            arrival, t_s, rec = self.pending[0]
+            if self.head.must_wait(t_s, time.monotonic() - arrival):
+                break                                        # wait for the next frame (bounded)
+            self.pending.popleft()
+            self._sample(arrival, t_s, rec)
+        return busy
+
+    def _sample(self, arrival: float, t_s: float, rec) -> None:
+        self.stats.samples += 1
+        if not (rec.left_valid or rec.right_valid):
+            return
+        T = self.head.pose_at(t_s)
+        if T is None:
+            self.stats.no_pose += 1
+            return
+        ended, est = self.estimation.add(t_s, rec, T)
+        lat = (time.monotonic() - arrival) * 1000
+        self._ended(ended)
+        if est is not None:
+            self.stats.add_latency(lat)
+            self._publish(estimate_message(est, lat))
+
+    def _ended(self, target) -> None:
+        """Publish a finished fixation's target (None: the fixation gave none)."""
+        if target is not None:
+            self._publish(target_message(target))
+            self.stats.targets += 1
+
+    def _status(self) -> None:
+        s = self.update_stats()
+        lat = np.percentile(list(s.latencies_ms), 95) if s.latencies_ms else float("nan")
+        x = self.estimation.current_mm
+        cur = "-" if x is None else "(" + ", ".join(f"{v:.0f}" for v in x) + ")"
+        self.status_stream.write(f"\r{s.counters()}  markers {self.head.markers_in_view}  p95 latency {lat:.1f} ms  "
+                                 f"target {cur} mm   ")
+        self.status_stream.flush()
+
+    def _close(self, complete: bool = True) -> None:
+        self.reader.stop()
+        self.frames.stop()
+        for th in (self.reader, self.frames):
+            if th.is_alive():
+                th.join(2.0)
+        self.publisher.close()
+        if self.recorder is not None:
+            self.recorder.close(complete=complete)
+        self.update_stats()
