@@ -297,7 +297,7 @@ def test_an_unexpected_exception_is_a_bug_not_a_bad_input(monkeypatch, capsys, t
 
 def test_parse_ids():
     from wearable_gaze.errors import UserError
-    from wearable_gaze.pipeline.track import parse_ids
+    from wearable_gaze.pipeline.marker_sheets import parse_ids
 
     assert parse_ids("0-3,7,2") == [0, 1, 2, 3, 7]
     assert parse_ids(" 5 ") == [5]

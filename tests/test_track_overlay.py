@@ -13,7 +13,7 @@ from calibration.camera import CameraCalibration
 from estimator.frames import rotation_about_axis
 from wearable_gaze.cli import main
 from wearable_gaze.formats.poses import read_poses_csv
-from wearable_gaze.pipeline.track import track_video
+from wearable_gaze.pipeline.track import track_video_files as track_video
 from wearable_gaze.sim.simulate import simulate_scenario
 
 # the simulated lab camera at 640x360: 90 degrees across, strong barrel distortion

@@ -6,20 +6,20 @@ from . import args as A
 
 
 def cmd_track(args) -> int:
-    from ..pipeline.track import track_video  # noqa: PLC0415
+    from ..pipeline.track import track_video_files  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
     with progress_bar("tracking", 1) as cb:
-        counts = track_video(args.video, args.camera, args.out, markers=args.markers, reference=args.reference,
-                             reference_size_mm=args.reference_size_mm, overlay=args.overlay,
-                             timestamps=args.timestamps, progress=cb, smooth_s=args.smooth)
+        counts = track_video_files(args.video, args.camera, args.out, markers=args.markers, reference=args.reference,
+                                   reference_size_mm=args.reference_size_mm, overlay=args.overlay,
+                                   timestamps=args.timestamps, progress=cb, smooth_s=args.smooth)
     print(f"wrote {args.out}: {counts['posed']} of {counts['frames']} frames with a pose"
           + (f"; overlay {args.overlay}" if args.overlay else ""))
     return 0
 
 
 def cmd_markers(args) -> int:
-    from ..pipeline.track import parse_ids, write_marker_sheets  # noqa: PLC0415
+    from ..pipeline.marker_sheets import parse_ids, write_marker_sheets  # noqa: PLC0415
 
     for p in write_marker_sheets(args.dict, parse_ids(args.ids), args.size_mm, args.out, args.page, args.dpi):
         print(f"wrote {p}")

@@ -1,15 +1,19 @@
-"""``calibrate-camera``, ``calibrate-eyes`` and ``viewlines``: files in, the ``calibration``
-library in the middle, files out."""
+"""The calibration and view-line steps over typed values (``calibrate_camera_views``,
+``calibrate_eyes``, ``view_lines``: contents in, results out; ``process`` calls them), and the
+``calibrate-camera``, ``calibrate-eyes`` and ``viewlines`` commands' file-level wrappers that
+read, call the step and write (``*_files``)."""
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from calibration.camera import (
+    BoardSpec,
     CameraCalibration,
     calibrate_camera,
     detect_board,
@@ -34,11 +38,12 @@ from tracking.timeline import interpolate_poses
 from ..errors import UserError, check_output
 from ..formats.atomic import atomic_path
 from ..formats.camera import calibration_dict, load_camera, write_camera
+from ..formats.eye_samples import EyeSamples, read_eye_csv
 from ..formats.eyes import eyes_dict, load_eyes, write_eyes
 from ..formats.jsonio import inside, load_json
-from ..formats.eye_samples import read_eye_csv
 from ..formats.poses import read_poses_csv
 from ..formats.viewlines import write_viewlines_csv
+from .types import CameraResult, Poses, ViewLinesResult
 
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 NOMINAL_CENTRES_MM = np.array([[-32.0, 30.0, -20.0], [32.0, 30.0, -20.0]])
@@ -64,7 +69,7 @@ def _input_files(inputs) -> list:
     return files
 
 
-def _frames(files, max_video_frames: int, progress=None):
+def _read_frames(files, max_video_frames: int):
     """(name, grey image) for image files, and every k-th frame of video files."""
     for f in files:
         if f.suffix.lower() in IMAGE_EXT:
@@ -91,22 +96,45 @@ def _frames(files, max_video_frames: int, progress=None):
         cap.release()
 
 
-def calibrate_camera_files(inputs, board: str, out, model: str = "pinhole", max_views: int = 40,
-                           progress=None) -> tuple[CameraCalibration, list]:
-    """Detect the board in images or videos, pick views for coverage, calibrate, write the
-    camera JSON and an undistortion preview PNG beside it. Returns the calibration and the
-    written paths."""
+def board_spec(board) -> BoardSpec:
+    """The board of a ``--board`` text (``chessboard:9x6:25``, ``charuco:...``); a BoardSpec
+    passes through."""
+    if isinstance(board, BoardSpec):
+        return board
     try:
-        spec = parse_board(board)
+        return parse_board(board)
     except ValueError as exc:
         raise UserError(f"--board {ascii(board)}: {exc}; e.g. chessboard:9x6:25 (inner corners, square mm)") from None
-    files = _input_files(inputs)
+
+
+def board_from_json(board: dict, source) -> BoardSpec:
+    """The board of a session's board.json (its ``board`` object; ``source``: the file)."""
+    try:
+        if board["type"] == "chessboard":
+            spec = BoardSpec("chessboard", int(board["cols"]), int(board["rows"]), float(board["square_mm"]))
+        else:
+            spec = BoardSpec("charuco", int(board["cols"]), int(board["rows"]), float(board["square_mm"]),
+                             float(board["marker_mm"]), board["dictionary"])
+        spec.validate()
+    except ValueError as exc:
+        raise UserError(f"{source}: {exc}; fix the board (docs/session.md)") from None
+    return spec
+
+
+def _camera_outputs(out, files) -> tuple[Path, Path]:
+    """The camera JSON and its preview image, checked not to overwrite an input."""
     out = Path(out)
     preview = out.with_name(out.stem + "_undistorted.png")
     check_output(out, files, "-o")
     check_output(preview, files, "-o (its preview image)")
+    return out, preview
+
+
+def calibrate_camera_views(frames, spec, model: str = "pinhole", max_views: int = 40, progress=None) -> CameraResult:
+    """Detect the board in views (name, grey image) of one camera, pick views for coverage and
+    calibrate. Returns the calibration, why it cannot be trusted, and an undistortion preview."""
     views, size, first = [], None, None
-    for k, (name, img) in enumerate(_frames(files, 4 * max_views)):
+    for k, (name, img) in enumerate(frames):
         h, w = img.shape[:2]
         if size is None:
             size, first = (w, h), img
@@ -126,17 +154,33 @@ def calibrate_camera_files(inputs, board: str, out, model: str = "pinhole", max_
         cal = calibrate_camera(views, size, spec, model)
     except ValueError as exc:
         raise UserError(f"camera calibration: {exc}") from None
-    warnings = plausibility_warnings(cal, spec)
-    for w in warnings:
-        log.warning("%s: camera calibration cannot be trusted: %s", out, w)
-    write_camera(out, camera_json(cal, warnings))
     und, _ = undistort_image(first, cal, alpha=0.0)
     side = np.hstack([cv2.cvtColor(first, cv2.COLOR_GRAY2BGR), cv2.cvtColor(und, cv2.COLOR_GRAY2BGR)])
     cv2.putText(side, "original", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 1, (0, 0, 255), 2)
     cv2.putText(side, "undistorted", (size[0] + 10, 30), cv2.FONT_HERSHEY_SIMPLEX, 1, (0, 0, 255), 2)
+    return CameraResult(cal, plausibility_warnings(cal, spec), side)
+
+
+def _write_camera_result(out: Path, preview: Path, result: CameraResult) -> None:
+    """The camera JSON (with ``trusted`` and the warnings, each also logged) and the preview PNG."""
+    for w in result.warnings:
+        log.warning("%s: camera calibration cannot be trusted: %s", out, w)
+    write_camera(out, camera_json(result.calibration, result.warnings))
     with atomic_path(preview) as tmp:
-        cv2.imwrite(str(tmp), side)
-    return cal, [out, preview]
+        cv2.imwrite(str(tmp), result.preview)
+
+
+def calibrate_camera_files(inputs, board, out, model: str = "pinhole", max_views: int = 40,
+                           progress=None) -> tuple[CameraCalibration, list]:
+    """Detect the board (``--board`` text or BoardSpec) in images or videos, pick views for
+    coverage, calibrate, write the camera JSON and an undistortion preview PNG beside it.
+    Returns the calibration and the written paths."""
+    spec = board_spec(board)
+    files = _input_files(inputs)
+    out, preview = _camera_outputs(out, files)
+    result = calibrate_camera_views(_read_frames(files, 4 * max_views), spec, model, max_views, progress)
+    _write_camera_result(out, preview, result)
+    return result.calibration, [out, preview]
 
 
 MAX_TRUSTED_RMS_PX = 1.0
@@ -206,48 +250,69 @@ def _eye_folder(src) -> tuple[Path, Path]:
                     "calibration/eye folder or the CSV (docs/session.md)")
 
 
-def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centres=None, progress=None) -> dict:
-    """The eye calibration of a session's recordings (docs/session.md): wall poses from their
-    reference markers, per-target readings, eye centres from two or more wall distances (or
-    ``centres``, or a nominal headset geometry), and eq. 1-2 per eye. Writes eyes.json and
-    returns its content."""
+@dataclass(frozen=True)
+class EyeFiles:
+    """The files of an eye calibration (docs/session.md): eye_calibration.csv, walls.json (read:
+    ``walls``) and the wall images it names."""
+
+    csv_path: Path
+    walls_path: Path
+    walls: dict
+    images: list
+
+
+@dataclass(frozen=True)
+class EyeRecordings:
+    """An eye calibration's contents: its files, the samples (``extra``: the recording and
+    target columns) and each wall image, grey, or None when missing or unreadable."""
+
+    files: EyeFiles
+    eye: EyeSamples
+    extra: dict
+    images: list
+
+
+def eye_files(src) -> EyeFiles:
+    """The eye-calibration files of a session folder, its calibration/eye folder or the CSV."""
     folder, csv_path = _eye_folder(src)
     walls_path = folder / "walls.json"
     walls = load_json(walls_path, "walls")
-    recs = walls["recordings"]
     images = [inside(folder, rec["image"], walls_path, "walls", ["recordings", r, "image"])
-              for r, rec in enumerate(recs)]
-    check_output(out, [camera_path, csv_path, walls_path, *images], "-o")
+              for r, rec in enumerate(walls["recordings"])]
+    return EyeFiles(csv_path, walls_path, walls, images)
+
+
+def read_eye_recordings(files: EyeFiles) -> EyeRecordings:
+    eye, extra = read_eye_csv(files.csv_path, ["recording", "target"])
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) if p.is_file() else None for p in files.images]
+    return EyeRecordings(files, eye, extra, images)
+
+
+def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centres=None, progress=None) -> dict:
+    """``calibrate_eyes`` from files: writes eyes.json and returns its content."""
+    files = eye_files(src)
+    check_output(out, [camera_path, files.csv_path, files.walls_path, *files.images], "-o")
     camera = load_camera(camera_path)
-    eye, extra = read_eye_csv(csv_path, ["recording", "target"])
-    targets_cam, readings, wall_report = [], [[], []], []
-    for r, rec in enumerate(recs):
-        P, wp = _wall_targets(images[r], walls_path, rec, camera)
-        sel = extra["recording"].astype(int) == int(rec.get("recording", r))
-        if not sel.any():
-            raise UserError(f"{csv_path}: no samples of recording {rec.get('recording', r)}; record it again")
-        ids = None
-        for e in range(2):
-            ids, vals, _ = target_readings(extra["target"][sel], eye.raw[sel, e], eye.valid[sel, e], eye.t[sel])
-            readings[e].append(vals)
-        if ids.min() < 0 or ids.max() >= len(P):
-            bad = ids.min() if ids.min() < 0 else ids.max()
-            raise UserError(f"{csv_path}: target {bad} in recording {r}, but walls.json lists {len(P)} dots (0-"
-                            f"{len(P) - 1}); fix the target column")
-        targets_cam.append(P[ids])
-        wall_report.append({"recording": r, "image": rec.get("image"), "nominal_distance_mm": rec.get("distance_mm"),
-                            "measured_distance_mm": float(wp.T_cam_from_wall[2, 3]), "tilt_deg": wp.tilt_deg,
-                            "reference_rms_px": wp.rms * camera.camera_matrix[0, 0]})
-        if progress:
-            progress(r + 1, len(recs) + 2)
-    P = np.vstack(targets_cam)
+    result = calibrate_eyes(read_eye_recordings(files), camera, model, centres, progress)
+    write_eyes(out, result)
+    return result
+
+
+def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "quadratic", centres=None,
+                   progress=None) -> dict:
+    """The eye calibration of a session's recordings (docs/session.md): wall poses from their
+    reference markers, per-target readings, eye centres from two or more wall distances (or
+    ``centres``, or a nominal headset geometry), and eq. 1-2 per eye. Returns the content of
+    eyes.json."""
+    n = len(rec.files.walls["recordings"])
+    P, readings, wall_report = _wall_readings(rec, camera, progress)
     depths = np.array([w["measured_distance_mm"] for w in wall_report])
     eyes_out = []
     for e, name in enumerate(("left", "right")):
         raw = np.vstack(readings[e])
         if not np.isfinite(raw).any():
-            raise UserError(f"no valid {name}-eye samples in {csv_path}: check the {name} eye's sensor and record "
-                            "the calibration again")
+            raise UserError(f"no valid {name}-eye samples in {rec.files.csv_path}: check the {name} eye's sensor and "
+                            "record the calibration again")
         if centres is not None:
             c, cov, how = np.asarray(centres[e], float), None, "given"
         elif np.ptp(depths) > 0.2 * np.median(depths):
@@ -266,16 +331,40 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
         if len(raw) > 9:
             cal.report["model_loo_rms_deg"] = compare_models(name, raw, P, c, float(depths[0]))
         eyes_out.append(cal)
-    result = eyes_dict(calibration_dict(camera), wall_report, eyes_out)
-    write_eyes(out, result)
     if progress:
-        progress(len(recs) + 2, len(recs) + 2)
-    return result
+        progress(n + 2, n + 2)
+    return eyes_dict(calibration_dict(camera), wall_report, eyes_out)
 
 
-def _wall_targets(img_path: Path, walls_path: Path, rec: dict, camera: CameraCalibration):
+def _wall_readings(rec: EyeRecordings, camera: CameraCalibration, progress):
+    """The targets (K, 3) in the camera frame, each eye's readings of them (per recording) and
+    the report of each wall recording."""
+    csv_path, recs, extra, eye = rec.files.csv_path, rec.files.walls["recordings"], rec.extra, rec.eye
+    targets_cam, readings, wall_report = [], [[], []], []
+    for r, wall in enumerate(recs):
+        P, wp = _wall_targets(rec.images[r], rec.files.images[r], rec.files.walls_path, wall, camera)
+        sel = extra["recording"].astype(int) == int(wall.get("recording", r))
+        if not sel.any():
+            raise UserError(f"{csv_path}: no samples of recording {wall.get('recording', r)}; record it again")
+        ids = None
+        for e in range(2):
+            ids, vals, _ = target_readings(extra["target"][sel], eye.raw[sel, e], eye.valid[sel, e], eye.t[sel])
+            readings[e].append(vals)
+        if ids.min() < 0 or ids.max() >= len(P):
+            bad = ids.min() if ids.min() < 0 else ids.max()
+            raise UserError(f"{csv_path}: target {bad} in recording {r}, but walls.json lists {len(P)} dots (0-"
+                            f"{len(P) - 1}); fix the target column")
+        targets_cam.append(P[ids])
+        wall_report.append({"recording": r, "image": wall.get("image"), "nominal_distance_mm": wall.get("distance_mm"),
+                            "measured_distance_mm": float(wp.T_cam_from_wall[2, 3]), "tilt_deg": wp.tilt_deg,
+                            "reference_rms_px": wp.rms * camera.camera_matrix[0, 0]})
+        if progress:
+            progress(r + 1, len(recs) + 2)
+    return np.vstack(targets_cam), readings, wall_report
+
+
+def _wall_targets(img, img_path: Path, walls_path: Path, rec: dict, camera: CameraCalibration):
     """Targets (K, 3) in the camera frame from the wall image's reference markers."""
-    img = cv2.imread(str(img_path), cv2.IMREAD_GRAYSCALE) if img_path.is_file() else None
     if img is None:
         raise UserError(f"{img_path}: missing or unreadable wall image; record the wall again or fix 'image' in "
                         f"{walls_path}")
@@ -325,26 +414,33 @@ def format_eyes_report(result: dict) -> str:
 # --- viewlines ---------------------------------------------------------------------------------
 
 def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1) -> dict:
-    """Raw eye samples -> world view lines (eq. 1-8) with the head poses interpolated to each
-    sample; samples without a pose within ``max_gap_s`` are dropped and counted, invalid eyes
-    stay empty (monocular samples are kept)."""
+    """``view_lines`` from files: writes the view-line CSV and returns the counts."""
     check_output(out, [eye_csv, eyes_json, poses_csv], "-o")
     eye, _ = read_eye_csv(eye_csv)
     cals = load_eyes(eyes_json)
-    t_p, _, T_p, _ = read_poses_csv(poses_csv)
-    T_wc, ok = interpolate_poses(t_p, T_p, eye.t, max_gap_s)
+    result = view_lines(eye, cals, Poses(*read_poses_csv(poses_csv)), max_gap_s, poses_csv)
+    write_viewlines_csv(out, result.samples)
+    return result.counts
+
+
+def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = 0.1, source="the poses"
+               ) -> ViewLinesResult:
+    """Raw eye samples -> world view lines (eq. 1-8) with the head poses interpolated to each
+    sample; samples without a pose within ``max_gap_s`` are dropped and counted, invalid eyes
+    stay empty (monocular samples are kept). ``eyes``: the (left, right) calibrations;
+    ``source``: where the poses come from, for the message when none is near a sample."""
+    T_wc, ok = interpolate_poses(poses.t, poses.T_world_from_cam, eye.t, max_gap_s)
     keep = ok & eye.valid.any(axis=1)
     if not keep.any():
-        raise UserError(f"{poses_csv}: no head pose within {max_gap_s} s of any valid eye sample; check that the eye "
+        raise UserError(f"{source}: no head pose within {max_gap_s} s of any valid eye sample; check that the eye "
                         "samples and the poses share one clock (or raise --max-gap)")
     idx = np.flatnonzero(keep)
     T_cw = np.stack([invert(T) for T in T_wc[idx]])
     arrays = []
-    for e, cal in enumerate(cals[:2]):
+    for e, cal in enumerate(eyes[:2]):
         lw = view_lines_to_world(cal.lines(eye.raw[idx, e]), T_cw)
         d = np.where(eye.valid[idx, e][:, None], lw.directions, np.nan)     # blinks stay marked: empty
         arrays += [lw.origins_mm, d]
     samples = BinocularSamples.from_arrays(eye.t[idx], *arrays)
-    write_viewlines_csv(out, samples)
-    return {"samples": int(len(eye)), "written": int(len(idx)), "no_pose": int((~ok).sum()),
-            "both_eyes_invalid": int((ok & ~eye.valid.any(axis=1)).sum())}
+    return ViewLinesResult(samples, {"samples": int(len(eye)), "written": int(len(idx)), "no_pose": int((~ok).sum()),
+                                     "both_eyes_invalid": int((ok & ~eye.valid.any(axis=1)).sum())})

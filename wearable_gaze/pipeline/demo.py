@@ -14,27 +14,37 @@ from ..sim.simulate import simulate_scenario
 from .process import format_result, process_session
 
 
-def match_targets(found: list, truth: list) -> list:
-    """Pairs (truth entry, found target or None): each true fixed target with the nearest
-    estimate (each estimate used once)."""
+def match_positions(positions, truth: list, ids=None) -> list:
+    """Pairs (truth entry, index into ``positions`` or None): each true fixed target (a truth
+    entry with ``position_mm``) with the nearest estimate (M, 3) within 30 % of its distance
+    + 100 mm; each id of ``ids`` (M,) (default: each estimate) used once."""
+    P = np.asarray(positions, float).reshape(-1, 3)
+    ids = list(range(len(P))) if ids is None else list(ids)
     pairs, used = [], set()
     for tt in truth:
         if "position_mm" not in tt:
             continue
         X = np.asarray(tt["position_mm"])
         best = None
-        for f in found:
-            if f["target"] in used or not np.isfinite(f["x_mm"]):
+        for k, p in enumerate(P):
+            if ids[k] in used or not np.isfinite(p[0]):
                 continue
-            d = np.linalg.norm(np.array([f["x_mm"], f["y_mm"], f["z_mm"]]) - X)
+            d = np.linalg.norm(p - X)
             if best is None or d < best[0]:
-                best = (d, f)
+                best = (d, k)
         if best is not None and best[0] < 0.3 * np.linalg.norm(X) + 100:
-            used.add(best[1]["target"])
+            used.add(ids[best[1]])
             pairs.append((tt, best[1]))
         else:
             pairs.append((tt, None))
     return pairs
+
+
+def match_targets(found: list, truth: list) -> list:
+    """``match_positions`` for rows of targets.json (or live target messages in that shape:
+    ``target``, ``x_mm``, ``y_mm``, ``z_mm``): pairs (truth entry, row or None)."""
+    pairs = match_positions([[f["x_mm"], f["y_mm"], f["z_mm"]] for f in found], truth, [f["target"] for f in found])
+    return [(tt, None if k is None else found[k]) for tt, k in pairs]
 
 
 def run_demo(out: Path, seed: int = 0, duration_s: float = 20.0) -> int:
@@ -53,14 +63,15 @@ def run_demo(out: Path, seed: int = 0, duration_s: float = 20.0) -> int:
     truth = json.loads((session / "truth" / "targets.json").read_text())["targets"]
     print("\ncompared with the truth:")
     print(f"{'true target':>11} {'true position mm':>24} {'estimate mm':>24} {'error mm':>9} {'CRB mm':>7}")
-    for tt, f in match_targets(res.targets, truth):
+    found = res.found
+    for tt, k in match_positions([t.position_mm for t in found], truth, [t.index for t in found]):
         X = np.asarray(tt["position_mm"])
-        if f is None:
+        if k is None:
             print(f"{tt['index']:>11} {X[0]:>7.0f} {X[1]:>7.0f} {X[2]:>8.0f}   not found")
             continue
-        E = np.array([f["x_mm"], f["y_mm"], f["z_mm"]])
+        E = found[k].position_mm
         print(f"{tt['index']:>11} {X[0]:>7.0f} {X[1]:>7.0f} {X[2]:>8.0f} {E[0]:>7.0f} {E[1]:>7.0f} {E[2]:>8.0f} "
-              f"{np.linalg.norm(E - X):>9.1f} {f['crb_mm']:>7.1f}")
+              f"{np.linalg.norm(E - X):>9.1f} {found[k].crb_mm:>7.1f}")
     for p in res.problems:
         print(f"problem: {p}")
     if "report" in res.summary:

@@ -1,4 +1,6 @@
-"""``wearable-gaze estimate``: view-line CSV in, one estimate per segment out."""
+"""The estimate of one gazed point from its view lines: a fixation's running estimate, a
+target's estimate with its confidence and bound (``process``), and ``wearable-gaze estimate``
+(view-line CSV in, one estimate per segment out)."""
 
 from __future__ import annotations
 
@@ -6,11 +8,64 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator import density_point_cloud, run_estimator
+from estimator import (
+    BinocularSamples,
+    GazeEstimate,
+    cramer_rao_bound,
+    density_point_cloud,
+    make_estimator,
+    run_estimator,
+)
 
 from ..errors import UserError
 from ..formats.atomic import atomic_path
 from ..formats.viewlines import read_viewlines_csv
+from .types import Target
+
+
+def running_estimate(samples: BinocularSamples, method: str, sigma_deg: float,
+                     chunks: int = 20) -> tuple[GazeEstimate | None, list]:
+    """The estimator fed one fixation's samples (N,) in about ``chunks`` chunks, as a live session
+    would. Returns the last estimate (None without samples) and the usable ones as (time of the
+    chunk's last sample s, estimate) pairs."""
+    stream = make_estimator(method, sigma_deg)
+    bounds = np.unique(np.linspace(0, len(samples), min(chunks + 1, len(samples) + 1)).astype(int))
+    e, usable = None, []
+    for j0, j1 in zip(bounds[:-1], bounds[1:], strict=True):
+        e = stream.add(samples.select(slice(j0, j1)))
+        if e.ok:
+            usable.append((float(samples.t_s[j1 - 1]), e))
+    return e, usable
+
+
+def radius95_mm(e: GazeEstimate) -> float:
+    """The largest semi-axis of the 95 % confidence ellipsoid, mm; NaN without a covariance."""
+    if e.covariance_mm2 is None:
+        return float("nan")
+    return float(e.ellipsoid(0.95).radii_mm.max())
+
+
+def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixations, e: GazeEstimate,
+                    method: str, sigma_deg: float) -> Target:
+    """The target made of the view lines ``samples[idx]`` (fixations ``fixations``) with their
+    estimate ``e``: its 95 % semi-axes and the Cramér-Rao bound of those lines at the estimate."""
+    pos = e.position_mm if e.ok else np.full(3, np.nan)
+    radii = e.ellipsoid(0.95).radii_mm if e.covariance_mm2 is not None else np.full(3, np.nan)
+    t = samples.t_s[idx]
+    crb = _crb(samples.select(idx), e.position_mm, sigma_deg) if e.ok else None
+    return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2,
+                  axes95_mm=np.asarray(radii, float), status=e.status.value if hasattr(e.status, "value")
+                  else str(e.status), n_samples=len(idx), t_start=float(t.min()), t_end=float(t.max()),
+                  fixations=tuple(int(f) for f in fixations), method=method,
+                  crb_mm=float(np.sqrt(np.trace(crb))) if crb is not None else float("nan"), samples=idx)
+
+
+def _crb(samples: BinocularSamples, point_mm, sigma_deg: float):
+    """Cramér-Rao bound (3, 3) of the lines actually used, at the point; None if degenerate."""
+    try:
+        return cramer_rao_bound(samples.lines().origins_mm, point_mm, sigma_deg)
+    except ValueError:
+        return None
 
 
 def _density_path(base: Path, key, n_segments: int) -> Path:

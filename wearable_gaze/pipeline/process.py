@@ -10,6 +10,7 @@ older run's result presented as this one's.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -17,22 +18,30 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from estimator import BinocularSamples, cramer_rao_bound, make_estimator, run_estimator
-from estimator.segments import SegmentConfig, same_target, segment_fixations
+from estimator.segments import SegmentConfig, segment_fixations
 
 from ..errors import UserError
-from ..formats.atomic import atomic_path, remove_temporaries, write_text
+from ..formats.atomic import remove_temporaries, write_text
 from ..formats.camera import load_camera
-from ..formats.eyes import load_eyes
+from ..formats.eye_samples import read_eye_csv
+from ..formats.eyes import load_eyes, write_eyes
 from ..formats.jsonio import load_json, write_json
+from ..formats.markermap import load_marker_map
+from ..formats.poses import read_poses_csv, write_poses_csv
 from ..formats.session import load_session
-from ..formats.tables import write_table
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
-from .calibrate import calibrate_camera_files, calibrate_eyes_files, viewlines_files
+from .calibrate import (
+    board_from_json,
+    calibrate_camera_files,
+    calibrate_eyes,
+    eye_files,
+    read_eye_recordings,
+    view_lines,
+)
+from .fixations import find_targets, read_targets, write_targets
 from .report import REPORT_FILES
-from .track import track_video
+from .track import frame_times, track_video
+from .types import Poses
 
 log = logging.getLogger(__name__)
 
@@ -60,8 +69,8 @@ class ProcessResult:
 
     Attributes:
         out: the output folder.
-        targets: the targets estimated in this run (rows of targets.json); empty when the
-            targets step failed or could not run.
+        found: the targets estimated in this run (``Target``); empty when the targets step
+            failed or could not run. ``targets``: the same as rows of targets.json.
         problems: one line per problem, ``"step: what went wrong"``.
         skipped: steps whose outputs were up to date.
         timings: seconds per step run.
@@ -72,13 +81,18 @@ class ProcessResult:
     """
 
     out: Path
-    targets: list = field(default_factory=list)
+    found: list = field(default_factory=list)
     problems: list = field(default_factory=list)
     skipped: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     summary: dict = field(default_factory=dict)
     status: dict = field(default_factory=dict)
     removed: list = field(default_factory=list)
+
+    @property
+    def targets(self) -> list[dict]:
+        """This run's targets as rows of targets.json (as summary.json holds them)."""
+        return [t.row() for t in self.found]
 
     @property
     def failed(self) -> list:
@@ -91,7 +105,7 @@ class ProcessResult:
     @property
     def exit_status(self) -> int:
         """2 when no target could be estimated (docs/processing.md), else 0."""
-        return 0 if self.targets else 2
+        return 0 if self.found else 2
 
 
 def _fingerprint(paths, params) -> str:
@@ -227,13 +241,6 @@ class _Steps:
         write_text(self.state_path, json.dumps(self.state, indent=1))
 
 
-def _board_text(board: dict) -> str:
-    if board["type"] == "chessboard":
-        return f"chessboard:{board['cols']}x{board['rows']}:{board['square_mm']}"
-    return (f"charuco:{board['cols']}x{board['rows']}:{board['square_mm']}:{board['marker_mm']}:"
-            f"{board['dictionary']}")
-
-
 @dataclass(frozen=True)
 class _Settings:
     method: str
@@ -242,6 +249,43 @@ class _Settings:
     report: bool
     track_every: int
     segment_config: SegmentConfig
+
+
+@dataclass(frozen=True)
+class _SessionFiles:
+    """The session's files, resolved once from its manifest (None: the session has none)."""
+
+    root: Path
+    camera_views: Path
+    eye_calibration: Path
+    has_recording: bool
+    video: Path | None
+    markers: Path | None
+    stamps: Path | None
+    eye_samples: Path | None
+
+    @classmethod
+    def of(cls, s) -> _SessionFiles:
+        files = s.manifest["files"]
+        return cls(s.root, s.root / files.get("camera_views", "calibration/camera"),
+                   s.root / files.get("eye_calibration", "calibration/eye"), s.manifest.get("has_recording", True),
+                   s.path("scene_video"), s.path("marker_map"), s.path("scene_timestamps"), s.path("eye_samples"))
+
+
+class _Values:
+    """Each input and step result read once, when a step first needs it; a step run in this run
+    sets its result, so the steps after it take the value, not the file."""
+
+    def __init__(self):
+        self._values = {}
+
+    def get(self, key: str, load):
+        if key not in self._values:
+            self._values[key] = load()
+        return self._values[key]
+
+    def set(self, key: str, value) -> None:
+        self._values[key] = value
 
 
 def process_session(session, out=None, method: str = "voxel", camera=None, eyes=None, force: bool = False,
@@ -287,8 +331,15 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         res.problems.append(f"session: {s.root / 'session.json'} says the recording was cut short (complete: "
                             f"false{'; ' + counts + ' saved' if counts else ''}); processing what was recorded")
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config or SegmentConfig())
+    f, vals = _SessionFiles.of(s), _Values()
     try:
-        _run_steps(s, out, steps, res, camera, eyes, cfg)
+        cam_path, eyes_path = _calibration_steps(f, out, steps, vals, camera, eyes)
+        if f.has_recording:
+            _recording_steps(f, out, steps, res, vals, cam_path, eyes_path, cfg)
+        else:
+            res.problems.append("session: a calibration-only session has no recording to process")
+            for name in ("tracking", "viewlines", "targets", "report"):
+                steps.status[name] = "no_recording"
     except BaseException:
         steps.finish(aborted=True)
         raise
@@ -296,76 +347,93 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     return _finish(res, s, out, method)
 
 
-def _run_steps(s, out: Path, steps: _Steps, res: ProcessResult, camera, eyes, cfg: _Settings) -> None:
-    root, files = s.root, s.manifest["files"]
-    # 1. camera
+def _calibration_steps(f: _SessionFiles, out: Path, steps: _Steps, vals: _Values, camera, eyes) -> tuple[Path, Path]:
+    """1. camera, 2. eyes: calibrated from the session, or the files given checked once and
+    kept as values. Returns the camera and eyes files the later steps fingerprint."""
     cam_path = Path(camera) if camera else out / "camera.json"
     if camera is None:
-        views = root / files.get("camera_views", "calibration/camera")
-        board_file = views / "board.json"
+        board_file = f.camera_views / "board.json"
 
         def do_camera(cb):
             if not board_file.is_file():
                 raise UserError(f"{board_file}: no camera-calibration recording in the session; pass --camera "
                                 "camera.json")
-            board = load_json(board_file, "board")["board"]        # schema: wearable_gaze/formats/schemas/board
-            calibrate_camera_files([views], _board_text(board), cam_path, progress=cb)
-        steps.run("camera", [views], {}, do_camera)
+            spec = board_from_json(load_json(board_file, "board")["board"], board_file)  # schema: formats/schemas/board
+            calibrate_camera_files([f.camera_views], spec, cam_path, progress=cb)
+        steps.run("camera", [f.camera_views], {}, do_camera)
     else:
-        steps.external("camera", cam_path, load_camera)
-
-    # 2. eyes
+        steps.external("camera", cam_path, lambda p: vals.set("camera", load_camera(p)))
+    camera_value = functools.partial(vals.get, "camera", lambda: load_camera(cam_path))
     eyes_path = Path(eyes) if eyes else out / "eyes.json"
     if eyes is None:
-        cal_dir = root / files.get("eye_calibration", "calibration/eye")
-        steps.run("eyes", [cal_dir, cam_path], {},
-                  lambda cb: calibrate_eyes_files(root, cam_path, eyes_path, progress=cb))
+        def do_eyes(cb):
+            cam = camera_value()
+            write_eyes(eyes_path, calibrate_eyes(read_eye_recordings(eye_files(f.root)), cam, progress=cb))
+        steps.run("eyes", [f.eye_calibration, cam_path], {}, do_eyes)
     else:
-        steps.external("eyes", eyes_path, load_eyes)
+        steps.external("eyes", eyes_path, lambda p: vals.set("eyes", load_eyes(p)))
+    return cam_path, eyes_path
 
-    if not s.manifest.get("has_recording", True):
-        res.problems.append("session: a calibration-only session has no recording to process")
-        for name in ("tracking", "viewlines", "targets", "report"):
-            steps.status[name] = "no_recording"
-        return
 
-    # 3. head tracking
+def _recording_steps(f: _SessionFiles, out: Path, steps: _Steps, res: ProcessResult, vals: _Values, cam_path: Path,
+                     eyes_path: Path, cfg: _Settings) -> None:
+    """3. head tracking, 4. view lines, 5. fixations and targets, 6. plots, overlay, report.
+    Each step's inputs are read once, from the session or from the files the steps before it
+    wrote (what a cached step would give: a run gives the same results with or without them)."""
     poses_path = out / "poses.csv"
-    video, markers, stamps = s.path("scene_video"), s.path("marker_map"), s.path("scene_timestamps")
-    if markers is None:
+
+    def do_tracking(cb):
+        cam = vals.get("camera", lambda: load_camera(cam_path))
+        mm = vals.get("marker_map", lambda: load_marker_map(f.markers))
+        poses = track_video(f.video, cam, mm, frame_times(f.video, f.stamps), cfg.track_every, cb)
+        write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
+    if f.markers is None:
         steps.fail("tracking", "the session has no marker map (markers.json); track it with "
                                "'wearable-gaze track --reference' and pass the poses")
     else:
-        steps.run("tracking", [video, cam_path, markers, stamps], {"every": cfg.track_every},
-                  lambda cb: track_video(video, cam_path, poses_path, markers=markers, timestamps=stamps,
-                                         progress=cb, every=cfg.track_every))
+        steps.run("tracking", [f.video, cam_path, f.markers, f.stamps], {"every": cfg.track_every}, do_tracking)
 
-    # 4. view lines
     raw_vl, counts_path = out / ".viewlines_unsegmented.csv", out / ".viewlines_counts.json"
 
     def do_viewlines(cb):
-        write_json(counts_path, viewlines_files(s.path("eye_samples"), eyes_path, poses_path, raw_vl))
-    if steps.run("viewlines", [s.path("eye_samples"), eyes_path, poses_path], {}, do_viewlines):
+        eye = vals.get("eye_samples", lambda: read_eye_csv(f.eye_samples)[0])
+        cals = vals.get("eyes", lambda: load_eyes(eyes_path))
+        result = view_lines(eye, cals, Poses(*read_poses_csv(poses_path)), source=poses_path)
+        write_viewlines_csv(raw_vl, result.samples)
+        write_json(counts_path, result.counts)
+    if steps.run("viewlines", [f.eye_samples, eyes_path, poses_path], {}, do_viewlines):
         res.summary["viewlines"] = json.loads(counts_path.read_text(encoding="utf-8"))
 
-    # 5. segmentation and estimation
+    def do_targets(cb):
+        samples = read_viewlines_csv(raw_vl)[0].samples
+        result = find_targets(samples, segment_fixations(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb)
+        write_targets(out, result, cfg.method)
+        vals.set("targets", result.targets)
     params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__}
-    if steps.run("targets", [raw_vl], params,
-                 lambda cb: _targets(raw_vl, out, cfg.method, cfg.sigma_deg, cfg.segment_config, cb)):
-        res.targets = json.loads((out / "targets.json").read_text(encoding="utf-8"))["targets"]
-        if not res.targets:
+    if steps.run("targets", [raw_vl], params, do_targets):
+        res.found = vals.get("targets", lambda: read_targets(out / "targets.json"))
+        if not res.found:
             n = res.summary.get("viewlines", {}).get("written", "the")
             res.problems.append(f"targets: no target could be estimated from {n} view lines (no fixation of "
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
-
-    # 6. plots, overlay, report
     if cfg.report:
-        from .report import write_report  # noqa: PLC0415
+        _report_step(f, out, steps, vals, cam_path, eyes_path, cfg)
 
-        cam_ok = steps.status.get("camera") in GOOD
-        inputs = [out / "targets.csv", out / "viewlines.csv", poses_path] + ([video] if cfg.overlay else [])
-        steps.run("report", inputs, {"overlay": cfg.overlay},
-                  lambda cb: write_report(out, s, cam_path if cam_ok else None, eyes_path, cfg.overlay, cb))
+
+def _report_step(f: _SessionFiles, out: Path, steps: _Steps, vals: _Values, cam_path: Path, eyes_path: Path,
+                 cfg: _Settings) -> None:
+    from .report import OverlayInputs, write_report  # noqa: PLC0415
+
+    def overlay_inputs() -> OverlayInputs:
+        return OverlayInputs(vals.get("camera", lambda: load_camera(cam_path)),
+                             vals.get("eyes", lambda: load_eyes(eyes_path)) if eyes_path.is_file() else None,
+                             vals.get("eye_samples", lambda: read_eye_csv(f.eye_samples)[0]),
+                             vals.get("marker_map", lambda: load_marker_map(f.markers)) if f.markers else None,
+                             f.video)
+    cam_ok = steps.status.get("camera") in GOOD
+    inputs = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"] + ([f.video] if cfg.overlay else [])
+    steps.run("report", inputs, {"overlay": cfg.overlay},
+              lambda cb: write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb))
 
 
 def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
@@ -381,122 +449,16 @@ def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
     return res
 
 
-TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "n_samples", "t_start",
-                  "t_end", "fixations", "method", "status", "crb_mm")
-TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "crb_mm")} | {
-    "t_start": ".3f", "t_end": ".3f"}
-
-
-def _targets(vl_path: Path, out: Path, method: str, sigma_deg: float, config: SegmentConfig, progress) -> None:
-    """Segment the view lines into fixations, estimate each, merge fixations of one target."""
-    samples = read_viewlines_csv(vl_path)[0].samples
-    labels = segment_fixations(samples, config)
-    write_viewlines_csv(out / "viewlines.csv", samples, labels)
-    n_seg = int(labels.max()) + 1 if (labels >= 0).any() else 0
-    fixations = []
-    running = {"t": [], "segment": [], "x": [], "y": [], "z": [], "radius95_mm": []}
-    for k in range(n_seg):
-        idx = np.flatnonzero(labels == k)
-        fixations.append({"segment": k, "idx": idx,
-                          "estimate": _running_estimate(samples.select(idx), k, method, sigma_deg, running)})
-        if progress:
-            progress(k + 1, n_seg + 1)
-    write_table(out / "estimates.csv", {k: np.array(v) for k, v in running.items()},
-                {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"})
-    targets = _merge(fixations, samples, method, sigma_deg)
-    rows = [_target_row(i, tg, samples, method, sigma_deg) for i, tg in enumerate(targets)]
-    write_table(out / "targets.csv", {k: np.array([r[k] for r in rows]) for k in TARGET_COLUMNS}, TARGET_FORMATS)
-    write_json(out / "targets.json", {"version": 1, "method": method, "targets": [
-        {k: (v.item() if isinstance(v, np.generic) else v) for k, v in r.items()} for r in rows]})
-    # the merged-target label of every view line, for the report
-    tlabels = np.full(len(samples), -1)
-    for i, tg in enumerate(targets):
-        tlabels[tg["idx"]] = i
-    with atomic_path(out / "target_labels.npy") as tmp:
-        np.save(tmp, tlabels)
-
-
-def _running_estimate(sub: BinocularSamples, k: int, method: str, sigma_deg: float, running: dict):
-    """The estimator fed one fixation's samples in ~20 chunks, as a live session would; each
-    usable estimate appended to ``running``. Returns the last estimate."""
-    stream = make_estimator(method, sigma_deg)
-    bounds = np.unique(np.linspace(0, len(sub), min(21, len(sub) + 1)).astype(int))
-    e = None
-    for j0, j1 in zip(bounds[:-1], bounds[1:], strict=True):
-        e = stream.add(sub.select(slice(j0, j1)))
-        if e.ok:
-            running["t"].append(float(sub.t_s[j1 - 1]))
-            running["segment"].append(k)
-            for a, v in zip("xyz", e.position_mm, strict=True):
-                running[a].append(float(v))
-            running["radius95_mm"].append(_radius95(e))
-    return e
-
-
-def _target_row(i: int, tg: dict, samples: BinocularSamples, method: str, sigma_deg: float) -> dict:
-    """One row of targets.csv / targets.json."""
-    e = tg["estimate"]
-    pos = e.position_mm if e.ok else np.full(3, np.nan)
-    radii = e.ellipsoid(0.95).radii_mm.tolist() if e.covariance_mm2 is not None else [np.nan] * 3
-    t = samples.t_s[tg["idx"]]
-    crb = _crb(samples.select(tg["idx"]), e.position_mm, sigma_deg) if e.ok else None
-    return {"target": i, "x_mm": pos[0], "y_mm": pos[1], "z_mm": pos[2],
-            "axis1_mm": radii[0], "axis2_mm": radii[1], "axis3_mm": radii[2],
-            "n_samples": len(tg["idx"]), "t_start": float(t.min()), "t_end": float(t.max()),
-            "fixations": ";".join(str(f) for f in tg["segments"]), "method": method,
-            "status": e.status.value if hasattr(e.status, "value") else str(e.status),
-            "crb_mm": float(np.sqrt(np.trace(crb))) if crb is not None else np.nan}
-
-
-def _crb(samples: BinocularSamples, point_mm, sigma_deg: float):
-    """Cramér-Rao bound (3, 3) of the lines actually used, at the point; None if degenerate."""
-    try:
-        return cramer_rao_bound(samples.lines().origins_mm, point_mm, sigma_deg)
-    except ValueError:
-        return None
-
-
-def _radius95(e) -> float:
-    if e.covariance_mm2 is None:
-        return float("nan")
-    return float(e.ellipsoid(0.95).radii_mm.max())
-
-
-def _merge(fixations, samples: BinocularSamples, method: str, sigma_deg: float) -> list:
-    """Fixations of one target (``estimator.segments.same_target``) are merged and re-estimated
-    from all their lines; revisits are common."""
-    targets = []
-    for f in fixations:
-        e = f["estimate"]
-        if e is None or not e.ok:
-            continue
-        merged = False
-        for tg in targets:
-            te = tg["estimate"]
-            close = same_target(e.position_mm, e.covariance_mm2, te.position_mm, te.covariance_mm2,
-                                origin=samples.left_origin_mm[f["idx"][0]] if samples.left_valid[f["idx"][0]]
-                                else samples.right_origin_mm[f["idx"][0]])
-            if close:
-                tg["idx"] = np.concatenate([tg["idx"], f["idx"]])
-                tg["segments"].append(f["segment"])
-                tg["idx"] = np.sort(tg["idx"])
-                tg["estimate"] = run_estimator(samples.select(tg["idx"]), method, sigma_deg)[1]
-                merged = True
-                break
-        if not merged:
-            targets.append({"idx": f["idx"], "segments": [f["segment"]], "estimate": e})
-    return targets
-
-
 def format_result(res: ProcessResult) -> str:
     """The text ``process`` prints: this run's targets, and what failed or was not done."""
-    lines = [f"{len(res.targets)} fixated target(s) in {res.out}:"]
+    lines = [f"{len(res.found)} fixated target(s) in {res.out}:"]
     lines.append(f"{'target':>6} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'95% semi-axes mm':>20} {'samples':>8} "
                  f"{'time s':>12}")
-    for t in res.targets:
-        lines.append(f"{t['target']:>6} {t['x_mm']:>8.0f} {t['y_mm']:>8.0f} {t['z_mm']:>8.0f} "
-                     f"{t['axis1_mm']:>6.0f} {t['axis2_mm']:>6.0f} {t['axis3_mm']:>6.0f} {t['n_samples']:>8} "
-                     f"{t['t_start']:>5.1f}-{t['t_end']:<5.1f}")
+    for t in res.found:
+        x, y, z = t.position_mm
+        a1, a2, a3 = t.axes95_mm
+        lines.append(f"{t.index:>6} {x:>8.0f} {y:>8.0f} {z:>8.0f} {a1:>6.0f} {a2:>6.0f} {a3:>6.0f} {t.n_samples:>8} "
+                     f"{t.t_start:>5.1f}-{t.t_end:<5.1f}")
     if res.failed:
         lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")
     if res.not_done:

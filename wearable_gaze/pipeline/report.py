@@ -4,21 +4,22 @@ report.html tying them together."""
 from __future__ import annotations
 
 import html
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from calibration.camera import CameraCalibration
+from estimator.likelihood import angular_log_likelihood
+from tracking.markermap import MarkerMap
+
 from ..formats.atomic import atomic_path, write_text
-from ..formats.camera import load_camera
-from ..formats.eyes import load_eyes
-from ..formats.markermap import marker_map_from_dict
-from ..formats.eye_samples import read_eye_csv
+from ..formats.eye_samples import EyeSamples
 from ..formats.poses import read_poses_csv
 from ..formats.tables import read_table
 from ..formats.viewlines import read_viewlines_csv
+from .fixations import read_targets
 
 PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png")
 REPORT_FILES = ("report.html", *PLOTS, "overlay.webp", "overlay_error.txt")   # everything write_report writes
@@ -43,7 +44,7 @@ class _ReportData:
     """What the plots read from the processing outputs (world frame, mm).
 
     Attributes:
-        targets: rows of targets.json.
+        targets: the targets of targets.json.
         samples: the view lines (N,), sorted by time; tlabels (N,): target index, -1 none.
         head: (M, 3) head positions with a pose; centre (3,): their mean.
         est: the running estimates (estimates.csv columns).
@@ -63,7 +64,7 @@ class _ReportData:
 def _report_data(out: Path, T_p: np.ndarray) -> _ReportData:
     from estimator import BinocularSamples  # noqa: PLC0415
 
-    targets = json.loads((out / "targets.json").read_text(encoding="utf-8"))["targets"]
+    targets = read_targets(out / "targets.json")
     samples = BinocularSamples.concatenate([s.samples for s in read_viewlines_csv(out / "viewlines.csv")])
     samples = samples.select(np.argsort(samples.t_s, kind="stable"))
     labels = out / "target_labels.npy"
@@ -88,9 +89,30 @@ def _read_estimates(path: Path) -> dict:
     return read_table(path, ESTIMATE_COLUMNS)
 
 
-def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progress=None) -> None:
-    """The plots (``PLOTS``), the overlay (if ``overlay`` and a camera) and report.html in ``out``,
-    from the outputs of the earlier steps there."""
+@dataclass(frozen=True)
+class OverlayInputs:
+    """What the overlay draws on the scene video besides the targets and poses.
+
+    Attributes:
+        camera: the scene camera's calibration.
+        eyes: the (left, right) eye calibrations, or None (no gaze points drawn).
+        eye_samples: the session's raw eye samples.
+        marker_map: the session's marker map, or None.
+        video: the scene video file.
+    """
+
+    camera: CameraCalibration
+    eyes: list | None
+    eye_samples: EyeSamples
+    marker_map: MarkerMap | None
+    video: Path
+
+
+def write_report(out: Path, title: str, overlay=None, progress=None) -> None:
+    """The plots (``PLOTS``), the overlay and report.html in ``out``, from the outputs of the
+    earlier steps there. ``title``: the session's name. ``overlay``: None (no overlay),
+    or a function returning its ``OverlayInputs`` (called here: a failure to load them, like any
+    failure of the overlay, is written to overlay_error.txt and the report made without it)."""
     out = Path(out)
     t_p, _, T_p, _ = read_poses_csv(out / "poses.csv")
     d = _report_data(out, T_p)
@@ -103,14 +125,14 @@ def write_report(out: Path, session, cam_path, eyes_path, overlay: bool, progres
     video_name = None
     for name in ("overlay.webp", "overlay_error.txt"):        # an earlier run's: this report may have neither
         (out / name).unlink(missing_ok=True)
-    if overlay and cam_path is not None:
+    if overlay is not None:
         try:
-            video_name = _overlay(out, session, cam_path, eyes_path, d.targets, t_p, T_p)
+            video_name = _overlay(out, overlay(), d.targets, t_p, T_p)
         except Exception as exc:  # noqa: BLE001  (a report without a video is still a report)
             write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
     if progress:
         progress(4, 5)
-    _html(out, session, d.targets, images, video_name)
+    _html(out, title, d.targets, images, video_name)
 
 
 def _plot_depth(d: _ReportData, out: Path) -> tuple[str, str]:
@@ -141,16 +163,16 @@ def _plot_density(d: _ReportData, out: Path) -> tuple[str, str]:
     fig, axes = plt.subplots(1, min(n_t, 4), figsize=(3.2 * min(n_t, 4), 3.2), squeeze=False)
     for i, tg in enumerate(d.targets[:4]):
         ax = axes[0, i]
-        X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
-        lines = d.samples.select(np.flatnonzero(d.tlabels == tg["target"])).lines()
-        half = max(1.5 * (tg["axis3_mm"] if np.isfinite(tg["axis3_mm"]) else 100.0), 30.0)
+        X = tg.position_mm
+        lines = d.samples.select(np.flatnonzero(d.tlabels == tg.index)).lines()
+        half = max(1.5 * (tg.axes95_mm[2] if np.isfinite(tg.axes95_mm[2]) else 100.0), 30.0)
         gx, gz = np.meshgrid(np.linspace(-half, half, 45), np.linspace(-half, half, 45))
         P = X + np.column_stack([gx.ravel(), np.zeros(gx.size), gz.ravel()])
-        ll = _log_likelihood(P, lines.origins_mm, lines.directions).reshape(gx.shape)
+        ll = angular_log_likelihood(P, lines.origins_mm, lines.directions, np.deg2rad(1.0)).reshape(gx.shape)
         ax.imshow(np.maximum(ll - ll.max(), -30), origin="lower", cmap="magma", aspect="auto",
                   extent=(X[0] - half, X[0] + half, X[2] - half, X[2] + half))
         ax.plot(X[0], X[2], "c+", ms=10)
-        ax.set_title(f"target {tg['target']}: y = {X[1]:.0f} mm", fontsize=8)
+        ax.set_title(f"target {tg.index}: y = {X[1]:.0f} mm", fontsize=8)
         ax.set_xlabel("x (mm)", fontsize=7)
         ax.set_ylabel("z (mm)", fontsize=7)
         ax.tick_params(labelsize=6)
@@ -166,9 +188,9 @@ def _plot_3d(d: _ReportData, out: Path) -> tuple[str, str]:
     ax = fig.add_subplot(projection="3d")
     ax.plot(d.head[:, 0], d.head[:, 2], -d.head[:, 1], "k-", lw=1, label="head")
     for i, tg in enumerate(d.targets):
-        X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
+        X = tg.position_mm
         c = COLOURS[i % len(COLOURS)]
-        for a, b in _line_segments(tg, X, d.orig, d.cyc, d.tlabels):
+        for a, b in _line_segments(tg, d.orig, d.cyc, d.tlabels):
             ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], color=c, lw=0.3, alpha=0.5)
         ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {i}")
     ax.set_xlabel("x (mm)")
@@ -186,11 +208,11 @@ def _plot_top(d: _ReportData, out: Path) -> tuple[str, str]:
     fig, ax = plt.subplots(figsize=(6, 6))
     ax.plot(d.head[:, 0], d.head[:, 2], "k-", lw=1, label="head")
     for i, tg in enumerate(d.targets):
-        X = np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]])
+        X = tg.position_mm
         c = COLOURS[i % len(COLOURS)]
-        for a, b in _line_segments(tg, X, d.orig, d.cyc, d.tlabels):
+        for a, b in _line_segments(tg, d.orig, d.cyc, d.tlabels):
             ax.plot([a[0], b[0]], [a[2], b[2]], color=c, lw=0.3, alpha=0.4)
-        r = tg["axis3_mm"] if np.isfinite(tg["axis3_mm"]) else 0
+        r = tg.axes95_mm[2] if np.isfinite(tg.axes95_mm[2]) else 0
         ax.add_patch(plt.Circle((X[0], X[2]), r, fill=False, color=c, lw=1))
         ax.plot(X[0], X[2], "o", color=c, label=f"target {i} ({np.linalg.norm(X - d.centre) / 1000:.2f} m)")
     ax.set_aspect("equal")
@@ -202,19 +224,10 @@ def _plot_top(d: _ReportData, out: Path) -> tuple[str, str]:
     return ("plot_top_view.png", "Top view")
 
 
-def _line_segments(tg, X, orig, directions, tlabels, every: int = 10):
+def _line_segments(tg, orig, directions, tlabels, every: int = 10):
     """Every ``every``-th view line of a target, from the eye to the target's distance."""
-    for j in np.flatnonzero(tlabels == tg["target"])[::every]:
-        yield orig[j], orig[j] + directions[j] * np.linalg.norm(X - orig[j])
-
-
-def _log_likelihood(P, origins, directions, sigma_deg: float = 1.0) -> np.ndarray:
-    """(G,) log-likelihood of points (G, 3) under lines (L,): gnomonic angular residuals."""
-    v = P[:, None, :] - origins[None]                              # (G, L, 3)
-    along = np.einsum("glk,lk->gl", v, directions)
-    perp2 = np.einsum("glk,glk->gl", v, v) - along**2
-    r2 = perp2 / np.maximum(along, 1e-9) ** 2
-    return -0.5 * r2.sum(axis=1) / np.deg2rad(sigma_deg) ** 2
+    for j in np.flatnonzero(tlabels == tg.index)[::every]:
+        yield orig[j], orig[j] + directions[j] * np.linalg.norm(tg.position_mm - orig[j])
 
 
 OVERLAY_FPS = 15.0
@@ -222,24 +235,18 @@ OVERLAY_WIDTH = 428
 OVERLAY_MAX_S = 60.0
 
 
-def _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p) -> str | None:
+def _overlay(out, inp: OverlayInputs, targets, t_p, T_p) -> str | None:
     """An animated WebP (plays in any browser, no codec needed): the marker map and world
     axes, each eye's gaze point (eq. 1-2), the fixated target's estimate projected. 15 frames
     per second, 428 px wide, the first 60 s of the session."""
     from PIL import Image  # noqa: PLC0415  (Pillow comes with matplotlib)
 
-    cam = load_camera(cam_path)
-    eyes = load_eyes(eyes_path) if Path(eyes_path).is_file() else None
-    eye, _ = read_eye_csv(session.path("eye_samples"))
-    mm = session.marker_map()
-    corners = []
-    if mm:
-        m = marker_map_from_dict(mm)
-        corners = [m.corners(i) for i in m.poses]
-    cap = cv2.VideoCapture(str(session.path("scene_video")))
+    m = inp.marker_map
+    corners = [m.corners(i) for i in m.poses] if m is not None else []
+    cap = cv2.VideoCapture(str(inp.video))
     fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
     step = max(int(round(fps / OVERLAY_FPS)), 1)
-    w, h = cam.image_size
+    w, h = inp.camera.image_size
     size = (OVERLAY_WIDTH, int(round(h * OVERLAY_WIDTH / w)))
     frames = []
     i = 0
@@ -252,33 +259,7 @@ def _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p) -> str | None
         ok, frame = cap.read()
         if not ok:
             break
-        img = frame.copy()
-        T, t = T_p[i], t_p[i]
-        if np.isfinite(T[0, 0]):
-            Tcw = np.linalg.inv(T)
-            for c in corners:
-                pc = c @ Tcw[:3, :3].T + Tcw[:3, 3]
-                if np.all(pc[:, 2] > 100):
-                    px = cam.project(pc)
-                    if np.all(np.isfinite(px)) and np.abs(px).max() < 1e5:
-                        cv2.polylines(img, [np.round(px).astype(np.int32)], True, (0, 200, 0), 3, cv2.LINE_AA)
-            for tg in targets:
-                if tg["t_start"] - 0.2 <= t <= tg["t_end"] + 0.2:
-                    pc = Tcw[:3, :3] @ np.array([tg["x_mm"], tg["y_mm"], tg["z_mm"]]) + Tcw[:3, 3]
-                    uv = _pixel(cam.project(pc[None])[0]) if pc[2] > 100 else None
-                    if uv is not None:
-                        cv2.drawMarker(img, uv, (0, 0, 255), cv2.MARKER_CROSS, 50, 5)
-                        cv2.putText(img, f"target {tg['target']}: {np.linalg.norm(pc) / 1000:.2f} m",
-                                    (uv[0] + 15, uv[1] - 15), cv2.FONT_HERSHEY_SIMPLEX, 1.3, (0, 0, 255), 3)
-        if eyes is not None:
-            j = int(np.searchsorted(eye.t, t))
-            if j < len(eye.t):
-                for e, col in ((0, (255, 128, 0)), (1, (255, 0, 255))):
-                    if eye.valid[j, e]:
-                        q = eyes[e].image_points(eye.raw[j:j + 1, e])
-                        uv = _pixel(cam.project(np.column_stack([q, np.ones(1)]))[0])
-                        if uv is not None:
-                            cv2.circle(img, uv, 14, col, 3, cv2.LINE_AA)
+        img = _overlay_frame(frame, inp, corners, targets, T_p[i], t_p[i])
         small = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
         frames.append(Image.fromarray(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)))
         i += 1
@@ -292,6 +273,38 @@ def _overlay(out, session, cam_path, eyes_path, targets, t_p, T_p) -> str | None
     return name
 
 
+def _overlay_frame(frame, inp: OverlayInputs, corners, targets, T, t) -> np.ndarray:
+    """One overlay frame: ``frame`` (BGR) with the markers and the targets fixated around time
+    ``t`` drawn at head pose ``T`` (T_world_from_cam, NaN without a pose), and the gaze points."""
+    cam, eye, img = inp.camera, inp.eye_samples, frame.copy()
+    if np.isfinite(T[0, 0]):
+        Tcw = np.linalg.inv(T)
+        for c in corners:
+            pc = c @ Tcw[:3, :3].T + Tcw[:3, 3]
+            if np.all(pc[:, 2] > 100):
+                px = cam.project(pc)
+                if np.all(np.isfinite(px)) and np.abs(px).max() < 1e5:
+                    cv2.polylines(img, [np.round(px).astype(np.int32)], True, (0, 200, 0), 3, cv2.LINE_AA)
+        for tg in targets:
+            if tg.t_start - 0.2 <= t <= tg.t_end + 0.2:
+                pc = Tcw[:3, :3] @ tg.position_mm + Tcw[:3, 3]
+                uv = _pixel(cam.project(pc[None])[0]) if pc[2] > 100 else None
+                if uv is not None:
+                    cv2.drawMarker(img, uv, (0, 0, 255), cv2.MARKER_CROSS, 50, 5)
+                    cv2.putText(img, f"target {tg.index}: {np.linalg.norm(pc) / 1000:.2f} m",
+                                (uv[0] + 15, uv[1] - 15), cv2.FONT_HERSHEY_SIMPLEX, 1.3, (0, 0, 255), 3)
+    if inp.eyes is not None:
+        j = int(np.searchsorted(eye.t, t))
+        if j < len(eye.t):
+            for e, col in ((0, (255, 128, 0)), (1, (255, 0, 255))):
+                if eye.valid[j, e]:
+                    q = inp.eyes[e].image_points(eye.raw[j:j + 1, e])
+                    uv = _pixel(cam.project(np.column_stack([q, np.ones(1)]))[0])
+                    if uv is not None:
+                        cv2.circle(img, uv, 14, col, 3, cv2.LINE_AA)
+    return img
+
+
 def _pixel(px, limit: float = 1e5) -> tuple[int, int] | None:
     """A projected point (2,) as OpenCV drawing coordinates, or None when it is not finite or
     absurdly far outside any image (OpenCV takes only 32-bit integer coordinates)."""
@@ -301,12 +314,12 @@ def _pixel(px, limit: float = 1e5) -> tuple[int, int] | None:
     return int(round(px[0])), int(round(px[1]))
 
 
-def _html(out: Path, session, targets, images, video_name) -> None:
+def _html(out: Path, name: str, targets, images, video_name) -> None:
     rows = "".join(
-        f"<tr><td>{t['target']}</td><td>{t['x_mm']:.0f}, {t['y_mm']:.0f}, {t['z_mm']:.0f}</td>"
-        f"<td>{t['axis1_mm']:.0f} / {t['axis2_mm']:.0f} / {t['axis3_mm']:.0f}</td><td>{t['n_samples']}</td>"
-        f"<td>{t['t_start']:.1f}-{t['t_end']:.1f}</td><td>{html.escape(str(t['fixations']))}</td>"
-        f"<td>{t['crb_mm']:.0f}</td></tr>" for t in targets)
+        "<tr><td>{}</td><td>{:.0f}, {:.0f}, {:.0f}</td><td>{:.0f} / {:.0f} / {:.0f}</td><td>{}</td><td>{:.1f}-{:.1f}"
+        "</td><td>{}</td><td>{:.0f}</td></tr>".format(t.index, *t.position_mm, *t.axes95_mm, t.n_samples, t.t_start,
+                                                      t.t_end, html.escape(";".join(map(str, t.fixations))), t.crb_mm)
+        for t in targets)
     imgs = "".join(f'<figure><img src="{html.escape(n)}" alt="{html.escape(c)}"><figcaption>{html.escape(c)}'
                    f"</figcaption></figure>" for n, c in images)
     video = (f'<h2>Overlay</h2><img src="{video_name}" alt="overlay video" width="{OVERLAY_WIDTH * 2}">'
@@ -317,7 +330,7 @@ def _html(out: Path, session, targets, images, video_name) -> None:
 <html lang="en"><head><meta charset="utf-8"><title>wearable-gaze report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}img{{max-width:100%}}
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}figure{{margin:1em 0}}</style></head>
-<body><h1>Gaze targets: {html.escape(str(session.root.name))}</h1>
+<body><h1>Gaze targets: {html.escape(str(name))}</h1>
 <p>{len(targets)} fixated target(s). Positions in the world frame of the marker map, mm.</p>
 <table><tr><th>target</th><th>position (x, y, z)</th><th>95 % semi-axes</th><th>samples</th><th>time (s)</th>
 <th>fixations</th><th>Cramér-Rao bound (mm)</th></tr>{rows}</table>

@@ -1,5 +1,7 @@
-"""``wearable-gaze track`` (head poses from a scene video) and ``wearable-gaze markers`` (printable
-marker sheets)."""
+"""Head poses from a scene video: the tracking step over typed values (``track_poses``, and
+``track_video`` for a video in a room with a marker map; ``process`` calls it) and ``wearable-gaze
+track``'s file-level wrapper (``track_video_files``: reads, calls the step, writes poses.csv and the
+overlay)."""
 
 from __future__ import annotations
 
@@ -11,26 +13,30 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calibration.camera import aruco_dictionary
+from calibration.camera import CameraCalibration
 from calibration.images import to_grey
 from tracking.homography import PlanarTracker
+from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
 from tracking.timeline import interpolate_poses, smooth_poses
 
-from ..errors import UserError, check_output
+from ..errors import UserError
 from ..formats.atomic import atomic_path
 from ..formats.camera import load_camera
-from ..formats.markermap import load_marker_map, marker_map_template, write_marker_map
+from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.video import open_video, open_video_writer, read_frame_times
+from .types import Poses
 
 log = logging.getLogger(__name__)
 
 
-def _frame_times(video: Path, timestamps):
+def frame_times(video: Path, timestamps=None) -> dict | None:
+    """{frame: time s} from ``timestamps`` (a frame-timestamp CSV), else the session's
+    ``scene_timestamps.csv`` beside the video; None when there is neither (time = frame / fps)."""
     if timestamps is None:
-        cand = video.parent / "scene_timestamps.csv"
+        cand = Path(video).parent / "scene_timestamps.csv"
         timestamps = cand if cand.is_file() else None
     if timestamps is None:
         return None
@@ -38,17 +44,13 @@ def _frame_times(video: Path, timestamps):
     return dict(zip(frames, t, strict=True))
 
 
-def track_video(video, camera_path, out, markers=None, reference=None, reference_size_mm=None, overlay=None,
+def track_video_files(video, camera_path, out, markers=None, reference=None, reference_size_mm=None, overlay=None,
                 timestamps=None, progress=None, smooth_s: float = 0.0, every: int = 1) -> dict:
     """Head pose for every frame of a scene video, written as poses.csv (docs/formats.md).
 
     Either ``markers`` (a marker map JSON) or ``reference`` (an image of a flat surface) with
-    ``reference_size_mm`` (width, height). Frame times come from ``timestamps`` (or the
-    session's ``scene_timestamps.csv`` beside the video), else frame / fps. ``smooth_s`` > 0
-    averages poses over a centred window of that length (no lag offline). ``every`` > 1 tracks
-    one frame in ``every`` and fills the others by SLERP between tracked neighbours (status
-    'interpolated'; smooth head motion moves a few hundredths of a degree off the line between
-    two poses 1/15 s apart); with ``overlay`` every frame is tracked. Returns counts.
+    ``reference_size_mm`` (width, height). Frame times: ``frame_times``. ``smooth_s``,
+    ``every``: see ``track_poses``; with ``overlay`` every frame is tracked. Returns counts.
 
     ``out`` and ``overlay`` are written under temporary names and renamed once both are
     complete: an error or an interruption leaves neither half-written, and an earlier file
@@ -61,8 +63,11 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
     with contextlib.ExitStack() as stack:
         cap, fps, n_total = open_video(video, camera.image_size)
         stack.callback(cap.release)
-        times = _frame_times(video, timestamps)
-        step = _pose_step(camera, markers, reference, reference_size_mm)
+        times = frame_times(video, timestamps)
+        if markers is not None:
+            locate = marker_locator(load_marker_map(markers), camera)
+        else:
+            locate = _reference_locator(reference, reference_size_mm, camera)
         draw = None
         if overlay is not None:
             tmp = stack.enter_context(atomic_path(overlay))         # left last: renamed after the poses
@@ -70,32 +75,60 @@ def track_video(video, camera_path, out, markers=None, reference=None, reference
                 f"--overlay: OpenCV cannot write an MPEG-4 video named {tmp.suffix!r}; use .mp4 or .avi"))
             stack.callback(writer.release)
             draw = functools.partial(_write_overlay_frame, writer, camera)
-        rows, untimed = _track_frames(cap, step, times, fps, n_total, every, progress, draw)
-        if untimed and not rows["frame"]:
-            raise UserError(f"{video}: none of its {untimed} frames has a time in the frame-timestamp CSV; give "
-                            "--timestamps with a row (frame,t) per frame")
-        if not rows["frame"]:
-            raise UserError(f"{video}: no frame could be decoded (corrupt or empty video); check that it plays, or "
-                            "re-encode it")
-        T_all, status = _fill_poses(rows, every, fps, smooth_s)
-        write_poses_csv(out, rows["t"], rows["frame"], T_all,
-                        {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
-                         "reproj_rms_px": np.array(rows["reproj_rms_px"]), "status": status})
-    n_ok = sum(st in ("ok", "interpolated") for st in status)
-    return {"frames": len(rows["frame"]), "posed": n_ok}
+        poses = track_poses(cap, fps, n_total, locate, times, every, smooth_s, progress, draw, video)
+        write_poses_csv(out, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
+    return {"frames": len(poses.t), "posed": poses.n_posed}
 
 
-def _pose_step(camera, markers, reference, reference_size_mm):
-    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay)."""
-    if markers is not None:
-        mm = load_marker_map(markers)
-        detector = MarkerDetector(mm.dictionary)
-        estimator = MarkerPoseEstimator(mm, camera)
+def track_video(video: Path, camera: CameraCalibration, marker_map: MarkerMap, times=None, every: int = 1,
+                progress=None) -> Poses:
+    """``track_poses`` of a video made by ``camera`` in a room with ``marker_map``."""
+    cap, fps, n_total = open_video(Path(video), camera.image_size)
+    try:
+        return track_poses(cap, fps, n_total, marker_locator(marker_map, camera), times, every, progress=progress,
+                           name=video)
+    finally:
+        cap.release()
 
-        def step(grey):
-            found = detector.detect(grey)
-            return estimator.estimate(found), found
-        return step
+
+def track_poses(cap, fps: float, n_total: int, locate, times=None, every: int = 1, smooth_s: float = 0.0,
+                progress=None, draw=None, name="the video") -> Poses:
+    """Head pose for every frame of an opened video (``cap``, ``fps``, ``n_total`` frames or 0).
+
+    ``locate(grey)`` -> (pose result, detections). ``times``: {frame: t s} (frames without a
+    time are left out), or None for frame / fps. ``smooth_s`` > 0 averages poses over a centred
+    window of that length (no lag offline). ``every`` > 1 tracks one frame in ``every`` and
+    fills the others by SLERP between tracked neighbours (status 'interpolated'; smooth head
+    motion moves a few hundredths of a degree off the line between two poses 1/15 s apart).
+    ``draw(frame, found, res)``: called on every frame tracked (all of them). ``name``: the
+    video, for messages.
+    """
+    rows, untimed = _track_frames(cap, locate, times, fps, n_total, every, progress, draw)
+    if untimed and not rows["frame"]:
+        raise UserError(f"{name}: none of its {untimed} frames has a time in the frame-timestamp CSV; give "
+                        "--timestamps with a row (frame,t) per frame")
+    if not rows["frame"]:
+        raise UserError(f"{name}: no frame could be decoded (corrupt or empty video); check that it plays, or "
+                        "re-encode it")
+    T_all, status = _fill_poses(rows, every, fps, smooth_s)
+    return Poses(np.array(rows["t"], float), np.array(rows["frame"], int), T_all,
+                 {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
+                  "reproj_rms_px": np.array(rows["reproj_rms_px"]), "status": status})
+
+
+def marker_locator(marker_map: MarkerMap, camera: CameraCalibration):
+    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay), from the markers."""
+    detector = MarkerDetector(marker_map.dictionary)
+    estimator = MarkerPoseEstimator(marker_map, camera)
+
+    def locate(grey):
+        found = detector.detect(grey)
+        return estimator.estimate(found), found
+    return locate
+
+
+def _reference_locator(reference, reference_size_mm, camera: CameraCalibration):
+    """grey (H, W) uint8 -> (pose result, no detections), from a photo of a flat surface."""
     ref = cv2.imread(str(reference), cv2.IMREAD_GRAYSCALE)
     if ref is None:
         raise UserError(f"{reference}: missing or unreadable reference image; give a PNG or JPEG photo of the "
@@ -107,9 +140,9 @@ def _pose_step(camera, markers, reference, reference_size_mm):
     except ValueError as exc:
         raise UserError(f"{reference}: {exc}") from None
 
-    def step(grey):
+    def locate(grey):
         return tracker.estimate(grey), []
-    return step
+    return locate
 
 
 POSE_ROW = ("t", "frame", "T", "n_markers", "n_points", "reproj_rms_px", "status")
@@ -236,128 +269,3 @@ def _runs(mask) -> list:
     if len(idx) == 0:
         return []
     return np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-
-
-# --- printable markers -------------------------------------------------------------------------
-
-MAX_IDS = 10000
-
-
-def parse_ids(text: str) -> list[int]:
-    """'0-11', '3,5,7-9' -> ids (each once, in the order given).
-
-    Raises:
-        UserError: not ids, a range written backwards (5-3), a negative id, or more than
-            ``MAX_IDS`` ids.
-    """
-    ids = []
-    safe = ascii(text)
-    for part in text.split(","):
-        try:
-            if "-" in part.strip()[1:]:
-                a, b = (int(v) for v in part.split("-"))
-                if b < a:
-                    raise UserError(f"--ids {safe}: the range {a}-{b} runs backwards; write {b}-{a}")
-                if b - a >= MAX_IDS:
-                    raise UserError(f"--ids {safe}: more than {MAX_IDS} ids; print fewer at a time")
-                ids += list(range(a, b + 1))
-            else:
-                ids.append(int(part))
-        except ValueError:
-            raise UserError(f"--ids {safe}: give ids like 0-11 or 3,5,7-9") from None
-    neg = [i for i in ids if i < 0]
-    if neg:
-        raise UserError(f"--ids {safe}: id {neg[0]} is negative; give ids of 0 or more")
-    if not ids:
-        raise UserError(f"--ids {safe}: no ids; give ids like 0-11 or 3,5,7-9")
-    if len(ids) > MAX_IDS:
-        raise UserError(f"--ids {safe}: more than {MAX_IDS} ids; print fewer at a time")
-    return list(dict.fromkeys(ids))
-
-
-PAGE_MM = {"a4": (210.0, 297.0), "letter": (215.9, 279.4), "a3": (297.0, 420.0)}
-MAX_DPI = 1200          # an A3 page at 1200 dpi is 14000 x 19800 pixels; more exhausts memory
-
-
-def write_marker_sheets(dictionary: str, ids, size_mm: float, out, page: str = "a4", dpi: int = 300,
-                        margin_mm: float = 12.0) -> list:
-    """Exact-scale marker sheets: each marker with a white quiet zone of one module, a dashed
-    cut line, its id, dictionary and size printed under it. PDF (vector page, raster markers at
-    ``dpi``) or PNG at ``dpi``. Also writes ``<out>_map_template.json`` to fill in."""
-    try:
-        dic = aruco_dictionary(dictionary)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
-    n_ids = dic.bytesList.shape[0]
-    bad = [i for i in ids if not 0 <= i < n_ids]
-    if bad:
-        raise UserError(f"--ids: ids {bad[:5]} are not in {dictionary}; use ids 0-{n_ids - 1} or a larger --dict")
-    if not 5 <= size_mm <= 1000:
-        raise UserError(f"--size-mm {size_mm:g}: give the marker side in millimetres, 5-1000")
-    if not 50 <= dpi <= MAX_DPI:
-        raise UserError(f"--dpi {dpi}: give a resolution of 50-{MAX_DPI} dots per inch (default 300)")
-    if not ids:
-        raise UserError("--ids: no ids to print; give ids like 0-11 or 3,5,7-9")
-    out = Path(out)
-    if out.suffix.lower() not in (".pdf", ".png"):
-        raise UserError(f"-o {out}: write .pdf or .png")
-    check_output(out, (), "-o")
-    check_output(out.with_name(out.stem + "_map_template.json"), (), "-o (its map template)")
-    pw, ph = PAGE_MM[page]
-    module = size_mm / (dic.markerSize + 2)
-    cell = size_mm + 2 * module + 12.0                      # quiet zone both sides + label room
-    cols = max(int((pw - 2 * margin_mm) // cell), 1)
-    rows = max(int((ph - 2 * margin_mm) // cell), 1)
-    if size_mm + 2 * module > min(pw, ph) - 2 * margin_mm:
-        raise UserError(f"a {size_mm:g} mm marker does not fit on a {page} page with margins; use --page a3")
-    per_page = cols * rows
-    pages = [ids[k:k + per_page] for k in range(0, len(ids), per_page)]
-
-    import matplotlib  # noqa: PLC0415
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.backends.backend_pdf import PdfPages  # noqa: PLC0415
-
-    written = []
-
-    def draw(page_ids):
-        fig = plt.figure(figsize=(pw / 25.4, ph / 25.4), dpi=dpi)
-        ax = fig.add_axes([0, 0, 1, 1])
-        ax.set_xlim(0, pw)
-        ax.set_ylim(ph, 0)
-        ax.axis("off")
-        px = max(int(round(size_mm / 25.4 * dpi)), 8 * (dic.markerSize + 2))
-        for k, mid in enumerate(page_ids):
-            r, c = divmod(k, cols)
-            x0 = margin_mm + c * cell + module
-            y0 = margin_mm + r * cell + module
-            img = cv2.aruco.generateImageMarker(dic, int(mid), px, borderBits=1)
-            ax.imshow(img, cmap="gray", vmin=0, vmax=255, extent=(x0, x0 + size_mm, y0 + size_mm, y0),
-                      interpolation="nearest")
-            ax.add_patch(plt.Rectangle((x0 - module, y0 - module), size_mm + 2 * module, size_mm + 2 * module,
-                                       fill=False, ls=(0, (4, 4)), lw=0.4, ec="0.5"))
-            ax.text(x0, y0 + size_mm + module + 3.5, f"id {mid}  {dictionary}  {size_mm:g} mm (black square)",
-                    fontsize=6, va="top")
-        ax.text(margin_mm, ph - 5, f"wearable-gaze markers: print at 100 % (no scaling); check the {size_mm:g} mm side "
-                "with a ruler", fontsize=6)
-        return fig
-
-    if out.suffix.lower() == ".pdf":
-        with atomic_path(out) as tmp, PdfPages(tmp) as pdf:
-            for p in pages:
-                fig = draw(p)
-                pdf.savefig(fig)
-                plt.close(fig)
-        written.append(out)
-    else:
-        for n, p in enumerate(pages):
-            path = out if len(pages) == 1 else out.with_name(f"{out.stem}_{n + 1}{out.suffix}")
-            fig = draw(p)
-            with atomic_path(path) as tmp:
-                fig.savefig(tmp, dpi=dpi)
-            plt.close(fig)
-            written.append(path)
-    template = out.with_name(out.stem + "_map_template.json")
-    write_marker_map(template, marker_map_template(dictionary, size_mm, ids))
-    written.append(template)
-    return written

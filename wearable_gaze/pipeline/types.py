@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
 
 TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "n_samples", "t_start",
@@ -133,3 +134,41 @@ class TargetsResult:
     running: dict
     targets: list
     target_labels: np.ndarray
+
+
+@dataclass(frozen=True)
+class CameraResult:
+    """The camera-calibration step.
+
+    Attributes:
+        calibration: the scene camera's calibration.
+        warnings: why it cannot be trusted ([] when nothing is plainly wrong).
+        preview: (H, 2W, 3) BGR image, the first view beside its undistorted version.
+    """
+
+    calibration: CameraCalibration
+    warnings: list
+    preview: np.ndarray
+
+
+@dataclass(frozen=True)
+class Poses:
+    """Head poses of the scene video's frames (the tracking step; poses.csv).
+
+    Attributes:
+        t: (N,) frame times, s.
+        frame: (N,) frame numbers.
+        T_world_from_cam: (N, 4, 4) head (scene camera) poses, mm; NaN where there is none.
+        columns: the other columns of poses.csv, (N,) each: n_markers, n_points, reproj_rms_px,
+            status ('ok', 'interpolated', or why there is no pose).
+    """
+
+    t: np.ndarray
+    frame: np.ndarray
+    T_world_from_cam: np.ndarray
+    columns: dict = field(default_factory=dict)
+
+    @property
+    def n_posed(self) -> int:
+        """Frames with a pose, tracked or interpolated."""
+        return sum(st in ("ok", "interpolated") for st in self.columns.get("status", ()))

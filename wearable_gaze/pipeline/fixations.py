@@ -1,0 +1,113 @@
+"""The fixations step of ``process``: the fixations of segmented view lines each estimated as a
+live session would, fixations of one point merged into targets (revisits are common); and the
+files it writes (viewlines.csv with the fixation labels, estimates.csv, targets.csv,
+targets.json, target_labels.npy; docs/processing.md)."""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from estimator import BinocularSamples, GazeEstimate, run_estimator
+from estimator.segments import same_target
+
+from ..formats.atomic import atomic_path
+from ..formats.jsonio import write_json
+from ..formats.tables import write_table
+from ..formats.viewlines import write_viewlines_csv
+from .estimate import estimate_target, radius95_mm, running_estimate
+from .types import TARGET_COLUMNS, Fixation, Target, TargetsResult
+
+log = logging.getLogger(__name__)
+
+RUNNING_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
+RUNNING_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
+TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "crb_mm")} | {
+    "t_start": ".3f", "t_end": ".3f"}
+
+
+def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sigma_deg: float,
+                 progress=None) -> TargetsResult:
+    """Estimate each fixation of view lines (N,) segmented into fixations (its running estimate
+    too), merge the fixations of one target and estimate each target from all its lines.
+
+    Args:
+        samples: world view lines, in time order.
+        labels: (N,) fixation index of each view line, -1 none
+            (``estimator.segments.segment_fixations``).
+        method, sigma_deg: the estimator and its angular noise.
+        progress: called as progress(done, total) after each fixation.
+    """
+    n_seg = int(labels.max()) + 1 if (labels >= 0).any() else 0
+    fixations = []
+    running = {k: [] for k in RUNNING_COLUMNS}
+    for k in range(n_seg):
+        idx = np.flatnonzero(labels == k)
+        e, usable = running_estimate(samples.select(idx), method, sigma_deg)
+        fixations.append(Fixation(k, idx, e))
+        for t, ek in usable:
+            for name, v in zip(RUNNING_COLUMNS, (t, k, *(float(v) for v in ek.position_mm), radius95_mm(ek)),
+                               strict=True):
+                running[name].append(v)
+        if progress:
+            progress(k + 1, n_seg + 1)
+    groups = merge_fixations(fixations, samples, method, sigma_deg)
+    targets = [estimate_target(i, samples, g.samples, g.fixations, g.estimate, method, sigma_deg)
+               for i, g in enumerate(groups)]
+    tlabels = np.full(len(samples), -1)
+    for tg in targets:
+        tlabels[tg.samples] = tg.index
+    log.info("%d fixation(s), %d target(s) from %d view lines", n_seg, len(targets), len(samples))
+    return TargetsResult(samples, labels, fixations, {k: np.array(v) for k, v in running.items()}, targets, tlabels)
+
+
+@dataclass
+class _Group:
+    """Fixations merged so far: their view lines, fixation indices and estimate."""
+
+    samples: np.ndarray
+    fixations: list = field(default_factory=list)
+    estimate: GazeEstimate | None = None
+
+
+def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sigma_deg: float) -> list:
+    """Fixations of one target (``estimator.segments.same_target``, seen from the first sample's
+    eye) merged and estimated again from all their lines; fixations without a usable estimate
+    are left out. Returns the groups in order of first fixation."""
+    groups = []
+    for f in fixations:
+        if not f.usable:
+            continue
+        e, first = f.estimate, f.samples[0]
+        origin = samples.left_origin_mm[first] if samples.left_valid[first] else samples.right_origin_mm[first]
+        for g in groups:
+            ge = g.estimate
+            if same_target(e.position_mm, e.covariance_mm2, ge.position_mm, ge.covariance_mm2, origin=origin):
+                g.samples = np.sort(np.concatenate([g.samples, f.samples]))
+                g.fixations.append(f.index)
+                g.estimate = run_estimator(samples.select(g.samples), method, sigma_deg)[1]
+                break
+        else:
+            groups.append(_Group(f.samples, [f.index], e))
+    return groups
+
+
+def write_targets(out: Path, result: TargetsResult, method: str) -> None:
+    """The step's files in ``out``: viewlines.csv (with fixation labels), estimates.csv,
+    targets.csv, targets.json and target_labels.npy (the target of every view line)."""
+    write_viewlines_csv(out / "viewlines.csv", result.samples, result.labels)
+    write_table(out / "estimates.csv", result.running, RUNNING_FORMATS)
+    rows = [tg.row() for tg in result.targets]
+    write_table(out / "targets.csv", {k: np.array([r[k] for r in rows]) for k in TARGET_COLUMNS}, TARGET_FORMATS)
+    write_json(out / "targets.json", {"version": 1, "method": method, "targets": rows})
+    with atomic_path(out / "target_labels.npy") as tmp:
+        np.save(tmp, result.target_labels)
+
+
+def read_targets(path) -> list[Target]:
+    """The targets of a targets.json written by ``write_targets``."""
+    return [Target.from_row(r) for r in json.loads(Path(path).read_text(encoding="utf-8"))["targets"]]
