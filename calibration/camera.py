@@ -7,6 +7,7 @@ Pixel coordinates follow OpenCV (origin at the centre of the top-left pixel).
 
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass, field
 
@@ -16,6 +17,8 @@ import numpy as np
 from estimator._checks import check_points
 
 from .images import to_grey
+
+log = logging.getLogger(__name__)
 
 ARUCO_DICTS = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco) if name.startswith("DICT_")}
 
@@ -307,9 +310,12 @@ def calibrate_camera(views, image_size, spec: BoardSpec | None = None, model: st
         report[use[worst].name]["reason"] = (f"reprojection RMS {per[worst]:.2f} px > {limit:.2f} px "
                                              "(blurred, moved or misdetected)")
         report[use[worst].name]["rms_px"] = per[worst]
+        log.info("camera calibration: view %s left out: %s", use[worst].name, report[use[worst].name]["reason"])
         use = use[:worst] + use[worst + 1:]
     for v, e in zip(use, per, strict=True):
         report[v.name].update(used=True, rms_px=e, reason="")
+    log.info("camera calibration (%s): %d of %d views used, RMS %.3f px, fx %.1f fy %.1f px", model, len(use),
+             len(views), rms, K[0, 0], K[1, 1])
     cal = CameraCalibration(K, D, (int(image_size[0]), int(image_size[1])), model, rms, list(report.values()),
                             spec.to_dict() if spec else None)
     if std is not None:             # OpenCV's standard deviations: fx, fy, cx, cy, then the coefficients

@@ -19,6 +19,7 @@ Units: mm, degrees in reports; directions in the scene-camera frame (OpenCV axes
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import cv2
@@ -28,6 +29,8 @@ from scipy.optimize import least_squares
 
 from estimator import ViewLines
 from estimator._checks import check_points, check_vector
+
+log = logging.getLogger(__name__)
 
 MIN_TARGETS = 6
 MODELS = ("quadratic", "cubic", "tps")
@@ -279,6 +282,8 @@ def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | No
     if focal_px:
         report["residual_px"] = (focal_px * np.linalg.norm(qp - q, axis=1)).tolist()
     cal.report = report
+    log.info("%s eye (%s): %d targets, RMS %.3f deg, leave-one-out RMS %s deg, outliers %s", eye, model, len(raw),
+             report["rms_deg"], "-" if report["loo_rms_deg"] is None else f"{report['loo_rms_deg']:.3f}", outliers)
     return cal
 
 

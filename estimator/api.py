@@ -10,11 +10,15 @@ Methods:
 
 from __future__ import annotations
 
+import logging
+
 from .likelihood import MLConfig, ml_point
 from .lines import BinocularSample, BinocularSamples, samples_from_stream
 from .result import GazeEstimate, Status, failed
 from .triangulation import lse_point, nearest_point_to_lines
 from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEstimator
+
+log = logging.getLogger(__name__)
 
 METHODS = ("lse", "geometric", "ml", "voxel", "paper")
 DEFAULT_METHOD = "voxel"
@@ -102,8 +106,11 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
         result = est.add(samples.select(slice(0, seed)))
         for i in range(seed, len(samples)):
             result = est.update(samples.sample(i))
-        return est, result
-    return est, est.add(samples)
+    else:
+        result = est.add(samples)
+    log.info("%s: %d samples, %d lines: %s", method, result.n_samples, result.n_lines,
+             f"{result.position_mm.round(1).tolist()} mm" if result.ok else f"{result.status.value}: {result.reason}")
+    return est, result
 
 
 def estimate(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,

@@ -8,6 +8,7 @@ best voxel's centre.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,8 @@ from .lines import BinocularSample, BinocularSamples
 from .result import GazeEstimate, Status, failed
 from .samplebuffer import _as_samples
 from .triangulation import PairStatus, closest_point_two_lines, lse_point
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,8 @@ class PaperVoxelEstimator:
         half = 0.5 * c.voxel_mm if c.grid_size % 2 == 0 else 0.0
         center = np.round((seed.position_mm - half) / c.voxel_mm) * c.voxel_mm + half
         self.grid = DensityGrid(center, np.eye(3), c.voxel_mm, c.grid_size)
+        log.debug("paper: voxel space of %d^3 x %g mm centred on the LSE seed %s mm", c.grid_size, c.voxel_mm,
+                  center.round(1).tolist())
         for p in pend:
             self._update_one(p)
             self._recentre()
@@ -151,6 +156,7 @@ class PaperVoxelEstimator:
         new[tuple(dst)] = g.values[tuple(src)]
         g.values[:] = new
         g.center_mm = g.center_mm + shift * g.spacing_mm
+        log.debug("paper: voxel space moved by %s voxels to %s mm", shift.tolist(), g.center_mm.round(1).tolist())
 
     def _result(self) -> GazeEstimate:
         if self.grid is None:

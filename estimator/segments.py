@@ -15,12 +15,15 @@ minimum fixation 0.3 s, maximum gap 0.5 s.
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from .lines import BinocularSamples
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,7 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
             continue
         labels[idx[sel]] = label
         label += 1
+    log.info("%d fixations in %d samples (%d valid; %d saccades, %d time gaps)", label, n, m, len(cuts), len(gaps))
     return labels
 
 

@@ -270,6 +270,7 @@ class VoxelEstimator:
         """Take ``n_lines`` line re-evaluations from the allowance, or say the work must wait."""
         if n_lines > self._allowance:
             self.work.deferred += 1
+            log.debug("voxel: a fit over %d lines deferred (work bound)", n_lines)
             return False
         self._allowance -= n_lines
         self.work.lines_refit += n_lines
@@ -324,6 +325,8 @@ class VoxelEstimator:
         spacing = 2 * cfg.coverage_sigmas * std / cfg.grid_size
         self.grid = DensityGrid(center, V, spacing, cfg.grid_size)
         self._design_std = std
+        log.debug("voxel: box %d laid at %s mm, voxel %s mm, over %d kept lines", self.work.layouts + 1,
+                  np.round(center, 1).tolist(), np.round(spacing, 2).tolist(), self._buf.n_lines)
         self.relayouts += 1
         self.work.layouts += 1
         self._set_weights(slice(0, self._buf.n), center, cov)
@@ -402,6 +405,7 @@ class VoxelEstimator:
                 continue
             return self._result(point, cov)
         self.grid = None                      # back to the O(1) seed test (nothing is lost: see above)
+        log.debug("voxel: no bounded maximum after %d re-layouts; back to seeding", cfg.max_relayouts)
         return self._fail(Status.DEGENERATE, "the density has no bounded maximum: the view lines are "
                                              "nearly parallel (target too far for this head motion)")
 

@@ -351,3 +351,21 @@ def test_to_grey_is_opencv_luma_of_bgr_and_leaves_grey_images_alone():
     assert g[1, 0] == round(0.299 * 90 + 0.587 * 200 + 0.114 * 10)
     grey = np.arange(12, dtype=np.uint8).reshape(3, 4)
     assert to_grey(grey) is grey
+
+
+def test_eye_calibration_logs_its_fit_and_outliers(caplog):
+    """The library says what it fitted (for ``-v``): the eye, target count, RMS and the outliers."""
+    import logging
+
+    rng = np.random.default_rng(1)
+    model, _, P = _eye_setup(rng)
+    model.sigma_deg = 0.05
+    raw, _, _ = model.measure(P, rng, with_bias=False)
+    bad = raw[:, 0].copy()
+    bad[4] += 60.0
+    with caplog.at_level(logging.INFO, logger="calibration"):
+        rep = calibrate_eye("left", bad, P, model.centres[0]).report
+    lines = [r.getMessage() for r in caplog.records if r.name == "calibration.eyes"]
+    assert len(lines) == 1
+    assert lines[0].startswith("left eye (quadratic): 9 targets, RMS ") and lines[0].endswith("outliers [4]")
+    assert f"RMS {rep['rms_deg']:.3f} deg" in lines[0]

@@ -188,3 +188,19 @@ def test_lines_toward_helper_is_exact():
     o = np.array([[0, 0, 0.0], [65, 0, 0]])
     lines = lines_toward([10, 0, 1000], o)
     assert np.allclose(lines.point_at(np.linalg.norm([10, 0, 1000] - o, axis=1)), [10, 0, 1000])
+
+
+def test_run_estimator_logs_the_result_or_the_reason(caplog, rng):
+    """One info line per estimate (shown by ``-v``): method, counts, the point or why there is none."""
+    import logging
+
+    from estimator import run_estimator
+
+    s = walkabout_samples([0, 0, 2000.0], rng, sigma_deg=0.0)
+    with caplog.at_level(logging.INFO, logger="estimator"):
+        run_estimator(s, "ml")
+        run_estimator(s.select(slice(0, 0)), "ml")
+    lines = [r.getMessage() for r in caplog.records if r.name == "estimator.api"]
+    assert len(lines) == 2
+    assert lines[0].startswith(f"ml: {len(s)} samples, {2 * len(s)} lines: [") and lines[0].endswith("2000.0] mm")
+    assert lines[1] == "ml: 0 samples, 0 lines: insufficient-data: needs at least 2 view lines, got 0"

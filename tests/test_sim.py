@@ -366,3 +366,16 @@ def test_motion_blur_and_gain_change_the_frame_not_the_geometry(tmp_path):
     fb = cv2.VideoCapture(str(blurred / "scene.avi")).read()[1][..., 0].astype(float)
     assert abs(fb.mean() / fa.mean() - 0.5) < 0.05
     assert (sharp / "truth" / "head_poses.csv").read_bytes() == (blurred / "truth" / "head_poses.csv").read_bytes()
+
+
+def test_verbose_shows_what_the_simulator_does(tmp_path, capsys):
+    """``-v`` shows the simulator's info lines (logger names included); without it, none."""
+    args = ["simulate", "--scenario", "lab-walkabout", "--duration", "0.2", "--resolution", "320x180"]
+    assert main(args + ["-o", str(tmp_path / "quiet")]) == 0
+    quiet = capsys.readouterr().err
+    assert "rendering" not in quiet and "simulating" not in quiet
+    assert main(["-v"] + args + ["-o", str(tmp_path / "loud")]) == 0
+    err = capsys.readouterr().err
+    assert "wearable_gaze.sim.simulate" in err
+    assert "simulating 0.2 s (seed 0)" in err and "eye calibration: 3 walls, 1.5 s per target" in err
+    assert "rendering 6 frames of 320x180" in err

@@ -8,6 +8,8 @@ top-left corner, x along its width, y down its height, z into the surface; mm.
 
 from __future__ import annotations
 
+import logging
+
 import cv2
 import numpy as np
 
@@ -24,6 +26,8 @@ from .pnp import (
     transform_from_rvec_tvec,
 )
 from .pose import OK, REJECTED, TOO_FEW, PoseResult
+
+log = logging.getLogger(__name__)
 
 
 class PlanarTracker:
@@ -58,6 +62,8 @@ class PlanarTracker:
         if self.des_ref is None or len(self.kp_ref) < min_inliers:
             raise ValueError(f"the reference image has {len(self.kp_ref)} features: it needs texture")
         h, w = ref.shape[:2]
+        log.info("planar tracker: %d %s features in the %dx%d reference (%g x %g mm)", len(self.kp_ref), features, w, h,
+                 *size_mm)
         sx, sy = size_mm[0] / w, size_mm[1] / h
         pts = np.array([k.pt for k in self.kp_ref])
         # keypoint (pixel centre convention) -> plane mm
@@ -100,6 +106,7 @@ class PlanarTracker:
             r = reprojection_residuals(obj_i, x_i, rvec, tvec)
         rms = rms_px(r, self.f)
         T_cp = transform_from_rvec_tvec(rvec, tvec)
+        log.debug("planar tracker: %d of %d matches inliers, RMS %.2f px", len(x_i), len(good), rms)
         if T_cp[2, 3] <= 0:
             return PoseResult(None, REJECTED, "the surface would be behind the camera")
         if rms > self.max_reproj_px:

@@ -186,11 +186,11 @@ class MarkerPoseEstimator:
         rms = rms_px(r, self.f)
         depth = (obj @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
         used = sorted({ids[k // 4] for k in np.flatnonzero(inliers)})
-        if np.any(depth <= 0):
-            return PoseResult(None, REJECTED, "a marker would be behind the camera", used, int(inliers.sum()), rms)
-        if rms > self.max_reproj_px:
-            return PoseResult(None, REJECTED, f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px", used,
-                              int(inliers.sum()), rms)
+        why = ("a marker would be behind the camera" if np.any(depth <= 0) else
+               f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px" if rms > self.max_reproj_px else "")
+        if why:
+            log.debug("pose from markers %s rejected: %s", used, why)
+            return PoseResult(None, REJECTED, why, used, int(inliers.sum()), rms)
         cov = covariance_world_from_cam(covariance_cam_from_obj(obj_i, rvec, tvec, r, self.f), rvec, tvec)
         return PoseResult(invert(T_cw), OK, "", used, int(inliers.sum()), rms, cov, ambiguous)
 

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from estimator._checks import check_array
+
+log = logging.getLogger(__name__)
 
 
 def _times_and_poses(t, T, t_name: str, T_name: str):
@@ -62,6 +66,8 @@ def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
         out[sel, :3, :3] = slerp(tt).as_matrix()
         for i in range(3):
             out[sel, i, 3] = np.interp(tt, ts, Ts[:, i, 3])
+    log.debug("poses at %d of %d query times (%d source poses, gaps over %g s left open)", int(ok.sum()), len(tq),
+              len(ts), max_gap_s)
     return out, ok
 
 

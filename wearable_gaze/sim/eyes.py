@@ -16,12 +16,15 @@ to the direction before the sensor.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from estimator import perturb_directions
 from estimator.frames import rotation_about_axis
+
+log = logging.getLogger(__name__)
 
 BLINK_S = 0.15
 SACCADE_S = 0.045
@@ -224,6 +227,8 @@ def plan_gaze(t, n_targets: int, moving, rng: np.random.Generator, fixation_s=(2
         starts = np.flatnonzero(rng.random(n) < dropout_rate)
         for s in starts:
             valid[s:s + int(rng.integers(1, 4)), e] = False
+    log.debug("gaze plan: %d fixations over %d samples, %d samples in blinks, %d eye samples lost", len(seq), n,
+              int(np.sum(phase == "blink")), int(np.sum(~valid)))
     return GazePlan(target, phase.astype(str), valid)
 
 

@@ -15,6 +15,7 @@ SLERP rotation), so video frames and eye samples at any rate see one continuous 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -22,6 +23,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from .world import look_at
+
+log = logging.getLogger(__name__)
 
 RATE_HZ = 240.0
 
@@ -104,6 +107,7 @@ def make_motion(spec: dict, duration_s: float, rng: np.random.Generator,
     t = np.arange(int(np.ceil(duration_s * RATE_HZ)) + 2) / RATE_HZ
     start = np.asarray(spec["start_mm"], float)
     kind = spec["motion"]
+    log.debug("head motion %s over %g s from %s mm", kind, duration_s, np.round(start, 1).tolist())
     forward = np.asarray(spec["forward"], float)
     forward = forward / np.linalg.norm(forward)
     if kind == "fixed":

@@ -6,9 +6,12 @@ is wrong. The schema is documented in docs/scenarios.md.
 from __future__ import annotations
 
 import copy
+import logging
 
 from ..errors import UserError
 from ..formats.jsonio import fail, short, validate
+
+log = logging.getLogger(__name__)
 
 SCENARIO_VERSION = 1
 
@@ -201,4 +204,6 @@ def resolve(scenario, duration_s=None, resolution=None, source="scenario") -> di
         source = f"{source} with --duration/--resolution"
     validate(s, "scenario", source)
     check_scenario(s, source)
+    log.debug("%s: %g s, %s px at %g fps, head motion %s", source, s["duration_s"], s["camera"]["resolution"],
+              s["camera"]["fps"], s["head"]["motion"])
     return s

@@ -171,6 +171,7 @@ def simulate(scenario: dict, out_dir, seed: int = 0, progress=None) -> dict:
         raise UserError(f"{out_dir}: already exists and is not empty; choose a new -o folder")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    log.info("simulating %g s (seed %d) into %s", float(scenario["duration_s"]), int(seed), out_dir)
     try:
         manifest = _simulate_into(scenario, tmp, int(seed), progress)
         if out_dir.exists():
@@ -246,6 +247,7 @@ def _eye_calibration(root, scn, camera, eye_model, noise, rng, tick) -> str:
     rows = {k: [] for k in ("recording", "target", "t", "raw", "valid")}
     walls = []
     t0 = 0.0
+    log.info("eye calibration: %d walls, %g s per target", len(cal["walls"]), cal["dwell_s"])
     for r, spec in enumerate(cal["walls"]):
         wall = CalibrationWall.spanning(spec["distance_mm"], spec["tilt_deg"], spec["grid"], cal["span_deg"])
         world = wall.world()
@@ -293,6 +295,7 @@ def _camera_views(root, scn, camera, noise, rng, tick) -> str:
     d = root / "calibration" / "camera"
     d.mkdir(parents=True)
     poses = _board_views(camera, spec, int(cal["camera_views"]), rng)
+    log.info("rendering %d views of the calibration board", len(poses))
     for i, T in enumerate(poses):
         plane, _ = board_plane(spec, T)
         img = noise.apply(render(camera, np.eye(4), [plane], background=float(rng.uniform(60, 160))))
@@ -329,6 +332,7 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     raw = np.where(valid[..., None], raw, 0.0)
 
     eye = EyeSamples(t_eye, np.arange(len(t_eye)) % 65536, raw, valid)
+    log.info("%d eye samples at %g Hz, %d targets, %d markers", len(t_eye), rate, len(targets), len(world.markers))
     write_eye_csv(root / "eye.csv", eye)
     (root / "eye_serial.bin").write_bytes(encode_stream(t_eye, raw, valid))
     files["eye_samples"] = "eye.csv"
