@@ -18,13 +18,7 @@ from calibration.images import to_grey
 from estimator._checks import check_transform, check_vector
 from estimator.frames import invert
 
-from .pnp import (
-    covariance_cam_from_obj,
-    covariance_world_from_cam,
-    reprojection_residuals,
-    rms_px,
-    transform_from_rvec_tvec,
-)
+from .pnp import pose_covariance, reprojection_residuals, rms_px, transform_from_rvec_tvec
 from .pose import OK, REJECTED, TOO_FEW, PoseResult
 
 log = logging.getLogger(__name__)
@@ -111,7 +105,6 @@ class PlanarTracker:
             return PoseResult(None, REJECTED, "the surface would be behind the camera")
         if rms > self.max_reproj_px:
             return PoseResult(None, REJECTED, f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px")
-        cov = covariance_world_from_cam(covariance_cam_from_obj(obj_i, rvec, tvec, r, self.f), rvec, tvec,
-                                        self.T_world_from_plane)
+        cov = pose_covariance(obj_i, rvec, tvec, r, self.f, self.T_world_from_plane)
         T_wc = self.T_world_from_plane @ invert(T_cp)
         return PoseResult(T_wc, OK, "", [], int(len(x_i)), rms, cov)

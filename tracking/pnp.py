@@ -83,3 +83,11 @@ def covariance_world_from_cam(cov_cam_from_obj, rvec, tvec, T_world_from_obj=Non
         return np.full((6, 6), np.inf)
     A = world_pose_jacobian(rvec, tvec, T_world_from_obj)
     return A @ C @ A.T
+
+
+def pose_covariance(obj_pts, rvec, tvec, residuals, focal_px: float, T_world_from_obj=None) -> np.ndarray:
+    """The covariance a ``PoseResult`` carries: ``covariance_cam_from_obj`` of the fit (inliers
+    ``obj_pts`` (N, 3) mm, ``residuals`` (N, 2) normalised) propagated to ``T_world_from_cam`` by
+    ``covariance_world_from_cam``; (6, 6), (rotation vector rad, camera position mm)."""
+    return covariance_world_from_cam(covariance_cam_from_obj(obj_pts, rvec, tvec, residuals, focal_px), rvec, tvec,
+                                     T_world_from_obj)

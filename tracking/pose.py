@@ -23,13 +23,7 @@ from estimator.frames import invert
 
 from .markermap import MarkerMap, square_corners
 from .markers import MarkerDetection, detection
-from .pnp import (
-    covariance_cam_from_obj,
-    covariance_world_from_cam,
-    reprojection_residuals,
-    rms_px,
-    transform_from_rvec_tvec,
-)
+from .pnp import pose_covariance, reprojection_residuals, rms_px, transform_from_rvec_tvec
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +61,7 @@ class PoseResult:
         reproj_rms_px: reprojection RMS of the inliers, pixels.
         covariance: (6, 6) of (rotation vector rad, translation mm) of ``T_world_from_cam``, the
             pose beside it: its translation block is the camera position's covariance in the world,
-            mm^2 (``pnp.covariance_world_from_cam``, from the residuals); None when not computed.
+            mm^2 (``pnp.pose_covariance``, from the residuals); None when not computed.
         ambiguous: a single-marker pose chosen between two IPPE solutions.
         repeated_ids: ids of the map detected more than once in the frame; every detection of such
             an id was left out (the map has one marker of each id, so at most one of them is it).
@@ -191,7 +185,7 @@ class MarkerPoseEstimator:
         if why:
             log.debug("pose from markers %s rejected: %s", used, why)
             return PoseResult(None, REJECTED, why, used, int(inliers.sum()), rms)
-        cov = covariance_world_from_cam(covariance_cam_from_obj(obj_i, rvec, tvec, r, self.f), rvec, tvec)
+        cov = pose_covariance(obj_i, rvec, tvec, r, self.f)
         return PoseResult(invert(T_cw), OK, "", used, int(inliers.sum()), rms, cov, ambiguous)
 
     def _multi(self, ids, obj, x) -> PoseResult:
