@@ -20,6 +20,7 @@ from wearable_gaze.formats.markermap import load_marker_map
 from wearable_gaze.formats.serial_protocol import EyeRecord
 from wearable_gaze.formats.session import load_session
 from wearable_gaze.live.camera_in import CameraStats
+from wearable_gaze.live.clock import SessionClock
 from wearable_gaze.live.estimation import GazeEstimation, LiveEstimate, TargetIds, world_sample
 from wearable_gaze.live.head import HeadTracker
 from wearable_gaze.live.loop import LiveSession
@@ -83,6 +84,18 @@ def test_a_sample_newer_than_the_held_pose_waits_for_the_next_frame_but_not_fore
     assert not head.must_wait(1.04, 0.0)                 # the held pose serves it
     assert head.must_wait(1.06, 0.1)
     assert not head.must_wait(1.06, 0.25)                # waited 0.2 s: go on (it will have no pose)
+
+
+# --- the session clock -----------------------------------------------------------------------
+
+def test_the_session_clock_takes_the_fastest_transport_path_and_never_goes_back():
+    clock = SessionClock(lambda: 40.0)                       # the first frame came at monotonic 40 s
+    assert clock.map(50.030, 10.0) == pytest.approx(10.030)  # the first record: its own offset (30 ms)
+    assert clock.map(50.560, 10.5) == pytest.approx(10.530)  # a slower path: the offset is kept
+    assert clock.map(50.629, 10.6) == pytest.approx(10.630)  # 1 ms faster: within 2 ms, kept
+    assert clock.map(50.715, 10.7) == pytest.approx(10.715)  # 15 ms faster: the new offset
+    assert clock.map(50.7061, 10.701) == pytest.approx(10.715 + 1e-4)   # faster still, but never back in time
+    assert SessionClock(lambda: None).map(7.0, 2.0) == pytest.approx(0.0)   # no frame yet: arrival is the origin
 
 
 # --- estimation ------------------------------------------------------------------------------
