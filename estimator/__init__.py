@@ -5,7 +5,14 @@ Frames and units: see ``estimator.frames``.
 """
 
 from .api import METHODS, density_point_cloud, estimate, make_estimator, run_estimator
-from .likelihood import MLConfig, cramer_rao_bound, fisher_information, ml_point, perturb_directions
+from .likelihood import (
+    MLConfig,
+    angular_log_likelihood,
+    cramer_rao_bound,
+    fisher_information,
+    ml_point,
+    perturb_directions,
+)
 from .lines import (
                     BinocularSample,
                     BinocularSamples,
@@ -22,7 +29,8 @@ from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEsti
 __all__ = [
     "METHODS", "BinocularSample", "BinocularSamples", "Ellipsoid", "GazeEstimate", "MLConfig",
     "PairStatus", "PaperVoxelConfig", "PaperVoxelEstimator", "Status", "ViewLines", "VoxelConfig",
-    "VoxelEstimator", "calibration_plane_points", "closest_point_two_lines", "cramer_rao_bound",
+    "VoxelEstimator", "angular_log_likelihood", "calibration_plane_points", "closest_point_two_lines",
+    "cramer_rao_bound",
     "density_point_cloud", "estimate", "fisher_information", "lse_point", "make_estimator",
     "ml_point", "nearest_point_to_lines", "perturb_directions", "run_estimator",
     "view_lines_in_camera", "view_lines_to_camera", "view_lines_to_world",
