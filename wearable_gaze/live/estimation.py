@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator import BinocularSample, make_estimator, view_lines_to_world
+from estimator import BinocularSample, ViewLines, make_estimator, view_lines_to_world
 from estimator.frames import invert
 from estimator.segments import OnlineSegmenter, same_target
 
@@ -41,22 +41,22 @@ class LiveEstimate:
 def world_sample(eyes, t_s: float, rec, T_world_from_cam) -> BinocularSample:
     """One eye record as world view lines: each valid eye's camera-frame line (eq. 1-4,
     ``EyeCalibration.lines``) moved into the world by the head pose (eq. 7-8,
-    ``estimator.view_lines_to_world``).
+    ``estimator.view_lines_to_world``, both eyes in one call).
 
     Args:
         eyes: [left, right] ``EyeCalibration``.
         t_s: session time, s.
-        rec: an ``EyeRecord`` (raw readings and validity per eye).
+        rec: an ``EyeRecord`` with at least one valid eye (raw readings and validity per eye).
         T_world_from_cam: (4, 4) head pose at ``t_s``, mm.
     """
-    T_cam_from_world = invert(np.asarray(T_world_from_cam, float))
-    parts: list = []
-    for e, (raw, valid) in enumerate(((rec.left, rec.left_valid), (rec.right, rec.right_valid))):
-        if not valid:
-            parts += [None, None]
-            continue
-        world = view_lines_to_world(eyes[e].lines(np.array([raw], float)), T_cam_from_world)
-        parts += [world.origins_mm[0], world.directions[0]]
+    valid = [e for e, ok in enumerate((rec.left_valid, rec.right_valid)) if ok]
+    cam = [eyes[e].lines(np.array([(rec.left, rec.right)[e]], float)) for e in valid]
+    world = view_lines_to_world(ViewLines(np.concatenate([c.origins_mm for c in cam]),
+                                          np.concatenate([c.directions for c in cam]), "cam"),
+                                invert(np.asarray(T_world_from_cam, float)))
+    parts: list = [None] * 4
+    for k, e in enumerate(valid):
+        parts[2 * e:2 * e + 2] = world.origins_mm[k], world.directions[k]
     return BinocularSample(t_s, *parts)
 
 
