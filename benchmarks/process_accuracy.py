@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wearable_gaze.pipeline.demo import match_targets
+from wearable_gaze.pipeline.demo import match_positions
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 
@@ -48,16 +48,18 @@ def main():
             res = process_session(root, Path(tmp) / f"p{k}", report=False)
             truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
             fixated = [t for t in truth if t["fixations_s"] and sum(b - a for a, b in t["fixations_s"]) >= 1.0]
-            for tt, f in match_targets(res.targets, fixated):
+            found = res.found
+            for tt, j in match_positions([t.position_mm for t in found], fixated, [t.index for t in found]):
                 X = np.asarray(tt["position_mm"])
-                if f is None:
+                if j is None:
                     missed += 1
                     print(f"session {k} target {tt['index']} at {np.linalg.norm(X) / 1000:.2f} m: NOT FOUND")
                     continue
-                err = float(np.linalg.norm(np.array([f["x_mm"], f["y_mm"], f["z_mm"]]) - X))
-                rows.append((k, tt["index"], np.linalg.norm(X), err, f["crb_mm"]))
+                f = found[j]
+                err = float(np.linalg.norm(f.position_mm - X))
+                rows.append((k, tt["index"], np.linalg.norm(X), err, f.crb_mm))
                 print(f"session {k} target {tt['index']} at {np.linalg.norm(X) / 1000:.2f} m: error {err:6.1f} mm, "
-                      f"bound {f['crb_mm']:6.1f} mm, ratio {err / f['crb_mm']:.2f}")
+                      f"bound {f.crb_mm:6.1f} mm, ratio {err / f.crb_mm:.2f}")
     r = np.array([x[3] / x[4] for x in rows])
     rms = np.sqrt(np.mean(np.array([x[3] for x in rows]) ** 2) / np.mean(np.array([x[4] for x in rows]) ** 2))
     print(f"\n{len(rows)} targets found, {missed} missed; error / bound: median {np.median(r):.2f}, "

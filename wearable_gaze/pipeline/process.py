@@ -10,7 +10,6 @@ older run's result presented as this one's.
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import logging
@@ -39,7 +38,7 @@ from .calibrate import (
     view_lines,
 )
 from .fixations import find_targets, read_targets, write_targets
-from .report import REPORT_FILES
+from .report import REPORT_FILES, OverlayInputs, write_report
 from .track import frame_times, track_video
 from .types import Poses
 
@@ -273,15 +272,21 @@ class _SessionFiles:
 
 
 class _Values:
-    """Each input and step result read once, when a step first needs it; a step run in this run
-    sets its result, so the steps after it take the value, not the file."""
+    """The session's inputs and the steps' outputs as values, each read once, when a step first
+    needs it: from the session, or from the file a step wrote or was given (what a cached step
+    leaves: a run gives the same results whether the steps before it ran or were cached)."""
 
-    def __init__(self):
+    def __init__(self, f: _SessionFiles, cam_path: Path, eyes_path: Path, out: Path):
         self._values = {}
+        self._load = {"camera": lambda: load_camera(cam_path), "eyes": lambda: load_eyes(eyes_path),
+                      "eye_samples": lambda: read_eye_csv(f.eye_samples)[0],
+                      "marker_map": lambda: load_marker_map(f.markers),
+                      "poses": lambda: Poses(*read_poses_csv(out / "poses.csv")),
+                      "targets": lambda: read_targets(out / "targets.json")}
 
-    def get(self, key: str, load):
+    def __getitem__(self, key: str):
         if key not in self._values:
-            self._values[key] = load()
+            self._values[key] = self._load[key]()
         return self._values[key]
 
     def set(self, key: str, value) -> None:
@@ -331,9 +336,12 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         res.problems.append(f"session: {s.root / 'session.json'} says the recording was cut short (complete: "
                             f"false{'; ' + counts + ' saved' if counts else ''}); processing what was recorded")
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config or SegmentConfig())
-    f, vals = _SessionFiles.of(s), _Values()
+    f = _SessionFiles.of(s)
+    cam_path = Path(camera) if camera else out / "camera.json"
+    eyes_path = Path(eyes) if eyes else out / "eyes.json"
+    vals = _Values(f, cam_path, eyes_path, out)
     try:
-        cam_path, eyes_path = _calibration_steps(f, out, steps, vals, camera, eyes)
+        _calibration_steps(f, steps, vals, cam_path if camera else None, eyes_path if eyes else None, out)
         if f.has_recording:
             _recording_steps(f, out, steps, res, vals, cam_path, eyes_path, cfg)
         else:
@@ -347,10 +355,11 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     return _finish(res, s, out, method)
 
 
-def _calibration_steps(f: _SessionFiles, out: Path, steps: _Steps, vals: _Values, camera, eyes) -> tuple[Path, Path]:
-    """1. camera, 2. eyes: calibrated from the session, or the files given checked once and
-    kept as values. Returns the camera and eyes files the later steps fingerprint."""
-    cam_path = Path(camera) if camera else out / "camera.json"
+def _calibration_steps(f: _SessionFiles, steps: _Steps, vals: _Values, camera: Path | None, eyes: Path | None,
+                       out: Path) -> None:
+    """1. camera, 2. eyes: calibrated from the session into OUT, or the files given (``camera``,
+    ``eyes``) checked once and kept as values."""
+    cam_path, eyes_path = camera or out / "camera.json", eyes or out / "eyes.json"
     if camera is None:
         board_file = f.camera_views / "board.json"
 
@@ -363,28 +372,22 @@ def _calibration_steps(f: _SessionFiles, out: Path, steps: _Steps, vals: _Values
         steps.run("camera", [f.camera_views], {}, do_camera)
     else:
         steps.external("camera", cam_path, lambda p: vals.set("camera", load_camera(p)))
-    camera_value = functools.partial(vals.get, "camera", lambda: load_camera(cam_path))
-    eyes_path = Path(eyes) if eyes else out / "eyes.json"
     if eyes is None:
         def do_eyes(cb):
-            cam = camera_value()
+            cam = vals["camera"]
             write_eyes(eyes_path, calibrate_eyes(read_eye_recordings(eye_files(f.root)), cam, progress=cb))
         steps.run("eyes", [f.eye_calibration, cam_path], {}, do_eyes)
     else:
         steps.external("eyes", eyes_path, lambda p: vals.set("eyes", load_eyes(p)))
-    return cam_path, eyes_path
 
 
 def _recording_steps(f: _SessionFiles, out: Path, steps: _Steps, res: ProcessResult, vals: _Values, cam_path: Path,
                      eyes_path: Path, cfg: _Settings) -> None:
-    """3. head tracking, 4. view lines, 5. fixations and targets, 6. plots, overlay, report.
-    Each step's inputs are read once, from the session or from the files the steps before it
-    wrote (what a cached step would give: a run gives the same results with or without them)."""
+    """3. head tracking, 4. view lines, 5. fixations and targets, 6. plots, overlay, report."""
     poses_path = out / "poses.csv"
 
     def do_tracking(cb):
-        cam = vals.get("camera", lambda: load_camera(cam_path))
-        mm = vals.get("marker_map", lambda: load_marker_map(f.markers))
+        cam, mm = vals["camera"], vals["marker_map"]
         poses = track_video(f.video, cam, mm, frame_times(f.video, f.stamps), cfg.track_every, cb)
         write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
     if f.markers is None:
@@ -396,9 +399,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: _Steps, res: ProcessRes
     raw_vl, counts_path = out / ".viewlines_unsegmented.csv", out / ".viewlines_counts.json"
 
     def do_viewlines(cb):
-        eye = vals.get("eye_samples", lambda: read_eye_csv(f.eye_samples)[0])
-        cals = vals.get("eyes", lambda: load_eyes(eyes_path))
-        result = view_lines(eye, cals, Poses(*read_poses_csv(poses_path)), source=poses_path)
+        result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], source=poses_path)
         write_viewlines_csv(raw_vl, result.samples)
         write_json(counts_path, result.counts)
     if steps.run("viewlines", [f.eye_samples, eyes_path, poses_path], {}, do_viewlines):
@@ -411,25 +412,19 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: _Steps, res: ProcessRes
         vals.set("targets", result.targets)
     params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__}
     if steps.run("targets", [raw_vl], params, do_targets):
-        res.found = vals.get("targets", lambda: read_targets(out / "targets.json"))
+        res.found = vals["targets"]
         if not res.found:
             n = res.summary.get("viewlines", {}).get("written", "the")
             res.problems.append(f"targets: no target could be estimated from {n} view lines (no fixation of "
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
     if cfg.report:
-        _report_step(f, out, steps, vals, cam_path, eyes_path, cfg)
+        _report_step(f, out, steps, vals, eyes_path, cfg)
 
 
-def _report_step(f: _SessionFiles, out: Path, steps: _Steps, vals: _Values, cam_path: Path, eyes_path: Path,
-                 cfg: _Settings) -> None:
-    from .report import OverlayInputs, write_report  # noqa: PLC0415
-
+def _report_step(f: _SessionFiles, out: Path, steps: _Steps, vals: _Values, eyes_path: Path, cfg: _Settings) -> None:
     def overlay_inputs() -> OverlayInputs:
-        return OverlayInputs(vals.get("camera", lambda: load_camera(cam_path)),
-                             vals.get("eyes", lambda: load_eyes(eyes_path)) if eyes_path.is_file() else None,
-                             vals.get("eye_samples", lambda: read_eye_csv(f.eye_samples)[0]),
-                             vals.get("marker_map", lambda: load_marker_map(f.markers)) if f.markers else None,
-                             f.video)
+        return OverlayInputs(vals["camera"], vals["eyes"] if eyes_path.is_file() else None, vals["eye_samples"],
+                             vals["marker_map"] if f.markers else None, f.video)
     cam_ok = steps.status.get("camera") in GOOD
     inputs = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"] + ([f.video] if cfg.overlay else [])
     steps.run("report", inputs, {"overlay": cfg.overlay},
