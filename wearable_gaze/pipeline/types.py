@@ -38,7 +38,7 @@ class Fixation:
         return self.estimate is not None and self.estimate.ok
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Target:
     """A fixated 3D target: one or more fixations of the same point, merged and estimated again
     from all their view lines.
@@ -59,6 +59,9 @@ class Target:
             the lines do not fix a point).
         samples: (n_samples,) indices of its view lines, or None when read from a file (the
             view lines' target labels are in target_labels.npy).
+
+    Two targets compare equal only when they are the same object (arrays have no single truth
+    value): compare ``row()`` for equal values.
     """
 
     index: int
@@ -72,7 +75,7 @@ class Target:
     fixations: tuple
     method: str
     crb_mm: float
-    samples: np.ndarray | None = field(default=None, compare=False)
+    samples: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:

@@ -1,0 +1,79 @@
+"""``process`` composes the steps over typed values (issue 13): it reads each input of the session
+and each output of an earlier step once, hands the contents to the steps (the commands' file-level
+wrappers are not used), and a cached run reads none of them."""
+
+import json
+import shutil
+from collections import Counter
+
+import numpy as np
+import pytest
+
+import wearable_gaze.pipeline.calibrate as calibrate_mod
+import wearable_gaze.pipeline.process as process_mod
+import wearable_gaze.pipeline.track as track_mod
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.types import TARGET_COLUMNS, Target
+from wearable_gaze.sim.simulate import simulate_scenario
+
+SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}
+LOADERS = ("load_session", "load_camera", "load_eyes", "read_eye_csv", "load_marker_map", "read_poses_csv",
+           "read_targets")
+
+
+@pytest.fixture(scope="module")
+def small_session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("steps") / "session"
+    simulate_scenario(SMALL, root, seed=0)
+    return root
+
+
+def _count_loads(monkeypatch) -> Counter:
+    calls = Counter()
+
+    def counted(name, fn):
+        def wrapper(*args, **kwargs):
+            calls[name] += 1
+            return fn(*args, **kwargs)
+        return wrapper
+    for name in LOADERS:
+        monkeypatch.setattr(process_mod, name, counted(name, getattr(process_mod, name)))
+    return calls
+
+
+def test_each_input_is_read_once_and_handed_to_the_steps(small_session, tmp_path, monkeypatch):
+    s = tmp_path / "s"
+    shutil.copytree(small_session, s)
+
+    def wrapper_called(*args, **kwargs):
+        raise AssertionError("process called a command's file-level wrapper, which reads its files again")
+    for mod, name in ((calibrate_mod, "calibrate_eyes_files"), (calibrate_mod, "viewlines_files"),
+                      (track_mod, "track_video_files")):
+        monkeypatch.setattr(mod, name, wrapper_called)
+    calls = _count_loads(monkeypatch)
+    res = process_session(s, s / "processed")                    # with the overlay: it reads camera, eyes,
+    assert res.found and res.problems == [] and (s / "processed" / "overlay.webp").is_file()   # samples, map
+    # camera.json: eyes, tracking and overlay; eye.csv: view lines and overlay; the map: tracking and overlay
+    assert calls == {"load_session": 1, "load_camera": 1, "load_eyes": 1, "read_eye_csv": 1, "load_marker_map": 1,
+                     "read_poses_csv": 1}, calls
+    assert [t.row() for t in res.found] == res.targets == json.loads((s / "processed" / "targets.json").read_text())[
+        "targets"]
+
+    calls.clear()
+    again = process_session(s, s / "processed")                  # every step cached: only the targets are read
+    assert set(again.skipped) == set(process_mod.STEPS)
+    assert calls == {"load_session": 1, "read_targets": 1}, calls
+    assert again.targets == res.targets
+
+
+def test_a_target_is_its_row_of_targets_json():
+    row = {"target": 2, "x_mm": 77.52124581513759, "y_mm": -97.3, "z_mm": 1045.1, "axis1_mm": 2.07, "axis2_mm": 2.08,
+           "axis3_mm": 32.0, "n_samples": 326, "t_start": 0.05, "t_end": 15.2, "fixations": "0;4", "method": "voxel",
+           "status": "ok", "crb_mm": 11.43}
+    t = Target.from_row(row)
+    assert t.index == 2 and t.fixations == (0, 4) and t.ok and t.covariance_mm2 is None
+    np.testing.assert_array_equal(t.position_mm, [77.52124581513759, -97.3, 1045.1])
+    assert t.row() == row and list(t.row()) == list(TARGET_COLUMNS)
+    assert json.dumps(t.row()) == json.dumps(row)                  # plain Python values: the same JSON text
+    nan = Target.from_row(row | {"x_mm": float("nan"), "status": "no_estimate"})
+    assert not nan.ok
