@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration
-from estimator.likelihood import angular_log_likelihood
+from estimator import angular_log_likelihood
 from tracking.markermap import MarkerMap
 
 from ..formats.atomic import atomic_path, write_text
