@@ -204,10 +204,11 @@ def test_target_ids_merge_what_is_one_target_seen_twice():
 # --- messages --------------------------------------------------------------------------------
 
 def test_messages_have_the_version_1_format_to_the_byte():
-    e = LiveEstimate(1.23456, 3, np.array([1.04, -2.06, 1500.149]), 12.345, 17)
+    cov = np.diag([1.0, 4.0, 9.0])                          # 95 %: sqrt(9 * chi2(0.95, 3)) = 8.4 mm
+    e = LiveEstimate(1.23456, 3, np.array([1.04, -2.06, 1500.149]), cov, 17)
     assert Publisher.encode(estimate_message(e, 4.5678)) == (
         b'{"version":1,"type":"estimate","t":1.2346,"fixation":3,"position_mm":[1.0,-2.1,1500.1],'
-        b'"radius95_mm":12.3,"n_samples":17,"latency_ms":4.57}\n')
+        b'"radius95_mm":8.4,"n_samples":17,"latency_ms":4.57}\n')
     assert estimate_message(LiveEstimate(0.0, 0, np.zeros(3), None, 1), 0.0)["radius95_mm"] is None
     t = Target(index=2, position_mm=np.array([10.0, 20.04, 3000.0]), covariance_mm2=np.eye(3),
                axes95_mm=np.array([1.01, 2.06, 30.0]), status="ok", n_samples=90, t_start=4.00001, t_end=5.55555,

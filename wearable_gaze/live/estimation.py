@@ -12,6 +12,7 @@ import numpy as np
 
 from estimator import BinocularSample, ViewLines, make_estimator, view_lines_to_world
 from estimator.frames import invert
+from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter, same_target
 
 from ..pipeline.types import Target
@@ -27,15 +28,23 @@ class LiveEstimate:
         t_s: the sample's session time, s.
         fixation: the fixation's index (0, 1, ... in the session).
         position_mm: (3,) estimated point, world frame, mm.
-        radius95_mm: the largest radius of its 95 % ellipsoid, mm (None without a covariance).
+        covariance_mm2: (3, 3) its covariance, mm^2, or None.
         n_samples: samples the fixation's estimator has taken.
     """
 
     t_s: float
     fixation: int
     position_mm: np.ndarray
-    radius95_mm: float | None
+    covariance_mm2: np.ndarray | None
     n_samples: int
+
+    @property
+    def radius95_mm(self) -> float | None:
+        """The largest radius of its 95 % ellipsoid, mm (None without a covariance); computed
+        when asked, so that the loop's latency is measured before it, as before."""
+        if self.covariance_mm2 is None:
+            return None
+        return float(covariance_ellipsoid(self.position_mm, self.covariance_mm2, 0.95).radii_mm.max())
 
 
 def world_sample(eyes, t_s: float, rec, T_world_from_cam) -> BinocularSample:
@@ -148,9 +157,7 @@ class GazeEstimation:
         if not est.ok:
             return ended, None
         self.last = (est, t_s)
-        r = est.ellipsoid(0.95)
-        return ended, LiveEstimate(t_s, self.fixation, est.position_mm,
-                                   None if r is None else float(r.radii_mm.max()), self.n_samples)
+        return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
 
     def end_fixation(self) -> Target | None:
         """End the current fixation (a saccade, or the session's end): its target when it lasted
