@@ -12,7 +12,6 @@ Target (issue 5): >= 60 frames per second, detection and pose included.
 from __future__ import annotations
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -21,9 +20,9 @@ import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV loa
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calibration.camera import CameraCalibration  # noqa: E402
 from tracking.markers import MarkerDetector, detection  # noqa: E402
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg  # noqa: E402
+from wearable_gaze.formats.camera import load_camera  # noqa: E402
 from wearable_gaze.formats.markermap import load_marker_map  # noqa: E402
 from wearable_gaze.formats.poses import read_poses_csv  # noqa: E402
 from wearable_gaze.formats.session import load_session  # noqa: E402
@@ -41,7 +40,7 @@ def main():
         simulate_scenario({"base": "lab-walkabout", "duration_s": args.frames / 30.0,
                            "calibration": {"eye": False, "camera_views": 0}}, root, args.seed)
         s = load_session(root)
-        cam = CameraCalibration.from_dict(json.loads((root / "truth" / "camera.json").read_text()))
+        cam = load_camera(root / "truth" / "camera.json")
         mm = load_marker_map(s.path("marker_map"))
         _, _, T_true, _ = read_poses_csv(root / "truth" / "head_poses.csv")
         frames = list(grey_frames(s.path("scene_video")))

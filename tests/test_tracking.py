@@ -14,6 +14,7 @@ from tracking.markermap import MarkerMap, MarkerMapError
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator, PoseStatus, rotation_angle_deg
 from wearable_gaze.cli import main
+from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.markermap import load_marker_map, marker_map_dict, marker_map_from_dict
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.session import load_session
@@ -71,7 +72,7 @@ def walk(tmp_path_factory):
     simulate_scenario({"base": "lab-walkabout", "duration_s": 2.0, "calibration": {"eye": False, "camera_views": 0}},
                       root, seed=4)
     s = load_session(root)
-    cam = CameraCalibration.from_dict(json.loads((root / "truth" / "camera.json").read_text()))
+    cam = load_camera(root / "truth" / "camera.json")
     mm = load_marker_map(s.path("marker_map"))
     _, _, T, extra = read_poses_csv(root / "truth" / "head_poses.csv")
     return root, cam, mm, T, list(grey_frames(s.path("scene_video")))
