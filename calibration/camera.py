@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import cv2
@@ -249,7 +250,24 @@ def undistort_image(image, cal: CameraCalibration, alpha: float = 0.0) -> tuple[
     return cv2.remap(np.asarray(image), m1, m2, cv2.INTER_LINEAR), K2
 
 
+@contextmanager
+def _one_thread():
+    """OpenCV on one thread: its parallel sums make calibrateCamera's result differ in the 11th
+    digit from run to run, which the rest of a session's processing then carries on."""
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(n)
+
+
 def _calibrate_once(views, image_size, model, flags):
+    with _one_thread():
+        return _calibrate_views(views, image_size, model, flags)
+
+
+def _calibrate_views(views, image_size, model, flags):
     obj = [v.object_points.astype(np.float32).reshape(-1, 1, 3) for v in views]
     img = [v.image_points.astype(np.float32).reshape(-1, 1, 2) for v in views]
     if model == "fisheye":                           # cv2.fisheye wants (1, N, c) point arrays
