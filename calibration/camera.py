@@ -179,13 +179,6 @@ class CameraCalibration:
     board: dict | None = None
     std: dict | None = None
 
-    def to_dict(self) -> dict:
-        return {"format": "wearable-gaze-camera", "version": 1, "model": self.model,
-                "camera_matrix": np.asarray(self.camera_matrix, float).tolist(),
-                "dist_coeffs": np.asarray(self.dist_coeffs, float).ravel().tolist(),
-                "image_size": [int(self.image_size[0]), int(self.image_size[1])],
-                "rms_px": self.rms_px, "std": self.std, "board": self.board, "views": self.views}
-
     @classmethod
     def from_dict(cls, d: dict) -> CameraCalibration:
         """Raises ValueError naming the missing or malformed key."""
