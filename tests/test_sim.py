@@ -379,3 +379,14 @@ def test_verbose_shows_what_the_simulator_does(tmp_path, capsys):
     assert "wearable_gaze.sim.simulate" in err
     assert "simulating 0.2 s (seed 0)" in err and "eye calibration: 3 walls, 1.5 s per target" in err
     assert "rendering 6 frames of 320x180" in err
+
+
+def test_double_verbose_adds_the_debug_details(tmp_path, capsys):
+    """``-vv`` adds the debug lines (here the gaze plan and the head motion) that ``-v`` leaves out."""
+    args = ["simulate", "--scenario", "lab-walkabout", "--duration", "0.2", "--resolution", "320x180"]
+    assert main(["-v"] + args + ["-o", str(tmp_path / "info")]) == 0
+    info = capsys.readouterr().err
+    assert main(["-vv"] + args + ["-o", str(tmp_path / "debug")]) == 0
+    debug = capsys.readouterr().err
+    assert "gaze plan:" not in info and "head motion" not in info
+    assert "debug wearable_gaze.sim.eyes: gaze plan:" in debug and "head motion" in debug

@@ -19,7 +19,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The parser of every command, in the order of ``wearable-gaze --help``."""
     p = Parser(prog="wearable-gaze",
                description="Where in 3D a person looks, from a head-worn binocular eye tracker.")
-    p.add_argument("-v", "--verbose", action="store_true", help="log what each step does")
+    p.add_argument("-v", "--verbose", action="count", default=0,
+                   help="log what each step does (-vv: and its details, for debugging)")
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for add in (estimate.add_estimate, paper.add_reproduce, calibrate.add_calibrate_camera,

@@ -102,5 +102,5 @@ def log_to_stderr(args) -> logging.Handler:
     handler.setFormatter(LogFormatter(f"wearable-gaze {args.command or ''}".strip(), args.verbose))
     root = logging.getLogger()
     root.addHandler(handler)
-    root.setLevel(logging.INFO if args.verbose else logging.WARNING)
+    root.setLevel({0: logging.WARNING, 1: logging.INFO}.get(args.verbose, logging.DEBUG))
     return handler
