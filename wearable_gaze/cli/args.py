@@ -44,11 +44,15 @@ def non_negative_float(text):
     return v
 
 
-def positive_int(text):
+def whole_number(text):
     try:
-        v = int(text)
+        return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{ascii(text)} is not a whole number") from None
+
+
+def positive_int(text):
+    v = whole_number(text)
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {ascii(text)}")
     if v > 10**9:
@@ -57,10 +61,7 @@ def positive_int(text):
 
 
 def seed(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a whole number") from None
+    v = whole_number(text)
     if not 0 <= v < 2**63:
         raise argparse.ArgumentTypeError(f"a seed is a whole number from 0 to 2^63-1, got {ascii(text)}")
     return v

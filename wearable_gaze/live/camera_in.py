@@ -15,6 +15,8 @@ import cv2
 
 from calibration.images import to_grey
 
+from .input_thread import InputThread
+
 log = logging.getLogger(__name__)
 
 @dataclass
@@ -25,7 +27,7 @@ class CameraStats:
     stalls: int = 0           # waits longer than 5 frame periods, or a run of failed reads: one each
 
 
-class FrameSource(threading.Thread):
+class FrameSource(InputThread):
     """Puts ``(t_s, frame_index, grey_frame, colour_frame)`` on a bounded queue; ``t_s`` is
     ``time.monotonic()`` at capture (a file: its start time plus index / fps).
 
@@ -35,13 +37,12 @@ class FrameSource(threading.Thread):
     """
 
     def __init__(self, source: str, maxsize: int = 4, sink=None, loop: bool = False):
-        super().__init__(daemon=True, name="camera")
+        super().__init__("camera")
         self.source = source
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.stats = CameraStats()
         self.stop_event = threading.Event()
         self.error: str | None = None
-        self.failure: str | None = None          # an unexpected error that ended the thread
         self.finished = threading.Event()
         target = int(source) if str(source).isdigit() else str(source)
         self.cap = cv2.VideoCapture(target)
@@ -53,13 +54,6 @@ class FrameSource(threading.Thread):
         self.t0: float | None = None
         self.sink = sink            # sink(t_rel_s, index, grey) sees every frame (the recorder)
         self.loop = loop            # a file starts again at its end (long-run benchmarks)
-
-    def run(self):
-        try:
-            self._run()
-        except Exception as exc:  # noqa: BLE001  (the live loop reports it and ends the session)
-            self.failure = f"{type(exc).__name__}: {exc}"
-            log.debug("camera failed", exc_info=True)
 
     def _run(self):
         period = 1.0 / self.fps

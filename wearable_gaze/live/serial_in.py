@@ -20,6 +20,7 @@ from urllib.parse import urlparse
 import serial
 
 from ..formats.serial_protocol import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
+from .input_thread import InputThread
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +110,7 @@ class SocketLink:
         self.sock.close()
 
 
-class EyeReader(threading.Thread):
+class EyeReader(InputThread):
     """Reads records in a thread and puts ``(arrival_s, EyeRecord)`` on a bounded queue
     (``time.monotonic()`` arrival times). Raw bytes go to ``raw_sink(bytes)`` if given (the
     recorder keeps them). With ``on_record(arrival_s, record)``, every intact record is handed
@@ -126,7 +127,7 @@ class EyeReader(threading.Thread):
     def __init__(self, port: str, baudrate: int = 115200, protocol: LineProtocol = DEFAULT_PROTOCOL,
                  maxsize: int = 2000, reconnect_s: float = 0.5, raw_sink=None, bytesize=8, parity="N", stopbits=1,
                  on_record=None):
-        super().__init__(daemon=True, name="eye-reader")
+        super().__init__("eye-reader")
         self.port, self.baudrate = port, baudrate
         self.settings = dict(bytesize=bytesize, parity=parity, stopbits=stopbits)
         self.protocol = protocol
@@ -138,7 +139,6 @@ class EyeReader(threading.Thread):
         self.on_record = on_record
         self._corrupt_since_good = 0
         self.error: str | None = None
-        self.failure: str | None = None          # an unexpected error that ended the thread
         self._last_counter = None
         self.connected = threading.Event()
 
@@ -158,13 +158,6 @@ class EyeReader(threading.Thread):
         except (serial.SerialException, OSError, AttributeError, NotImplementedError):
             waiting = 4096
         return link.read(max(1, min(waiting, 4096)))
-
-    def run(self):
-        try:
-            self._run()
-        except Exception as exc:  # noqa: BLE001  (the live loop reports it and ends the session)
-            self.failure = f"{type(exc).__name__}: {exc}"
-            log.debug("eye reader failed", exc_info=True)
 
     def _run(self):
         splitter = LineSplitter(self.protocol)

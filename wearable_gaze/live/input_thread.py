@@ -1,0 +1,32 @@
+"""The base of the live session's input threads (the eye reader, the camera): an unexpected error
+ends the thread and is kept in ``failure`` for the loop to report and end the session with."""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+log = logging.getLogger(__name__)
+
+
+class InputThread(threading.Thread):
+    """A daemon thread running ``_run``; an exception ends it with ``failure`` set to
+    ``"ExceptionType: message"`` (the traceback is logged at debug level).
+
+    Args:
+        name: the thread's name, also used in the log line.
+    """
+
+    def __init__(self, name: str):
+        super().__init__(daemon=True, name=name)
+        self.failure: str | None = None          # an unexpected error that ended the thread
+
+    def run(self):
+        try:
+            self._run()
+        except Exception as exc:  # noqa: BLE001  (the live loop reports it and ends the session)
+            self.failure = f"{type(exc).__name__}: {exc}"
+            log.debug("%s failed", self.name, exc_info=True)
+
+    def _run(self) -> None:
+        raise NotImplementedError
