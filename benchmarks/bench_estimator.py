@@ -36,10 +36,9 @@ from estimator import (  # noqa: E402
     VoxelEstimator,
     cramer_rao_bound,
     ml_point,
-    perturb_directions,
 )
 from estimator._open3d import import_open3d  # noqa: E402
-from wearable_gaze.sim.protocol import Protocol, simulate_lines  # noqa: E402
+from wearable_gaze.sim.protocol import Protocol, simulate_lines, still_head_samples  # noqa: E402
 
 
 class NaiveGrid:
@@ -76,23 +75,6 @@ def bench_stream(make, stream, repeat=1):
     return best, r
 
 
-def diverging_stream(n, rng, depth=5000.0, diverge_deg=1.0, sigma_deg=1.0, ipd=65.0):
-    """A still head looking at ``depth`` mm with the two lines turned apart by ``diverge_deg``."""
-    lo, ro = np.array([-ipd / 2, 0, 0]), np.array([ipd / 2, 0, 0])
-    X = np.array([0, 0, depth])
-    half = np.deg2rad(diverge_deg) / 2
-
-    def turn(v, a):
-        return np.array([np.cos(a) * v[0] + np.sin(a) * v[2], v[1], -np.sin(a) * v[0] + np.cos(a) * v[2]])
-
-    dl = turn((X - lo) / np.linalg.norm(X - lo), -half)
-    dr = turn((X - ro) / np.linalg.norm(X - ro), half)
-    s = np.deg2rad(sigma_deg)
-    L = perturb_directions(np.tile(dl, (n, 1)), s, rng)
-    R = perturb_directions(np.tile(dr, (n, 1)), s, rng)
-    return [BinocularSample(i / 60, lo, L[i], ro, R[i]) for i in range(n)]
-
-
 def tufts_stream(path, n=1036):
     """The first ``n`` rows of the Tufts Gaze Depth test split as binocular samples (eye centres,
     mm, and gaze normals, in the tracker's world-camera frame), or None if the file is absent."""
@@ -118,7 +100,7 @@ def bench_lines_that_fix_no_point(tufts_path):
     regular = streamed(simulate_lines(np.array([0.0, 0, 2000]), np.random.default_rng(2),
                                       Protocol(n_samples=max(at), step_mm=200.0 / max(at))))
     t_reg, _ = update_times(regular)
-    t_div, est = update_times(diverging_stream(max(at), np.random.default_rng(3)))
+    t_div, est = update_times(still_head_samples(max(at), np.random.default_rng(3)))
     print("\nvoxel per-update cost (median of the 20 updates before each count), lines that fix no point:")
     print(f"  {'sample':>6}  {'diverging 1 deg, 5 m':>21}  {'baseline: fixation at 2 m':>26}  {'ratio':>6}")
     for k in at:

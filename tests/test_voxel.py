@@ -19,7 +19,7 @@ from estimator import (
 from estimator._open3d import import_open3d
 from estimator.voxel import DensityGrid
 from tests.helpers import random_rotation, walkabout_samples
-from wearable_gaze.sim.protocol import simulate_lines
+from wearable_gaze.sim.protocol import simulate_lines, still_head_samples
 
 
 def test_grid_values_are_a_zero_copy_view_of_an_open3d_tensor():
@@ -218,26 +218,6 @@ def test_voxel_answers_a_short_fixation_near_ml(n, depth, rng):
     assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
 
 
-def _still_head(n, rng, diverge_deg, depth=5000.0, sigma_deg=1.0, ipd=65.0):
-    """A still head looking at ``depth`` with the eyes' lines turned apart by ``diverge_deg``
-    (0: parallel lines, a target at infinity): lines that never fix a point ahead."""
-    lo, ro = np.array([-ipd / 2, 0, 0]), np.array([ipd / 2, 0, 0])
-    X = np.array([0, 0, depth])
-    half = np.deg2rad(diverge_deg) / 2
-
-    def turn(v, a):
-        return np.array([np.cos(a) * v[0] + np.sin(a) * v[2], v[1], -np.sin(a) * v[0] + np.cos(a) * v[2]])
-
-    dl = turn((X - lo) / np.linalg.norm(X - lo), -half)
-    dr = turn((X - ro) / np.linalg.norm(X - ro), half)
-    if diverge_deg == 0:
-        dl = dr = np.array([0, 0, 1.0])
-    s = np.deg2rad(sigma_deg)
-    L = perturb_directions(np.tile(dl, (n, 1)), s, rng)
-    R = perturb_directions(np.tile(dr, (n, 1)), s, rng)
-    return [BinocularSample(i / 60, lo, L[i], ro, R[i]) for i in range(n)]
-
-
 @pytest.mark.parametrize("case", ["diverging 1 deg at 5 m", "parallel", "fixation at 2 m"])
 def test_work_over_the_kept_lines_is_bounded_per_line(case, monkeypatch, rng):
     """Seed fits and box layouts each process every kept line; counted here from outside the
@@ -265,7 +245,7 @@ def test_work_over_the_kept_lines_is_bounded_per_line(case, monkeypatch, rng):
         s = walkabout_samples([0, 0, 2000.0], rng, n=n)
         stream = [s.sample(i) for i in range(n)]
     else:
-        stream = _still_head(n, rng, 1.0 if case.startswith("diverging") else 0.0)
+        stream = still_head_samples(n, rng, 1.0 if case.startswith("diverging") else 0.0)
     est = VoxelEstimator()
     for smp in stream:
         r = est.update(smp)

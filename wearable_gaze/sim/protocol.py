@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator import BinocularSamples, perturb_directions
+from estimator import BinocularSample, BinocularSamples, perturb_directions
 
 PAPER_DEPTHS_MM = (1000.0, 2000.0, 3000.0, 4000.0, 5000.0)
 
@@ -63,3 +63,26 @@ def simulate_lines(target_mm, rng: np.random.Generator, protocol: Protocol = Pro
     rd = perturb_directions(X - ro, sig, rng)
     t = np.arange(len(heads)) / protocol.rate_hz
     return BinocularSamples.from_arrays(t, lo, ld, ro, rd)
+
+
+def still_head_samples(n: int, rng: np.random.Generator, diverge_deg: float = 1.0, depth_mm: float = 5000.0,
+                       sigma_deg: float = 1.0, ipd_mm: float = 65.0) -> list:
+    """View lines that fix no point ahead: a still head (eyes at (+-ipd/2, 0, 0) mm, world frame)
+    looking at (0, 0, ``depth_mm``) with the two eyes' lines turned apart by ``diverge_deg``
+    (0: both straight ahead, parallel: a target at infinity), each with Gaussian angular noise of
+    ``sigma_deg`` per tangent axis. Returns ``n`` ``BinocularSample``s at 60 Hz."""
+    lo, ro = np.array([-ipd_mm / 2, 0, 0]), np.array([ipd_mm / 2, 0, 0])
+    X = np.array([0, 0, depth_mm])
+    half = np.deg2rad(diverge_deg) / 2
+
+    def turn(v, a):
+        return np.array([np.cos(a) * v[0] + np.sin(a) * v[2], v[1], -np.sin(a) * v[0] + np.cos(a) * v[2]])
+
+    dl = turn((X - lo) / np.linalg.norm(X - lo), -half)
+    dr = turn((X - ro) / np.linalg.norm(X - ro), half)
+    if diverge_deg == 0:
+        dl = dr = np.array([0, 0, 1.0])
+    s = np.deg2rad(sigma_deg)
+    L = perturb_directions(np.tile(dl, (n, 1)), s, rng)
+    R = perturb_directions(np.tile(dr, (n, 1)), s, rng)
+    return [BinocularSample(i / 60, lo, L[i], ro, R[i]) for i in range(n)]
