@@ -64,3 +64,28 @@ def drain_reader(reader, n: int, timeout: float = 5.0) -> list:
         except queue.Empty:
             pass
     return out
+
+
+def rendered_marker_scene(rng, dictionary="DICT_4X4_50", side_mm=120.0, n_markers=4,
+                          x_mm=(-600, 600), y_mm=(-300, 300), z_mm=(1000, 2000)):
+    """``n_markers`` markers (ids 0..n-1) turned up to 40 degrees at random positions in front of
+    the simulator's wide scene camera at the origin, rendered with noise.
+
+    Returns:
+        (grey image (H, W) uint8, {id: (4, 2) projected true corners, px}).
+    """
+    from estimator.frames import rotation_about_axis
+    from wearable_gaze.sim.camera import Camera
+    from wearable_gaze.sim.noise import finish
+    from wearable_gaze.sim.planes import marker_corners_world, marker_plane
+    from wearable_gaze.sim.render import render
+
+    cam = Camera.wide_scene_camera()
+    planes, truth = [], {}
+    for mid in range(n_markers):
+        T = np.eye(4)
+        T[:3, :3] = rotation_about_axis(rng.normal(size=3), np.deg2rad(rng.uniform(0, 40)))
+        T[:3, 3] = [rng.uniform(*x_mm), rng.uniform(*y_mm), rng.uniform(*z_mm)]
+        planes.append(marker_plane(dictionary, mid, side_mm, T))
+        truth[mid] = cam.project(marker_corners_world(side_mm, T))
+    return finish(render(cam, np.eye(4), planes)), truth

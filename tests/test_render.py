@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from calibration.camera import aruco_dictionary
-from estimator.frames import rotation_about_axis
+from tests.helpers import rendered_marker_scene
 from wearable_gaze.sim.camera import Camera
 from wearable_gaze.sim.noise import finish
-from wearable_gaze.sim.planes import Plane, marker_corners_world, marker_plane
+from wearable_gaze.sim.planes import Plane
 from wearable_gaze.sim.render import render
 
 
@@ -50,19 +50,8 @@ def _ideal_errors(det, rng, n=12):
 
 @pytest.fixture(scope="module")
 def scenes():
-    cam = Camera.wide_scene_camera()
     rng = np.random.default_rng(0)
-    out = []
-    for _ in range(8):
-        planes, truth = [], {}
-        for mid in range(4):
-            T = np.eye(4)
-            T[:3, :3] = rotation_about_axis(rng.normal(size=3), np.deg2rad(rng.uniform(0, 40)))
-            T[:3, 3] = [rng.uniform(-600, 600), rng.uniform(-300, 300), rng.uniform(1000, 2000)]
-            planes.append(marker_plane("DICT_4X4_50", mid, 120.0, T))
-            truth[mid] = cam.project(marker_corners_world(120.0, T))
-        out.append((finish(render(cam, np.eye(4), planes)), truth))
-    return out
+    return [rendered_marker_scene(rng) for _ in range(8)]
 
 
 def test_rendered_marker_corners_match_projected_ground_truth(scenes):

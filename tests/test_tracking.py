@@ -9,6 +9,7 @@ import pytest
 
 from calibration.camera import CameraCalibration
 from estimator.frames import rotation_about_axis
+from tests.helpers import rendered_marker_scene
 from tracking.homography import PlanarTracker
 from tracking.markermap import MarkerMap, MarkerMapError
 from tracking.markers import MarkerDetector
@@ -259,22 +260,13 @@ def test_homography_mode_on_a_textured_poster():
 def test_apriltag_refinement_gives_corners_in_opencvs_pixel_convention():
     """refine='apriltag' returns OpenCV's convention like the other refinements (AprilTag's own
     puts a pixel's centre at +0.5: a +0.5 px offset in x and y before the fix)."""
-    from wearable_gaze.sim.noise import finish
-    from wearable_gaze.sim.planes import marker_corners_world, marker_plane
-
-    cam = Camera.wide_scene_camera()
     rng = np.random.default_rng(0)
     det = MarkerDetector("DICT_APRILTAG_36h11", refine="apriltag")
     offsets = []
     for _ in range(4):
-        planes, truth = [], {}
-        for mid in range(4):
-            T = np.eye(4)
-            T[:3, :3] = rotation_about_axis(rng.normal(size=3), np.deg2rad(rng.uniform(0, 40)))
-            T[:3, 3] = [rng.uniform(-500, 500), rng.uniform(-250, 250), rng.uniform(900, 1500)]
-            planes.append(marker_plane("DICT_APRILTAG_36h11", mid, 150.0, T))
-            truth[mid] = cam.project(marker_corners_world(150.0, T))
-        for mid, c in det.detect(finish(render(cam, np.eye(4), planes))):
+        image, truth = rendered_marker_scene(rng, "DICT_APRILTAG_36h11", 150.0, x_mm=(-500, 500), y_mm=(-250, 250),
+                                             z_mm=(900, 1500))
+        for mid, c in det.detect(image):
             offsets.append(c - truth[mid])
     off = np.concatenate(offsets)
     assert len(off) >= 4 * 12
