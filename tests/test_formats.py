@@ -2,7 +2,10 @@
 
 tests/data/formats_1390a4c/ holds files the code of commit 1390a4c wrote, before the formats had
 their modules (a simulated session, seed 5, 1.5 s, 12 board views; calibrate-camera, calibrate-eyes,
-track and the marker-sheet template on it; eye_calibration.csv cut to its first 40 rows). Each is
+track and the marker-sheet template on it; eye_calibration.csv cut to its first 40 rows; the same
+session's board.json, walls.json, truth/targets.json and truth/eyes.json (as truth_*.json) and the
+targets.json / targets.csv of ``process`` on it; targets_ml.*: three rows, one without an
+estimate, written by 1390a4c's targets writer). Each is
 read with its format's reader and written with its writer: the bytes must be the old ones. The
 live recorder's streamed rows must be the table writer's rows, and each format's name and the
 video writer must live only in wearable_gaze/formats.
@@ -20,9 +23,11 @@ import pytest
 from calibration.camera import CameraCalibration
 from estimator.frames import rotation_about_axis
 from wearable_gaze.errors import UserError
+from wearable_gaze.formats.board import read_board, write_board
 from wearable_gaze.formats.camera import calibration_dict, camera_dict, load_camera, write_camera
 from wearable_gaze.formats.eye_samples import EYE_HEADER, EyeSamples, eye_csv_line, read_eye_csv, write_eye_csv
 from wearable_gaze.formats.eyes import eyes_dict, load_eyes, write_eyes
+from wearable_gaze.formats.images import read_grey_image, write_image
 from wearable_gaze.formats.markermap import (
     load_marker_map,
     marker_map_dict,
@@ -31,14 +36,19 @@ from wearable_gaze.formats.markermap import (
 )
 from wearable_gaze.formats.poses import read_poses_csv, write_poses_csv
 from wearable_gaze.formats.session import write_manifest
+from wearable_gaze.formats.targets import read_targets, write_targets
+from wearable_gaze.formats.truth import read_truth_eyes, read_truth_targets, write_truth_eyes, write_truth_targets
 from wearable_gaze.formats.video import (
     FRAME_TIME_HEADER,
     frame_time_line,
     grey_frames,
     open_video_writer,
     read_frame_times,
+    sampled_grey_frames,
     write_frame_times,
 )
+from wearable_gaze.formats.walls import read_walls, write_walls
+from wearable_gaze.pipeline.types import Target
 
 ROOT = Path(__file__).resolve().parents[1]
 OLD = ROOT / "tests" / "data" / "formats_1390a4c"
@@ -109,6 +119,109 @@ def test_eyes_json_written_back_as_the_old_code_wrote_it(tmp_path):
 def test_manifest_written_as_the_old_code_wrote_it(tmp_path):
     write_manifest(tmp_path, json.loads((OLD / "session.json").read_text()))
     assert (tmp_path / "session.json").read_bytes() == (OLD / "session.json").read_bytes()
+
+
+def test_board_json_written_back_as_the_old_code_wrote_it(tmp_path):
+    rec = read_board(OLD)
+    assert rec.path == OLD / "board.json" and rec.views == ()                      # no images in OLD
+    assert (rec.spec.type, rec.spec.cols, rec.spec.rows) == (rec.board["type"], rec.board["cols"], rec.board["rows"])
+    assert rec.truth_T_cam_from_board.shape == (12, 4, 4)
+    write_board(tmp_path, rec.board, (), rec.truth_T_cam_from_board)
+    assert (tmp_path / "board.json").read_bytes() == (OLD / "board.json").read_bytes()
+
+
+def test_board_views_are_the_folders_images_and_written_as_png(tmp_path):
+    views = [np.full((30, 40), 50 * k, np.uint8) for k in range(3)]
+    write_board(tmp_path, {"type": "chessboard", "cols": 9, "rows": 6, "square_mm": 25.0}, iter(views))
+    (tmp_path / "notes.txt").write_text("not a view")
+    rec = read_board(tmp_path)
+    assert [p.name for p in rec.views] == ["view_000.png", "view_001.png", "view_002.png"]
+    assert all(np.array_equal(read_grey_image(p), v) for p, v in zip(rec.views, views, strict=True))
+    assert rec.truth_T_cam_from_board is None and "truth" not in (tmp_path / "board.json").read_text()
+    (tmp_path / "board.json").write_text('{"version": 1, "board": {"type": "chessboard", "cols": 9, "rows": 1, '
+                                         '"square_mm": 25}}')
+    with pytest.raises(UserError, match=r"board.json: field 'board.rows' .*whole number 2-100"):
+        read_board(tmp_path)
+
+
+def test_walls_json_written_back_as_the_old_code_wrote_it(tmp_path):
+    rec = read_walls(OLD)                                   # OLD holds eye_calibration.csv and walls.json
+    assert rec.csv_path == OLD / "eye_calibration.csv" and rec.walls_path == OLD / "walls.json"
+    assert [w.image for w in rec.walls] == rec.images == [OLD / f"wall_{r}.png" for r in range(3)]
+    w = rec.walls[1]
+    assert w.recording == 1 and w.dictionary == w.entry["dictionary"] and w.image_name == "wall_1.png"
+    assert np.array_equal(w.targets_wall_mm, w.entry["targets_wall_mm"]) and w.targets_wall_mm.shape[1] == 2
+    assert list(w.markers_wall_mm) == [int(k) for k in w.entry["markers_wall_mm"]]
+    write_walls(tmp_path, [w.entry for w in rec.walls])
+    assert (tmp_path / "walls.json").read_bytes() == (OLD / "walls.json").read_bytes()
+
+
+def test_walls_image_outside_its_folder_is_refused(tmp_path):
+    d = json.loads((OLD / "walls.json").read_text())
+    d["recordings"][2]["image"] = "sub/../../x.png"
+    (tmp_path / "walls.json").write_text(json.dumps(d))
+    (tmp_path / "eye_calibration.csv").write_bytes((OLD / "eye_calibration.csv").read_bytes())
+    with pytest.raises(UserError, match=r"field 'recordings\[2\]\.image'"):
+        read_walls(tmp_path)
+    with pytest.raises(UserError, match="no eye_calibration.csv"):
+        read_walls(tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("name", ["targets", "targets_ml"])
+def test_targets_written_back_as_the_old_code_wrote_them(tmp_path, name):
+    """targets.json and targets.csv from the rows of targets.json, and from the same rows through
+    ``Target`` (the pipeline's value): the old bytes, NaN (no estimate) included."""
+    rows = read_targets(OLD / f"{name}.json")
+    method = json.loads((OLD / f"{name}.json").read_text())["method"]
+    for k, some in enumerate((rows, [Target.from_row(r).row() for r in rows])):
+        out = tmp_path / str(k)
+        write_targets(out, some, method)
+        assert (out / "targets.json").read_bytes() == (OLD / f"{name}.json").read_bytes()
+        assert (out / "targets.csv").read_bytes() == (OLD / f"{name}.csv").read_bytes()
+
+
+def test_targets_reader_says_what_is_wrong(tmp_path):
+    with pytest.raises(UserError, match="no such file"):
+        read_targets(tmp_path / "targets.json")
+    (tmp_path / "targets.json").write_text('{"version": 1}')
+    with pytest.raises(UserError, match="not a targets.json"):
+        read_targets(tmp_path / "targets.json")
+
+
+def test_truth_files_written_back_as_the_old_code_wrote_them(tmp_path):
+    write_truth_targets(tmp_path / "targets.json", read_truth_targets(OLD / "truth_targets.json"))
+    assert (tmp_path / "targets.json").read_bytes() == (OLD / "truth_targets.json").read_bytes()
+    write_truth_eyes(tmp_path / "eyes.json", read_truth_eyes(OLD / "truth_eyes.json"))
+    assert (tmp_path / "eyes.json").read_bytes() == (OLD / "truth_eyes.json").read_bytes()
+
+
+def test_images_written_atomically_and_read_grey(tmp_path, monkeypatch):
+    rng = np.random.default_rng(0)
+    grey = rng.integers(0, 256, (24, 32), dtype=np.uint8)
+    write_image(tmp_path / "a.png", grey)
+    cv2.imwrite(str(tmp_path / "b.png"), grey)
+    assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()      # the same PNG bytes
+    assert np.array_equal(read_grey_image(tmp_path / "a.png"), grey)
+    colour = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    write_image(tmp_path / "c.png", colour)
+    back = read_grey_image(tmp_path / "c.png").astype(int)            # the decoder's own conversion: within 1
+    assert back.shape == (24, 32) and np.abs(back - cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)).max() <= 1
+    with pytest.raises(UserError, match=r"x\.png: missing or unreadable wall image .*; record it again$"):
+        read_grey_image(tmp_path / "x.png", "wall image", "record it again")
+    (tmp_path / "bad.png").write_bytes(b"\x89PNG garbage")
+    with pytest.raises(UserError, match="not a readable image"):
+        read_grey_image(tmp_path / "bad.png")
+    monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)          # a full disk: OpenCV says False
+    with pytest.raises(UserError, match="could not write"):
+        write_image(tmp_path / "a.png", np.zeros((4, 4), np.uint8))
+    assert np.array_equal(read_grey_image(tmp_path / "a.png"), grey)        # the old file is kept
+    with pytest.raises(UserError, match="could not write"):
+        write_image(tmp_path / "new.png", grey)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.png", "bad.png", "c.png"]   # nothing left
+    monkeypatch.undo()
+    with pytest.raises(UserError, match=r"\.png suffix"):
+        write_image(tmp_path / "d.unknown", grey)
+    assert not list(tmp_path.glob("*.unknown"))
 
 
 def test_live_eye_rows_are_the_old_table_rows():
@@ -215,6 +328,14 @@ def test_video_writer_and_grey_frames(tmp_path):
     assert len(got) == 4 and all(np.array_equal(g, f) for g, f in zip(got, frames, strict=True))
     with pytest.raises(UserError, match="use another name"):
         open_video_writer(tmp_path / "no_such_folder" / "v.avi", "FFV1", 10.0, (64, 48), refused="use another name")
+    w = open_video_writer(tmp_path / "ten.avi", "FFV1", 10.0, (64, 48), is_color=False)
+    for k in range(10):
+        w.write(np.full((48, 64), 20 * k, np.uint8))
+    w.release()
+    got = list(sampled_grey_frames(tmp_path / "ten.avi", 3))          # every 10 // 3 = 3rd frame
+    assert [i for i, _ in got] == [0, 3, 6, 9] and all(np.all(g == 20 * i) for i, g in got)
+    with pytest.raises(UserError, match="not a video"):
+        list(sampled_grey_frames(tmp_path / "nothing.avi", 3, refused="not a video"))
 
 
 FORMAT_NAMES = ("wearable-gaze-camera", "wearable-gaze-marker-map", "wearable-gaze-eyes", "wearable-gaze-session")
@@ -229,7 +350,8 @@ def test_each_format_has_its_one_home():
         if rel.startswith("wearable_gaze/formats/"):
             continue
         text = p.read_text(encoding="utf-8")
-        for needle in (*FORMAT_NAMES, "cv2.VideoWriter(", '"frame,t', "EYE_FORMATS", "FileStorage("):
+        for needle in (*FORMAT_NAMES, "cv2.VideoWriter(", '"frame,t', "EYE_FORMATS", "FileStorage(", "cv2.imread(",
+                       "cv2.imwrite(", "truth_T_cam_from_board", '"recordings"', "TARGET_FORMATS"):
             if needle in text:
                 offenders.append(f"{rel}: {needle}")
     for p in sorted((ROOT / "tracking").rglob("*.py")):
@@ -242,7 +364,7 @@ def test_each_format_has_its_one_home():
 def test_each_format_module_names_its_doc():
     docs = (ROOT / "docs" / "formats.md").read_text(encoding="utf-8")
     for name in ("camera", "eyes", "markermap", "eye_samples", "poses", "video", "session", "viewlines",
-                 "serial_protocol", "jsonio", "tables", "atomic"):
+                 "serial_protocol", "jsonio", "tables", "atomic", "board", "walls", "images", "targets", "truth"):
         module = (ROOT / "wearable_gaze" / "formats" / f"{name}.py").read_text(encoding="utf-8")
         doc = module.split('"""')[1]
         assert "docs/" in doc or name in ("jsonio", "tables", "atomic"), name

@@ -1,7 +1,8 @@
 """Scene videos and their frame timestamps (docs/session.md, "scene video" and
 ``scene_timestamps.csv``; listed in docs/formats.md).
 
-Video frames are read as grey images (``grey_frames``; ``open_video`` for a capture to step through) and written
+Video frames are read as grey images (``grey_frames``, every k-th: ``sampled_grey_frames``; ``open_video``
+for a capture to step through) and written
 through ``open_video_writer`` (OpenCV's FFMPEG backend). The frame-timestamp CSV (columns
 ``frame, t``; ``t`` in s on the session clock) has one reader, ``read_frame_times``, and one
 writer, ``write_frame_times``; a recorder that streams it writes ``FRAME_TIME_HEADER`` and one
@@ -43,6 +44,32 @@ def grey_frames(path):
             if not ok:
                 return
             yield to_grey(frame)
+    finally:
+        cap.release()
+
+
+def sampled_grey_frames(path, max_frames: int, refused: str | None = None):
+    """Yield (frame index, (H, W) uint8 grey image) of every k-th frame of a video, k = its frame
+    count // ``max_frames`` (at least 1): about ``max_frames`` frames spread over it; the frames
+    between are skipped undecoded.
+
+    Raises:
+        UserError: OpenCV cannot open ``path`` as a video (``refused`` is the message, naming the fix).
+    """
+    import cv2  # noqa: PLC0415
+
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise UserError(refused or f"{path}: OpenCV cannot open this video; check that it plays, or re-encode it")
+    try:
+        step = max((int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 1) // max_frames, 1)
+        i = 0
+        while cap.grab():
+            if i % step == 0:
+                ok, frame = cap.retrieve()
+                if ok:
+                    yield i, to_grey(frame)
+            i += 1
     finally:
         cap.release()
 

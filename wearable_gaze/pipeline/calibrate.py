@@ -29,23 +29,22 @@ from calibration.eyes import (
     target_readings,
     wall_pose,
 )
-from calibration.images import to_grey
 from estimator import BinocularSamples, view_lines_to_world
 from estimator.frames import invert
 from tracking.markers import MarkerDetector
 from tracking.timeline import interpolate_poses
 
 from ..errors import UserError, check_output
-from ..formats.atomic import atomic_path
 from ..formats.camera import calibration_dict, load_camera, write_camera
 from ..formats.eye_samples import EyeSamples, read_eye_csv
 from ..formats.eyes import eyes_dict, load_eyes, write_eyes
-from ..formats.jsonio import inside, load_json
+from ..formats.images import IMAGE_EXT, image_files, read_grey_image, write_image
 from ..formats.poses import read_poses_csv
+from ..formats.video import sampled_grey_frames
 from ..formats.viewlines import write_viewlines_csv
+from ..formats.walls import Wall, WallsRecording, read_walls
 from .types import CameraResult, Poses, ViewLinesResult
 
-IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 NOMINAL_CENTRES_MM = np.array([[-32.0, 30.0, -20.0], [32.0, 30.0, -20.0]])
 
 log = logging.getLogger(__name__)
@@ -59,7 +58,7 @@ def _input_files(inputs) -> list:
     for p in inputs:
         p = Path(p)
         if p.is_dir():
-            files += sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_EXT)
+            files += image_files(p)
         elif p.is_file():
             files.append(p)
         else:
@@ -73,27 +72,11 @@ def _read_frames(files, max_video_frames: int):
     """(name, grey image) for image files, and every k-th frame of video files."""
     for f in files:
         if f.suffix.lower() in IMAGE_EXT:
-            img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
-            if img is None:
-                raise UserError(f"{f}: not a readable image; pass PNG, JPEG, BMP or TIFF images of the board")
-            yield f.name, img
+            yield f.name, read_grey_image(f, fix="pass PNG, JPEG, BMP or TIFF images of the board")
             continue
-        cap = cv2.VideoCapture(str(f))
-        if not cap.isOpened():
-            raise UserError(f"{f}: neither an image nor a video OpenCV can open; pass images or a video of the board")
-        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or 1
-        step = max(n // max_video_frames, 1)
-        i = 0
-        while True:
-            ok = cap.grab()
-            if not ok:
-                break
-            if i % step == 0:
-                ok, frame = cap.retrieve()
-                if ok:
-                    yield f"{f.name}#{i}", to_grey(frame)
-            i += 1
-        cap.release()
+        refused = f"{f}: neither an image nor a video OpenCV can open; pass images or a video of the board"
+        for i, grey in sampled_grey_frames(f, max_video_frames, refused):
+            yield f"{f.name}#{i}", grey
 
 
 def board_spec(board) -> BoardSpec:
@@ -105,20 +88,6 @@ def board_spec(board) -> BoardSpec:
         return parse_board(board)
     except ValueError as exc:
         raise UserError(f"--board {ascii(board)}: {exc}; e.g. chessboard:9x6:25 (inner corners, square mm)") from None
-
-
-def board_from_json(board: dict, source) -> BoardSpec:
-    """The board of a session's board.json (its ``board`` object; ``source``: the file)."""
-    try:
-        if board["type"] == "chessboard":
-            spec = BoardSpec("chessboard", int(board["cols"]), int(board["rows"]), float(board["square_mm"]))
-        else:
-            spec = BoardSpec("charuco", int(board["cols"]), int(board["rows"]), float(board["square_mm"]),
-                             float(board["marker_mm"]), board["dictionary"])
-        spec.validate()
-    except ValueError as exc:
-        raise UserError(f"{source}: {exc}; fix the board (docs/session.md)") from None
-    return spec
 
 
 def _camera_outputs(out, files) -> tuple[Path, Path]:
@@ -166,8 +135,7 @@ def _write_camera_result(out: Path, preview: Path, result: CameraResult) -> None
     for w in result.warnings:
         log.warning("%s: camera calibration cannot be trusted: %s", out, w)
     write_camera(out, camera_json(result.calibration, result.warnings))
-    with atomic_path(preview) as tmp:
-        cv2.imwrite(str(tmp), result.preview)
+    write_image(preview, result.preview)
 
 
 def calibrate_camera_files(inputs, board, out, model: str = "pinhole", max_views: int = 40,
@@ -239,58 +207,33 @@ def format_camera_report(cal: CameraCalibration) -> str:
 
 # --- calibrate-eyes ----------------------------------------------------------------------------
 
-def _eye_folder(src) -> tuple[Path, Path]:
-    src = Path(src)
-    if src.is_file() and src.suffix.lower() == ".csv":
-        return src.parent, src
-    for cand in (src / "calibration" / "eye", src):
-        if (cand / "eye_calibration.csv").is_file():
-            return cand, cand / "eye_calibration.csv"
-    raise UserError(f"{src}: no eye_calibration.csv here or in calibration/eye/; pass a session folder, its "
-                    "calibration/eye folder or the CSV (docs/session.md)")
-
-
-@dataclass(frozen=True)
-class EyeFiles:
-    """The files of an eye calibration (docs/session.md): eye_calibration.csv, walls.json (read:
-    ``walls``) and the wall images it names."""
-
-    csv_path: Path
-    walls_path: Path
-    walls: dict
-    images: list
-
-
 @dataclass(frozen=True)
 class EyeRecordings:
-    """An eye calibration's contents: its files, the samples (``extra``: the recording and
-    target columns) and each wall image, grey, or None when missing or unreadable."""
+    """An eye calibration's contents: its files (walls.json read, docs/session.md), the samples
+    (``extra``: the recording and target columns) and each wall image, grey, or the one-line
+    error why it is missing or unreadable (raised when the wall is used)."""
 
-    files: EyeFiles
+    files: WallsRecording
     eye: EyeSamples
     extra: dict
     images: list
 
 
-def eye_files(src) -> EyeFiles:
-    """The eye-calibration files of a session folder, its calibration/eye folder or the CSV."""
-    folder, csv_path = _eye_folder(src)
-    walls_path = folder / "walls.json"
-    walls = load_json(walls_path, "walls")
-    images = [inside(folder, rec["image"], walls_path, "walls", ["recordings", r, "image"])
-              for r, rec in enumerate(walls["recordings"])]
-    return EyeFiles(csv_path, walls_path, walls, images)
-
-
-def read_eye_recordings(files: EyeFiles) -> EyeRecordings:
+def read_eye_recordings(files: WallsRecording) -> EyeRecordings:
     eye, extra = read_eye_csv(files.csv_path, ["recording", "target"])
-    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) if p.is_file() else None for p in files.images]
+    images = []
+    for w in files.walls:
+        try:
+            images.append(read_grey_image(w.image, "wall image",
+                                          f"record the wall again or fix 'image' in {files.walls_path}"))
+        except UserError as exc:
+            images.append(exc)
     return EyeRecordings(files, eye, extra, images)
 
 
 def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centres=None, progress=None) -> dict:
     """``calibrate_eyes`` from files: writes eyes.json and returns its content."""
-    files = eye_files(src)
+    files = read_walls(src)
     check_output(out, [camera_path, files.csv_path, files.walls_path, *files.images], "-o")
     camera = load_camera(camera_path)
     result = calibrate_eyes(read_eye_recordings(files), camera, model, centres, progress)
@@ -304,7 +247,7 @@ def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "
     reference markers, per-target readings, eye centres from two or more wall distances (or
     ``centres``, or a nominal headset geometry), and eq. 1-2 per eye. Returns the content of
     eyes.json."""
-    n = len(rec.files.walls["recordings"])
+    n = len(rec.files.walls)
     P, readings, wall_report = _wall_readings(rec, camera, progress)
     depths = np.array([w["measured_distance_mm"] for w in wall_report])
     eyes_out = []
@@ -339,13 +282,13 @@ def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "
 def _wall_readings(rec: EyeRecordings, camera: CameraCalibration, progress):
     """The targets (K, 3) in the camera frame, each eye's readings of them (per recording) and
     the report of each wall recording."""
-    csv_path, recs, extra, eye = rec.files.csv_path, rec.files.walls["recordings"], rec.extra, rec.eye
+    csv_path, recs, extra, eye = rec.files.csv_path, rec.files.walls, rec.extra, rec.eye
     targets_cam, readings, wall_report = [], [[], []], []
     for r, wall in enumerate(recs):
-        P, wp = _wall_targets(rec.images[r], rec.files.images[r], rec.files.walls_path, wall, camera)
-        sel = extra["recording"].astype(int) == int(wall.get("recording", r))
+        P, wp = _wall_targets(rec.images[r], rec.files.walls_path, wall, camera)
+        sel = extra["recording"].astype(int) == wall.recording
         if not sel.any():
-            raise UserError(f"{csv_path}: no samples of recording {wall.get('recording', r)}; record it again")
+            raise UserError(f"{csv_path}: no samples of recording {wall.recording}; record it again")
         ids = None
         for e in range(2):
             ids, vals, _ = target_readings(extra["target"][sel], eye.raw[sel, e], eye.valid[sel, e], eye.t[sel])
@@ -355,7 +298,7 @@ def _wall_readings(rec: EyeRecordings, camera: CameraCalibration, progress):
             raise UserError(f"{csv_path}: target {bad} in recording {r}, but walls.json lists {len(P)} dots (0-"
                             f"{len(P) - 1}); fix the target column")
         targets_cam.append(P[ids])
-        wall_report.append({"recording": r, "image": wall.get("image"), "nominal_distance_mm": wall.get("distance_mm"),
+        wall_report.append({"recording": r, "image": wall.image_name, "nominal_distance_mm": wall.distance_mm,
                             "measured_distance_mm": float(wp.T_cam_from_wall[2, 3]), "tilt_deg": wp.tilt_deg,
                             "reference_rms_px": wp.rms * camera.camera_matrix[0, 0]})
         if progress:
@@ -363,30 +306,30 @@ def _wall_readings(rec: EyeRecordings, camera: CameraCalibration, progress):
     return np.vstack(targets_cam), readings, wall_report
 
 
-def _wall_targets(img, img_path: Path, walls_path: Path, rec: dict, camera: CameraCalibration):
-    """Targets (K, 3) in the camera frame from the wall image's reference markers."""
-    if img is None:
-        raise UserError(f"{img_path}: missing or unreadable wall image; record the wall again or fix 'image' in "
-                        f"{walls_path}")
+def _wall_targets(img, walls_path: Path, wall: Wall, camera: CameraCalibration):
+    """Targets (K, 3) in the camera frame from the wall image's reference markers (``img``: the
+    grey image, or the error why it is missing or unreadable)."""
+    if isinstance(img, UserError):
+        raise img
     try:
-        det = MarkerDetector(rec["dictionary"])
+        det = MarkerDetector(wall.dictionary)
     except ValueError as exc:
         raise UserError(f"{walls_path}: {exc}") from None
     found = det.detect_unique(img)       # {id: corners}; a repeated id is ambiguous and left out
-    s = float(rec["marker_size_mm"]) / 2
+    s = wall.marker_size_mm / 2
     wall_pts, img_pts = [], []
-    for mid, c in rec["markers_wall_mm"].items():
-        if int(mid) in found:
-            wall_pts.append(np.asarray(c, float) + np.array([[-s, -s], [s, -s], [s, s], [-s, s]]))
-            img_pts.append(found[int(mid)])
+    for mid, c in wall.markers_wall_mm.items():
+        if mid in found:
+            wall_pts.append(c + np.array([[-s, -s], [s, -s], [s, s], [-s, s]]))
+            img_pts.append(found[mid])
     if len(wall_pts) < 2:
-        raise UserError(f"{img_path}: {len(wall_pts)} of the wall's {len(rec['markers_wall_mm'])} reference markers "
+        raise UserError(f"{wall.image}: {len(wall_pts)} of the wall's {len(wall.markers_wall_mm)} reference markers "
                         "found, need 2: make them visible and record again")
     try:
         wp = wall_pose(np.vstack(wall_pts), camera.undistort_points(np.vstack(img_pts)))
     except CalibrationError as exc:
-        raise UserError(f"{img_path}: {exc}") from None
-    return wp.to_camera(np.asarray(rec["targets_wall_mm"], float)), wp
+        raise UserError(f"{wall.image}: {exc}") from None
+    return wp.to_camera(wall.targets_wall_mm), wp
 
 
 def format_eyes_report(result: dict) -> str:

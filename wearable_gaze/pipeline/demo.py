@@ -3,12 +3,12 @@ and print each target's estimate next to the truth and the Cramér-Rao bound."""
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..formats.truth import read_truth_targets
 from ..progress import progress_bar
 from ..sim.simulate import simulate_scenario
 from .process import format_result, process_session
@@ -60,7 +60,7 @@ def run_demo(out: Path, seed: int = 0, duration_s: float = 20.0) -> int:
         print(f"simulated session: {session}")
     res = process_session(session, out / "processed", progress_factory=lambda name: progress_bar(name, 1))
     print(format_result(res))
-    truth = json.loads((session / "truth" / "targets.json").read_text())["targets"]
+    truth = read_truth_targets(session / "truth" / "targets.json")
     print("\ncompared with the truth:")
     print(f"{'true target':>11} {'true position mm':>24} {'estimate mm':>24} {'error mm':>9} {'CRB mm':>7}")
     found = res.found

@@ -1,11 +1,10 @@
 """The fixations step of ``process``: the fixations of segmented view lines each estimated as a
 live session would, fixations of one point merged into targets (revisits are common); and the
-files it writes (viewlines.csv with the fixation labels, estimates.csv, targets.csv,
-targets.json, target_labels.npy; docs/processing.md)."""
+files it writes (viewlines.csv with the fixation labels, estimates.csv, targets.csv and
+targets.json through formats/targets.py, target_labels.npy; docs/processing.md)."""
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,18 +15,16 @@ from estimator import BinocularSamples, GazeEstimate, run_estimator
 from estimator.segments import same_target
 
 from ..formats.atomic import atomic_path
-from ..formats.jsonio import write_json
 from ..formats.tables import write_table
+from ..formats.targets import write_targets
 from ..formats.viewlines import write_viewlines_csv
 from .estimate import estimate_target, radius95_mm, running_estimate
-from .types import TARGET_COLUMNS, Fixation, Target, TargetsResult
+from .types import Fixation, TargetsResult
 
 log = logging.getLogger(__name__)
 
 RUNNING_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
 RUNNING_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
-TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "crb_mm")} | {
-    "t_start": ".3f", "t_end": ".3f"}
 
 
 def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sigma_deg: float,
@@ -96,18 +93,12 @@ def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sig
     return groups
 
 
-def write_targets(out: Path, result: TargetsResult, method: str) -> None:
+def write_targets_step(out: Path, result: TargetsResult, method: str) -> None:
     """The step's files in ``out``: viewlines.csv (with fixation labels), estimates.csv,
-    targets.csv, targets.json and target_labels.npy (the target of every view line)."""
+    targets.csv and targets.json (``formats.targets.write_targets``, the rows of
+    ``Target.row``) and target_labels.npy (the target of every view line)."""
     write_viewlines_csv(out / "viewlines.csv", result.samples, result.labels)
     write_table(out / "estimates.csv", result.running, RUNNING_FORMATS)
-    rows = [tg.row() for tg in result.targets]
-    write_table(out / "targets.csv", {k: np.array([r[k] for r in rows]) for k in TARGET_COLUMNS}, TARGET_FORMATS)
-    write_json(out / "targets.json", {"version": 1, "method": method, "targets": rows})
+    write_targets(out, [tg.row() for tg in result.targets], method)
     with atomic_path(out / "target_labels.npy") as tmp:
         np.save(tmp, result.target_labels)
-
-
-def read_targets(path) -> list[Target]:
-    """The targets of a targets.json written by ``write_targets``."""
-    return [Target.from_row(r) for r in json.loads(Path(path).read_text(encoding="utf-8"))["targets"]]

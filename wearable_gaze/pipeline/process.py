@@ -21,26 +21,22 @@ from estimator.segments import SegmentConfig, segment_fixations
 
 from ..errors import UserError
 from ..formats.atomic import remove_temporaries, write_text
+from ..formats.board import BOARD_FILE, read_board
 from ..formats.camera import load_camera
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
-from ..formats.jsonio import load_json, write_json
+from ..formats.jsonio import write_json
 from ..formats.markermap import load_marker_map
 from ..formats.poses import read_poses_csv, write_poses_csv
 from ..formats.session import load_session
+from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
-from .calibrate import (
-    board_from_json,
-    calibrate_camera_files,
-    calibrate_eyes,
-    eye_files,
-    read_eye_recordings,
-    view_lines,
-)
-from .fixations import find_targets, read_targets, write_targets
+from ..formats.walls import read_walls
+from .calibrate import calibrate_camera_files, calibrate_eyes, read_eye_recordings, view_lines
+from .fixations import find_targets, write_targets_step
 from .report import REPORT_FILES, OverlayInputs, write_report
 from .track import frame_times, track_video
-from .types import Poses
+from .types import Poses, Target
 
 log = logging.getLogger(__name__)
 
@@ -282,7 +278,7 @@ class _Values:
                       "eye_samples": lambda: read_eye_csv(f.eye_samples)[0],
                       "marker_map": lambda: load_marker_map(f.markers),
                       "poses": lambda: Poses(*read_poses_csv(out / "poses.csv")),
-                      "targets": lambda: read_targets(out / "targets.json")}
+                      "targets": lambda: [Target.from_row(r) for r in read_targets(out / "targets.json")]}
 
     def __getitem__(self, key: str):
         if key not in self._values:
@@ -361,21 +357,21 @@ def _calibration_steps(f: _SessionFiles, steps: _Steps, vals: _Values, camera: P
     ``eyes``) checked once and kept as values."""
     cam_path, eyes_path = camera or out / "camera.json", eyes or out / "eyes.json"
     if camera is None:
-        board_file = f.camera_views / "board.json"
+        board_file = f.camera_views / BOARD_FILE
 
         def do_camera(cb):
             if not board_file.is_file():
                 raise UserError(f"{board_file}: no camera-calibration recording in the session; pass --camera "
                                 "camera.json")
-            spec = board_from_json(load_json(board_file, "board")["board"], board_file)  # schema: formats/schemas/board
-            calibrate_camera_files([f.camera_views], spec, cam_path, progress=cb)
+            board = read_board(f.camera_views)
+            calibrate_camera_files(board.views, board.spec, cam_path, progress=cb)
         steps.run("camera", [f.camera_views], {}, do_camera)
     else:
         steps.external("camera", cam_path, lambda p: vals.set("camera", load_camera(p)))
     if eyes is None:
         def do_eyes(cb):
             cam = vals["camera"]
-            write_eyes(eyes_path, calibrate_eyes(read_eye_recordings(eye_files(f.root)), cam, progress=cb))
+            write_eyes(eyes_path, calibrate_eyes(read_eye_recordings(read_walls(f.root)), cam, progress=cb))
         steps.run("eyes", [f.eye_calibration, cam_path], {}, do_eyes)
     else:
         steps.external("eyes", eyes_path, lambda p: vals.set("eyes", load_eyes(p)))
@@ -408,7 +404,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: _Steps, res: ProcessRes
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
         result = find_targets(samples, segment_fixations(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb)
-        write_targets(out, result, cfg.method)
+        write_targets_step(out, result, cfg.method)
         vals.set("targets", result.targets)
     params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__}
     if steps.run("targets", [raw_vl], params, do_targets):

@@ -18,8 +18,10 @@ from ..formats.atomic import atomic_path, write_text
 from ..formats.eye_samples import EyeSamples
 from ..formats.poses import read_poses_csv
 from ..formats.tables import read_table
+from ..formats.targets import read_targets
+from ..formats.video import open_video
 from ..formats.viewlines import read_viewlines_csv
-from .fixations import read_targets
+from .types import Target
 
 PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png")
 REPORT_FILES = ("report.html", *PLOTS, "overlay.webp", "overlay_error.txt")   # everything write_report writes
@@ -64,7 +66,7 @@ class _ReportData:
 def _report_data(out: Path, T_p: np.ndarray) -> _ReportData:
     from estimator import BinocularSamples  # noqa: PLC0415
 
-    targets = read_targets(out / "targets.json")
+    targets = [Target.from_row(r) for r in read_targets(out / "targets.json")]
     samples = BinocularSamples.concatenate([s.samples for s in read_viewlines_csv(out / "viewlines.csv")])
     samples = samples.select(np.argsort(samples.t_s, kind="stable"))
     labels = out / "target_labels.npy"
@@ -243,8 +245,7 @@ def _overlay(out, inp: OverlayInputs, targets, t_p, T_p) -> str | None:
 
     m = inp.marker_map
     corners = [m.corners(i) for i in m.poses] if m is not None else []
-    cap = cv2.VideoCapture(str(inp.video))
-    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+    cap, fps, _ = open_video(inp.video, inp.camera.image_size)
     step = max(int(round(fps / OVERLAY_FPS)), 1)
     w, h = inp.camera.image_size
     size = (OVERLAY_WIDTH, int(round(h * OVERLAY_WIDTH / w)))

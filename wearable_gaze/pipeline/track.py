@@ -24,6 +24,7 @@ from tracking.timeline import interpolate_poses, smooth_poses
 from ..errors import UserError
 from ..formats.atomic import atomic_path
 from ..formats.camera import load_camera
+from ..formats.images import read_grey_image
 from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.video import open_video, open_video_writer, read_frame_times
@@ -129,10 +130,7 @@ def marker_locator(marker_map: MarkerMap, camera: CameraCalibration):
 
 def _reference_locator(reference, reference_size_mm, camera: CameraCalibration):
     """grey (H, W) uint8 -> (pose result, no detections), from a photo of a flat surface."""
-    ref = cv2.imread(str(reference), cv2.IMREAD_GRAYSCALE)
-    if ref is None:
-        raise UserError(f"{reference}: missing or unreadable reference image; give a PNG or JPEG photo of the "
-                        "surface")
+    ref = read_grey_image(reference, "reference image", "give a PNG or JPEG photo of the surface")
     if reference_size_mm is None or min(reference_size_mm) <= 0:
         raise UserError("--reference-size-mm W H: the surface's physical width and height in mm")
     try:

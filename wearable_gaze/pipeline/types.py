@@ -2,8 +2,9 @@
 targets and step results. World frame of the marker map, mm and s throughout.
 
 A ``Target`` is what ``process`` writes as one row of targets.json / targets.csv
-(``Target.row`` / ``Target.from_row``: the row's keys are the file format's column names, and
-nothing else in the application indexes a target by string keys).
+(``Target.row`` / ``Target.from_row``: the row's keys are the file format's column names,
+``formats.targets.TARGET_COLUMNS``; formats/targets.py reads and writes the rows, and nothing
+else in the application indexes a target by string keys).
 """
 
 from __future__ import annotations
@@ -15,8 +16,7 @@ import numpy as np
 from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
 
-TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "n_samples", "t_start",
-                  "t_end", "fixations", "method", "status", "crb_mm")
+from ..formats.targets import TARGET_COLUMNS  # noqa: F401  (the file format's columns: the keys of a row)
 
 
 @dataclass

@@ -12,23 +12,25 @@ import shutil
 import tempfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from estimator import BinocularSamples
 
 from .. import __version__
 from ..errors import UserError, check_output
+from ..formats.board import write_board
 from ..formats.camera import camera_dict, write_camera
 from ..formats.eye_samples import EyeSamples, write_eye_csv
-from ..formats.jsonio import read_json_text, write_json
+from ..formats.jsonio import read_json_text
 from ..formats.markermap import marker_map_dict, write_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.serial_protocol import encode_stream
 from ..formats.session import FORMAT, VERSION, write_manifest
 from ..formats.tables import write_table
+from ..formats.truth import write_truth_eyes, write_truth_targets
 from ..formats.video import open_video_writer, write_frame_times
 from ..formats.viewlines import write_viewlines_csv
+from ..formats.walls import EYE_CSV, write_walls
 from .camera import Camera
 from .eyes import EyeModel, gaze_points, plan_gaze
 from .motion import make_motion
@@ -206,7 +208,7 @@ def _simulate_into(scn: dict, root: Path, seed: int, progress) -> dict:
     truth.mkdir()
     write_camera(truth / "camera.json", camera_dict(camera.camera_matrix, camera.dist_coeffs, camera.image_size,
                                                   rms_px=0.0, source="simulation ground truth"))
-    write_json(truth / "eyes.json", eye_model.to_dict())
+    write_truth_eyes(truth / "eyes.json", eye_model.to_dict())
     files["truth_camera"] = "truth/camera.json"
     files["truth_eyes"] = "truth/eyes.json"
 
@@ -245,15 +247,14 @@ def _eye_calibration(root, scn, camera, eye_model, noise, rng, tick) -> str:
     rate = float(scn["eyes"]["rate_hz"])
     per = max(int(round(cal["dwell_s"] * rate)), 3)
     rows = {k: [] for k in ("recording", "target", "t", "raw", "valid")}
-    walls = []
+    walls, images = [], []
     t0 = 0.0
     log.info("eye calibration: %d walls, %g s per target", len(cal["walls"]), cal["dwell_s"])
     for r, spec in enumerate(cal["walls"]):
         wall = CalibrationWall.spanning(spec["distance_mm"], spec["tilt_deg"], spec["grid"], cal["span_deg"])
         world = wall.world()
-        img = noise.apply(render(camera, np.eye(4), world.planes))
+        images.append(noise.apply(render(camera, np.eye(4), world.planes)))
         name = f"wall_{r}.png"
-        cv2.imwrite(str(d / name), img)
         pts = wall.to_world(wall.targets_wall())
         t = t0 + np.arange(per * len(pts)) / rate
         target = np.repeat(np.arange(len(pts)), per)
@@ -283,9 +284,9 @@ def _eye_calibration(root, scn, camera, eye_model, noise, rng, tick) -> str:
         tick()
     raw = np.concatenate(rows["raw"])
     eye = EyeSamples(np.concatenate(rows["t"]), np.arange(len(raw)), raw, np.concatenate(rows["valid"]))
-    write_eye_csv(d / "eye_calibration.csv", eye, {"recording": np.concatenate(rows["recording"]),
-                                                    "target": np.concatenate(rows["target"])})
-    write_json(d / "walls.json", {"version": 1, "recordings": walls})
+    write_eye_csv(d / EYE_CSV, eye, {"recording": np.concatenate(rows["recording"]),
+                                     "target": np.concatenate(rows["target"])})
+    write_walls(d, walls, images)
     return "calibration/eye"
 
 
@@ -296,13 +297,13 @@ def _camera_views(root, scn, camera, noise, rng, tick) -> str:
     d.mkdir(parents=True)
     poses = _board_views(camera, spec, int(cal["camera_views"]), rng)
     log.info("rendering %d views of the calibration board", len(poses))
-    for i, T in enumerate(poses):
-        plane, _ = board_plane(spec, T)
-        img = noise.apply(render(camera, np.eye(4), [plane], background=float(rng.uniform(60, 160))))
-        cv2.imwrite(str(d / f"view_{i:03d}.png"), img)
-        tick()
-    write_json(d / "board.json", {"version": 1, "board": spec,
-                                  "truth_T_cam_from_board": [T.tolist() for T in poses]})
+
+    def views():
+        for T in poses:
+            plane, _ = board_plane(spec, T)
+            yield noise.apply(render(camera, np.eye(4), [plane], background=float(rng.uniform(60, 160))))
+            tick()
+    write_board(d, spec, views(), poses)
     return "calibration/camera"
 
 
@@ -402,7 +403,7 @@ def _write_truth_targets(truth: Path, targets, plan, t_eye, dur: float) -> None:
         else:
             entry["position_mm"] = tg.at(0.0).tolist()
         tg_out.append(entry)
-    write_json(truth / "targets.json", {"version": 1, "targets": tg_out})
+    write_truth_targets(truth / "targets.json", tg_out)
 
 
 def _write_scene_video(root: Path, scn: dict, camera: Camera, world, motion, noise, tick) -> tuple[str, int]:
