@@ -388,22 +388,22 @@ CAMERA_SLOTS = [("track-camera", "track", lambda e, d, p: argv_track(e, d, camer
 
 def _json_case(slot, command, build, vid, good_attr, edit, raw, words, name="f.json"):
     def b(e, d):
-        if raw is not None and not callable(edit):
-            content = raw
-        elif raw is not None:
-            content = raw
-        else:
-            content = edited_json(Path(e[good_attr]), edit)
+        content = raw if raw is not None else edited_json(Path(e[good_attr]), edit)
         return build(e, d, write(d, name, content))
     add(f"{slot}-{vid}", command, b, words)
 
 
-for slot, command, build in CAMERA_SLOTS:
-    for vid, edit, raw, words in _camera_edits():
-        if slot != "track-camera" and vid not in ("K-ragged", "dist-nan", "list-top", "no-image-size",
-                                                  "K-huge", "dist-overflow"):
-            continue
-        _json_case(slot, command, build, vid, "camera", edit, raw, words)
+def _json_matrix(slots, edits, good_attr, subset):
+    """Every edit of a JSON file in the first slot (command), the ``subset`` of edit ids in the others.
+    ``edits``: (id, edit of the good file's JSON, raw content instead (or None), words of the message)."""
+    for k, (slot, command, build) in enumerate(slots):
+        for vid, edit, raw, words in edits:
+            if k == 0 or vid in subset:
+                _json_case(slot, command, build, vid, good_attr, edit, raw, words)
+
+
+_json_matrix(CAMERA_SLOTS, _camera_edits(), "camera",
+             ("K-ragged", "dist-nan", "list-top", "no-image-size", "K-huge", "dist-overflow"))
 
 OPENCV_YAML = """%YAML:1.0
 ---
@@ -458,18 +458,15 @@ def _eyes_edits():
 
 EYES_SLOTS = [("viewlines-eyes", "viewlines", lambda e, d, p: argv_viewlines(e, d, eyes=p)),
               ("live-eyes", "live", lambda e, d, p: argv_live(e, d, eyes=p))]
-for slot, command, build in EYES_SLOTS:
-    for vid, edit, words in _eyes_edits():
-        if slot == "live-eyes" and vid not in ("eyes-empty", "coef-ragged", "format-wrong"):
-            continue
-        _json_case(slot, command, build, vid, "eyes", edit, None, words)
+_json_matrix(EYES_SLOTS, [(vid, edit, None, words) for vid, edit, words in _eyes_edits()], "eyes",
+             ("eyes-empty", "coef-ragged", "format-wrong"))
 
 
 def _map_edits():
     def m0(fn):
         return lambda c: fn(c["markers"][0])
     return [
-        ("list-top", lambda c: c.clear() or None, ("dictionary", "missing")),
+        ("list-top", None, ("top level", "object")),                 # the file holds [1, 2]
         ("markers-strings", lambda c: c.__setitem__("markers", ["a", "b"]), ("markers[", "object")),
         ("markers-empty", lambda c: c.__setitem__("markers", []), ("markers", "non-empty")),
         ("T-ragged", m0(lambda x: x["T_world_from_marker"].__setitem__(1, [0, 1, 0])), ("T_world_from_marker[1]", "4")),
@@ -494,15 +491,9 @@ def _map_edits():
 
 MAP_SLOTS = [("track-markers", "track", lambda e, d, p: argv_track(e, d, markers=p)),
              ("live-markers", "live", lambda e, d, p: argv_live(e, d, markers=p))]
-for slot, command, build in MAP_SLOTS:
-    for vid, edit, words in _map_edits():
-        if slot == "live-markers" and vid not in ("markers-strings", "T-ragged", "dictionary-unknown"):
-            continue
-        if vid == "list-top":
-            add(f"{slot}-list-top", command, lambda e, d, build=build: build(e, d, write(d, "m.json", [1, 2])),
-                ("top level", "object"))
-            continue
-        _json_case(slot, command, build, vid, "markers", edit, None, words)
+_json_matrix(MAP_SLOTS, [(vid, edit, "[1, 2]" if vid == "list-top" else None, words)
+                         for vid, edit, words in _map_edits()], "markers",
+             ("markers-strings", "T-ragged", "dictionary-unknown"))
 
 
 # 4. sessions: the manifest and the files it names (process, emulate, calibrate-eyes) ----------

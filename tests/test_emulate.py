@@ -22,6 +22,18 @@ def _rec(i):
     return eye_record_bytes(i, RATE)
 
 
+def _read_whole_stream(emu, url, n, on_record=None):
+    """A reader of ``url`` until ``n`` records came and the emulator finished; both stopped."""
+    reader = EyeReader(url, on_record=on_record)
+    reader.start()
+    recs = drain_reader(reader, n)
+    assert emu.finished.wait(5)
+    reader.stop()
+    reader.join(2)
+    emu.stop()
+    return reader, recs
+
+
 def test_garbage_and_broken_records_are_replayed_where_they_came():
     recs = [_rec(i) for i in range(6)]
     data = b"noise\r\n" + recs[0] + b"\x00junk" + recs[1] + recs[2][:12] + b"\r\n" + b"".join(recs[3:])
@@ -44,14 +56,7 @@ def test_a_stream_without_records_is_refused():
 def test_reader_gets_every_record_over_tcp_looped():
     emu = RecorderEmulator(b"".join(_rec(i) for i in range(40)), loop=True, duration_s=100 / RATE,
                            inject={10: b"\x00junk"})
-    url = emu.listen_tcp()
-    reader = EyeReader(url)
-    reader.start()
-    recs = drain_reader(reader, 101)
-    assert emu.finished.wait(5)
-    reader.stop()
-    reader.join(2)
-    emu.stop()
+    reader, recs = _read_whole_stream(emu, emu.listen_tcp(), 101)
     assert emu.sent == 101                                               # stream times 0 .. 100 / RATE
     assert [r.counter for r in recs] == list(range(101))
     assert reader.stats.corrupt == 0 and reader.stats.lost == 0 and reader.stats.garbage_bytes >= 5
@@ -126,15 +131,9 @@ def test_emulate_cli_serves_a_session_and_bad_input_is_one_line(tmp_path, capsys
 
 def test_the_send_log_has_each_record_once_in_order_before_it_arrives():
     emu = RecorderEmulator(b"".join(_rec(i) for i in range(40)), log_sent=True)
-    reader = EyeReader(emu.listen_tcp())
     arrivals = []
-    reader.on_record = lambda t, r: arrivals.append((t, r.counter)) or (t, r)
-    reader.start()
-    recs = drain_reader(reader, 40)
-    assert emu.finished.wait(5)
-    reader.stop()
-    reader.join(2)
-    emu.stop()
+    _, recs = _read_whole_stream(emu, emu.listen_tcp(), 40,
+                                 on_record=lambda t, r: arrivals.append((t, r.counter)) or (t, r))
     assert [k for _, k in emu.sent_log] == list(range(40)) and [r.counter for r in recs] == list(range(40))
     sent_t = [t for t, _ in emu.sent_log]
     assert sent_t == sorted(sent_t)
