@@ -10,10 +10,10 @@ head path is fixed per geometry, only the noise varies between trials).
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
+from _args import size_and_seed
 
 from estimator import BinocularSamples, cramer_rao_bound, perturb_directions, run_estimator
 from wearable_gaze.sim.protocol import Protocol, head_path
@@ -52,10 +52,7 @@ GEOMETRIES = {
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=200)
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args()
+    args = size_and_seed(__doc__, "--trials", int, 200, 0, "trials per geometry")
     rng = np.random.default_rng(args.seed)
     worst = {"ml": 0.0, "voxel": 0.0}
     t0 = time.perf_counter()

@@ -10,22 +10,19 @@ Target (issue 6): >= 2x real time.
 
 from __future__ import annotations
 
-import argparse  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
+from _args import size_and_seed  # noqa: E402
 
 from wearable_gaze.pipeline.process import process_session  # noqa: E402
 from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--duration", type=float, default=30.0)
-    ap.add_argument("--seed", type=int, default=11)
-    args = ap.parse_args()
+    args = size_and_seed(__doc__, "--duration", float, 30.0, 11, "simulated seconds")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "s"
         simulate_scenario({"base": "lab-walkabout", "duration_s": args.duration}, root, args.seed)

@@ -11,7 +11,6 @@ Target (issue 5): >= 60 frames per second, detection and pose included.
 
 from __future__ import annotations
 
-import argparse  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -19,6 +18,7 @@ from pathlib import Path  # noqa: E402
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from _args import size_and_seed  # noqa: E402
 
 from tracking.markers import MarkerDetector, detection  # noqa: E402
 from tracking.pose import MarkerPoseEstimator, rotation_angle_deg  # noqa: E402
@@ -31,10 +31,7 @@ from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=150)
-    ap.add_argument("--seed", type=int, default=4)
-    args = ap.parse_args()
+    args = size_and_seed(__doc__, "--frames", int, 150, 4, "frames tracked")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "s"
         simulate_scenario({"base": "lab-walkabout", "duration_s": args.frames / 30.0,

@@ -12,12 +12,12 @@ time in eight).
 
 from __future__ import annotations
 
-import argparse
 import json
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from _args import size_and_seed
 
 from wearable_gaze.pipeline.demo import match_positions
 from wearable_gaze.pipeline.process import process_session
@@ -34,10 +34,7 @@ def layout(rng) -> dict:
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sessions", type=int, default=8)
-    ap.add_argument("--seed", type=int, default=100)
-    args = ap.parse_args()
+    args = size_and_seed(__doc__, "--sessions", int, 8, 100, "simulated sessions")
     rng = np.random.default_rng(args.seed)
     rows, missed = [], 0
     with tempfile.TemporaryDirectory() as tmp:
