@@ -163,6 +163,11 @@ def test_walls_image_outside_its_folder_is_refused(tmp_path):
     (tmp_path / "eye_calibration.csv").write_bytes((OLD / "eye_calibration.csv").read_bytes())
     with pytest.raises(UserError, match=r"field 'recordings\[2\]\.image'"):
         read_walls(tmp_path)
+    (tmp_path / "link.png").symlink_to(tmp_path.parent / "elsewhere.png")      # a link that leaves the folder
+    d["recordings"][2]["image"] = "link.png"
+    (tmp_path / "walls.json").write_text(json.dumps(d))
+    with pytest.raises(UserError, match=r"field 'recordings\[2\]\.image' .*leaves the folder"):
+        read_walls(tmp_path)
     with pytest.raises(UserError, match="no eye_calibration.csv"):
         read_walls(tmp_path / "nowhere")
 
