@@ -4,9 +4,9 @@ tests/data/formats_1390a4c/ holds files the code of commit 1390a4c wrote, before
 their modules (a simulated session, seed 5, 1.5 s, 12 board views; calibrate-camera, calibrate-eyes,
 track and the marker-sheet template on it; eye_calibration.csv cut to its first 40 rows; the same
 session's board.json, walls.json, truth/targets.json and truth/eyes.json (as truth_*.json) and the
-targets.json / targets.csv of ``process`` on it; targets_ml.*: three rows, one without an
-estimate, written by 1390a4c's targets writer). Each is
-read with its format's reader and written with its writer: the bytes must be the old ones. The
+targets.json, targets.csv, estimates.csv and target_labels.npy of ``process`` on it; targets_ml.*:
+three rows, one without an estimate, written by 1390a4c's targets writer). Each is read with its
+format's reader and written with its writer: the bytes must be the old ones. The
 live recorder's streamed rows must be the table writer's rows, and each format's name and the
 video writer must live only in wearable_gaze/formats.
 """
@@ -36,7 +36,15 @@ from wearable_gaze.formats.markermap import (
 )
 from wearable_gaze.formats.poses import read_poses_csv, write_poses_csv
 from wearable_gaze.formats.session import write_manifest
-from wearable_gaze.formats.targets import read_targets, write_targets
+from wearable_gaze.formats.targets import (
+    ESTIMATE_COLUMNS,
+    read_estimates,
+    read_target_labels,
+    read_targets,
+    write_estimates,
+    write_target_labels,
+    write_targets,
+)
 from wearable_gaze.formats.truth import read_truth_eyes, read_truth_targets, write_truth_eyes, write_truth_targets
 from wearable_gaze.formats.video import (
     FRAME_TIME_HEADER,
@@ -183,6 +191,22 @@ def test_targets_written_back_as_the_old_code_wrote_them(tmp_path, name):
         write_targets(out, some, method)
         assert (out / "targets.json").read_bytes() == (OLD / f"{name}.json").read_bytes()
         assert (out / "targets.csv").read_bytes() == (OLD / f"{name}.csv").read_bytes()
+
+
+def test_estimates_and_target_labels_written_back_as_the_old_code_wrote_them(tmp_path):
+    est = read_estimates(OLD / "estimates.csv")
+    assert list(est) == list(ESTIMATE_COLUMNS) and len(est["t"]) > 3
+    write_estimates(tmp_path / "estimates.csv", _ints(est, ("segment",)))
+    assert (tmp_path / "estimates.csv").read_bytes() == (OLD / "estimates.csv").read_bytes()
+    write_estimates(tmp_path / "none.csv", {k: np.zeros(0) for k in ESTIMATE_COLUMNS})    # no fixation: a header
+    assert all(len(v) == 0 for v in read_estimates(tmp_path / "none.csv").values())
+    labels = read_target_labels(OLD / "target_labels.npy")
+    assert labels.ndim == 1 and labels.min() == -1
+    write_target_labels(tmp_path / "labels.npy", labels)
+    assert (tmp_path / "labels.npy").read_bytes() == (OLD / "target_labels.npy").read_bytes()
+    (tmp_path / "bad.npy").write_text("no array")
+    with pytest.raises(UserError, match="not a target_labels.npy"):
+        read_target_labels(tmp_path / "bad.npy")
 
 
 def test_targets_reader_says_what_is_wrong(tmp_path):

@@ -1,7 +1,8 @@
-"""The targets ``process`` found: ``targets.json`` and ``targets.csv`` (docs/processing.md,
-docs/formats.md "Targets").
+"""The files of ``process``'s targets step: the targets it found, ``targets.json`` and
+``targets.csv`` (docs/processing.md, docs/formats.md "Targets"), the target of every view line,
+``target_labels.npy``, and the fixations' running estimates, ``estimates.csv``.
 
-Both hold the same rows, one per target, keyed by ``TARGET_COLUMNS``: ``target`` (index),
+targets.json and targets.csv hold the same rows, one per target, keyed by ``TARGET_COLUMNS``: ``target`` (index),
 ``x_mm, y_mm, z_mm`` (world frame, mm), ``axis1_mm..axis3_mm`` (95 % ellipsoid semi-axes, mm),
 ``n_samples``, ``t_start, t_end`` (s), ``fixations`` (``;``-separated indices), ``method``,
 ``status``, ``crb_mm``. A value that does not exist (no usable estimate) is NaN in the JSON and an
@@ -9,8 +10,12 @@ empty cell in the CSV. targets.json adds ``version`` and ``method``; targets.csv
 and 1 ms, for spreadsheets.
 
 One writer, ``write_targets`` (both files), and one reader, ``read_targets`` (the rows of
-targets.json, exact). The rows are plain dicts here; ``pipeline.types.Target`` converts
-(``Target.row`` / ``Target.from_row``).
+targets.json, exact). ``target_labels.npy`` has ``write_target_labels`` and
+``read_target_labels``. ``estimates.csv`` has one row per usable estimate while a fixation's view
+lines were fed in, as a live session would: ``t`` (s, the last line fed), ``segment`` (the
+fixation), ``x, y, z`` (world frame, mm) and ``radius95_mm``, a header alone when no fixation gave
+an estimate; ``write_estimates`` and ``read_estimates``. The rows are plain dicts here;
+``pipeline.types.Target`` converts (``Target.row`` / ``Target.from_row``).
 """
 
 from __future__ import annotations
@@ -22,14 +27,16 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from .atomic import atomic_path
 from .jsonio import write_json
-from .tables import write_table
+from .tables import read_table, write_table
 
 TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "n_samples", "t_start",
                   "t_end", "fixations", "method", "status", "crb_mm")
 TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "crb_mm")} | {
     "t_start": ".3f", "t_end": ".3f"}
-TARGET_FILES = ("targets.csv", "targets.json")
+ESTIMATE_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
+ESTIMATE_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
 
 log = logging.getLogger(__name__)
 
@@ -57,3 +64,41 @@ def read_targets(path) -> list[dict]:
         raise UserError(f"{path}: not a targets.json ({type(exc).__name__}: {exc}); run the targets step of "
                         "'wearable-gaze process' again (--force)") from None
     return rows
+
+
+def write_target_labels(path, labels: np.ndarray) -> None:
+    """Write target_labels.npy: the target index of every view line of viewlines.csv (N,), -1
+    none (NumPy's .npy format), atomically."""
+    with atomic_path(path) as tmp:
+        np.save(tmp, labels)
+
+
+def read_target_labels(path) -> np.ndarray:
+    """The (N,) target index of every view line, -1 none, of a target_labels.npy.
+
+    Raises:
+        UserError: a file that is not a NumPy array file.
+    """
+    try:
+        return np.load(path)
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{path}: not a target_labels.npy ({exc}); run the targets step of 'wearable-gaze process' "
+                        "again (--force)") from None
+
+
+def write_estimates(path, columns: dict) -> None:
+    """Write the columns ``ESTIMATE_COLUMNS`` ((N,) each; N may be 0) as estimates.csv, atomically."""
+    write_table(path, {k: np.asarray(columns[k]) for k in ESTIMATE_COLUMNS}, ESTIMATE_FORMATS)
+
+
+def read_estimates(path) -> dict:
+    """The columns of an estimates.csv, (N,) float each; a header alone (no fixation gave an
+    estimate) is no estimate, not an error.
+
+    Raises:
+        UserError: a missing file, a missing column, a cell that is not a number (one line).
+    """
+    path = Path(path)
+    if path.is_file() and len([ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]) <= 1:
+        return {k: np.zeros(0) for k in ESTIMATE_COLUMNS}
+    return read_table(path, list(ESTIMATE_COLUMNS), what="running-estimate CSV (estimates.csv)")

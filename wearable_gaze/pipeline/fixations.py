@@ -1,7 +1,7 @@
 """The fixations step of ``process``: the fixations of segmented view lines each estimated as a
 live session would, fixations of one point merged into targets (revisits are common); and the
-files it writes (viewlines.csv with the fixation labels, estimates.csv, targets.csv and
-targets.json through formats/targets.py, target_labels.npy; docs/processing.md)."""
+files it writes (viewlines.csv with the fixation labels, estimates.csv, targets.csv,
+targets.json and target_labels.npy, each through its formats module; docs/processing.md)."""
 
 from __future__ import annotations
 
@@ -14,17 +14,13 @@ import numpy as np
 from estimator import BinocularSamples, GazeEstimate, run_estimator
 from estimator.segments import same_target
 
-from ..formats.atomic import atomic_path
-from ..formats.tables import write_table
-from ..formats.targets import write_targets
+from ..formats.targets import ESTIMATE_COLUMNS, write_estimates, write_target_labels, write_targets
 from ..formats.viewlines import write_viewlines_csv
 from .estimate import estimate_target, radius95_mm, running_estimate
 from .types import Fixation, TargetsResult
 
 log = logging.getLogger(__name__)
 
-RUNNING_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
-RUNNING_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
 
 
 def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sigma_deg: float,
@@ -41,13 +37,13 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
     """
     n_seg = int(labels.max()) + 1 if (labels >= 0).any() else 0
     fixations = []
-    running = {k: [] for k in RUNNING_COLUMNS}
+    running = {k: [] for k in ESTIMATE_COLUMNS}
     for k in range(n_seg):
         idx = np.flatnonzero(labels == k)
         e, usable = running_estimate(samples.select(idx), method, sigma_deg)
         fixations.append(Fixation(k, idx, e))
         for t, ek in usable:
-            for name, v in zip(RUNNING_COLUMNS, (t, k, *(float(v) for v in ek.position_mm), radius95_mm(ek)),
+            for name, v in zip(ESTIMATE_COLUMNS, (t, k, *(float(v) for v in ek.position_mm), radius95_mm(ek)),
                                strict=True):
                 running[name].append(v)
         if progress:
@@ -94,11 +90,10 @@ def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sig
 
 
 def write_targets_step(out: Path, result: TargetsResult, method: str) -> None:
-    """The step's files in ``out``: viewlines.csv (with fixation labels), estimates.csv,
-    targets.csv and targets.json (``formats.targets.write_targets``, the rows of
-    ``Target.row``) and target_labels.npy (the target of every view line)."""
+    """The step's files in ``out``: viewlines.csv (with fixation labels), and through
+    formats/targets.py estimates.csv, targets.csv and targets.json (the rows of ``Target.row``)
+    and target_labels.npy (the target of every view line)."""
     write_viewlines_csv(out / "viewlines.csv", result.samples, result.labels)
-    write_table(out / "estimates.csv", result.running, RUNNING_FORMATS)
+    write_estimates(out / "estimates.csv", result.running)
     write_targets(out, [tg.row() for tg in result.targets], method)
-    with atomic_path(out / "target_labels.npy") as tmp:
-        np.save(tmp, result.target_labels)
+    write_target_labels(out / "target_labels.npy", result.target_labels)

@@ -17,8 +17,7 @@ from tracking.markermap import MarkerMap
 from ..formats.atomic import atomic_path, write_text
 from ..formats.eye_samples import EyeSamples
 from ..formats.poses import read_poses_csv
-from ..formats.tables import read_table
-from ..formats.targets import read_targets
+from ..formats.targets import read_estimates, read_target_labels, read_targets
 from ..formats.video import open_video
 from ..formats.viewlines import read_viewlines_csv
 from .types import Target
@@ -70,25 +69,14 @@ def _report_data(out: Path, T_p: np.ndarray) -> _ReportData:
     samples = BinocularSamples.concatenate([s.samples for s in read_viewlines_csv(out / "viewlines.csv")])
     samples = samples.select(np.argsort(samples.t_s, kind="stable"))
     labels = out / "target_labels.npy"
-    tlabels = np.load(labels) if labels.is_file() else np.full(len(samples), -1)
+    tlabels = read_target_labels(labels) if labels.is_file() else np.full(len(samples), -1)
     head = T_p[np.isfinite(T_p[:, 0, 0]), :3, 3]
-    est = _read_estimates(out / "estimates.csv")
+    est = read_estimates(out / "estimates.csv")
     cyc = samples.left_direction.copy()
     cyc[~samples.left_valid] = samples.right_direction[~samples.left_valid]
     orig = np.where(samples.left_valid[:, None], samples.left_origin_mm, samples.right_origin_mm)
     return _ReportData(targets, samples, tlabels, head, head.mean(axis=0) if len(head) else np.zeros(3), est,
                        orig, cyc)
-
-
-ESTIMATE_COLUMNS = ["t", "segment", "x", "y", "z", "radius95_mm"]
-
-
-def _read_estimates(path: Path) -> dict:
-    """estimates.csv; a header alone (no fixation gave an estimate) is no estimate, not an error."""
-    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]
-    if len(lines) <= 1:
-        return {k: np.zeros(0) for k in ESTIMATE_COLUMNS}
-    return read_table(path, ESTIMATE_COLUMNS)
 
 
 @dataclass(frozen=True)
