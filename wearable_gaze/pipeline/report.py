@@ -40,6 +40,15 @@ def _save(fig, path: Path):
     _plt().close(fig)
 
 
+def _finish(fig, ax, path: Path, title: str, *labels: str) -> None:
+    """Axis labels (x, y and, on a 3D plot, z), the legend and the title; then save."""
+    for set_label, text in zip((ax.set_xlabel, ax.set_ylabel, getattr(ax, "set_zlabel", None)), labels, strict=False):
+        set_label(text)
+    ax.legend(fontsize=7)
+    ax.set_title(title)
+    _save(fig, path)
+
+
 @dataclass(frozen=True)
 class _ReportData:
     """What the plots read from the processing outputs (world frame, mm).
@@ -183,12 +192,7 @@ def _plot_3d(d: _ReportData, out: Path) -> tuple[str, str]:
         for a, b in _line_segments(tg, d.orig, d.cyc, d.tlabels):
             ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], color=c, lw=0.3, alpha=0.5)
         ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {i}")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("z (mm)")
-    ax.set_zlabel("up (mm)")
-    ax.legend(fontsize=7)
-    ax.set_title("Head path, view lines and targets")
-    _save(fig, out / "plot_3d.png")
+    _finish(fig, ax, out / "plot_3d.png", "Head path, view lines and targets", "x (mm)", "z (mm)", "up (mm)")
     return ("plot_3d.png", "3D view: head trajectory, view lines, targets")
 
 
@@ -206,11 +210,7 @@ def _plot_top(d: _ReportData, out: Path) -> tuple[str, str]:
         ax.add_patch(plt.Circle((X[0], X[2]), r, fill=False, color=c, lw=1))
         ax.plot(X[0], X[2], "o", color=c, label=f"target {i} ({np.linalg.norm(X - d.centre) / 1000:.2f} m)")
     ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("z (mm)")
-    ax.legend(fontsize=7)
-    ax.set_title("Top view (circles: largest 95 % semi-axis)")
-    _save(fig, out / "plot_top_view.png")
+    _finish(fig, ax, out / "plot_top_view.png", "Top view (circles: largest 95 % semi-axis)", "x (mm)", "z (mm)")
     return ("plot_top_view.png", "Top view")
 
 
