@@ -28,6 +28,16 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class SegmentConfig:
+    """The fixation test's settings (docs/processing.md).
+
+    Attributes:
+        window: samples on each side whose median directions are compared.
+        jump_deg: the angle between the two medians above which a saccade is found, degrees.
+        min_fixation_s: shorter fixations are dropped, seconds.
+        max_gap_s: a gap in the data longer than this ends a fixation, seconds.
+        trim_s: time cut from each end of a fixation (the saccade's tails), seconds.
+    """
+
     window: int = 8
     jump_deg: float = 3.0
     min_fixation_s: float = 0.3
