@@ -99,3 +99,19 @@ def test_docs_architecture_names_every_module():
     missing = [str(p.relative_to(ROOT)) for pkg in ORDER for p in (ROOT / pkg).rglob("*.py")
                if p.stem != "__init__" and p.name not in doc]
     assert not missing, f"name these in docs/architecture.md's table: {missing}"
+
+
+def test_no_module_over_500_lines_and_no_function_over_80():
+    """Small modules and functions (docs/architecture.md): a module over 500 lines holds more than
+    one concept, a function over 80 lines more than one step."""
+    big = []
+    for pkg in ORDER:
+        for p in (ROOT / pkg).rglob("*.py"):
+            src = p.read_text()
+            if len(src.splitlines()) > 500:
+                big.append(f"{p.relative_to(ROOT)}: {len(src.splitlines())} lines")
+            for node in ast.walk(ast.parse(src)):
+                if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.end_lineno - node.lineno >= 80:
+                    big.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name}: "
+                               f"{node.end_lineno - node.lineno + 1} lines")
+    assert not big, big
