@@ -1,15 +1,9 @@
 import numpy as np
 import pytest
 
-from estimator import (
-    BinocularSamples,
-    ViewLines,
-    calibration_plane_points,
-    view_lines_in_camera,
-    view_lines_to_camera,
-    view_lines_to_world,
-)
+from estimator import BinocularSamples, ViewLines
 from estimator.frames import invert, transform_points
+from estimator.lines import calibration_plane_points, view_lines_in_camera, view_lines_to_camera, view_lines_to_world
 from tests.helpers import random_transform
 
 K = np.array([[800.0, 0, 640], [0, 810.0, 360], [0, 0, 1]])
