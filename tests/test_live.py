@@ -237,7 +237,11 @@ def test_latency_runs_from_the_samples_arrival_to_its_message(live_run):
     lat, window = np.array(lat), np.array(window)
     assert len(lat) > 100
     assert np.all(lat <= window + 0.01)                      # never more than from sent to written
-    assert lat.sum() >= 0.5 * window.sum()                   # and most of it (the transport is fast)
+    # and most of it for a typical message (the transport is fast). The median, not the sum: the
+    # window also holds this test's own wait to read stdout, which a loaded machine (CI's two
+    # cores) stretches to tens of ms for some messages
+    ratio = np.median(lat / window)
+    assert ratio >= 0.5, (ratio, np.percentile(lat / window, [5, 25, 50, 75, 95]))
 
 
 def test_live_recording_is_complete_and_process_finds_the_same_targets(live_run):
