@@ -44,7 +44,6 @@ def _version() -> str:
 def main(argv=None) -> int:
     """Run one command (``argv``: the arguments, default ``sys.argv[1:]``); returns the exit status:
     0 done, 2 bad input (one line on stderr), 1 a bug (``-v`` shows the traceback), 130 Ctrl-C."""
-    safety.quiet_opencv()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -54,9 +53,7 @@ def main(argv=None) -> int:
     level = logging.getLogger().level
     handler = safety.log_to_stderr(args)
     try:
-        import cv2  # noqa: PLC0415
-
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+        safety.quiet_opencv()
         safety.check_inputs(args)
         safety.check_outputs(args)
         return args.func(args)

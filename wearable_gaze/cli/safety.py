@@ -17,12 +17,8 @@ from ..errors import UserError, check_output
 OUTPUTS = {
     "estimate": [("export_density", False, ("viewlines",))],
     "reproduce": [("out", True, ())],
-    "calibrate-camera": [("out", False, ("inputs",))],
-    "calibrate-eyes": [("out", False, ("source", "camera"))],
-    "viewlines": [("out", False, ("eye", "eyes", "poses"))],
     "track": [("out", False, ("video", "camera", "markers", "reference", "timestamps")),
               ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],
-    "markers": [("out", False, ())],
     "simulate": [("out", True, ("scenario",))],
     "process": [("out", True, ("session", "camera", "eyes"))],
     "live": [("record", True, ("camera", "camera_calib", "eyes", "markers"))],
@@ -69,15 +65,14 @@ OS_FIX = {errno.EACCES: "the place is not writable: choose another or change its
 
 
 def quiet_opencv() -> None:
-    """No OpenCV / FFmpeg log lines on stderr: a bad input gets exactly one line."""
+    """No OpenCV / FFmpeg log lines on stderr: a bad input gets exactly one line. The environment
+    is set before OpenCV is first imported (FFmpeg reads it then); the log level covers an OpenCV
+    imported earlier in the same process."""
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")        # AV_LOG_QUIET
-    if "cv2" in sys.modules:
-        cv2 = sys.modules["cv2"]
-        try:
-            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-        except AttributeError:  # pragma: no cover - very old OpenCV
-            pass
+    import cv2  # noqa: PLC0415
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
 
 
 class LogFormatter(logging.Formatter):
