@@ -225,22 +225,29 @@ def view_lines_in_camera(points_cam_mm, eye_center_cam_mm) -> ViewLines:
     return ViewLines(np.broadcast_to(e, p.shape).copy(), p - e, frame="cam")
 
 
-def view_lines_to_world(lines_cam: ViewLines, T_cam_from_world) -> ViewLines:
+def view_lines_to_world(lines_cam: ViewLines, T_cam_from_world=None, *, T_world_from_cam=None) -> ViewLines:
     """Paper eq. 7-8: ``e_g = R^-1 (e_c - T)``, ``d_g = R^-1 d_c``.
 
     Args:
         lines_cam: ``ViewLines`` in the camera frame.
         T_cam_from_world: (4, 4), or (N, 4, 4) one per line: the head pose (the paper's R, T).
+        T_world_from_cam: the same pose the other way round, as tracking gives it (keyword only;
+            pass one of the two): used as it is, with no inversion.
 
     Returns:
         ``ViewLines`` in frame ``"world"``.
     """
     if lines_cam.frame != "cam":
         raise ValueError(f"lines_cam must be in frame 'cam', got {lines_cam.frame!r}")
-    T = np.asarray(T_cam_from_world, dtype=np.float64)
-    T_inv = invert(T) if T.shape == (4, 4) else np.stack([invert(t) for t in T])
-    return ViewLines(transform_points(T_inv, lines_cam.origins_mm),
-                     rotate_directions(T_inv, lines_cam.directions), "world", lines_cam.sample_index)
+    if (T_cam_from_world is None) == (T_world_from_cam is None):
+        raise ValueError("pass exactly one of T_cam_from_world and T_world_from_cam")
+    if T_world_from_cam is not None:
+        T_wc = np.asarray(T_world_from_cam, dtype=np.float64)
+    else:
+        T = np.asarray(T_cam_from_world, dtype=np.float64)
+        T_wc = invert(T) if T.shape == (4, 4) else np.stack([invert(t) for t in T])
+    return ViewLines(transform_points(T_wc, lines_cam.origins_mm),
+                     rotate_directions(T_wc, lines_cam.directions), "world", lines_cam.sample_index)
 
 
 def view_lines_to_camera(lines_world: ViewLines, T_cam_from_world) -> ViewLines:

@@ -87,3 +87,19 @@ def test_binocular_samples_monocular_rows_and_lines():
     assert np.allclose(lines.directions[0], [0, 0, 1])
     one = s.sample(1)
     assert one.left_origin_mm is None and one.right_direction is not None
+
+
+def test_view_lines_to_world_takes_the_pose_either_way_round(rng):
+    """``T_world_from_cam=`` (as tracking gives the pose) gives the lines ``T_cam_from_world``
+    gives, one pose or one per line; passing both, or neither, is refused."""
+    lines = ViewLines(rng.normal(size=(5, 3)) * 30, rng.normal(size=(5, 3)), "cam")
+    Ts = np.stack([random_transform(rng) for _ in range(5)])
+    for T_cw in (Ts[0], Ts):
+        T_wc = invert(T_cw) if T_cw.ndim == 2 else np.stack([invert(t) for t in T_cw])
+        a = view_lines_to_world(lines, T_cw)
+        b = view_lines_to_world(lines, T_world_from_cam=T_wc)
+        assert np.allclose(a.origins_mm, b.origins_mm, atol=1e-9) and np.allclose(a.directions, b.directions)
+    with pytest.raises(ValueError, match="exactly one"):
+        view_lines_to_world(lines, Ts[0], T_world_from_cam=invert(Ts[0]))
+    with pytest.raises(ValueError, match="exactly one"):
+        view_lines_to_world(lines)

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimator import BinocularSample, ViewLines, make_estimator, view_lines_to_world
-from estimator.frames import invert
 from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter, same_target
 
@@ -62,7 +61,7 @@ def world_sample(eyes, t_s: float, rec, T_world_from_cam) -> BinocularSample:
     cam = [eyes[e].lines(np.array([(rec.left, rec.right)[e]], float)) for e in valid]
     world = view_lines_to_world(ViewLines(np.concatenate([c.origins_mm for c in cam]),
                                           np.concatenate([c.directions for c in cam]), "cam"),
-                                invert(np.asarray(T_world_from_cam, float)))
+                                T_world_from_cam=T_world_from_cam)
     parts: list = [None] * 4
     for k, e in enumerate(valid):
         parts[2 * e:2 * e + 2] = world.origins_mm[k], world.directions[k]

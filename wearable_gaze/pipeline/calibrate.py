@@ -30,7 +30,6 @@ from calibration.eyes import (
     wall_pose,
 )
 from estimator import BinocularSamples, view_lines_to_world
-from estimator.frames import invert
 from tracking.markers import MarkerDetector
 from tracking.timeline import interpolate_poses
 
@@ -378,10 +377,9 @@ def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = 0.1
         raise UserError(f"{source}: no head pose within {max_gap_s} s of any valid eye sample; check that the eye "
                         "samples and the poses share one clock (or raise --max-gap)")
     idx = np.flatnonzero(keep)
-    T_cw = np.stack([invert(T) for T in T_wc[idx]])
     arrays = []
     for e, cal in enumerate(eyes[:2]):
-        lw = view_lines_to_world(cal.lines(eye.raw[idx, e]), T_cw)
+        lw = view_lines_to_world(cal.lines(eye.raw[idx, e]), T_world_from_cam=T_wc[idx])
         d = np.where(eye.valid[idx, e][:, None], lw.directions, np.nan)     # blinks stay marked: empty
         arrays += [lw.origins_mm, d]
     samples = BinocularSamples.from_arrays(eye.t[idx], *arrays)
