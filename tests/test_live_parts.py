@@ -416,3 +416,13 @@ def test_a_camera_that_ends_without_eye_data_ends_the_session_saying_so():
     session, _, rec = _loop([], [(0.0, _pose())], _FakeEstimation(None))
     st = session.run(duration_s=5.0)
     assert "no eye data ever arrived from fake://eye" in st.end_reason and rec.complete is True
+
+
+def test_frames_skipped_counts_the_camera_queues_drops_and_the_loops_own_skips():
+    """``frames_skipped``: frames tracking never saw, whether the camera's queue had no room for
+    them or the loop passed over them for a newer one (each counted once)."""
+    session, _, _ = _loop([], [(0.5, _pose()), (0.6, _pose())], _FakeEstimation(None))
+    session.frames.stats.skipped = 3                     # dropped by the camera before the loop
+    session.tracking_skipped = 2                         # passed over by the loop
+    assert session.update_stats().frames_skipped == 5
+    assert session.update_stats().frames_skipped == 5    # copied, not added up again

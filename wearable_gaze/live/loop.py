@@ -46,6 +46,7 @@ class LiveSession:
         self.publisher, self.recorder = publisher, recorder
         self.status_stream = status_stream
         self.stats = LiveStats()
+        self.tracking_skipped = 0        # waiting frames passed over for a newer one (the camera counts its own drops)
         self.stop_event = threading.Event()
         self.pending: deque = deque()                # (arrival, t_s, record) waiting for a pose
         self.last_arrival: float | None = None       # monotonic time the newest eye record arrived
@@ -64,6 +65,7 @@ class LiveSession:
         """Copy the readers' and the publisher's counters into ``stats``."""
         s, r, c = self.stats, self.reader.stats, self.frames.stats
         s.frames, s.frames_missed, s.camera_stalls = c.frames, c.missed, c.stalls
+        s.frames_skipped = self.tracking_skipped + c.skipped
         s.eye_records, s.corrupt, s.lost, s.reader_dropped, s.reconnects = (r.records, r.corrupt, r.lost, r.dropped,
                                                                             r.reconnects)
         s.publish_dropped = self.publisher.dropped
@@ -151,7 +153,7 @@ class LiveSession:
                 break
         if not items:
             return False
-        self.stats.frames_skipped += len(items) - 1
+        self.tracking_skipped += len(items) - 1
         t, _, grey, _ = items[-1]
         self.head.track(t - self.frames.t0, grey)
         return True
