@@ -41,7 +41,6 @@ class FrameSource(InputThread):
         self.source = source
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.stats = CameraStats()
-        self.stop_event = threading.Event()
         self.error: str | None = None
         self.finished = threading.Event()
         target = int(source) if str(source).isdigit() else str(source)
@@ -109,5 +108,3 @@ class FrameSource(InputThread):
             self.cap.release()
             self.finished.set()
 
-    def stop(self):
-        self.stop_event.set()

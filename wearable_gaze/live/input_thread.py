@@ -10,7 +10,7 @@ log = logging.getLogger(__name__)
 
 
 class InputThread(threading.Thread):
-    """A daemon thread running ``_run``; an exception ends it with ``failure`` set to
+    """A daemon thread running ``_run`` until ``stop``; an exception ends it with ``failure`` set to
     ``"ExceptionType: message"`` (the traceback is logged at debug level).
 
     Args:
@@ -20,6 +20,10 @@ class InputThread(threading.Thread):
     def __init__(self, name: str):
         super().__init__(daemon=True, name=name)
         self.failure: str | None = None          # an unexpected error that ended the thread
+        self.stop_event = threading.Event()      # set by ``stop``; ``_run`` returns soon after
+
+    def stop(self) -> None:
+        self.stop_event.set()
 
     def run(self):
         try:

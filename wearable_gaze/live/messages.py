@@ -16,9 +16,10 @@ MESSAGE_VERSION = 1
 
 def estimate_message(e: LiveEstimate, latency_ms: float) -> dict:
     """An ``estimate`` message; ``latency_ms`` from the sample's arrival to now."""
+    r = e.radius95_mm                                  # an eigen-decomposition: computed once
     return {"version": MESSAGE_VERSION, "type": "estimate", "t": round(e.t_s, 4), "fixation": e.fixation,
             "position_mm": [round(v, 1) for v in e.position_mm],
-            "radius95_mm": None if e.radius95_mm is None else round(e.radius95_mm, 1),
+            "radius95_mm": None if r is None else round(r, 1),
             "n_samples": e.n_samples, "latency_ms": round(latency_ms, 2)}
 
 

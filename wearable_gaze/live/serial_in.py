@@ -133,7 +133,6 @@ class EyeReader(InputThread):
         self.protocol = protocol
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.stats = SerialStats()
-        self.stop_event = threading.Event()
         self.reconnect_s = reconnect_s
         self.raw_sink = raw_sink
         self.on_record = on_record
@@ -221,8 +220,6 @@ class EyeReader(InputThread):
         except queue.Full:
             self.stats.dropped += 1
 
-    def stop(self):
-        self.stop_event.set()
 
 
 __all__ = ["EyeReader", "EyeRecord", "LineSplitter", "SerialStats", "SocketLink"]
