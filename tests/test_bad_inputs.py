@@ -349,7 +349,7 @@ add_csv_cases("viewlines-poses", "viewlines", "poses", POSE_REQ, lambda e, d, p:
               time_col=None)
 add_csv_cases("estimate", "estimate", "viewlines", VL_REQ, lambda e, d, p: argv_estimate(e, p), time_col=None)
 add_csv_cases("track-timestamps", "track", "timestamps", ["frame", "t"],
-              lambda e, d, p: argv_track(e, d, extra=["--timestamps", p]), time_col=None,
+              lambda e, d, p: argv_track(e, d, extra=["--timestamps", p]), time_col="t",
               skip=("truncated-row",))
 
 

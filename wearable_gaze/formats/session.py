@@ -51,11 +51,8 @@ class Session:
         return None if rel is None else self.root / rel
 
     def frame_times(self) -> np.ndarray:
-        _, t = read_frame_times(self.path("scene_timestamps"))
-        bad = np.flatnonzero(np.diff(t) <= 0)
-        if len(bad):
-            raise UserError(f"{self.path('scene_timestamps')} line {bad[0] + 3}: frame times must increase")
-        return t
+        """(N,) frame times of the scene video, s (checked to increase by ``read_frame_times``)."""
+        return read_frame_times(self.path("scene_timestamps"))[1]
 
     def eye_samples(self) -> EyeSamples:
         return read_eye_csv(self.path("eye_samples"))[0]

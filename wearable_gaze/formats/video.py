@@ -126,7 +126,14 @@ def write_frame_times(path, frames, t) -> None:
 
 
 def read_frame_times(path) -> tuple[np.ndarray, np.ndarray]:
-    """(frame (N,) int, t (N,) s) of a frame-timestamp CSV, in file order (not checked to
-    increase: ``Session.frame_times`` does that)."""
+    """(frame (N,) int, t (N,) s) of a frame-timestamp CSV, in file order.
+
+    Raises:
+        UserError: a time that does not increase (pose interpolation needs them in order).
+    """
     tab = read_table(path, FRAME_TIME_COLUMNS, what="frame-timestamp CSV")
-    return tab["frame"].astype(int), tab["t"]
+    t = tab["t"]
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if len(bad):
+        raise UserError(f"{path} line {bad[0] + 3}: frame times must increase; fix or remove the row")
+    return tab["frame"].astype(int), t
