@@ -371,7 +371,7 @@ def _calibration_steps(f: _SessionFiles, steps: _Steps, vals: _Values, camera: P
     if eyes is None:
         def do_eyes(cb):
             cam = vals["camera"]
-            write_eyes(eyes_path, calibrate_eyes(read_eye_recordings(read_walls(f.root)), cam, progress=cb))
+            write_eyes(eyes_path, calibrate_eyes(read_eye_recordings(read_walls(f.eye_calibration)), cam, progress=cb))
         steps.run("eyes", [f.eye_calibration, cam_path], {}, do_eyes)
     else:
         steps.external("eyes", eyes_path, lambda p: vals.set("eyes", load_eyes(p)))
