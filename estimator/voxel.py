@@ -199,6 +199,11 @@ class VoxelEstimator:
 
     method = "voxel"
 
+    @property
+    def relayouts(self) -> int:
+        """Boxes laid so far (the same count as ``work.layouts``)."""
+        return self.work.layouts
+
     def __init__(self, config: VoxelConfig = VoxelConfig()):
         self.config = config
         self._sigma = np.deg2rad(config.sigma_deg)
@@ -206,7 +211,6 @@ class VoxelEstimator:
         self.grid: DensityGrid | None = None
         self._design_std = None
         self._last: GazeEstimate | None = None
-        self.relayouts = 0
         self.work = VoxelWork()
         self._allowance = float(config.work_initial)   # line re-evaluations still allowed
 
@@ -327,7 +331,6 @@ class VoxelEstimator:
         self._design_std = std
         log.debug("voxel: box %d laid at %s mm, voxel %s mm, over %d kept lines", self.work.layouts + 1,
                   np.round(center, 1).tolist(), np.round(spacing, 2).tolist(), self._buf.n_lines)
-        self.relayouts += 1
         self.work.layouts += 1
         self._set_weights(slice(0, self._buf.n), center, cov)
         self._accumulate(slice(0, self._buf.n))
@@ -421,7 +424,7 @@ class VoxelEstimator:
 
     def _result(self, point, cov) -> GazeEstimate:
         g = self.grid
-        info = {"voxel_mm": g.spacing_mm.tolist(), "relayouts": self.relayouts, "seed_fits": self.work.seed_fits}
+        info = {"voxel_mm": g.spacing_mm.tolist(), "relayouts": self.work.layouts, "seed_fits": self.work.seed_fits}
         # behind the eyes? check against the latest sample's lines (O(1) per update)
         i = self._buf.n - 1
         valid = self._buf.valid[i]

@@ -28,11 +28,6 @@ FRAME_TIME_HEADER = ",".join(FRAME_TIME_COLUMNS) + "\n"
 log = logging.getLogger(__name__)
 
 
-def as_grey(frame) -> np.ndarray:
-    """A decoded frame (H, W, 3) BGR or (H, W) grey as (H, W) grey, uint8."""
-    return to_grey(frame)
-
-
 def grey_frames(path):
     """Yield every frame of a video as a (H, W) uint8 grey image."""
     import cv2  # noqa: PLC0415

@@ -81,7 +81,7 @@ class Table1Result:
         return {"trials": self.trials, "seed": self.seed, "rows": self.rows}
 
 
-def run_table1(trials: int = 20, seed: int = 0, depths_mm=PAPER_DEPTHS_MM, protocol: Protocol | None = None,
+def run_table1(trials: int = 20, seed: int = 0, depths_mm=PAPER_DEPTHS_MM, protocol: Protocol = Protocol(),
                methods=TABLE_METHODS, progress: Progress | None = None) -> Table1Result:
     """Run the paper's protocol ``trials`` times per depth with every method.
 
@@ -93,7 +93,6 @@ def run_table1(trials: int = 20, seed: int = 0, depths_mm=PAPER_DEPTHS_MM, proto
         methods: estimator names.
         progress: called as ``progress(done, total)`` after each trial.
     """
-    protocol = Protocol() if protocol is None else protocol
     if trials < 1:
         raise ValueError(f"trials must be at least 1, got {trials}")
     rng = np.random.default_rng(seed)
@@ -122,9 +121,8 @@ def run_table1(trials: int = 20, seed: int = 0, depths_mm=PAPER_DEPTHS_MM, proto
     return Table1Result(trials, seed, rows)
 
 
-def convergence(depth_mm: float, seed: int, protocol: Protocol | None = None, methods=TABLE_METHODS) -> dict:
+def convergence(depth_mm: float, seed: int, protocol: Protocol = Protocol(), methods=TABLE_METHODS) -> dict:
     """Estimated depth (mm) after each observation, one trial, per streaming method (Fig. 13)."""
-    protocol = Protocol() if protocol is None else protocol
     rng = np.random.default_rng(seed)
     truth = np.array([0.0, 0.0, float(depth_mm)])
     samples = simulate_lines(truth, rng, protocol)
@@ -139,10 +137,9 @@ def convergence(depth_mm: float, seed: int, protocol: Protocol | None = None, me
     return out
 
 
-def plot_fig11(out_path, seed: int = 0, protocol: Protocol | None = None, depths_mm=(1000.0, 3000.0, 5000.0)):
+def plot_fig11(out_path, seed: int = 0, protocol: Protocol = Protocol(), depths_mm=(1000.0, 3000.0, 5000.0)):
     """Density slices at y = 0 after all 200 samples (like the paper's Fig. 11): the paper's
     voxel space (top) and our Bayesian log-likelihood (bottom, evaluated from the kept lines)."""
-    protocol = Protocol() if protocol is None else protocol
     import matplotlib  # noqa: PLC0415
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
@@ -191,9 +188,8 @@ def plot_fig11(out_path, seed: int = 0, protocol: Protocol | None = None, depths
     _save(fig, out_path)
 
 
-def plot_fig13(out_path, seed: int = 0, protocol: Protocol | None = None, depths_mm=PAPER_DEPTHS_MM):
+def plot_fig13(out_path, seed: int = 0, protocol: Protocol = Protocol(), depths_mm=PAPER_DEPTHS_MM):
     """Estimated depth against the number of observations (like the paper's Fig. 13)."""
-    protocol = Protocol() if protocol is None else protocol
     import matplotlib  # noqa: PLC0415
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
@@ -238,11 +234,10 @@ class Figure5Result:
 
 
 def run_figure5(seed: int = 0, distances_mm=(1200.0, 1600.0, 2400.0, 3300.0), duration_s: float = 10.0,
-                protocol: Protocol | None = None) -> Figure5Result:
+                protocol: Protocol = Protocol()) -> Figure5Result:
     """Depth of the closest point of each binocular pair over time, head still, target at each
     distance (the paper's real-device situation of section 6.2, simulated). Diverging or parallel
     pairs give no depth (NaN in the result, counted as "diverging")."""
-    protocol = Protocol() if protocol is None else protocol
     rng = np.random.default_rng(seed)
     n = int(duration_s * protocol.rate_hz)
     heads = np.zeros((n, 3))

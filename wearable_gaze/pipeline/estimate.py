@@ -54,8 +54,8 @@ def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixa
     t = samples.t_s[idx]
     crb = _crb(samples.select(idx), e.position_mm, sigma_deg) if e.ok else None
     return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2,
-                  axes95_mm=np.asarray(radii, float), status=e.status.value if hasattr(e.status, "value")
-                  else str(e.status), n_samples=len(idx), t_start=float(t.min()), t_end=float(t.max()),
+                  axes95_mm=np.asarray(radii, float), status=e.status.value, n_samples=len(idx),
+                  t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in fixations), method=method,
                   crb_mm=float(np.sqrt(np.trace(crb))) if crb is not None else float("nan"), samples=idx)
 
