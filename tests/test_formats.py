@@ -411,3 +411,18 @@ def test_atomic_writes_take_the_umask_without_changing_it(tmp_path):
         assert _umask() == 0o027
     finally:
         os.umask(old)
+
+
+def test_a_header_only_estimates_csv_is_empty_but_a_broken_one_is_one_line(tmp_path):
+    """estimates.csv goes through the one CSV reader: a header alone is no estimate; a file that is
+    not UTF-8, or lacks a column, is a UserError naming it (the file was once pre-read outside the
+    reader, and a Latin-1 byte there ended in an internal error)."""
+    header = ",".join(ESTIMATE_COLUMNS) + "\n"
+    (tmp_path / "h.csv").write_text(header)
+    assert all(len(v) == 0 for v in read_estimates(tmp_path / "h.csv").values())
+    (tmp_path / "latin1.csv").write_bytes(header.encode() + b"1,2,\xe9\n")
+    with pytest.raises(UserError, match="not UTF-8"):
+        read_estimates(tmp_path / "latin1.csv")
+    (tmp_path / "short.csv").write_text("t,segment\n")
+    with pytest.raises(UserError, match="missing column"):
+        read_estimates(tmp_path / "short.csv")

@@ -14,7 +14,7 @@ from .atomic import atomic_path
 
 
 def read_table(path, required, text_columns=(), what: str = "table", fix: str = "", empty_ok=(),
-               max_abs: float = 1e10) -> dict:
+               max_abs: float = 1e10, rows_required: bool = True) -> dict:
     """Read a CSV with a header into {column: (N,) array}.
 
     Args:
@@ -27,6 +27,8 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
         empty_ok: columns whose empty cells mean "no value" (NaN), e.g. a frame without a pose.
         max_abs: largest plausible magnitude of a required column's values (1e10: ten billion
             seconds, millimetres or sensor counts).
+        rows_required: False where a header alone is a valid file (no records): then the
+            required columns come back empty.
 
     Raises:
         UserError: missing file or column, a repeated column, an empty file, a file that is not
@@ -36,6 +38,8 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
     names, reader = open_csv(path, required, what, fix or f"pass a {what} (check the path)")
     rows = [r for r in reader if any(c.strip() for c in r)]
     if not rows:
+        if not rows_required:
+            return {c: np.zeros(0) for c in required}
         raise UserError(f"{path}: the {what} has a header but no data rows; add one row per record")
     out = {}
     width = len(names)

@@ -98,7 +98,4 @@ def read_estimates(path) -> dict:
     Raises:
         UserError: a missing file, a missing column, a cell that is not a number (one line).
     """
-    path = Path(path)
-    if path.is_file() and len([ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]) <= 1:
-        return {k: np.zeros(0) for k in ESTIMATE_COLUMNS}
-    return read_table(path, list(ESTIMATE_COLUMNS), what="running-estimate CSV (estimates.csv)")
+    return read_table(path, list(ESTIMATE_COLUMNS), what="running-estimate CSV (estimates.csv)", rows_required=False)
