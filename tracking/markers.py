@@ -40,16 +40,24 @@ def detection(marker_id, corners_px) -> MarkerDetection:
     return MarkerDetection(int(marker_id), c)
 
 
-def unique_by_id(detections) -> dict[int, np.ndarray]:
-    """{id: (4, 2) corners px} of the markers whose id was detected exactly once; an id seen more
-    than once is ambiguous (at most one of them is the marker a map or a board means) and is left
-    out, with a log line."""
+def split_repeated(detections) -> tuple[dict[int, np.ndarray], list[int], int]:
+    """({id: (4, 2) corners px} of the ids detected exactly once, the ids detected more than once
+    (sorted), how many detections those were). An id seen more than once is ambiguous: at most one
+    of them is the marker a map or a board means."""
     found = list(detections)
     seen = Counter(d.marker_id for d in found)
     repeated = sorted(i for i, n in seen.items() if n > 1)
+    unique = {d.marker_id: d.corners_px for d in found if seen[d.marker_id] == 1}
+    return unique, repeated, sum(seen[i] for i in repeated)
+
+
+def unique_by_id(detections) -> dict[int, np.ndarray]:
+    """{id: (4, 2) corners px} of the markers whose id was detected exactly once; the ambiguous
+    repeated ones are left out, with a log line (``split_repeated``)."""
+    unique, repeated, _ = split_repeated(detections)
     if repeated:
         log.info("marker ids seen more than once, left out as ambiguous: %s", repeated)
-    return {d.marker_id: d.corners_px for d in found if seen[d.marker_id] == 1}
+    return unique
 
 
 class MarkerDetector:

@@ -9,7 +9,6 @@ model from ``calibration``, so every solver works on normalised coordinates (K =
 from __future__ import annotations
 
 import logging
-from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
@@ -22,7 +21,7 @@ from estimator._checks import check_transform
 from estimator.frames import invert
 
 from .markermap import MarkerMap, square_corners
-from .markers import MarkerDetection, detection
+from .markers import MarkerDetection, detection, split_repeated
 from .pnp import pose_covariance, reprojection_residuals, rms_px, transform_from_rvec_tvec
 
 log = logging.getLogger(__name__)
@@ -127,13 +126,9 @@ class MarkerPoseEstimator:
         prev = self._predicted() if previous is None else check_transform(previous, "previous")
         items = detections.items() if isinstance(detections, Mapping) else detections
         dets = [detection(i, c) for i, c in items]
-        in_map = [d for d in dets if d.marker_id in self.map.poses]
-        seen = Counter(d.marker_id for d in in_map)
-        repeated = sorted(i for i, n in seen.items() if n > 1)
-        n_dropped = sum(seen[i] for i in repeated)
+        by_id, repeated, n_dropped = split_repeated(d for d in dets if d.marker_id in self.map.poses)
         if repeated:
             log.debug("marker ids %s detected more than once: %d detections left out", repeated, n_dropped)
-        by_id = {d.marker_id: d.corners_px for d in in_map if seen[d.marker_id] == 1}
         res = self._estimate(by_id, prev)
         res.repeated_ids, res.n_repeated_dropped = repeated, n_dropped
         if repeated and not res.ok and not by_id:
