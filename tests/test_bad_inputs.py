@@ -900,7 +900,7 @@ def _session_copy_full(e, d):
 
 
 LIVE_OPTS = [("--publish", ["udp://127.0.0.1:99999", "udp://127.0.0.1:abc", "http://127.0.0.1:80",
-                            "udp://:5555", "udp://127.0.0.1", "tcp://127.0.0.1:-1"]),
+                            "udp://:5555", "udp://127.0.0.1", "tcp://127.0.0.1:-1", "udp://127.0.0.1:0"]),
              ("--baud", ["0", "-9600", "abc"]), ("--duration", ["0", "-1", "nan", "inf"])]
 for opt, values in LIVE_OPTS:
     opt_cases("live", lambda e, d, x: argv_live(e, d, extra=x), opt, values)

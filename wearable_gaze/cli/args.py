@@ -68,13 +68,16 @@ def seed(text):
 
 
 def publish_url(text):
-    """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` with a port 0-65535."""
-    scheme, sep, rest = text.partition("://")
-    host, colon, port = rest.rpartition(":")
-    if not sep or scheme not in ("udp", "tcp") or not colon or not host or not port.isdigit() \
-            or not 0 <= int(port) <= 65535:
+    """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` with a port 1-65535, as the publisher's own
+    ``parse_publish_url`` reads it (one parser: a URL passed here is one the publisher takes)."""
+    from ..errors import UserError  # noqa: PLC0415
+    from ..live.publish import parse_publish_url  # noqa: PLC0415
+
+    try:
+        parse_publish_url(text)
+    except UserError:
         raise argparse.ArgumentTypeError(f"{ascii(text)} is not udp://HOST:PORT or tcp://HOST:PORT with a port "
-                                         "0-65535, e.g. udp://127.0.0.1:5555")
+                                         "1-65535, e.g. udp://127.0.0.1:5555") from None
     return text
 
 
