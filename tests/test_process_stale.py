@@ -14,6 +14,7 @@ import wearable_gaze.pipeline.process as process_mod
 from wearable_gaze.cli import main
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.steps import STEPS
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}
@@ -134,8 +135,8 @@ def test_a_corrupt_step_cache_is_redone_with_a_warning(processed, caplog, garbag
         res = process_session(s, out, overlay=False)
     assert res.skipped == [] and res.targets and res.problems == []
     assert any(".steps.json is unreadable" in r.getMessage() for r in caplog.records)
-    assert set(json.loads((out / ".steps.json").read_text())) == set(process_mod.STEPS)   # repaired
-    assert set(process_session(s, out, overlay=False).skipped) == set(process_mod.STEPS)
+    assert set(json.loads((out / ".steps.json").read_text())) == set(STEPS)   # repaired
+    assert set(process_session(s, out, overlay=False).skipped) == set(STEPS)
 
 
 def test_temporary_files_of_a_killed_step_are_removed_at_the_next_run(processed):

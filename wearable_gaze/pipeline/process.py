@@ -10,17 +10,15 @@ older run's result presented as this one's.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from estimator.segments import SegmentConfig, segment_fixations
 
 from ..errors import UserError
-from ..formats.atomic import remove_temporaries, write_text
+from ..formats.atomic import remove_temporaries
 from ..formats.board import BOARD_FILE, read_board
 from ..formats.camera import load_camera
 from ..formats.eye_samples import read_eye_csv
@@ -34,207 +32,12 @@ from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
 from .calibrate import calibrate_camera_files, calibrate_eyes, read_eye_recordings, view_lines
 from .fixations import find_targets, write_targets_step
-from .report import REPORT_FILES, OverlayInputs, write_report
+from .report import OverlayInputs, write_report
+from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
 from .track import frame_times, track_video
 from .types import Poses, Target
 
 log = logging.getLogger(__name__)
-
-STEPS = ("camera", "eyes", "tracking", "viewlines", "targets", "report")
-# the files each step writes into the output folder ...
-OUTPUTS = {
-    "camera": ("camera.json", "camera_undistorted.png"),
-    "eyes": ("eyes.json",),
-    "tracking": ("poses.csv",),
-    "viewlines": (".viewlines_unsegmented.csv", ".viewlines_counts.json"),
-    "targets": ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy"),
-    "report": REPORT_FILES,
-}
-# ... and the steps whose outputs it reads
-NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines": ("eyes", "tracking"),
-         "targets": ("viewlines",), "report": ("targets",)}
-OPTIONAL = ("overlay.webp", "overlay_error.txt")     # written or not: not needed to skip a step
-OTHER_FILES = ("summary.json", ".steps.json")
-GOOD = ("done", "cached", "external")          # a step's outputs (or the file given instead) are usable
-
-
-@dataclass
-class ProcessResult:
-    """What ``process_session`` did.
-
-    Attributes:
-        out: the output folder.
-        found: the targets estimated in this run (``Target``); empty when the targets step
-            failed or could not run. ``targets``: the same as rows of targets.json.
-        problems: one line per problem, ``"step: what went wrong"``.
-        skipped: steps whose outputs were up to date.
-        timings: seconds per step run.
-        summary: the contents of summary.json.
-        status: per step: done, cached, external (a file given instead), failed, not_done (a step
-            it needs failed), no_recording (a calibration-only session), or absent (not asked for).
-        removed: outputs of an earlier run removed because this run invalidated them.
-    """
-
-    out: Path
-    found: list = field(default_factory=list)
-    problems: list = field(default_factory=list)
-    skipped: list = field(default_factory=list)
-    timings: dict = field(default_factory=dict)
-    summary: dict = field(default_factory=dict)
-    status: dict = field(default_factory=dict)
-    removed: list = field(default_factory=list)
-
-    @property
-    def targets(self) -> list[dict]:
-        """This run's targets as rows of targets.json (as summary.json holds them)."""
-        return [t.row() for t in self.found]
-
-    @property
-    def failed(self) -> list:
-        return [s for s in STEPS if self.status.get(s) == "failed"]
-
-    @property
-    def not_done(self) -> list:
-        return [s for s in STEPS if self.status.get(s) == "not_done"]
-
-    @property
-    def exit_status(self) -> int:
-        """2 when no target could be estimated (docs/processing.md), else 0."""
-        return 0 if self.found else 2
-
-
-def _fingerprint(paths, params) -> str:
-    h = hashlib.sha1()
-    for p in paths:
-        p = Path(p)
-        if p.is_dir():
-            for q in sorted(p.rglob("*")):
-                if q.is_file():
-                    st = q.stat()
-                    h.update(f"{q}:{st.st_size}:{st.st_mtime_ns}".encode())
-        elif p.exists():
-            st = p.stat()
-            h.update(f"{p}:{st.st_size}:{st.st_mtime_ns}".encode())
-        else:
-            h.update(f"{p}:missing".encode())
-    h.update(json.dumps(params, sort_keys=True, default=str).encode())
-    return h.hexdigest()
-
-
-class _Steps:
-    """Runs steps with caching and problem recording, and keeps the output folder consistent:
-    a step being redone has no outputs until it succeeds, and the outputs of a step that failed
-    or could not run (or depends on one that did) are removed."""
-
-    def __init__(self, out: Path, force: bool, result: ProcessResult, progress_factory, protect=()):
-        self.out = out
-        self.force = force
-        self.result = result
-        self.progress_factory = progress_factory
-        self.protect = {Path(p).resolve() for p in protect}      # files given as inputs: never removed
-        self.state_path = out / ".steps.json"
-        self.status = result.status
-        self.given = set()                                        # steps replaced by a file given
-        self.current = None
-        self.state = {} if force else self._load_state()
-
-    def _load_state(self) -> dict:
-        if not self.state_path.is_file():
-            return {}
-        try:
-            state = json.loads(self.state_path.read_text(encoding="utf-8"))
-            if not isinstance(state, dict) or not all(isinstance(v, str) for v in state.values()):
-                raise ValueError("not a {step: fingerprint} object")
-        except (ValueError, UnicodeDecodeError) as exc:            # JSONDecodeError is a ValueError
-            log.warning("%s is unreadable (%s); redoing every step", self.state_path, exc)
-            return {}
-        return state
-
-    def run(self, name, inputs, params, fn) -> bool:
-        """Run ``fn(progress)`` unless its fingerprint matches and its outputs exist. Returns
-        True when the outputs are usable."""
-        bad = [d for d in NEEDS[name] if self.status.get(d) not in GOOD]
-        if bad:
-            self.status[name] = "not_done"
-            return False
-        fp = _fingerprint(inputs, params)
-        needed = [self.out / o for o in OUTPUTS[name] if o not in OPTIONAL]
-        if not self.force and self.state.get(name) == fp and all(o.is_file() for o in needed):
-            self.result.skipped.append(name)
-            self.status[name] = "cached"
-            return True
-        self.current = name
-        self._remove(name)                        # redone: no output of the old run until it succeeds
-        t0 = time.perf_counter()
-        try:
-            if self.progress_factory is not None:
-                with self.progress_factory(name) as cb:
-                    fn(cb)
-            else:
-                fn(None)
-        except UserError as exc:
-            self.fail(name, str(exc))
-            return False
-        finally:
-            self.current = None
-        self.result.timings[name] = time.perf_counter() - t0
-        self.status[name] = "done"
-        self.state[name] = fp
-        self._save()
-        return True
-
-    def external(self, name, path: Path, load) -> bool:
-        """The step is replaced by a file the user gave (its outputs in OUT are left alone),
-        checked once here with ``load(path)`` rather than by every step that reads it."""
-        self.given.add(name)
-        if not path.is_file():
-            self.fail(name, f"{path}: no such file; check the --{name} path, or leave the option out to calibrate "
-                            "from the session")
-            return False
-        try:
-            load(path)
-        except UserError as exc:
-            self.fail(name, str(exc))
-            return False
-        self.status[name] = "external"
-        return True
-
-    def fail(self, name, message: str | None = None) -> None:
-        self.status[name] = "failed"
-        if message:
-            self.result.problems.append(f"{name}: {message}")
-        self._remove(name)
-
-    def finish(self, aborted: bool = False) -> None:
-        """Mark what did not run and remove every output that is no longer this run's: of a
-        step that failed, of one that needs a failed one, of one not run whose inputs were
-        redone. ``aborted``: an exception is on its way out of the step running now."""
-        if aborted and self.current is not None:
-            self.status[self.current] = "failed"
-        for name in STEPS:
-            st = self.status.get(name)
-            upstream = [self.status.get(d) for d in NEEDS[name]]
-            if st is None and any(u not in GOOD for u in upstream):
-                if aborted or any(u in ("failed", "not_done") for u in upstream):
-                    self.status[name] = "not_done"
-            if self.status.get(name) in ("failed", "not_done", "no_recording") or (st is None and "done" in upstream):
-                self._remove(name)
-
-    def _remove(self, name) -> None:
-        if name in self.given:
-            return
-        if self.state.pop(name, None) is not None:
-            self._save()
-        for f in OUTPUTS[name]:
-            p = self.out / f
-            if p.is_file() and p.resolve() not in self.protect:
-                p.unlink()
-                self.result.removed.append(p.name)
-                log.info("removed %s: step '%s' is not valid in this run", p, name)
-
-    def _save(self):
-        write_text(self.state_path, json.dumps(self.state, indent=1))
-
 
 @dataclass(frozen=True)
 class _Settings:
@@ -323,7 +126,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         camera = s.root / files["camera"]
     if eyes is None and "eyes" in files and "eye_calibration" not in files:
         eyes = s.root / files["eyes"]
-    steps = _Steps(out, force, res, progress_factory, [p for p in (camera, eyes) if p is not None])
+    steps = Steps(out, force, res, progress_factory, [p for p in (camera, eyes) if p is not None])
     for p in remove_temporaries(out, [f for fs in OUTPUTS.values() for f in fs] + list(OTHER_FILES)):
         log.warning("removed %s, a temporary file left by an earlier run that was stopped", p)
     if s.manifest.get("complete") is False:
@@ -351,7 +154,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     return _finish(res, s, out, method)
 
 
-def _calibration_steps(f: _SessionFiles, steps: _Steps, vals: _Values, camera: Path | None, eyes: Path | None,
+def _calibration_steps(f: _SessionFiles, steps: Steps, vals: _Values, camera: Path | None, eyes: Path | None,
                        out: Path) -> None:
     """1. camera, 2. eyes: calibrated from the session into OUT, or the files given (``camera``,
     ``eyes``) checked once and kept as values."""
@@ -377,7 +180,7 @@ def _calibration_steps(f: _SessionFiles, steps: _Steps, vals: _Values, camera: P
         steps.external("eyes", eyes_path, lambda p: vals.set("eyes", load_eyes(p)))
 
 
-def _recording_steps(f: _SessionFiles, out: Path, steps: _Steps, res: ProcessResult, vals: _Values, cam_path: Path,
+def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResult, vals: _Values, cam_path: Path,
                      eyes_path: Path, cfg: _Settings) -> None:
     """3. head tracking, 4. view lines, 5. fixations and targets, 6. plots, overlay, report."""
     poses_path = out / "poses.csv"
@@ -417,7 +220,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: _Steps, res: ProcessRes
         _report_step(f, out, steps, vals, eyes_path, cfg)
 
 
-def _report_step(f: _SessionFiles, out: Path, steps: _Steps, vals: _Values, eyes_path: Path, cfg: _Settings) -> None:
+def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_path: Path, cfg: _Settings) -> None:
     def overlay_inputs() -> OverlayInputs:
         return OverlayInputs(vals["camera"], vals["eyes"] if eyes_path.is_file() else None, vals["eye_samples"],
                              vals["marker_map"] if f.markers else None, f.video)
