@@ -132,15 +132,11 @@ def printable(text: str, limit: int = 60) -> str:
     return out if len(out) <= limit else out[:limit - 3] + "..."
 
 
-def write_table(path, columns: dict, formats: dict | None = None) -> None:
-    """Write {name: (N,) values} as a CSV, atomically. ``formats``: name -> format spec
-    ('.3f'); default ``repr`` for floats, ``str`` otherwise."""
-    formats = formats or {}
-    names = list(columns)
-    n = len(next(iter(columns.values()))) if names else 0
+def _cells(columns: dict, formats: dict) -> list[list[str]]:
+    """The cells of {name: (N,) values}, column by column: ``formats[name]`` ('.3f') where
+    given, else ``repr`` for floats (empty for NaN), 1/0 for booleans, ``str`` otherwise."""
     cols = []
-    for name in names:
-        v = columns[name]
+    for name, v in columns.items():
         fmt = formats.get(name)
         if fmt is not None:
             cols.append(["" if isinstance(x, float) and np.isnan(x) else format(x, fmt) for x in v])
@@ -150,8 +146,52 @@ def write_table(path, columns: dict, formats: dict | None = None) -> None:
             cols.append(["1" if x else "0" for x in v])
         else:
             cols.append([str(x) for x in v])
-    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(names)
-        for i in range(n):
-            w.writerow([c[i] for c in cols])
+    return cols
+
+
+class TableWriter:
+    """A CSV written in chunks, atomically: rows go to a temporary sibling and the file appears
+    under its name only when the ``with`` block ends without an error (memory stays flat in the
+    table's length; a reader never sees half a table).
+
+    Use: ``with TableWriter(path, names, formats) as w: w.write({name: (n,) values}); ...``
+    """
+
+    def __init__(self, path, names, formats: dict | None = None):
+        self.path = Path(path)
+        self.names = list(names)
+        self.formats = formats or {}
+        self.n_rows = 0
+        self._ctx = self._fh = self._w = None
+
+    def __enter__(self) -> TableWriter:
+        self._ctx = atomic_path(self.path)
+        tmp = self._ctx.__enter__()
+        self._fh = open(tmp, "w", newline="", encoding="utf-8")
+        self._w = csv.writer(self._fh)
+        self._w.writerow(self.names)
+        return self
+
+    def write(self, columns: dict) -> None:
+        """Append rows: {name: (n,) values} for every column of the header."""
+        missing = [c for c in self.names if c not in columns]
+        if missing:
+            raise ValueError(f"{self.path.name}: chunk lacks column(s) {', '.join(missing)}")
+        cols = _cells({k: columns[k] for k in self.names}, self.formats)
+        n = len(cols[0]) if cols else 0
+        if any(len(c) != n for c in cols):
+            raise ValueError(f"{self.path.name}: the chunk's columns differ in length")
+        self._w.writerows(zip(*cols, strict=True))
+        self.n_rows += n
+
+    def __exit__(self, exc_type, exc, tb):
+        self._fh.close()
+        return self._ctx.__exit__(exc_type, exc, tb)
+
+
+def write_table(path, columns: dict, formats: dict | None = None) -> None:
+    """Write {name: (N,) values} as a CSV, atomically. ``formats``: name -> format spec
+    ('.3f'); default ``repr`` for floats, ``str`` otherwise."""
+    with TableWriter(path, list(columns), formats) as w:
+        if columns:
+            w.write(columns)

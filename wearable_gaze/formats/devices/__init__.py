@@ -1,0 +1,46 @@
+"""Device recordings in: one module per device format, each mapping the device's frames and
+clock to ours explicitly (docs/importers.md). Each module has one reader and one writer:
+
+- ``NAME``: the format's name on the command line;
+- ``detect(src: Path) -> bool``: the folder holds this format (cheap: file names only);
+- ``read_recording(src, imp: SessionImport, options: ImportOptions, progress=None)``: streams the
+  recording into ``imp`` and calls ``imp.finish``;
+- ``write_recording(sim: SimulatedRecording, dst: Path)``: a simulated session in the device's
+  format (documented fields only), for the round-trip tests.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from ...errors import UserError
+
+# format name -> module (imported on demand: a vendor reader may be an optional extra)
+MODULES = {"pupil-core": "pupil_core", "pupil-neon": "neon", "tobii-g2": "tobii_g2", "tobii-g3": "tobii_g3",
+           "aria-mps": "aria"}
+
+
+def device_module(name: str):
+    """The module of format ``name`` (one of ``MODULES``)."""
+    if name not in MODULES:
+        raise UserError(f"unknown recording format '{name}'; use one of {', '.join(MODULES)}")
+    return importlib.import_module(f"{__name__}.{MODULES[name]}")
+
+
+def detect_format(src) -> str:
+    """The format of the recording folder ``src``, from the names of its files.
+
+    Raises:
+        UserError: no format, or more than one, matches.
+    """
+    src = Path(src)
+    if not src.is_dir():
+        raise UserError(f"{src}: {'a file, not a folder' if src.exists() else 'no such folder'}; pass the "
+                        "recording's folder")
+    found = [name for name in MODULES if device_module(name).detect(src)]
+    if len(found) != 1:
+        what = "none of the known formats" if not found else f"more than one format ({', '.join(found)})"
+        raise UserError(f"{src}: the folder matches {what}; pass --format {{{','.join(MODULES)}}} (docs/importers.md "
+                        "lists the files each needs)")
+    return found[0]
