@@ -1,0 +1,448 @@
+"""Pupil Labs Neon, native recording format ("pupil-neon"; docs/importers.md, research in
+docs/devices/tobii-pupil.md section 4).
+
+Files read (through Pupil Labs' reader ``pupil_labs.neon_recording``, the optional extra
+``wearable-gaze[neon]``: it joins multi-part files ``ps1, ps2, ...`` and reads each stream's
+``.dtype`` file, which changed across data-format versions):
+
+- ``info.json``: ``gaze_frequency`` (Hz), ``start_time`` (ns) for the report;
+- ``eye_state ps*.raw/.time`` + ``eye_state.dtype`` (required): per eye the eyeball centre (mm)
+  and optical axis in the scene camera's frame, and the eyelid aperture (mm);
+- ``worn ps*.raw``, ``blinks ps*.raw/.time`` (optional): samples not worn or inside a blink;
+- ``gaze ps*.raw/.time`` (or ``gaze_200hz``) + ``calibration.bin``: the 2D gaze (px) and the
+  scene camera's K and distortion, for the kappa offset (b) below and for ``camera.json``;
+- ``Neon Scene Camera v1 ps1.mp4`` + ``.time`` (optional): the scene video and its frame times.
+
+Frames. Neon reports the eye states in the scene camera's frame with OpenCV axes (x right,
+y down, z forward), mm; ``calibration.bin`` holds the scene camera's extrinsics, identity in
+every recording seen. That frame is our head frame: ``T_HEAD_FROM_NEON_SCENE`` = identity.
+
+Kappa. The eye states are optical axes: they diverge (median 4.1 deg on the demo recording)
+and the rays meet behind the head. The import turns them into visual axes with a constant
+per-eye Fick-angle offset (``calibration.kappa``), fitted either
+(a) ``targets``: from ``ImportOptions.kappa_recording``, a Neon recording folder holding
+    ``targets.csv`` (``t_start, t_end`` s on that recording's session clock, ``x, y, z`` mm in
+    its scene-camera frame: the point looked at during each interval), or
+(b) ``cyclopean-ray``: from Neon's own 2D gaze, undistorted through the scene camera's K and
+    distortion, taken as the cyclopean gaze ray from the scene camera, each eye's axis made to
+    meet it at the fixed depth ``KAPPA_DEPTH_MM`` (the depth is an assumption: see
+    ``calibration.kappa``; the report records it).
+
+Clock. Neon timestamps are Unix ns; session t = (t_ns - t_first) / 1e9 with t_first the first
+eye-state record, so ``clock_offset_s`` = t_first / 1e9 (Unix s). The report also gives the
+first sample's offset from ``info.json`` ``start_time`` (2.247 s in the demo recording).
+
+Dropped and counted: records the vendor reader cut because a ``.raw`` and its ``.time`` differ
+in length; times that do not increase; samples not worn, inside a blink, with implausible eye
+centres (beyond ``MAX_CENTER_MM`` or an eye distance outside ``IED_RANGE_MM``) or no valid eye;
+per eye: non-finite values, an axis not pointing forward, a closed lid (aperture below
+``MIN_APERTURE_MM``).
+
+What Neon lacks: a 3D gaze point (no ``device_gaze.csv``: its 2D gaze has no depth) and head
+poses (poses come from tracking the scene video with ``--markers``, else a still head).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import logging
+import shutil
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from calibration.camera import undistort_points
+from calibration.kappa import apply_kappa, fit_kappa_cyclopean, fit_kappa_targets, vergence
+
+from ...errors import UserError
+from ..tables import read_table
+from .common import ImportOptions, SessionImport, SimulatedRecording
+
+log = logging.getLogger(__name__)
+
+NAME = "pupil-neon"
+
+T_HEAD_FROM_NEON_SCENE = np.eye(4)
+"""Neon's scene-camera frame -> our head frame: identity. Neon's eye states are "relative to the
+scene camera in mm" (pupil_labs.neon_recording ``timeseries/eyeball.py``) with OpenCV axes
+(measured on the demo recording: left eye at -x, eyes below (+y) and behind (-z) the camera,
+axes with z ~ +0.98), and ``calibration.bin`` scene extrinsics are identity
+(docs/devices/tobii-pupil.md 4.3)."""
+
+KAPPA_DEPTH_MM = 1000.0     # kappa (b): the depth at which each eye's axis meets the 2D gaze ray
+MIN_APERTURE_MM = 1.0       # eyelid aperture below this: the eye is closed
+MAX_CENTER_MM = 100.0       # an eyeball centre farther than this from the scene camera is implausible
+IED_RANGE_MM = (45.0, 85.0)
+SCENE_VIDEO = "Neon Scene Camera v1"
+SCENE_SIZE = (1600, 1200)   # Neon's scene camera, px, when there is no video to read it from
+TARGETS = "targets.csv"
+CHUNK = 20000               # eye samples per chunk
+MAX_FIT_SAMPLES = 100000    # kappa (b) fits on at most this many samples, evenly spread
+EYE_STATE_FIELDS = 20       # float32 fields per eye_state record (data format 2.x)
+
+
+def detect(src: Path) -> bool:
+    """A Neon native folder: ``info.json`` and ``eye_state ps*.raw``."""
+    src = Path(src)
+    return (src / "info.json").is_file() and any(src.glob("eye_state ps*.raw"))
+
+
+def _vendor():
+    try:
+        import pupil_labs.neon_recording as nr  # noqa: PLC0415
+    except ImportError:
+        raise UserError("the pupil-neon importer needs Pupil Labs' reader: pip install 'wearable-gaze[neon]'") from None
+    return nr
+
+
+def _stream(rec, name: str, src: Path, files: str | None):
+    """The vendor's stream ``name``; a missing one is a UserError naming its files when
+    ``files`` is given (a required stream), else None."""
+    try:
+        return getattr(rec, name)
+    except rec.SensorError:
+        if files is None:
+            return None
+        raise UserError(f"{src}: the Neon '{name}' stream is missing or unreadable ({files}); copy the complete "
+                        "recording folder from the Companion device or Pupil Cloud's native export") from None
+
+
+def _open(src: Path):
+    nr = _vendor()
+    try:
+        rec = nr.open(src)
+        rec.info  # noqa: B018 (info.json is read lazily: fail here, not halfway)
+    except (FileNotFoundError, json.JSONDecodeError) as exc:
+        raise UserError(f"{src}: not a readable Neon recording ({exc.__class__.__name__}: info.json); pass the "
+                        "recording's folder") from None
+    return rec
+
+
+def _truncated(src: Path, base: str) -> int:
+    """Records of ``base ps*.raw`` the vendor reader drops: it cuts records and timestamps to
+    the shorter of the two, and ``np.fromfile`` ignores a trailing partial record."""
+    dtype_file = src / f"{base}.dtype"
+    size = (np.dtype(ast.literal_eval(dtype_file.read_text())).itemsize if dtype_file.is_file()
+            else 4 * EYE_STATE_FIELDS)
+    raw = sum(p.stat().st_size for p in src.glob(f"{base} ps*.raw"))
+    times = sum(p.stat().st_size for p in src.glob(f"{base} ps*.time"))
+    n_raw, n_time = raw / size, times / 8
+    return int(np.ceil(max(n_raw, n_time)) - min(n_raw // 1, n_time // 1))
+
+
+class _Eyes:
+    """One recording's eye states, read in chunks with their validity (shared by the import and
+    the kappa recording)."""
+
+    def __init__(self, src: Path, imp: SessionImport | None):
+        self.src, self.imp = src, imp
+        self.rec = _open(src)
+        self.eyes = _stream(self.rec, "eyeball", src, "eye_state ps*.raw/.time")
+        self.lids = _stream(self.rec, "eyelid", src, "eye_state ps*.raw/.time")
+        self.t_ns = np.asarray(self.eyes.time, np.int64)
+        if not len(self.t_ns):
+            raise UserError(f"{src}: the eye_state stream has no records; record again or check the copy")
+        self.t0 = int(self.t_ns[0])
+        worn = _stream(self.rec, "worn", src, None)
+        self.worn = None if worn is None else (np.asarray(worn.time, np.int64), np.asarray(worn.worn) != 0)
+        blinks = _stream(self.rec, "blinks", src, None)
+        self.blinks = None if blinks is None else (np.asarray(blinks.start_time), np.asarray(blinks.stop_time))
+        self.notes = [f"no '{n}' stream: not checked" for n, s in (("worn", worn), ("blinks", blinks)) if s is None]
+        # non-increasing times: kept only where above every earlier time
+        self.increasing = np.concatenate([[True], self.t_ns[1:] > np.maximum.accumulate(self.t_ns)[:-1]])
+
+    def _drop(self, reason: str, n: int) -> None:
+        if self.imp is not None:
+            self.imp.drop(reason, n)
+
+    def chunk(self, a: int, b: int) -> dict:
+        """Samples a..b-1: ``t`` (s, session clock), ``center``/``axis`` (2, n, 3) per eye
+        (left, right), ``eye_ok`` (2, n) and ``keep`` (n,) with each exclusion counted."""
+        part, lid = self.eyes[a:b], self.lids[a:b]
+        t_ns = self.t_ns[a:b]
+        c = np.stack([part.center_left, part.center_right]).astype(float)
+        d = np.stack([part.optical_axis_left, part.optical_axis_right]).astype(float)
+        aperture = np.stack([np.ravel(lid.aperture_left), np.ravel(lid.aperture_right)]).astype(float)
+        keep = self.increasing[a:b].copy()
+        self._drop("time not increasing", int((~keep).sum()))
+        if self.worn is not None:
+            i = np.clip(np.searchsorted(self.worn[0], t_ns, side="right") - 1, 0, len(self.worn[0]) - 1)
+            off = keep & ~self.worn[1][i]
+            self._drop("not worn", int(off.sum()))
+            keep &= ~off
+        if self.blinks is not None and len(self.blinks[0]):
+            j = np.searchsorted(self.blinks[0], t_ns, side="right") - 1
+            inside = keep & (j >= 0) & (t_ns <= self.blinks[1][np.clip(j, 0, None)])
+            self._drop("inside a blink (Neon's blinks stream)", int(inside.sum()))
+            keep &= ~inside
+        eye_ok = np.ones((2, len(t_ns)), bool)
+        for e, side in enumerate(("left", "right")):
+            finite = np.all(np.isfinite(c[e]), axis=1) & np.all(np.isfinite(d[e]), axis=1)
+            forward = finite & (np.nan_to_num(d[e][:, 2]) > 0)
+            closed = forward & ~(np.nan_to_num(aperture[e], nan=np.inf) >= MIN_APERTURE_MM)
+            for reason, bad in (("non-finite eye state", ~finite), ("optical axis not pointing forward",
+                                                                      finite & ~forward),
+                                (f"eyelid closed (aperture < {MIN_APERTURE_MM:g} mm)", closed)):
+                self._drop(f"{side} eye: {reason}", int((keep & bad).sum()))
+            eye_ok[e] = forward & ~closed
+        ied = np.linalg.norm(c[1] - c[0], axis=1)
+        far = np.nan_to_num(np.linalg.norm(c, axis=2), nan=0.0).max(axis=0) > MAX_CENTER_MM
+        odd = keep & (far | (eye_ok.all(axis=0) & ~((ied >= IED_RANGE_MM[0]) & (ied <= IED_RANGE_MM[1]))))
+        self._drop(f"implausible eye centres (beyond {MAX_CENTER_MM:g} mm, or eye distance outside "
+                   f"{IED_RANGE_MM[0]:g}-{IED_RANGE_MM[1]:g} mm)", int(odd.sum()))
+        keep &= ~odd
+        none = keep & ~eye_ok.any(axis=0)
+        self._drop("no valid eye", int(none.sum()))
+        keep &= ~none
+        return {"t": (t_ns - self.t0) / 1e9, "t_ns": t_ns, "center": c, "axis": d, "eye_ok": eye_ok & keep,
+                "keep": keep}
+
+    def chunks(self):
+        for a in range(0, len(self.t_ns), CHUNK):
+            yield a, self.chunk(a, min(a + CHUNK, len(self.t_ns)))
+
+
+def _gaze_rays(rec, src: Path, t_ns: np.ndarray, K, dist) -> np.ndarray:
+    """Neon's 2D gaze at the eye-state times (the nearest record within 5 ms), undistorted into
+    (n, 3) ray directions from the scene camera (NaN where none)."""
+    gaze = _stream(rec, "gaze", src, "gaze ps*.raw/.time, needed for the kappa offset without --kappa-recording")
+    tg = np.asarray(gaze.time, np.int64)
+    out = np.full((len(t_ns), 3), np.nan)
+    if not len(tg):
+        return out
+    j = np.clip(np.searchsorted(tg, t_ns), 1, max(len(tg) - 1, 1))
+    j = np.where(np.abs(tg[j - 1] - t_ns) <= np.abs(tg[np.minimum(j, len(tg) - 1)] - t_ns), j - 1, j)
+    j = np.minimum(j, len(tg) - 1)
+    near = np.abs(tg[j] - t_ns) <= 5_000_000
+    px = np.asarray(gaze[0:len(tg)].point, float)[j]
+    ok = near & np.all(np.isfinite(px), axis=1)
+    if ok.any():
+        out[ok] = np.column_stack([undistort_points(px[ok], K, dist), np.ones(int(ok.sum()))])
+    return out
+
+
+def _fit_cyclopean(eyes: _Eyes, K, dist):
+    """Kappa (b) on at most ``MAX_FIT_SAMPLES`` binocular samples spread over the recording."""
+    rows = []
+    step = max(1, len(eyes.t_ns) // MAX_FIT_SAMPLES)
+    for a in range(0, len(eyes.t_ns), CHUNK * step):
+        b = min(a + CHUNK * step, len(eyes.t_ns))
+        saved, eyes.imp = eyes.imp, None          # counted once, when the rays are written
+        ch = eyes.chunk(a, b)
+        eyes.imp = saved
+        sel = np.flatnonzero(ch["eye_ok"].all(axis=0))[::step]
+        rows.append((ch["center"][:, sel], ch["axis"][:, sel], _gaze_rays(eyes.rec, eyes.src, ch["t_ns"][sel], K,
+                                                                            dist)))
+    c = np.concatenate([r[0] for r in rows], axis=1)
+    d = np.concatenate([r[1] for r in rows], axis=1)
+    g = np.concatenate([r[2] for r in rows])
+    try:
+        return fit_kappa_cyclopean(c[0], d[0], c[1], d[1], g, KAPPA_DEPTH_MM), (c, d)
+    except ValueError as exc:
+        raise UserError(f"{eyes.src}: cannot fit the kappa offset from Neon's 2D gaze ({exc}); give a recording "
+                        "of known targets (--kappa-recording)") from None
+
+
+def _fit_targets(folder: Path):
+    """Kappa (a) from a Neon recording of known targets with ``targets.csv`` (module docstring)."""
+    tab = read_table(folder / TARGETS, ["t_start", "t_end", "x", "y", "z"], what="kappa targets CSV",
+                     fix=f"put {TARGETS} (t_start,t_end,x,y,z: s, mm in the scene-camera frame) in the recording")
+    order = np.argsort(tab["t_start"])
+    t0, t1 = tab["t_start"][order], tab["t_end"][order]
+    P = np.column_stack([tab["x"], tab["y"], tab["z"]])[order]
+    if np.any(t1 < t0) or np.any(t0[1:] <= t1[:-1]):
+        raise UserError(f"{folder / TARGETS}: target intervals must have t_end >= t_start and must not overlap")
+    eyes, rows = _Eyes(folder, None), []
+    for _, ch in eyes.chunks():
+        j = np.searchsorted(t0, ch["t"], side="right") - 1
+        on = (j >= 0) & (ch["t"] <= t1[np.clip(j, 0, None)])
+        ok = ch["eye_ok"] & on
+        rows.append([np.where(ok[e][:, None], x[e], np.nan) for e in (0, 1) for x in (ch["center"], ch["axis"])]
+                    + [P[np.clip(j, 0, None)]])
+    cols = [np.concatenate(r) for r in zip(*rows, strict=True)]
+    try:
+        return fit_kappa_targets(*cols)
+    except ValueError as exc:
+        raise UserError(f"{folder}: cannot fit the kappa offset from its targets ({exc}); check that the "
+                        f"{TARGETS} intervals cover valid eye samples (times in s from the first eye sample)") from None
+
+
+def _verge_summary(c, d, kappa=None) -> dict:
+    """Median vergence (deg), median depth of the rays' meeting points in front (mm) and the
+    share of samples meeting in front, of binocular samples (2, n, 3) arrays."""
+    if kappa is not None:
+        d = np.stack([apply_kappa(d[0], kappa.left.kappa_deg), apply_kappa(d[1], kappa.right.kappa_deg)])
+    if not d.shape[1]:
+        return {}
+    v = vergence(c[0], d[0], c[1], d[1])
+    front = v["in_front"]
+    return {"median_vergence_deg": float(np.median(v["vergence_deg"])), "in_front_share": float(front.mean()),
+            "median_depth_in_front_mm": float(np.median(v["depth_mm"][front])) if front.any() else None}
+
+
+def _camera(rec, imp: SessionImport, options: ImportOptions, src: Path):
+    """The scene camera: ``camera.json`` from calibration.bin, the scene video if present, the
+    marker map; returns (K, dist, image size, fps, pose source)."""
+    cal = rec.calibration
+    if cal is None:
+        raise UserError(f"{src}: no calibration.bin (the scene camera's intrinsics); copy it from the recording")
+    K, dist = np.asarray(cal.scene_camera_matrix, float), np.asarray(cal.scene_distortion_coefficients, float)
+    if not np.allclose(np.asarray(cal.scene_extrinsics_affine_matrix, float), np.eye(4), atol=1e-6):
+        imp.note("calibration.bin scene extrinsics are not identity; the eye states are taken as given in the "
+                 "scene camera's frame")
+    scene = _stream(rec, "scene", src, None)
+    size, fps = SCENE_SIZE, None
+    if scene is not None:
+        size = (int(scene.width), int(scene.height))
+        t = (np.asarray(scene.time, np.int64) - 0) / 1e9
+        fps = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else None
+    imp.set_camera(K, dist, size, serial=str(cal.serial))
+    if options.markers is not None:
+        imp.set_marker_map(options.markers)
+    return K, dist, size, fps, scene
+
+
+def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progress=None) -> None:
+    """Import a Neon native recording folder into ``imp`` (module docstring)."""
+    src = Path(src)
+    eyes = _Eyes(src, imp)
+    rec = eyes.rec
+    for stream, base in (("eye_state", "eye_state"),):
+        imp.count(stream, len(eyes.t_ns))
+        imp.drop(f"{base}: records cut by the reader (.raw and .time differ in length)", _truncated(src, base))
+    for n in eyes.notes:
+        imp.note(n)
+    K, dist, size, fps, scene = _camera(rec, imp, options, src)
+    if options.kappa_recording is not None:
+        kappa = _fit_targets(Path(options.kappa_recording))
+        sample = None
+    else:
+        kappa, sample = _fit_cyclopean(eyes, K, dist)
+    n = len(eyes.t_ns)
+    for a, ch in eyes.chunks():
+        k = ch["keep"]
+        vis = [apply_kappa(ch["axis"][e][k], kap.kappa_deg) for e, kap in enumerate((kappa.left, kappa.right))]
+        imp.add_rays(ch["t"][k], ch["center"][0][k], vis[0], ch["eye_ok"][0][k], ch["center"][1][k], vis[1],
+                     ch["eye_ok"][1][k])
+        if progress is not None:
+            progress(min(a + CHUNK, n), n)
+    pose_source = "still_head"
+    if scene is not None:
+        t_frames = (np.asarray(scene.time, np.int64) - eyes.t0) / 1e9
+        imp.add_scene_video(sorted(src.glob(f"{SCENE_VIDEO} ps*.mp4"))[0], t_frames)
+        if options.markers is not None:
+            pose_source = "scene_video"
+        else:
+            imp.note("scene video without a marker map (--markers): no head poses; the head is taken as still")
+    else:
+        imp.note(f"no scene video ('{SCENE_VIDEO} ps1.mp4'): no head poses; the head is taken as still")
+    imp.note("Neon gives no 3D gaze point (its 2D gaze has no depth): no device_gaze.csv")
+    _finish(imp, rec, eyes, kappa, sample, pose_source, size, fps)
+
+
+def _finish(imp, rec, eyes: _Eyes, kappa, sample, pose_source, size, fps) -> None:
+    rate = rec.info.get("gaze_frequency") or 1e9 / np.median(np.diff(eyes.t_ns))
+    k_report = {"method": kappa.method, "left_deg": kappa.left.kappa_deg.round(4).tolist(),
+                "right_deg": kappa.right.kappa_deg.round(4).tolist(),
+                "spread_deg": {"left": kappa.left.spread_deg.round(4).tolist(),
+                               "right": kappa.right.spread_deg.round(4).tolist()},
+                "samples": {"left": kappa.left.n, "right": kappa.right.n},
+                "convention": "degrees added to the optical axis's Fick angles (h + toward the wearer's right, "
+                              "v + down), head frame",
+                "depth_mm": kappa.depth_mm,
+                "source": ("Neon's 2D gaze ray at a fixed depth" if kappa.depth_mm is not None
+                           else "a recording of known targets")}
+    if sample is not None:
+        k_report["rays_before"] = _verge_summary(*sample)
+        k_report["rays_after"] = _verge_summary(*sample, kappa)
+    imp.note(f"kappa offset by {kappa.method}" + (f" at {kappa.depth_mm:g} mm" if kappa.depth_mm else "")
+             + f": left {k_report['left_deg']} deg, right {k_report['right_deg']} deg")
+    start = rec.start_time
+    clock = {"device_clock": "Unix ns", "session_t": "(t_ns - first eye_state t_ns) / 1e9",
+             "first_sample_ns": eyes.t0,
+             "first_sample_after_start_time_s": (eyes.t0 - start) / 1e9 if start else None}
+    frames = {"head": "Neon scene camera (OpenCV axes: x right, y down, z forward; mm)",
+              "T_head_from_neon_scene": T_HEAD_FROM_NEON_SCENE.tolist()}
+    imp.finish(float(rate), eyes.t0 / 1e9, pose_source, frames, image_size=size, fps=fps, kappa=k_report,
+               clock=clock)
+
+
+# --- writer ---------------------------------------------------------------------------------
+
+EYE_STATE_NAMES = [f"{f}_{s}{x}" for s in ("left", "right") for f, x in
+                   (("pupil_diameter", "_mm"), ("eyeball_center", "_x"), ("eyeball_center", "_y"),
+                    ("eyeball_center", "_z"), ("optical_axis", "_x"), ("optical_axis", "_y"), ("optical_axis", "_z"))]
+EYE_STATE_NAMES += [f"eyelid_{k}_{s}" + u for s in ("left", "right") for k, u in
+                    (("angle_top", ""), ("angle_bottom", ""), ("aperture", "_mm"))]
+CALIBRATION_DTYPE = np.dtype([("version", "u1"), ("serial", "6S"), *[
+    (f"{cam}_{k}", t) for cam in ("scene", "right", "left") for k, t in
+    (("camera_matrix", "(3,3)f8"), ("distortion_coefficients", "8f8"), ("extrinsics_affine_matrix", "(4,4)f8"))],
+    ("crc", "u4")])
+"""calibration.bin, 803 bytes (pupil_labs.neon_recording ``calib.py``)."""
+
+
+def _write_stream(dst: Path, base: str, names_types, columns: dict, t_ns=None) -> None:
+    """``<base> ps1.raw`` (records of ``<base>.dtype``), ``<base>.dtype`` and, with ``t_ns``,
+    ``<base> ps1.time`` (int64 ns)."""
+    dt = np.dtype(names_types)
+    rec = np.zeros(len(next(iter(columns.values()))), dt)
+    for k, v in columns.items():
+        rec[k] = v
+    rec.tofile(dst / f"{base} ps1.raw")
+    (dst / f"{base}.dtype").write_text("[\n" + "".join(f'("{n}", "{t}"),\n' for n, t in names_types) + "]\n")
+    if t_ns is not None:
+        np.asarray(t_ns, "<i8").tofile(dst / f"{base} ps1.time")
+
+
+def write_recording(sim: SimulatedRecording, dst: Path, kappa_deg: dict | None = None) -> None:
+    """Write a simulated session as a Neon native folder (the files the reader reads).
+
+    The simulated view lines are visual axes; the optical axes written are them with
+    ``kappa_deg`` ({'left': (h, v), 'right': (h, v)} degrees, default none) taken off, so an
+    import that recovers the offset gives the simulated lines back. The 2D gaze is the true
+    gazed point projected through the true scene camera.
+    """
+    dst = Path(dst)
+    dst.mkdir(parents=True, exist_ok=True)
+    cam = sim.camera
+    if cam.model != "pinhole" or len(cam.dist_coeffs) > 8:
+        raise ValueError("Neon's calibration.bin holds an 8-coefficient pinhole model; the simulated camera is "
+                         f"{cam.model} with {len(cam.dist_coeffs)} coefficients")
+    start_ns = 1_700_000_000_000_000_000
+    t_ns = start_ns + np.round(np.asarray(sim.t, float) * 1e9).astype(np.int64)
+    r = sim.rays
+    kappa = kappa_deg or {}
+    cols = {}
+    for side, o, d, v in (("left", r.left_origin_mm, r.left_direction, r.left_valid),
+                          ("right", r.right_origin_mm, r.right_direction, r.right_valid)):
+        k = -np.asarray(kappa.get(side, (0.0, 0.0)), float)
+        axis = apply_kappa(np.where(v[:, None], d, np.nan), k)
+        for a, i in zip("xyz", range(3), strict=True):
+            cols[f"eyeball_center_{side}_{a}"] = o[:, i]
+            cols[f"optical_axis_{side}_{a}"] = axis[:, i]
+        cols[f"pupil_diameter_{side}_mm"] = 3.5
+        cols[f"eyelid_aperture_{side}_mm"] = np.where(v, 8.0, 0.0)
+    _write_stream(dst, "eye_state", [(n, "float32") for n in EYE_STATE_NAMES], cols, t_ns)
+    px = cam.project(np.where(np.isfinite(sim.gaze_head_mm), sim.gaze_head_mm, [0.0, 0.0, 1.0]))
+    _write_stream(dst, "gaze", [("x", "float32"), ("y", "float32")], {"x": px[:, 0], "y": px[:, 1]}, t_ns)
+    _write_stream(dst, "worn", [("worn", "uint8")], {"worn": np.full(len(t_ns), 255)})
+    dist = np.zeros(8)
+    dist[:len(cam.dist_coeffs)] = cam.dist_coeffs
+    calib = np.zeros((), CALIBRATION_DTYPE)
+    calib["version"], calib["serial"] = 1, b"SIM001"
+    for c in ("scene", "right", "left"):
+        calib[f"{c}_camera_matrix"] = cam.camera_matrix if c == "scene" else np.eye(3)
+        calib[f"{c}_extrinsics_affine_matrix"] = np.eye(4)
+    calib["scene_distortion_coefficients"] = dist
+    body = calib.tobytes()[:-4]
+    calib["crc"] = zlib.crc32(body)    # Neon's checksum is not documented; the reader does not check it
+    (dst / "calibration.bin").write_bytes(calib.tobytes())
+    shutil.copyfile(sim.video, dst / f"{SCENE_VIDEO} ps1.mp4")
+    np.asarray(start_ns + np.round(np.asarray(sim.frame_times) * 1e9), "<i8").tofile(dst / f"{SCENE_VIDEO} ps1.time")
+    ied = np.nanmedian(np.linalg.norm(r.right_origin_mm - r.left_origin_mm, axis=1))
+    info = {"recording_id": "simulated", "data_format_version": "2.5", "start_time": start_ns,
+            "duration": int(t_ns[-1] - start_ns), "module_serial_number": "SIM001", "gaze_frequency": sim.eye_rate_hz,
+            "wearer_ied": round(float(ied), 1), "gaze_mode": "binocular", "gaze_offset": [0.0, 0.0]}
+    (dst / "info.json").write_text(json.dumps(info))
