@@ -57,7 +57,7 @@ from calibration.camera import undistort_points
 from calibration.kappa import apply_kappa, fit_kappa_cyclopean, fit_kappa_targets, vergence
 
 from ...errors import UserError
-from ..tables import read_table
+from ..tables import read_table, write_table
 from .common import ImportOptions, SessionImport, SimulatedRecording
 
 log = logging.getLogger(__name__)
@@ -80,6 +80,7 @@ SCENE_SIZE = (1600, 1200)   # Neon's scene camera, px, when there is no video to
 TARGETS = "targets.csv"
 CHUNK = 20000               # eye samples per chunk
 MAX_FIT_SAMPLES = 100000    # kappa (b) fits on at most this many samples, evenly spread
+MAX_TARGET_ROWS = 2000      # the writer's targets.csv
 EYE_STATE_FIELDS = 20       # float32 fields per eye_state record (data format 2.x)
 
 
@@ -122,14 +123,20 @@ def _open(src: Path):
 
 def _truncated(src: Path, base: str) -> int:
     """Records of ``base ps*.raw`` the vendor reader drops: it cuts records and timestamps to
-    the shorter of the two, and ``np.fromfile`` ignores a trailing partial record."""
+    the shorter of the two. A part ending in a partial record (the vendor cannot read it) is a
+    UserError giving the command that cuts it to whole records."""
     dtype_file = src / f"{base}.dtype"
     size = (np.dtype(ast.literal_eval(dtype_file.read_text())).itemsize if dtype_file.is_file()
             else 4 * EYE_STATE_FIELDS)
-    raw = sum(p.stat().st_size for p in src.glob(f"{base} ps*.raw"))
-    times = sum(p.stat().st_size for p in src.glob(f"{base} ps*.time"))
-    n_raw, n_time = raw / size, times / 8
-    return int(np.ceil(max(n_raw, n_time)) - min(n_raw // 1, n_time // 1))
+    n_raw = 0
+    for part in sorted(src.glob(f"{base} ps*.raw")):
+        n, rest = divmod(part.stat().st_size, size)
+        if rest:
+            raise UserError(f"{part}: ends in a partial {size}-byte record (the file was cut short); cut it to whole "
+                            f"records with: truncate -s {n * size} '{part}'")
+        n_raw += n
+    n_time = sum(p.stat().st_size for p in src.glob(f"{base} ps*.time")) // 8
+    return int(abs(n_raw - n_time))
 
 
 class _Eyes:
@@ -139,6 +146,7 @@ class _Eyes:
     def __init__(self, src: Path, imp: SessionImport | None):
         self.src, self.imp = src, imp
         self.rec = _open(src)
+        self.truncated = _truncated(src, "eye_state")
         self.eyes = _stream(self.rec, "eyeball", src, "eye_state ps*.raw/.time")
         self.lids = _stream(self.rec, "eyelid", src, "eye_state ps*.raw/.time")
         self.t_ns = np.asarray(self.eyes.time, np.int64)
@@ -223,23 +231,29 @@ def _gaze_rays(rec, src: Path, t_ns: np.ndarray, K, dist) -> np.ndarray:
     return out
 
 
-def _fit_cyclopean(eyes: _Eyes, K, dist):
-    """Kappa (b) on at most ``MAX_FIT_SAMPLES`` binocular samples spread over the recording."""
+def _binocular_sample(eyes: _Eyes, K=None, dist=None):
+    """At most ``MAX_FIT_SAMPLES`` binocular samples spread over the recording: centres and
+    optical axes (2, n, 3) and, with ``K``, Neon's 2D gaze rays (n, 3) (else None)."""
     rows = []
     step = max(1, len(eyes.t_ns) // MAX_FIT_SAMPLES)
-    for a in range(0, len(eyes.t_ns), CHUNK * step):
-        b = min(a + CHUNK * step, len(eyes.t_ns))
-        saved, eyes.imp = eyes.imp, None          # counted once, when the rays are written
-        ch = eyes.chunk(a, b)
+    saved, eyes.imp = eyes.imp, None          # counted once, when the rays are written
+    try:
+        for a in range(0, len(eyes.t_ns), CHUNK * step):
+            ch = eyes.chunk(a, min(a + CHUNK * step, len(eyes.t_ns)))
+            sel = np.flatnonzero(ch["eye_ok"].all(axis=0))[::step]
+            g = None if K is None else _gaze_rays(eyes.rec, eyes.src, ch["t_ns"][sel], K, dist)
+            rows.append((ch["center"][:, sel], ch["axis"][:, sel], g))
+    finally:
         eyes.imp = saved
-        sel = np.flatnonzero(ch["eye_ok"].all(axis=0))[::step]
-        rows.append((ch["center"][:, sel], ch["axis"][:, sel], _gaze_rays(eyes.rec, eyes.src, ch["t_ns"][sel], K,
-                                                                            dist)))
     c = np.concatenate([r[0] for r in rows], axis=1)
     d = np.concatenate([r[1] for r in rows], axis=1)
-    g = np.concatenate([r[2] for r in rows])
+    return c, d, None if K is None else np.concatenate([r[2] for r in rows])
+
+
+def _fit_cyclopean(eyes: _Eyes, c, d, g):
+    """Kappa (b): each eye's axis meets Neon's 2D gaze ray at ``KAPPA_DEPTH_MM``."""
     try:
-        return fit_kappa_cyclopean(c[0], d[0], c[1], d[1], g, KAPPA_DEPTH_MM), (c, d)
+        return fit_kappa_cyclopean(c[0], d[0], c[1], d[1], g, KAPPA_DEPTH_MM)
     except ValueError as exc:
         raise UserError(f"{eyes.src}: cannot fit the kappa offset from Neon's 2D gaze ({exc}); give a recording "
                         "of known targets (--kappa-recording)") from None
@@ -309,17 +323,20 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
     src = Path(src)
     eyes = _Eyes(src, imp)
     rec = eyes.rec
-    for stream, base in (("eye_state", "eye_state"),):
-        imp.count(stream, len(eyes.t_ns))
-        imp.drop(f"{base}: records cut by the reader (.raw and .time differ in length)", _truncated(src, base))
+    imp.count("eye_state", len(eyes.t_ns))
+    imp.drop("eye_state: records cut by the reader (.raw and .time differ in length)", eyes.truncated)
     for n in eyes.notes:
         imp.note(n)
     K, dist, size, fps, scene = _camera(rec, imp, options, src)
-    if options.kappa_recording is not None:
-        kappa = _fit_targets(Path(options.kappa_recording))
-        sample = None
+    kappa_src = options.kappa_recording or (src if (src / TARGETS).is_file() else None)
+    if kappa_src is not None:
+        if Path(kappa_src) == src:
+            imp.note(f"the recording holds {TARGETS}: the kappa offset is fitted on its own target intervals")
+        kappa = _fit_targets(Path(kappa_src))
+        sample = _binocular_sample(eyes)
     else:
-        kappa, sample = _fit_cyclopean(eyes, K, dist)
+        sample = _binocular_sample(eyes, K, dist)
+        kappa = _fit_cyclopean(eyes, *sample)
     n = len(eyes.t_ns)
     for a, ch in eyes.chunks():
         k = ch["keep"]
@@ -354,9 +371,8 @@ def _finish(imp, rec, eyes: _Eyes, kappa, sample, pose_source, size, fps) -> Non
                 "depth_mm": kappa.depth_mm,
                 "source": ("Neon's 2D gaze ray at a fixed depth" if kappa.depth_mm is not None
                            else "a recording of known targets")}
-    if sample is not None:
-        k_report["rays_before"] = _verge_summary(*sample)
-        k_report["rays_after"] = _verge_summary(*sample, kappa)
+    k_report["rays_before"] = _verge_summary(*sample[:2])
+    k_report["rays_after"] = _verge_summary(*sample[:2], kappa)
     imp.note(f"kappa offset by {kappa.method}" + (f" at {kappa.depth_mm:g} mm" if kappa.depth_mm else "")
              + f": left {k_report['left_deg']} deg, right {k_report['right_deg']} deg")
     start = rec.start_time
@@ -396,13 +412,15 @@ def _write_stream(dst: Path, base: str, names_types, columns: dict, t_ns=None) -
         np.asarray(t_ns, "<i8").tofile(dst / f"{base} ps1.time")
 
 
-def write_recording(sim: SimulatedRecording, dst: Path, kappa_deg: dict | None = None) -> None:
+def write_recording(sim: SimulatedRecording, dst: Path, kappa_deg: dict | None = None, targets: bool = True) -> None:
     """Write a simulated session as a Neon native folder (the files the reader reads).
 
     The simulated view lines are visual axes; the optical axes written are them with
     ``kappa_deg`` ({'left': (h, v), 'right': (h, v)} degrees, default none) taken off, so an
     import that recovers the offset gives the simulated lines back. The 2D gaze is the true
-    gazed point projected through the true scene camera.
+    gazed point projected through the true scene camera. With ``targets``, ``targets.csv``
+    holds the true gazed point (head frame) at up to ``MAX_TARGET_ROWS`` samples, so the
+    recording is its own known-target recording (kappa method (a)).
     """
     dst = Path(dst)
     dst.mkdir(parents=True, exist_ok=True)
@@ -446,3 +464,16 @@ def write_recording(sim: SimulatedRecording, dst: Path, kappa_deg: dict | None =
             "duration": int(t_ns[-1] - start_ns), "module_serial_number": "SIM001", "gaze_frequency": sim.eye_rate_hz,
             "wearer_ied": round(float(ied), 1), "gaze_mode": "binocular", "gaze_offset": [0.0, 0.0]}
     (dst / "info.json").write_text(json.dumps(info))
+    if targets:
+        _write_targets(dst / TARGETS, np.asarray(sim.t, float) - float(sim.t[0]), sim.gaze_head_mm)
+
+
+def _write_targets(path: Path, t, points_mm) -> None:
+    """``targets.csv``: one short interval (a quarter of the sample spacing each side) around
+    each of up to ``MAX_TARGET_ROWS`` samples with a gazed point."""
+    ok = np.flatnonzero(np.all(np.isfinite(points_mm), axis=1))
+    ok = ok[:: max(1, len(ok) // MAX_TARGET_ROWS)]
+    half = 0.25 * float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+    p = points_mm[ok]
+    write_table(path, {"t_start": t[ok] - half, "t_end": t[ok] + half, "x": p[:, 0], "y": p[:, 1], "z": p[:, 2]},
+                {"t_start": ".6f", "t_end": ".6f", "x": ".3f", "y": ".3f", "z": ".3f"})
