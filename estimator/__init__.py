@@ -4,7 +4,7 @@ Pure numpy/scipy maths (Open3D holds the voxel densities); no file, device or ne
 Frames and units: see ``estimator.frames``.
 """
 
-from .api import METHODS, density_point_cloud, estimate, make_estimator, run_estimator
+from .api import METHODS, batch_options, density_point_cloud, estimate, make_estimator, run_estimator
 from .likelihood import (
     MLConfig,
     angular_log_likelihood,
@@ -14,13 +14,13 @@ from .likelihood import (
     perturb_directions,
 )
 from .lines import (
-                    BinocularSample,
-                    BinocularSamples,
-                    ViewLines,
-                    calibration_plane_points,
-                    view_lines_in_camera,
-                    view_lines_to_camera,
-                    view_lines_to_world,
+    BinocularSample,
+    BinocularSamples,
+    ViewLines,
+    calibration_plane_points,
+    view_lines_in_camera,
+    view_lines_to_camera,
+    view_lines_to_world,
 )
 from .result import Ellipsoid, GazeEstimate, Status
 from .triangulation import PairStatus, closest_point_two_lines, lse_point, nearest_point_to_lines
@@ -29,7 +29,7 @@ from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEsti
 __all__ = [
     "METHODS", "BinocularSample", "BinocularSamples", "Ellipsoid", "GazeEstimate", "MLConfig",
     "PairStatus", "PaperVoxelConfig", "PaperVoxelEstimator", "Status", "ViewLines", "VoxelConfig",
-    "VoxelEstimator", "angular_log_likelihood", "calibration_plane_points", "closest_point_two_lines",
+    "VoxelEstimator", "angular_log_likelihood", "batch_options", "calibration_plane_points", "closest_point_two_lines",
     "cramer_rao_bound",
     "density_point_cloud", "estimate", "fisher_information", "lse_point", "make_estimator",
     "ml_point", "nearest_point_to_lines", "perturb_directions", "run_estimator",

@@ -90,6 +90,16 @@ def make_estimator(method: str = DEFAULT_METHOD, sigma_deg: float = 1.0, **optio
     return LinesEstimator(method)
 
 
+def batch_options(method: str, n_samples: int, **options) -> dict:
+    """``options`` for an estimator that will be fed a known batch of ``n_samples``: the paper's
+    method seeds after ``PaperVoxelConfig.seed_samples`` (20) samples, more than a short fixation
+    at a low eye rate has (Aria: 5 samples in 0.5 s at 10 Hz), so it seeds from the whole batch
+    then (at least 2 samples). Other methods answer from 2 lines already."""
+    if method == "paper" and "seed_samples" not in options and n_samples < PaperVoxelConfig.seed_samples:
+        options = {**options, "seed_samples": max(2, int(n_samples))}
+    return options
+
+
 def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,
                   **options):
     """Feed a batch of binocular samples (world frame) to a new estimator; return
@@ -100,7 +110,7 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
     """
     if samples.frame != "world":
         raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
-    est = make_estimator(method, sigma_deg, **options)
+    est = make_estimator(method, sigma_deg, **batch_options(method, len(samples), **options))
     if method == "voxel":
         seed = est.config.seed_samples
         result = est.add(samples.select(slice(0, seed)))

@@ -44,6 +44,15 @@ class SegmentConfig:
     max_gap_s: float = 0.5
     trim_s: float = 0.05
 
+    @classmethod
+    def for_rate(cls, rate_hz: float, **settings) -> SegmentConfig:
+        """The settings for eye samples at ``rate_hz``: the window spans the same 0.13 s as the
+        default's 8 samples at 60 Hz, and at least 2 samples (10 Hz: 2 a side, so a 0.5 s
+        fixation of 5 samples is found; 200 Hz: 27). ``settings`` override the others."""
+        if not (np.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        return cls(window=max(2, int(round(cls.window * rate_hz / 60.0))), **settings)
+
 
 def cyclopean_directions(samples: BinocularSamples) -> np.ndarray:
     """(N, 3) unit mean of the valid eyes' directions (NaN where neither is valid)."""

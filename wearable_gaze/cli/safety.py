@@ -21,6 +21,8 @@ OUTPUTS = {
               ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],
     "simulate": [("out", True, ("scenario",))],
     "process": [("out", True, ("session", "camera", "eyes"))],
+    "import": [("out", True, ("src", "markers", "camera", "kappa_recording"))],
+    "export-recording": [("out", True, ("session",))],
     "live": [("record", True, ("camera", "camera_calib", "eyes", "markers"))],
     "demo": [("out", True, ())],
 }

@@ -12,9 +12,12 @@ import contextlib
 import logging
 import os
 import re
+import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+
+from ..errors import UserError, check_output
 
 log = logging.getLogger(__name__)
 
@@ -91,3 +94,30 @@ def remove_temporaries(folder, names) -> list[Path]:
 def glob_escape(text: str) -> str:
     """``text`` with the glob metacharacters ``*?[`` taken literally."""
     return re.sub(r"([*?\[])", r"[\1]", text)
+
+
+@contextmanager
+def atomic_folder(out_dir, option: str = "-o"):
+    """Yield a temporary folder beside ``out_dir`` to build a folder in; on success it becomes
+    ``out_dir``, on error it goes, so a failure leaves nothing half-written and nothing of the
+    user's is touched.
+
+    Raises:
+        UserError: ``out_dir`` exists and is not an empty folder.
+    """
+    out_dir = Path(out_dir)
+    check_output(out_dir, (), option, folder=True)
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise UserError(f"{out_dir}: already exists and is not empty; choose a new {option} folder")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        yield tmp
+        if out_dir.exists():
+            out_dir.rmdir()
+        os.chmod(tmp, 0o777 & ~_umask())                  # mkdtemp makes 0700
+        tmp.rename(out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+

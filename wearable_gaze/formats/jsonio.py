@@ -110,9 +110,11 @@ def _describe(err) -> str:
     if v == "propertyNames":
         return f"key {got}: expected {short(err.validator_value.get('pattern', ''))}"
     if v in ("anyOf", "oneOf"):
-        keys = [r["required"][0] for r in err.validator_value if "required" in r]
-        if keys:
-            return f"needs one of the keys {', '.join(keys)}"
+        alts = [r["required"] for r in err.validator_value if "required" in r]
+        if alts and all(len(a) == 1 for a in alts):
+            return f"needs one of the keys {', '.join(a[0] for a in alts)}"
+        if alts and isinstance(inst, dict):
+            return "missing keys: " + " or ".join(", ".join(k for k in a if k not in inst) for a in alts)
     return f"{err.message[:120]}" if "\n" not in err.message else f"{v} check failed, got {got}"
 
 

@@ -14,7 +14,11 @@ targets.json, exact). ``target_labels.npy`` has ``write_target_labels`` and
 ``read_target_labels``. ``estimates.csv`` has one row per usable estimate while a fixation's view
 lines were fed in, as a live session would: ``t`` (s, the last line fed), ``segment`` (the
 fixation), ``x, y, z`` (world frame, mm) and ``radius95_mm``, a header alone when no fixation gave
-an estimate; ``write_estimates`` and ``read_estimates``. The rows are plain dicts here;
+an estimate; ``write_estimates`` and ``read_estimates``. ``device_comparison.csv`` (an imported
+session) sets each target beside the device's own 3D gaze: ``target``, ``n_samples``,
+``ours_distance_mm`` (our estimate's distance from the head, median over the target's samples),
+``device_depth_mm`` (the device's gaze depth, median over the same samples), ``ours_x_mm..z``;
+``write_device_comparison`` and ``read_device_comparison``. The rows are plain dicts here;
 ``pipeline.types.Target`` converts (``Target.row`` / ``Target.from_row``).
 """
 
@@ -99,3 +103,19 @@ def read_estimates(path) -> dict:
         UserError: a missing file, a missing column, a cell that is not a number (one line).
     """
     return read_table(path, list(ESTIMATE_COLUMNS), what="running-estimate CSV (estimates.csv)", rows_required=False)
+
+
+DEVICE_COLUMNS = ("target", "n_samples", "ours_distance_mm", "device_depth_mm", "ours_x_mm", "ours_y_mm", "ours_z_mm")
+
+
+def write_device_comparison(path, rows: list[dict]) -> None:
+    """device_comparison.csv: one row per target with ``DEVICE_COLUMNS`` (mm; NaN: none)."""
+    cols = {k: np.array([r[k] for r in rows], float if k.endswith("_mm") else int) for k in DEVICE_COLUMNS}
+    write_table(path, cols, {k: ".1f" for k in DEVICE_COLUMNS if k.endswith("_mm")})
+
+
+def read_device_comparison(path) -> dict:
+    """device_comparison.csv -> {column: (N,) array} (``DEVICE_COLUMNS``; NaN where empty)."""
+    mm = tuple(k for k in DEVICE_COLUMNS if k.endswith("_mm"))
+    return read_table(path, list(DEVICE_COLUMNS), what="device-comparison CSV", empty_ok=mm, rows_required=False)
+

@@ -29,7 +29,8 @@ from calibration.eyes import (
     target_readings,
     wall_pose,
 )
-from estimator import BinocularSamples, view_lines_to_world
+from estimator import BinocularSamples
+from estimator.frames import rotate_directions, transform_points
 from tracking.markers import MarkerDetector
 from tracking.timeline import interpolate_poses
 
@@ -371,17 +372,34 @@ def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = 0.1
     sample; samples without a pose within ``max_gap_s`` are dropped and counted, invalid eyes
     stay empty (monocular samples are kept). ``eyes``: the (left, right) calibrations;
     ``source``: where the poses come from, for the message when none is near a sample."""
-    T_wc, ok = interpolate_poses(poses.t, poses.T_world_from_cam, eye.t, max_gap_s)
-    keep = ok & eye.valid.any(axis=1)
+    arrays = []
+    for e, cal in enumerate(eyes[:2]):
+        lines = cal.lines(eye.raw[:, e])
+        arrays += [lines.origins_mm, np.where(eye.valid[:, e][:, None], lines.directions, np.nan)]
+    head = BinocularSamples.from_arrays(eye.t, *arrays, frame="head")
+    return head_lines_to_world(head, poses, max_gap_s, source)
+
+
+def head_lines_to_world(head: BinocularSamples, poses: Poses, max_gap_s: float = 0.1, source="the poses"
+                        ) -> ViewLinesResult:
+    """View lines in the head frame (``frame="head"``: calibrated eye samples, or a device's
+    eye rays) -> world view lines, with the head poses ``T_world_from_cam`` interpolated to each
+    sample. Samples without a pose within ``max_gap_s`` are dropped and counted, as are those
+    with neither eye valid; monocular samples are kept.
+
+    Raises:
+        UserError: no valid sample has a pose (naming ``source``).
+    """
+    T_wc, ok = interpolate_poses(poses.t, poses.T_world_from_cam, head.t_s, max_gap_s)
+    valid = head.left_valid | head.right_valid
+    keep = ok & valid
     if not keep.any():
         raise UserError(f"{source}: no head pose within {max_gap_s} s of any valid eye sample; check that the eye "
                         "samples and the poses share one clock (or raise --max-gap)")
     idx = np.flatnonzero(keep)
     arrays = []
-    for e, cal in enumerate(eyes[:2]):
-        lw = view_lines_to_world(cal.lines(eye.raw[idx, e]), T_world_from_cam=T_wc[idx])
-        d = np.where(eye.valid[idx, e][:, None], lw.directions, np.nan)     # blinks stay marked: empty
-        arrays += [lw.origins_mm, d]
-    samples = BinocularSamples.from_arrays(eye.t[idx], *arrays)
-    return ViewLinesResult(samples, {"samples": int(len(eye)), "written": int(len(idx)), "no_pose": int((~ok).sum()),
-                                     "both_eyes_invalid": int((ok & ~eye.valid.any(axis=1)).sum())})
+    for o, d in ((head.left_origin_mm, head.left_direction), (head.right_origin_mm, head.right_direction)):
+        arrays += [transform_points(T_wc[idx], o[idx]), rotate_directions(T_wc[idx], d[idx])]   # eq. 7-8
+    samples = BinocularSamples.from_arrays(head.t_s[idx], *arrays)
+    return ViewLinesResult(samples, {"samples": int(len(head)), "written": int(len(idx)), "no_pose": int((~ok).sum()),
+                                     "both_eyes_invalid": int((ok & ~valid).sum())})

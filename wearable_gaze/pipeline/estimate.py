@@ -11,6 +11,7 @@ import numpy as np
 from estimator import (
     BinocularSamples,
     GazeEstimate,
+    batch_options,
     cramer_rao_bound,
     density_point_cloud,
     make_estimator,
@@ -28,7 +29,7 @@ def running_estimate(samples: BinocularSamples, method: str, sigma_deg: float,
     """The estimator fed one fixation's samples (N,) in about ``chunks`` chunks, as a live session
     would. Returns the last estimate (None without samples) and the usable ones as (time of the
     chunk's last sample s, estimate) pairs."""
-    stream = make_estimator(method, sigma_deg)
+    stream = make_estimator(method, sigma_deg, **batch_options(method, len(samples)))
     bounds = np.unique(np.linspace(0, len(samples), min(chunks + 1, len(samples) + 1)).astype(int))
     e, usable = None, []
     for j0, j1 in zip(bounds[:-1], bounds[1:], strict=True):

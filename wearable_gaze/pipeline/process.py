@@ -31,6 +31,7 @@ from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
 from .calibrate import calibrate_camera_files, calibrate_eyes, read_eye_recordings, view_lines
+from .device import POSE_NOTES, device_comparison, device_poses, ray_view_lines, still_head_poses
 from .fixations import find_targets, write_targets_step
 from .report import OverlayInputs, write_report
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
@@ -61,13 +62,20 @@ class _SessionFiles:
     markers: Path | None
     stamps: Path | None
     eye_samples: Path | None
+    eye_rays: Path | None = None            # an imported session: the device's rays, head frame
+    head_poses: Path | None = None          # ... the device's head poses
+    device_gaze: Path | None = None         # ... the device's own 3D gaze (comparison only)
+    pose_source: str | None = None          # ... 'device', 'scene_video' or 'still_head'
+    eye_rate_hz: float | None = None
 
     @classmethod
     def of(cls, s) -> _SessionFiles:
         files = s.manifest["files"]
         return cls(s.root, s.root / files.get("camera_views", "calibration/camera"),
                    s.root / files.get("eye_calibration", "calibration/eye"), s.manifest.get("has_recording", True),
-                   s.path("scene_video"), s.path("marker_map"), s.path("scene_timestamps"), s.path("eye_samples"))
+                   s.path("scene_video"), s.path("marker_map"), s.path("scene_timestamps"), s.path("eye_samples"),
+                   s.path("eye_rays"), s.path("head_poses"), s.path("device_gaze"),
+                   s.manifest.get("source", {}).get("pose_source"), s.manifest.get("eye_rate_hz"))
 
 
 class _Values:
@@ -134,8 +142,10 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
                            if isinstance(s.manifest.get(k), int))
         res.problems.append(f"session: {s.root / 'session.json'} says the recording was cut short (complete: "
                             f"false{'; ' + counts + ' saved' if counts else ''}); processing what was recorded")
-    cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config or SegmentConfig())
     f = _SessionFiles.of(s)
+    if segment_config is None:          # the window follows the eye rate: 8 samples at 60 Hz, 2 at 10 Hz
+        segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
+    cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config)
     cam_path = Path(camera) if camera else out / "camera.json"
     eyes_path = Path(eyes) if eyes else out / "eyes.json"
     vals = _Values(f, cam_path, eyes_path, out)
@@ -157,8 +167,16 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
 def _calibration_steps(f: _SessionFiles, steps: Steps, vals: _Values, camera: Path | None, eyes: Path | None,
                        out: Path) -> None:
     """1. camera, 2. eyes: calibrated from the session into OUT, or the files given (``camera``,
-    ``eyes``) checked once and kept as values."""
+    ``eyes``) checked once and kept as values. An imported session needs neither: the device
+    calibrated its eyes, and its camera file (if any) is taken as given."""
     cam_path, eyes_path = camera or out / "camera.json", eyes or out / "eyes.json"
+    if f.eye_rays is not None:
+        if camera is not None:
+            steps.external("camera", cam_path, lambda p: vals.set("camera", load_camera(p)))
+        else:
+            steps.status["camera"] = "device"
+        steps.status["eyes"] = "device"
+        return
     if camera is None:
         board_file = f.camera_views / BOARD_FILE
 
@@ -184,30 +202,26 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
                      eyes_path: Path, cfg: _Settings) -> None:
     """3. head tracking, 4. view lines, 5. fixations and targets, 6. plots, overlay, report."""
     poses_path = out / "poses.csv"
-
-    def do_tracking(cb):
-        cam, mm = vals["camera"], vals["marker_map"]
-        poses = track_video(f.video, cam, mm, frame_times(f.video, f.stamps), cfg.track_every, cb)
-        write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
-    if f.markers is None:
-        steps.fail("tracking", "the session has no marker map (markers.json); track it with "
-                               "'wearable-gaze track --reference' and pass the poses")
-    else:
-        steps.run("tracking", [f.video, cam_path, f.markers, f.stamps], {"every": cfg.track_every}, do_tracking)
-
+    _tracking_step(f, steps, vals, cam_path, poses_path, cfg)
     raw_vl, counts_path = out / ".viewlines_unsegmented.csv", out / ".viewlines_counts.json"
 
     def do_viewlines(cb):
-        result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], source=poses_path)
+        if f.eye_rays is not None:
+            result = ray_view_lines(f.eye_rays, vals["poses"], 0.1, poses_path)
+        else:
+            result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], source=poses_path)
         write_viewlines_csv(raw_vl, result.samples)
         write_json(counts_path, result.counts)
-    if steps.run("viewlines", [f.eye_samples, eyes_path, poses_path], {}, do_viewlines):
+    eye_inputs = [f.eye_rays] if f.eye_rays is not None else [f.eye_samples, eyes_path]
+    if steps.run("viewlines", eye_inputs + [poses_path], {}, do_viewlines):
         res.summary["viewlines"] = json.loads(counts_path.read_text(encoding="utf-8"))
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
         result = find_targets(samples, segment_fixations(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb)
         write_targets_step(out, result, cfg.method)
+        if f.device_gaze is not None:
+            device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
         vals.set("targets", result.targets)
     params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__}
     if steps.run("targets", [raw_vl], params, do_targets):
@@ -220,14 +234,41 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
         _report_step(f, out, steps, vals, eyes_path, cfg)
 
 
+def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path, poses_path: Path,
+                   cfg: _Settings) -> None:
+    """3. head poses: the device's, a still head's, or tracked in the scene video."""
+    if f.eye_rays is not None and f.pose_source == "device":
+        steps.run("tracking", [f.head_poses], {"source": "device"}, lambda cb: device_poses(f.head_poses, poses_path))
+        return
+    if f.eye_rays is not None and f.pose_source == "still_head":
+        steps.run("tracking", [f.eye_rays], {"source": "still_head"},
+                  lambda cb: still_head_poses(f.eye_rays, poses_path))
+        return
+
+    def do_tracking(cb):
+        cam, mm = vals["camera"], vals["marker_map"]
+        poses = track_video(f.video, cam, mm, frame_times(f.video, f.stamps), cfg.track_every, cb)
+        write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
+    if f.markers is None:
+        fix = ("re-import it with --markers markers.json" if f.eye_rays is not None else
+               "track it with 'wearable-gaze track --reference' and pass the poses")
+        steps.fail("tracking", f"the session has no marker map (markers.json); {fix}")
+    else:
+        steps.run("tracking", [f.video, cam_path, f.markers, f.stamps], {"every": cfg.track_every}, do_tracking)
+
+
 def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_path: Path, cfg: _Settings) -> None:
     def overlay_inputs() -> OverlayInputs:
         return OverlayInputs(vals["camera"], vals["eyes"] if eyes_path.is_file() else None, vals["eye_samples"],
                              vals["marker_map"] if f.markers else None, f.video)
-    cam_ok = steps.status.get("camera") in GOOD
-    inputs = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"] + ([f.video] if cfg.overlay else [])
-    steps.run("report", inputs, {"overlay": cfg.overlay},
-              lambda cb: write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb))
+    cam_ok = steps.status.get("camera") in GOOD and f.eye_samples is not None   # the overlay draws raw eye samples
+    inputs = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"] + ([f.video] if cfg.overlay and f.video
+                                                                                 else [])
+    notes = [POSE_NOTES[f.pose_source]] if f.pose_source else []
+    if f.eye_rays is not None and cfg.overlay:
+        notes.append("No overlay video: an imported session's eye rays are drawn in the plots only.")
+    steps.run("report", inputs, {"overlay": cfg.overlay, "notes": notes},
+              lambda cb: write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes))
 
 
 def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:

@@ -17,7 +17,7 @@ from tracking.markermap import MarkerMap
 from ..formats.atomic import atomic_path, write_text
 from ..formats.eye_samples import EyeSamples
 from ..formats.poses import read_poses_csv
-from ..formats.targets import read_estimates, read_target_labels, read_targets
+from ..formats.targets import read_device_comparison, read_estimates, read_target_labels, read_targets
 from ..formats.video import open_video
 from ..formats.viewlines import read_viewlines_csv
 from .types import Target
@@ -107,11 +107,12 @@ class OverlayInputs:
     video: Path
 
 
-def write_report(out: Path, title: str, overlay=None, progress=None) -> None:
+def write_report(out: Path, title: str, overlay=None, progress=None, notes=()) -> None:
     """The plots (``PLOTS``), the overlay and report.html in ``out``, from the outputs of the
     earlier steps there. ``title``: the session's name. ``overlay``: None (no overlay),
     or a function returning its ``OverlayInputs`` (called here: a failure to load them, like any
-    failure of the overlay, is written to overlay_error.txt and the report made without it)."""
+    failure of the overlay, is written to overlay_error.txt and the report made without it).
+    ``notes``: sentences the reader must see first (where the head poses came from, ...)."""
     out = Path(out)
     t_p, _, T_p, _ = read_poses_csv(out / "poses.csv")
     d = _report_data(out, T_p)
@@ -131,7 +132,7 @@ def write_report(out: Path, title: str, overlay=None, progress=None) -> None:
             write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
     if progress:
         progress(4, 5)
-    _html(out, title, d.targets, images, video_name)
+    _html(out, title, d.targets, images, video_name, notes, _device_rows(out))
 
 
 def _plot_depth(d: _ReportData, out: Path) -> tuple[str, str]:
@@ -303,7 +304,23 @@ def _pixel(px, limit: float = 1e5) -> tuple[int, int] | None:
     return int(round(px[0])), int(round(px[1]))
 
 
-def _html(out: Path, name: str, targets, images, video_name) -> None:
+def _device_rows(out: Path) -> str:
+    """The table of device_comparison.csv (an imported session's targets beside the device's own
+    3D gaze), or '' without one."""
+    path = out / "device_comparison.csv"
+    if not path.is_file():
+        return ""
+    tab = read_device_comparison(path)
+    rows = "".join(f"<tr><td>{int(k)}</td><td>{int(n)}</td><td>{a:.0f}</td><td>{b:.0f}</td></tr>"
+                   for k, n, a, b in zip(tab["target"], tab["n_samples"], tab["ours_distance_mm"],
+                                         tab["device_depth_mm"], strict=True))
+    return ("<h2>Beside the device's own 3D gaze</h2><p>Distance from the head to each target: ours from the view "
+            "lines integrated over the head's motion, the device's from its per-sample vergence depth (median over "
+            "the target's samples), mm.</p><table><tr><th>target</th><th>samples</th><th>ours</th><th>device</th>"
+            f"</tr>{rows}</table>")
+
+
+def _html(out: Path, name: str, targets, images, video_name, notes=(), device_table: str = "") -> None:
     rows = "".join(
         "<tr><td>{}</td><td>{:.0f}, {:.0f}, {:.0f}</td><td>{:.0f} / {:.0f} / {:.0f}</td><td>{}</td><td>{:.1f}-{:.1f}"
         "</td><td>{}</td><td>{:.0f}</td></tr>".format(t.index, *t.position_mm, *t.axes95_mm, t.n_samples, t.t_start,
@@ -320,9 +337,11 @@ def _html(out: Path, name: str, targets, images, video_name) -> None:
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}img{{max-width:100%}}
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}figure{{margin:1em 0}}</style></head>
 <body><h1>Gaze targets: {html.escape(str(name))}</h1>
-<p>{len(targets)} fixated target(s). Positions in the world frame of the marker map, mm.</p>
+{"".join(f"<p><b>{html.escape(n)}</b></p>" for n in notes)}
+<p>{len(targets)} fixated target(s). Positions in the world frame{"" if notes else " of the marker map"}, mm.</p>
 <table><tr><th>target</th><th>position (x, y, z)</th><th>95 % semi-axes</th><th>samples</th><th>time (s)</th>
 <th>fixations</th><th>Cramér-Rao bound (mm)</th></tr>{rows}</table>
+{device_table}
 {video}
 <h2>Plots</h2>{imgs}
 <script>

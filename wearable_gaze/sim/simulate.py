@@ -7,9 +7,6 @@ seed and scenario give the same bytes.
 from __future__ import annotations
 
 import logging
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +14,8 @@ import numpy as np
 from estimator import BinocularSamples
 
 from .. import __version__
-from ..errors import UserError, check_output
+from ..errors import UserError
+from ..formats.atomic import atomic_folder
 from ..formats.board import write_board
 from ..formats.camera import camera_dict, write_camera
 from ..formats.eye_samples import EyeSamples, write_eye_csv
@@ -168,23 +166,9 @@ def simulate(scenario: dict, out_dir, seed: int = 0, progress=None) -> dict:
         the manifest.
     """
     out_dir = Path(out_dir)
-    check_output(out_dir, (), "-o", folder=True)
-    if out_dir.exists() and any(out_dir.iterdir()):
-        raise UserError(f"{out_dir}: already exists and is not empty; choose a new -o folder")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    log.info("simulating %g s (seed %d) into %s", float(scenario["duration_s"]), int(seed), out_dir)
-    try:
+    with atomic_folder(out_dir) as tmp:
+        log.info("simulating %g s (seed %d) into %s", float(scenario["duration_s"]), int(seed), out_dir)
         manifest = _simulate_into(scenario, tmp, int(seed), progress)
-        if out_dir.exists():
-            out_dir.rmdir()
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)                  # mkdtemp makes 0700
-        tmp.rename(out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return manifest
 
 

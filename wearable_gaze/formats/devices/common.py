@@ -262,7 +262,8 @@ def read_simulated_recording(session) -> SimulatedRecording:
     eye, _ = read_eye_csv(root / files["eye_samples"])
     g = read_table(root / files["truth_gaze"], ["t"], what="truth gaze CSV")
     tp, _, Tp, _ = read_poses_csv(root / files["truth_head_poses"])
-    T, ok = interpolate_poses(tp, Tp, eye.t, max_gap_s=1.0)
+    # the eye samples run a frame period past the video at either end: those take the end pose
+    T, ok = interpolate_poses(tp, Tp, np.clip(eye.t, tp[0], tp[-1]), max_gap_s=1.0)
     if not ok.all():
         raise UserError(f"{root}: truth head poses do not cover every eye sample")
     R_hw = np.transpose(T[:, :3, :3], (0, 2, 1))

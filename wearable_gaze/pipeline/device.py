@@ -1,0 +1,85 @@
+"""``process`` on an imported session (docs/importers.md): the eye rays the device computed
+replace the eye calibration, and the head poses come from the device, from tracking the scene
+video, or, with neither, from the assumption of a still head (the head frame is the world: only
+the two eyes' vergence fixes a depth, and the report says so). After the targets are found, each
+is set beside the device's own 3D gaze over the same samples (``device_comparison.csv``)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from tracking.timeline import interpolate_poses
+
+from ..errors import UserError
+from ..formats.eye_rays import read_device_gaze, read_eye_rays
+from ..formats.poses import read_poses_csv, write_poses_csv
+from ..formats.targets import write_device_comparison
+from .calibrate import head_lines_to_world
+from .types import Poses, ViewLinesResult
+
+log = logging.getLogger(__name__)
+
+STILL_HEAD_RATE_HZ = 20.0        # the identity poses of a still head: finer than any gap test
+POSE_NOTES = {
+    "device": "Head poses: the device's own (its world frame is kept).",
+    "scene_video": "Head poses: tracked in the scene video with the device's camera calibration and the marker map.",
+    "still_head": "Head poses: none (the device gives none and the session has no scene video with a marker map): "
+                  "the head is taken as still and its frame as the world, so only the two eyes' vergence fixes a "
+                  "depth; beyond about a metre such depths are poor.",
+}
+
+
+def device_poses(head_poses: Path, out: Path) -> None:
+    """The device's head poses (head_poses.csv, ``T_world_from_head``) as the tracking step's
+    poses.csv, with status 'device'."""
+    t, frame, T, _ = read_poses_csv(head_poses)
+    ok = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
+    if not ok.any():
+        raise UserError(f"{head_poses}: the device's head poses are all empty; re-import the recording")
+    status = np.where(ok, "device", "no pose").astype(object)
+    write_poses_csv(out, t, frame, T, {"status": status})
+
+
+def still_head_poses(eye_rays: Path, out: Path) -> None:
+    """Identity poses (the head frame is the world) every 1/``STILL_HEAD_RATE_HZ`` s over the
+    span of the eye rays, as poses.csv with status 'still_head'."""
+    t = read_eye_rays(eye_rays).t_s
+    grid = np.arange(t[0] - 1.0 / STILL_HEAD_RATE_HZ, t[-1] + 2.0 / STILL_HEAD_RATE_HZ, 1.0 / STILL_HEAD_RATE_HZ)
+    T = np.broadcast_to(np.eye(4), (len(grid), 4, 4))
+    write_poses_csv(out, grid, np.arange(len(grid)), T, {"status": np.full(len(grid), "still_head", object)})
+
+
+def ray_view_lines(eye_rays: Path, poses: Poses, max_gap_s: float, source) -> ViewLinesResult:
+    """The device's eye rays (head frame) -> world view lines with the poses."""
+    return head_lines_to_world(read_eye_rays(eye_rays), poses, max_gap_s, source)
+
+
+def device_comparison(device_gaze: Path, samples, targets: list, poses: Poses, out: Path) -> list[dict]:
+    """Each target beside the device's own 3D gaze over the target's samples: the distance of
+    our estimate from the head and the device's gaze depth (median over the samples, mm). Written
+    to ``out`` (device_comparison.csv) and returned as rows."""
+    t_g, p_g = read_device_gaze(device_gaze)
+    rows = []
+    for tg in targets:
+        if tg.samples is None or not np.all(np.isfinite(tg.position_mm)):
+            continue
+        ts = samples.t_s[tg.samples]
+        T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, ts, 0.1)
+        head = T[ok, :3, 3]
+        ours = float(np.median(np.linalg.norm(tg.position_mm - head, axis=1))) if ok.any() else np.nan
+        j = np.searchsorted(t_g, ts).clip(1, max(len(t_g) - 1, 1)) if len(t_g) else np.zeros(0, int)
+        dev = np.nan
+        if len(t_g) >= 2:
+            near = np.where(np.abs(t_g[j - 1] - ts) < np.abs(t_g[j] - ts), j - 1, j)
+            close = np.abs(t_g[near] - ts) < 0.1
+            depth = np.linalg.norm(p_g[near[close]], axis=1)
+            depth = depth[np.isfinite(depth)]
+            dev = float(np.median(depth)) if len(depth) else np.nan
+        rows.append({"target": tg.index, "n_samples": tg.n_samples, "ours_distance_mm": ours,
+                     "device_depth_mm": dev, "ours_x_mm": float(tg.position_mm[0]),
+                     "ours_y_mm": float(tg.position_mm[1]), "ours_z_mm": float(tg.position_mm[2])})
+    write_device_comparison(out, rows)
+    return rows

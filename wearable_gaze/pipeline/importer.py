@@ -1,0 +1,83 @@
+"""``wearable-gaze import``: a device's recording -> a session folder (docs/importers.md), and
+``export-recording``: a simulated session -> a device's recording (the round trip that tests each
+importer against the simulator's truth).
+
+The session is built under a temporary name beside the output folder and renamed at the end:
+an import that fails leaves nothing behind, and an existing session is never overwritten.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+from ..errors import UserError
+from ..formats.atomic import atomic_folder
+from ..formats.devices import MODULES, detect_format, device_module
+from ..formats.devices.common import REPORT, ImportOptions, SessionImport, read_simulated_recording
+
+log = logging.getLogger(__name__)
+
+
+def import_recording(src, out, fmt: str | None = None, options: ImportOptions | None = None,
+                     progress=None) -> tuple[dict, dict]:
+    """Import the recording folder ``src`` as the session folder ``out`` (new or empty).
+
+    Args:
+        fmt: the device format (``formats.devices.MODULES``); detected from the folder's files
+            when None.
+        options: markers, camera, marker size, kappa recording, pose gap (``ImportOptions``).
+        progress: a progress(done, total) callback.
+
+    Returns:
+        (the session manifest, the import report).
+
+    Raises:
+        UserError: an unknown or undetectable format, a bad recording (one line).
+    """
+    src, out = Path(src), Path(out)
+    if not src.exists():
+        raise UserError(f"{src}: no such recording; pass the folder the device wrote")
+    name = fmt or detect_format(src)
+    module = device_module(name)
+    options = options or ImportOptions()
+    for opt, p in (("--markers", options.markers), ("--camera", options.camera),
+                   ("--kappa-recording", options.kappa_recording)):
+        if p is not None and not Path(p).exists():
+            raise UserError(f"{opt} {p}: no such file; check the path")
+    with atomic_folder(out) as tmp:
+        with SessionImport(tmp, name, src.resolve()) as imp:
+            module.read_recording(src, imp, options, progress)
+            if not (tmp / "session.json").is_file():
+                raise RuntimeError(f"the {name} importer did not finish the session")
+    manifest = json.loads((out / "session.json").read_text(encoding="utf-8"))
+    report = json.loads((out / REPORT).read_text(encoding="utf-8"))
+    return manifest, report
+
+
+def export_recording(session, out, fmt: str) -> Path:
+    """Write the simulated session ``session`` as a ``fmt`` recording in the new folder ``out``
+    (documented fields only): what the round-trip tests import again."""
+    if fmt not in MODULES:
+        raise UserError(f"unknown recording format '{fmt}'; use one of {', '.join(MODULES)}")
+    sim = read_simulated_recording(session)
+    with atomic_folder(out) as tmp:
+        device_module(fmt).write_recording(sim, tmp)
+    return Path(out)
+
+
+def format_import(manifest: dict, report: dict, out) -> str:
+    """The lines ``import`` prints: what was read, kept and dropped (with reasons), the pose
+    source, and the notes."""
+    src = manifest["source"]
+    lines = [f"imported {report['device']} recording {report['source']} -> {out}: "
+             f"{report['eye_samples_written']} eye samples kept ({manifest.get('eye_rate_hz', 0):g} Hz)"]
+    if report.get("read"):
+        lines.append("read: " + ", ".join(f"{n} {k}" for k, n in report["read"].items()))
+    dropped = report.get("dropped") or {}
+    lines.append("dropped: " + (", ".join(f"{n} ({k})" for k, n in dropped.items()) if dropped else "none"))
+    lines.append(f"head poses: {src['pose_source'].replace('_', ' ')}; clock offset {src['clock_offset_s']:.6f} s")
+    lines += [f"note: {n}" for n in report.get("notes", ())]
+    lines.append(f"next: wearable-gaze process {out}")
+    return "\n".join(lines)
