@@ -12,7 +12,7 @@ from estimator.api import estimate
 from estimator.likelihood import angular_residuals
 from estimator.lines import BinocularSamples, ViewLines
 from wearable_gaze.errors import UserError
-from wearable_gaze.formats.devices import aria, detect_format
+from wearable_gaze.formats.devices import aria, aria_trajectory, detect_format
 from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, read_simulated_recording
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.poses import read_poses_csv
@@ -171,6 +171,18 @@ def test_real_sample_conventions_fit_the_head_motion(sample, tmp_path):
             rms.append(np.degrees(np.sqrt(np.mean(angular_residuals(est.position_mm, lines) ** 2))))
     assert len(rms) >= 90
     assert np.median(rms) < 1.0
+
+
+def test_small_chunks_give_the_same_session(sample, tmp_path, monkeypatch):
+    """Streaming: the trajectory merged chunk by chunk (7 gaze rows against 101 pose rows at a
+    time) gives exactly the session read in large chunks."""
+    _, rays0, (_, T0), (_, dev0) = run(sample, tmp_path / "a")
+    monkeypatch.setattr(aria, "CHUNK_ROWS", 7)
+    monkeypatch.setattr(aria_trajectory, "CHUNK_ROWS", 101)
+    report, rays, (_, T), (_, dev) = run(sample, tmp_path / "b")
+    assert report["eye_samples_written"] == 114 and report["eye_labels"]["swapped"]
+    assert np.array_equal(rays.t_s, rays0.t_s) and np.array_equal(rays.left_direction, rays0.left_direction)
+    assert np.array_equal(T, T0) and np.array_equal(dev, dev0)
 
 
 # --- labels and models ------------------------------------------------------------------------
