@@ -96,6 +96,19 @@ def glob_escape(text: str) -> str:
     return re.sub(r"([*?\[])", r"[\1]", text)
 
 
+def check_new_folder(out_dir, option: str = "-o") -> Path:
+    """Refuse an output folder that exists and is not empty (or any path ``check_output``
+    refuses), before any work is done.
+
+    Raises:
+        UserError: naming the folder and the fix.
+    """
+    out_dir = check_output(out_dir, (), option, folder=True)
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise UserError(f"{out_dir}: already exists and is not empty; choose a new {option} folder")
+    return out_dir
+
+
 @contextmanager
 def atomic_folder(out_dir, option: str = "-o"):
     """Yield a temporary folder beside ``out_dir`` to build a folder in; on success it becomes
@@ -105,10 +118,7 @@ def atomic_folder(out_dir, option: str = "-o"):
     Raises:
         UserError: ``out_dir`` exists and is not an empty folder.
     """
-    out_dir = Path(out_dir)
-    check_output(out_dir, (), option, folder=True)
-    if out_dir.exists() and any(out_dir.iterdir()):
-        raise UserError(f"{out_dir}: already exists and is not empty; choose a new {option} folder")
+    out_dir = check_new_folder(out_dir, option)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:

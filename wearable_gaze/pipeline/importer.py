@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 
 from ..errors import UserError
-from ..formats.atomic import atomic_folder
+from ..formats.atomic import atomic_folder, check_new_folder
 from ..formats.devices import MODULES, detect_format, device_module
 from ..formats.devices.common import REPORT, ImportOptions, SessionImport, read_simulated_recording
 
@@ -36,7 +36,7 @@ def import_recording(src, out, fmt: str | None = None, options: ImportOptions | 
     Raises:
         UserError: an unknown or undetectable format, a bad recording (one line).
     """
-    src, out = Path(src), Path(out)
+    src, out = Path(src), check_new_folder(out)
     if not src.exists():
         raise UserError(f"{src}: no such recording; pass the folder the device wrote")
     name = fmt or detect_format(src)

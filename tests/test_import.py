@@ -1,0 +1,145 @@
+"""Imported sessions (issue 14), independent of any one device: ``process`` on the eye rays a
+device gives with each source of head poses, the eye-ray file, the ``import`` command's refusals,
+and the estimators on the short fixations of a 10 Hz device."""
+
+import html
+import json
+
+import numpy as np
+import pytest
+from roundtrip import native, rms, target_errors
+
+from estimator import BinocularSamples, estimate, perturb_directions
+from estimator.segments import SegmentConfig, segment_fixations
+from wearable_gaze.cli import main
+from wearable_gaze.errors import UserError
+from wearable_gaze.formats.devices import detect_format
+from wearable_gaze.formats.devices.common import SessionImport, read_simulated_recording
+from wearable_gaze.formats.eye_rays import EyeRaysWriter, read_eye_rays
+from wearable_gaze.pipeline.process import process_session
+
+
+def _import_simulated(session, out, pose_source, gaze=True):
+    """The simulated session as a device with perfect rays would give it."""
+    sim = read_simulated_recording(session)
+    r = sim.rays
+    with SessionImport(out, "test", session) as imp:
+        imp.add_rays(sim.t, r.left_origin_mm, r.left_direction, r.left_valid, r.right_origin_mm, r.right_direction,
+                     r.right_valid)
+        if pose_source == "device":
+            imp.add_head_poses(sim.t, sim.T_world_from_head)
+        if gaze:
+            imp.add_device_gaze(sim.t, sim.gaze_head_mm)
+        imp.finish(sim.eye_rate_hz, 12.5, pose_source, {"head": "the scene camera"})
+    return sim
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    return native(str(tmp_path_factory.getbasetemp()))
+
+
+def test_device_rays_and_poses_find_the_targets_as_well_as_the_native_session(simulated, tmp_path):
+    session, native_err = simulated
+    _import_simulated(session, tmp_path / "s", "device")
+    res = process_session(tmp_path / "s", tmp_path / "out")
+    err = target_errors(session, res.targets)
+    assert res.problems == [] and res.status["eyes"] == "device" and res.status["camera"] == "device"
+    assert np.all(np.isfinite(err)) and rms(err) <= 1.1 * rms(native_err), (err, native_err)
+    # each target beside the device's own gaze, in the report too
+    cmp = (tmp_path / "out" / "device_comparison.csv").read_text().splitlines()
+    assert len(cmp) == len(res.targets) + 1
+    page = html.unescape((tmp_path / "out" / "report.html").read_text())
+    assert "Beside the device's own 3D gaze" in page and "Head poses: the device's own" in page
+
+
+def test_a_still_head_uses_only_vergence_and_the_report_says_so(simulated, tmp_path):
+    session, _ = simulated
+    _import_simulated(session, tmp_path / "s", "still_head", gaze=False)
+    res = process_session(tmp_path / "s", tmp_path / "out")
+    poses = (tmp_path / "out" / "poses.csv").read_text().splitlines()
+    assert poses[1].split(",")[-1] == "still_head"
+    assert "only the two eyes' vergence" in html.unescape((tmp_path / "out" / "report.html").read_text())
+    assert not (tmp_path / "out" / "device_comparison.csv").exists()
+    # the head frame is the world: every target is within reach of the head frame's origin
+    for t in res.targets:
+        assert np.linalg.norm([t["x_mm"], t["y_mm"], t["z_mm"]]) < 6000
+
+
+def test_eye_rays_round_trip_and_refuse_bad_rows(tmp_path):
+    p = tmp_path / "eye_rays.csv"
+    with EyeRaysWriter(p) as w:
+        w.add([0.0, 0.1], [[-32, 0, -30]] * 2, [[0, 0, 2], [0.1, 0, 1]], [True, False], [[32, 0, -30]] * 2,
+              [[0, 0, 1]] * 2, [True, True])
+    s = read_eye_rays(p)
+    assert s.frame == "head" and list(s.left_valid) == [True, False] and np.allclose(s.left_direction[0], [0, 0, 1])
+    text = p.read_text().splitlines()
+    (tmp_path / "order.csv").write_text("\n".join([text[0], text[2], text[1]]) + "\n")
+    with pytest.raises(UserError, match="does not increase"):
+        read_eye_rays(tmp_path / "order.csv")
+    bad = text[2].split(",")
+    bad[7] = "1"                                   # the left eye marked valid, its ray empty
+    (tmp_path / "valid.csv").write_text("\n".join([text[0], text[1], ",".join(bad)]) + "\n")
+    with pytest.raises(UserError, match="left eye is marked valid"):
+        read_eye_rays(tmp_path / "valid.csv")
+
+
+def test_an_import_that_fails_leaves_nothing(tmp_path):
+    (tmp_path / "rec").mkdir()
+    with pytest.raises(UserError, match="no usable eye sample"):
+        with SessionImport(tmp_path / "s", "test", tmp_path / "rec") as imp:
+            imp.drop("status not 0", 7)
+            imp.finish(60, 0.0, "still_head", {})
+    assert not (tmp_path / "s" / "session.json").exists()
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["import", "{t}/nothing", "-o", "{t}/s"], "no such recording"),
+    (["import", "{t}/empty", "-o", "{t}/s"], "matches none of the known formats"),
+    (["import", "{t}/empty", "-o", "{t}/s", "--format", "aria-mps", "--markers", "{t}/m.json"], "--markers"),
+    (["import", "{t}/empty", "-o", "{t}/full"], "not empty"),
+    (["import", "{t}/empty", "-o", "{t}/file.txt"], "is a file"),
+    (["export-recording", "{t}/empty", "-o", "{t}/x", "--format", "tobii-g3"], "session"),
+])
+def test_import_refuses_bad_input_in_one_line(tmp_path, capsys, argv, match):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("mine")
+    (tmp_path / "file.txt").write_text("mine")
+    code = main([a.format(t=tmp_path) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and match in err[0], err
+    assert (tmp_path / "full" / "keep.txt").read_text() == "mine" and (tmp_path / "file.txt").read_text() == "mine"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]        # no temporary folder left
+
+
+def test_detect_format_names_the_choices(tmp_path):
+    with pytest.raises(UserError, match="--format"):
+        detect_format(tmp_path)
+
+
+def test_short_fixations_at_10_hz_are_found_and_estimated(rng):
+    """Aria's 10 Hz: a 0.5 s fixation has 5 samples. The default window (8 samples a side)
+    finds none; the rate's window does, and every estimator answers on 5 samples."""
+    t = np.arange(60) / 10.0
+    targets = np.repeat([[300.0, 0, 1500], [-400, 100, 2500], [0, -300, 1000]], 20, axis=0)
+    heads = np.column_stack([200 * np.sin(0.8 * t), 30 * np.cos(t), 50 * t])
+    lo, ro = heads - [32, 0, 0], heads + [32, 0, 0]
+    s = BinocularSamples.from_arrays(t, lo, perturb_directions(targets - lo, np.deg2rad(0.5), rng), ro,
+                                     perturb_directions(targets - ro, np.deg2rad(0.5), rng))
+    assert segment_fixations(s, SegmentConfig()).max() < 0
+    labels = segment_fixations(s, SegmentConfig.for_rate(10.0))
+    assert labels.max() + 1 == 3
+    five = s.select(np.flatnonzero(labels == 0)[:5])
+    for method in ("ml", "voxel", "lse", "paper"):
+        e = estimate(five, method)
+        assert e.ok, (method, e.reason)
+        assert np.linalg.norm(e.position_mm - [300, 0, 1500]) < 300, method
+
+
+def test_the_manifest_records_the_source(simulated, tmp_path):
+    session, _ = simulated
+    _import_simulated(session, tmp_path / "s", "device")
+    man = json.loads((tmp_path / "s" / "session.json").read_text())
+    assert man["source"] == {"device": "test", "path": str(session), "clock_offset_s": 12.5, "pose_source": "device"}
+    assert set(man["files"]) == {"eye_rays", "head_poses", "device_gaze", "import_report"}
