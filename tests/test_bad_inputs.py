@@ -998,6 +998,8 @@ FOLDER_OUTPUTS = [
     ("process", "-o", lambda e, d, o: ["process", e["session"], "-o", o, "--no-overlay"]),
     ("demo", "--out", lambda e, d, o: ["demo", "--out", o, "--duration", "2"]),
     ("live", "--record", lambda e, d, o: argv_live(e, d, extra=["--record", o])),
+    ("import", "-o", lambda e, d, o: ["import", e["session"], "-o", o, "--format", "tobii-g3"]),
+    ("export-recording", "-o", lambda e, d, o: ["export-recording", e["session"], "-o", o, "--format", "tobii-g3"]),
 ]
 for command, opt, build in FOLDER_OUTPUTS:
     add(f"{command}-out-is-file", command, lambda e, d, build=build: build(e, d, write(d, "afile", "keep")),
@@ -1006,6 +1008,33 @@ for command, opt, build in FOLDER_OUTPUTS:
         (opt, "not a folder"))
     add(f"{command}-out-read-only-folder", command, lambda e, d, build=build: build(e, d, str(read_only_dir(d) / "o")),
         (opt, "not writable"))
+
+# import and export-recording (issue 14): the recording, the format, the options
+add("import-src-missing", "import", lambda e, d: ["import", str(d / "nothing"), "-o", str(d / "s")],
+    ("no such recording",))
+add("import-src-undetectable", "import", lambda e, d: ["import", e["session"], "-o", str(d / "s")],
+    ("none of the known formats", "--format"))
+add("import-src-is-file", "import", lambda e, d: ["import", e["markers"], "-o", str(d / "s")], ("not a folder",))
+add("import-out-not-empty", "import", lambda e, d: ["import", e["session"], "-o", str(_mkdir(d / "o"))],
+    ("not empty",))
+add("import-out-is-src", "import", lambda e, d: ["import", e["session"], "-o", e["session"]], ("also an input",))
+add("import-markers-missing", "import", lambda e, d: ["import", e["session"], "-o", str(d / "s"), "--format",
+                                                      "tobii-g3", "--markers", str(d / "m.json")], ("--markers",))
+add("import-format-unknown", "import", lambda e, d: ["import", e["session"], "-o", str(d / "s"), "--format", "emr8"],
+    ("--format",))
+opt_cases("import", lambda e, d, x: ["import", e["session"], "-o", str(d / "s"), *x], "--marker-size-mm",
+          ["0", "-1", "nan", "abc"])
+opt_cases("import", lambda e, d, x: ["import", e["session"], "-o", str(d / "s"), *x], "--max-pose-gap",
+          ["0", "inf"])
+add("export-recording-not-simulated", "export-recording",
+    lambda e, d: ["export-recording", str(_mkdir(d / "x")), "-o", str(d / "r"), "--format", "aria-mps"],
+    ("session.json",))
+add("export-recording-session-missing", "export-recording",
+    lambda e, d: ["export-recording", str(d / "none"), "-o", str(d / "r"), "--format", "aria-mps"], ("session",))
+add("export-recording-format-missing", "export-recording",
+    lambda e, d: ["export-recording", e["session"], "-o", str(d / "r")], ("--format",))
+add("export-recording-format-unknown", "export-recording",
+    lambda e, d: ["export-recording", e["session"], "-o", str(d / "r"), "--format", "emr8"], ("--format",))
 
 # -o equal to an input (the issue's four, and their neighbours)
 SAME = [
@@ -1091,7 +1120,7 @@ def test_bad_input(c: Case, env, case_dir, capsys):
 
 def test_matrix_covers_every_command_with_enough_cases():
     commands = {"estimate", "reproduce", "calibrate-camera", "calibrate-eyes", "viewlines", "track", "markers",
-                "simulate", "process", "live", "emulate", "demo"}
+                "simulate", "process", "live", "emulate", "demo", "import", "export-recording"}
     per = {k: sum(c.command == k for c in CASES) for k in commands}
     assert all(n >= 5 for n in per.values()), per
     assert len(CASES) >= 250, len(CASES)
