@@ -431,3 +431,16 @@ def test_g3_problems(tmp_path):
             run_import(tobii_g3, tmp_path / "rec", tmp_path / f"bad{i}")
         assert needle in one_line(exc)
     shutil.rmtree(tmp_path / "rec")
+
+
+@pytest.mark.parametrize("fmt", ["tobii-g2", "tobii-g3"])
+def test_roundtrip_through_process_finds_the_targets(fmt, tmp_path_factory, tmp_path):
+    """Simulator -> Tobii recording -> import (scene video + the unit's camera + the room's
+    markers: poses tracked by process) -> process finds the simulated targets as well as the
+    native session does (RMS error within 1.1x, issue 14)."""
+    from roundtrip import rms, roundtrip_errors  # noqa: PLC0415
+
+    nat, got, report = roundtrip_errors(fmt, tmp_path_factory.getbasetemp(), tmp_path)
+    assert report["pose_source"] == "scene_video"
+    assert report["frames"]["position_convention"]["confirmed"]
+    assert np.all(np.isfinite(got)) and rms(got) <= 1.1 * rms(nat), (got, nat)
