@@ -167,7 +167,7 @@ def test_bad_rows_are_counted_per_reason(tmp_path):
 
 def test_rows_out_of_order_within_a_second_are_sorted_across_chunks(tmp_path, monkeypatch):
     monkeypatch.setattr(pc, "CHUNK_ROWS", 3)
-    t = [5.00, 5.02, 5.01, 5.04, 5.03, 5.05, 5.07, 5.06]
+    t = [5.00, 5.01, 5.03, 5.02, 5.05, 5.04, 5.06, 5.08, 5.07]       # the swaps straddle the 3-row chunks
     rep = run_import(write_gaze(tmp_path / "exp", [{"t": x} for x in t]), tmp_path / "s")
     r = read_eye_rays(tmp_path / "s" / "eye_rays.csv")
     assert np.allclose(r.t_s + 5.0, sorted(t)) and rep["dropped"] == {}

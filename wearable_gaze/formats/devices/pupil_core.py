@@ -40,8 +40,7 @@ eyes, whose sample stays with the other eye; the others count samples):
   confidence, stays) and rows over ``REORDER_WINDOW_S`` out of order (sorted within it);
 - with device poses, samples without a valid pose within ``max_pose_gap_s`` on both sides.
 
-Pupil Core does not give: eye validity beyond confidence; the marker size; the world camera's
-intrinsics in a format read here.
+Not given by Pupil Core: eye validity beyond confidence; the marker size; intrinsics read here.
 """
 
 from __future__ import annotations
@@ -126,7 +125,7 @@ def _locate(src: Path, imp: SessionImport) -> tuple[Path, Path, Path | None]:
 
 # --- CSV chunks ------------------------------------------------------------------------------
 
-def csv_chunks(path: Path, columns, required, imp: SessionImport | None = None, rows: int = CHUNK_ROWS,
+def csv_chunks(path: Path, columns, required, imp: SessionImport | None = None, rows: int | None = None,
                progress=None):
     """Stream a CSV as {column: (n,) float} chunks of ``rows`` rows (empty cell: NaN), for the
     ``columns`` in its header (``required`` must be); a row too short for them is dropped and
@@ -156,7 +155,7 @@ def csv_chunks(path: Path, columns, required, imp: SessionImport | None = None, 
                 lines.append(reader.line_num)
             elif imp is not None and any(c.strip() for c in row):
                 imp.drop("row with fewer cells than the header (truncated file?)")
-            if len(buf) >= rows or (buf and len(row) == 0):
+            if len(buf) >= (rows or CHUNK_ROWS):
                 yield _to_arrays(path, names, buf, lines)
                 buf, lines = [], []
                 if progress is not None:
@@ -228,30 +227,33 @@ def check_rows(ch: dict, imp: SessionImport) -> tuple[np.ndarray, dict]:
 
 
 class _Reorder:
-    """Sorts samples within ``REORDER_WINDOW_S`` and drops repeated times, counting both."""
+    """Sorts samples within ``REORDER_WINDOW_S``: a row more than that before the latest time read
+    so far is dropped, a repeated time too (both counted); the rest come out in time order."""
 
     def __init__(self, imp: SessionImport):
-        self.imp, self.held, self.last = imp, None, -np.inf
+        self.imp, self.held, self.last, self.latest = imp, None, -np.inf, -np.inf
 
     def push(self, s: dict, final: bool = False) -> dict | None:
-        """Add samples {key: (n, ...)} ('t' s, 'nvalid', 'conf', ...); return those now safe to
-        write (all when ``final``), sorted, with unique times, or None."""
+        """Add samples {key: (n, ...)} in file order ('t' s, 'nvalid', 'conf', ...); return those
+        now safe to write (all when ``final``), sorted, with unique times, or None."""
+        run = np.maximum.accumulate(np.r_[self.latest, s["t"]])
+        late = s["t"] < run[:-1] - REORDER_WINDOW_S
+        self.imp.drop(f"gaze_timestamp more than {REORDER_WINDOW_S:g} s out of order", int(late.sum()))
+        self.latest = float(run[-1])
+        s = {k: v[~late] for k, v in s.items()}
         if self.held is not None:
             s = {k: np.concatenate([self.held[k], s[k]]) for k in s}
         s = {k: v[np.lexsort((-s["conf"], -s["nvalid"], s["t"]))] for k, v in s.items()}
         t = s["t"]
-        late = t < self.last
-        self.imp.drop(f"gaze_timestamp more than {REORDER_WINDOW_S:g} s out of order", int(late.sum()))
-        rep = ~late & ((t == self.last) | np.r_[False, t[1:] == t[:-1]])
+        rep = (t == self.last) | np.r_[False, t[1:] == t[:-1]]
         self.imp.drop("repeated gaze_timestamp (the sample with more eyes, then more confidence, kept)",
                       int(rep.sum()))
-        s = {k: v[~late & ~rep] for k, v in s.items()}
-        t = s["t"]
-        cut = len(t) if final or not len(t) else int(np.searchsorted(t, t[-1] - REORDER_WINDOW_S, "right"))
+        s = {k: v[~rep] for k, v in s.items()}
+        cut = len(s["t"]) if final else int(np.searchsorted(s["t"], self.latest - REORDER_WINDOW_S, "right"))
         self.held = {k: v[cut:] for k, v in s.items()}
         if not cut:
             return None
-        self.last = float(t[cut - 1])
+        self.last = float(s["t"][cut - 1])
         return {k: v[:cut] for k, v in s.items()}
 
 
