@@ -101,6 +101,20 @@ def test_tufts_rows_are_counted_with_reasons_and_never_used(real_data, tmp_path)
     assert np.allclose(k, np.round(k), atol=1e-6) and round(k[-1]) == 10956
 
 
+def test_tufts_through_import_and_process_shows_its_rays_measure_no_depth(real_data, tmp_path):
+    from wearable_gaze.pipeline.importer import import_recording
+    from wearable_gaze.pipeline.process import process_session
+
+    manifest, _ = import_recording(real_data / TUFTS, tmp_path / "s", "pupil-core")
+    assert manifest["source"]["pose_source"] == "still_head"
+    res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)
+    labels_mm = 1000 * np.genfromtxt(real_data / TUFTS, delimiter=",", skip_header=1)[:, -1]
+    dist = [np.linalg.norm([t["x_mm"], t["y_mm"], t["z_mm"]]) for t in res.targets]
+    # the kept rows' lines meet within ~0.2 m of the world camera (research: median 0.019 m), while
+    # every label is a target 1.18-6.92 m away: the table's eye rays do not measure depth
+    assert len(dist) >= 3 and max(dist) < 200.0 and labels_mm.min() > 1000.0
+
+
 def test_tufts_folder_without_gaze_positions_names_the_fix(real_data, tmp_path):
     one_line_error(real_data / "tufts_gaze_depth", tmp_path / "s", "no gaze_positions.csv.*pass the CSV file itself")
 
