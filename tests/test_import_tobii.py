@@ -331,8 +331,8 @@ def one_line(exc: pytest.ExceptionInfo) -> str:
 
 def test_bad_samples_are_counted_with_reasons(tmp_path):
     """Non-zero status, NaN, an eye centre 200 mm away, a backwards direction, a line that is
-    not JSON, and an eye whose gd line is missing: each is counted under its reason, the good
-    eye of the same sample is kept, and nothing crashes."""
+    not JSON, a time that is not a number, and an eye whose gd line is missing: each is counted
+    under its reason, the good eye of the same sample is kept, and nothing crashes."""
     bad = {
         3: [s.format(ts=1_060_000, g=3).replace('"s":0', '"s":16') for s in GOOD[:2]]
         + [s.format(ts=1_060_000, g=3) for s in GOOD[2:]],
@@ -345,7 +345,8 @@ def test_bad_samples_are_counted_with_reasons(tmp_path):
                                                                   ts=1_180_000, g=9)],
         11: [s.format(ts=1_220_000, g=11) for s in GOOD if '"right"' not in s or '"pc"' in s],
     }
-    src = g2_folder(tmp_path, extra=['{"ts":2000000,"s":0,"gidx":', "not json"], replace=bad)
+    src = g2_folder(tmp_path, extra=['{"ts":2000000,"s":0,"gidx":', "not json",
+                                     '{"ts":"2020000","s":0,"gidx":60,"pc":[1,2,3],"eye":"left"}'], replace=bad)
     rep = run_import(tobii_g2, src, tmp_path / "out")
     d = rep["dropped"]
     assert d["left eye: status 16"] == 1
@@ -353,7 +354,7 @@ def test_bad_samples_are_counted_with_reasons(tmp_path):
     assert d["left eye: non-finite values"] == 1
     assert d["right eye: direction points backwards"] == 1
     assert d["sample: incomplete gidx group (an eye's pc or gd line missing)"] == 1
-    assert d["line: unparsable JSON"] == 2
+    assert d["line: unparsable JSON"] == 2 and d["line: eye-sample line without an integer ts"] == 1
     assert rep["eye_samples_written"] == 49
     r = read_eye_rays(tmp_path / "out" / "eye_rays.csv")
     assert r.left_valid.sum() == 46 and r.right_valid.sum() == 48

@@ -258,6 +258,9 @@ def stream_livedata(path: Path, clock: _Clock, gaps: GapCounter, chunks: RayChun
 
     for obj in lines:
         gidx = obj.get("gidx")
+        if isinstance(gidx, int) and not isinstance(obj.get("ts"), int):
+            chunks.drops["line: eye-sample line without an integer ts"] += 1
+            continue
         if not isinstance(gidx, int) or not isinstance(obj.get("ts"), int):
             kinds[next((k for k in ("vts", "pts", "ac", "gy", "sig") if k in obj), "other")] += 1
             if "vts" in obj and obj.get("s") == 0 and isinstance(obj.get("vts"), int):
