@@ -278,6 +278,13 @@ def test_round_trip_with_a_separate_kappa_recording_and_the_cyclopean_fallback(s
     assert k["method"] == "cyclopean-ray" and k["depth_mm"] == 1000.0
     for side in ("left", "right"):
         assert np.all(np.abs(np.subtract(k[f"{side}_deg"], KAPPA[side])) < 1.2)
+    # exactly what the true gaze rays give: the 2D gaze (px, distorted) was undistorted right
+    r, both = sim.rays, sim.rays.left_valid & sim.rays.right_valid
+    want = fit_kappa_cyclopean(r.left_origin_mm[both], apply_kappa(r.left_direction[both], -np.array(KAPPA["left"])),
+                               r.right_origin_mm[both], apply_kappa(r.right_direction[both], -np.array(KAPPA["right"])),
+                               sim.gaze_head_mm[both], 1000.0)
+    np.testing.assert_allclose(k["left_deg"], want.left.kappa_deg, atol=0.01)
+    np.testing.assert_allclose(k["right_deg"], want.right.kappa_deg, atol=0.01)
     assert k["rays_before"]["median_vergence_deg"] < -5 and k["rays_after"]["median_vergence_deg"] > 0
     assert 500 < k["rays_after"]["median_depth_in_front_mm"] < 1500          # set by the assumed 1 m
     for ang in _angles_to_sim(read_eye_rays(tmp_path / "b" / "eye_rays.csv"), sim):
