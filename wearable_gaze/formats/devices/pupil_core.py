@@ -80,7 +80,7 @@ MIN_CONFIDENCE = 0.6
 MAX_EYE_DISTANCE_MM = 100.0
 EYE_SEPARATION_MM = (40.0, 80.0)
 REORDER_WINDOW_S = 1.0
-CHUNK_ROWS = 20000
+CHUNK_ROWS = 4000
 UNTIMED_RATE_HZ = 200.0
 
 EYE_COLUMNS = {e: [f"eye_center{e}_3d_{a}" for a in "xyz"] + [f"gaze_normal{e}_{a}" for a in "xyz"] for e in (0, 1)}
