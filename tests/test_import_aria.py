@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from roundtrip import rms, roundtrip_errors
 
 from estimator.api import estimate
 from estimator.likelihood import angular_residuals
@@ -359,3 +360,10 @@ def test_write_then_read_gives_back_the_rays(sim, tmp_path):
     comb /= np.linalg.norm(comb, axis=1, keepdims=True)
     assert np.abs(dev[ok] / np.linalg.norm(dev[ok], axis=1, keepdims=True) - comb[ok]).max() < 1e-6
     assert np.allclose(np.linalg.norm(dev[ok], axis=1), np.linalg.norm(mid[ok], axis=1), rtol=0.01)
+
+
+def test_round_trip_through_process_finds_the_targets_as_well_as_the_native_session(tmp_path_factory, tmp_path):
+    native, imported, report = roundtrip_errors("aria-mps", tmp_path_factory.getbasetemp(), tmp_path, markers=False)
+    assert report["pose_source"] == "device" and not report["eye_labels"]["swapped"]
+    assert np.all(np.isfinite(imported)), "every fixated target found"
+    assert rms(imported) <= 1.1 * rms(native)
