@@ -173,6 +173,26 @@ def test_missing_streams_and_files_give_one_line(copy, tmp_path):
     one_line_error(copy, tmp_path / "d", "not a readable Neon recording")
 
 
+def test_gaze_is_matched_to_eye_states_within_5_ms(copy, tmp_path):
+    for name in ("gaze ps1.time", "gaze_200hz.time"):
+        t = np.fromfile(copy / name, "<i8")
+        (t + 4_000_000).tofile(copy / name)                                 # 4 ms late: still the same samples
+    near = run_import(copy, tmp_path / "a")["kappa"]
+    for name in ("gaze ps1.time", "gaze_200hz.time"):
+        t = np.fromfile(copy / name, "<i8")
+        (t + 2_000_000_000).tofile(copy / name)                             # 2 s late: no gaze for most samples
+    far = run_import(copy, tmp_path / "b")["kappa"]
+    rays = read_eye_rays(tmp_path / "a" / "eye_rays.csv")
+    early = int(np.sum(rays.left_valid & rays.right_valid & (rays.t_s < 1.995 - 1e-6)))   # > 5 ms before any gaze
+    # also lost: the few samples 2 s after the recording's 10 and 15 ms gaps, now more than 5 ms from a gaze
+    assert near["samples"]["left"] == 1681 and 1681 - early - 4 <= far["samples"]["left"] <= 1681 - early
+    assert early > 390
+    for name in ("gaze ps1.time", "gaze_200hz.time"):
+        t = np.fromfile(copy / name, "<i8")
+        (t + 60_000_000_000).tofile(copy / name)                            # a minute late: none
+    one_line_error(copy, tmp_path / "c", "cannot fit the kappa offset from Neon's 2D gaze")
+
+
 def test_without_the_extra_the_import_says_what_to_install(copy, tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "pupil_labs.neon_recording", None)
     msg = one_line_error(copy, tmp_path / "a", "pip install")

@@ -212,28 +212,30 @@ class _Eyes:
             yield a, self.chunk(a, min(a + CHUNK, len(self.t_ns)))
 
 
-def _gaze_rays(rec, src: Path, t_ns: np.ndarray, K, dist) -> np.ndarray:
-    """Neon's 2D gaze at the eye-state times (the nearest record within 5 ms), undistorted into
-    (n, 3) ray directions from the scene camera (NaN where none)."""
-    gaze = _stream(rec, "gaze", src, "gaze ps*.raw/.time, needed for the kappa offset without --kappa-recording")
-    tg = np.asarray(gaze.time, np.int64)
+def _gaze_rays(gaze, t_ns: np.ndarray, K, dist) -> np.ndarray:
+    """Neon's 2D gaze ``gaze`` = (times ns, points px) at the eye-state times (the nearest record
+    within 5 ms), undistorted into (n, 3) ray directions from the scene camera (NaN where none)."""
+    tg, px = gaze
     out = np.full((len(t_ns), 3), np.nan)
     if not len(tg):
         return out
-    j = np.clip(np.searchsorted(tg, t_ns), 1, max(len(tg) - 1, 1))
-    j = np.where(np.abs(tg[j - 1] - t_ns) <= np.abs(tg[np.minimum(j, len(tg) - 1)] - t_ns), j - 1, j)
-    j = np.minimum(j, len(tg) - 1)
-    near = np.abs(tg[j] - t_ns) <= 5_000_000
-    px = np.asarray(gaze[0:len(tg)].point, float)[j]
-    ok = near & np.all(np.isfinite(px), axis=1)
+    j = np.searchsorted(tg, t_ns)
+    lo, hi = np.clip(j - 1, 0, len(tg) - 1), np.clip(j, 0, len(tg) - 1)
+    k = np.where(np.abs(tg[lo] - t_ns) <= np.abs(tg[hi] - t_ns), lo, hi)
+    ok = (np.abs(tg[k] - t_ns) <= 5_000_000) & np.all(np.isfinite(px[k]), axis=1)
     if ok.any():
-        out[ok] = np.column_stack([undistort_points(px[ok], K, dist), np.ones(int(ok.sum()))])
+        out[ok] = np.column_stack([undistort_points(px[k][ok], K, dist), np.ones(int(ok.sum()))])
     return out
 
 
 def _binocular_sample(eyes: _Eyes, K=None, dist=None):
     """At most ``MAX_FIT_SAMPLES`` binocular samples spread over the recording: centres and
     optical axes (2, n, 3) and, with ``K``, Neon's 2D gaze rays (n, 3) (else None)."""
+    gaze = None
+    if K is not None:
+        g = _stream(eyes.rec, "gaze", eyes.src, "gaze ps*.raw/.time, needed for the kappa offset without "
+                                                "--kappa-recording")
+        gaze = (np.asarray(g.time, np.int64), np.asarray(g.point, float).reshape(-1, 2))
     rows = []
     step = max(1, len(eyes.t_ns) // MAX_FIT_SAMPLES)
     saved, eyes.imp = eyes.imp, None          # counted once, when the rays are written
@@ -241,13 +243,13 @@ def _binocular_sample(eyes: _Eyes, K=None, dist=None):
         for a in range(0, len(eyes.t_ns), CHUNK * step):
             ch = eyes.chunk(a, min(a + CHUNK * step, len(eyes.t_ns)))
             sel = np.flatnonzero(ch["eye_ok"].all(axis=0))[::step]
-            g = None if K is None else _gaze_rays(eyes.rec, eyes.src, ch["t_ns"][sel], K, dist)
-            rows.append((ch["center"][:, sel], ch["axis"][:, sel], g))
+            rows.append((ch["center"][:, sel], ch["axis"][:, sel],
+                         None if gaze is None else _gaze_rays(gaze, ch["t_ns"][sel], K, dist)))
     finally:
         eyes.imp = saved
     c = np.concatenate([r[0] for r in rows], axis=1)
     d = np.concatenate([r[1] for r in rows], axis=1)
-    return c, d, None if K is None else np.concatenate([r[2] for r in rows])
+    return c, d, None if gaze is None else np.concatenate([r[2] for r in rows])
 
 
 def _fit_cyclopean(eyes: _Eyes, c, d, g):
