@@ -50,33 +50,25 @@ def csv_header(path: Path, what: str, fix: str, required=()) -> list[str]:
 def csv_chunks(path: Path, what: str, rows_per_chunk: int, progress=None):
     """Yield lists of data rows (lists of cells, blank lines skipped) of a CSV, ``rows_per_chunk``
     at a time; ``progress(bytes read, file size)`` after each."""
-    total, done = path.stat().st_size, 0
-
-    def lines(fh):
-        nonlocal done
-        for raw in fh:
-            done += len(raw)
-            try:
-                yield raw.decode("utf-8-sig")
-            except UnicodeDecodeError:
-                raise UserError(f"{path}: the {what} is not UTF-8 text near byte {done}; is the file damaged?") \
-                    from None
-
-    with open(path, "rb") as fh:
-        reader = csv.reader(lines(fh))
-        next(reader, None)
+    total = path.stat().st_size
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.reader(fh)
         rows = []
         try:
+            next(reader, None)
             for row in reader:
-                if any(c.strip() for c in row):
+                if row:
                     rows.append(row)
                 if len(rows) >= rows_per_chunk:
                     yield rows
                     rows = []
                     if progress:
-                        progress(done, total)
+                        progress(fh.buffer.tell(), total)
         except csv.Error as exc:
             raise UserError(f"{path} line {reader.line_num}: the {what} is not valid CSV ({exc})") from None
+        except UnicodeDecodeError:
+            raise UserError(f"{path} after line {reader.line_num}: the {what} is not UTF-8 text; is the file "
+                            "damaged?") from None
     if rows:
         yield rows
     if progress:
@@ -84,20 +76,23 @@ def csv_chunks(path: Path, what: str, rows_per_chunk: int, progress=None):
 
 
 def numbers(rows, index: dict, names) -> tuple[dict, np.ndarray, np.ndarray]:
-    """{name: (n,) float} of the named columns (NaN where empty or not a number), whole (n,) bool:
-    the row has every header cell, and finite (n,) bool: whole and every named cell finite."""
+    """{name: (n,) float} of the named columns (NaN where empty or not a number, or the row lacks
+    header cells), whole (n,) bool: the row has every header cell, and finite (n,) bool: whole
+    and every named cell finite."""
     width = max(index.values()) + 1
-    whole = np.array([len(r) >= width for r in rows], bool)
+    whole = np.fromiter((len(r) >= width for r in rows), bool, len(rows))
+    kept = rows if whole.all() else [r for r, w in zip(rows, whole, strict=True) if w]
+    columns = list(zip(*kept, strict=False))                    # longer rows: extra cells cut
     out, finite = {}, whole.copy()
     for name in names:
-        j = index[name]
-        cells = [r[j] if j < len(r) else "" for r in rows]
+        cells = columns[index[name]] if columns else ()
         try:
             v = np.array(cells, dtype=float)
         except ValueError:
             v = np.array([_float(c) for c in cells], float)
-        out[name] = v
-        finite &= np.isfinite(v)
+        out[name] = np.full(len(rows), np.nan)
+        out[name][whole] = v
+        finite &= np.isfinite(out[name])
     return out, whole, finite
 
 
