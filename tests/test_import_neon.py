@@ -18,7 +18,7 @@ from calibration.kappa import (
     vergence,
 )
 from wearable_gaze.errors import UserError
-from wearable_gaze.formats.camera import load_camera
+from wearable_gaze.formats.camera import camera_dict, load_camera, write_camera
 from wearable_gaze.formats.devices import detect_format
 from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, read_simulated_recording
 from wearable_gaze.formats.eye_rays import read_eye_rays
@@ -158,12 +158,17 @@ def _edit_eye_state(folder, edit):
     rec.tofile(path)
 
 
-def test_missing_streams_and_files_give_one_line(copy, tmp_path):
+def test_missing_streams_and_files_give_one_line(sample, copy, tmp_path):
     (copy / "gaze ps1.raw").unlink()
     (copy / "gaze_200hz.raw").unlink()
     one_line_error(copy, tmp_path / "a", "'gaze' stream is missing")
     (copy / "calibration.bin").unlink()
     one_line_error(copy, tmp_path / "b", "no calibration.bin")
+    write_camera(tmp_path / "cam.json", camera_dict(K_PUBLISHED, np.zeros(5), (1600, 1200), source="test"))
+    shutil.copy(sample / "gaze ps1.raw", copy / "gaze ps1.raw")
+    rep = run_import(copy, tmp_path / "b2", camera=tmp_path / "cam.json")     # --camera stands in for it
+    assert any("no calibration.bin; also used" in n for n in rep["notes"])
+    np.testing.assert_allclose(load_camera(tmp_path / "b2" / "camera.json").dist_coeffs, np.zeros(5))
     raw = (copy / "eye_state ps1.raw").read_bytes()
     (copy / "eye_state ps1.raw").write_bytes(raw[:-120])                   # 1.5 records: a partial one
     one_line_error(copy, tmp_path / "c", f"partial 80-byte record.*truncate -s {len(raw) - 160} ")

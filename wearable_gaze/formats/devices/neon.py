@@ -53,10 +53,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.camera import undistort_points
+from calibration.camera import CameraCalibration
 from calibration.kappa import apply_kappa, fit_kappa_cyclopean, fit_kappa_targets, vergence
 
 from ...errors import UserError
+from ..camera import load_camera
 from ..tables import read_table, write_table
 from .common import ImportOptions, SessionImport, SimulatedRecording
 
@@ -212,9 +213,9 @@ class _Eyes:
             yield a, self.chunk(a, min(a + CHUNK, len(self.t_ns)))
 
 
-def _gaze_rays(gaze, t_ns: np.ndarray, K, dist) -> np.ndarray:
+def _gaze_rays(gaze, t_ns: np.ndarray, cam: CameraCalibration) -> np.ndarray:
     """Neon's 2D gaze ``gaze`` = (times ns, points px) at the eye-state times (the nearest record
-    within 5 ms), undistorted into (n, 3) ray directions from the scene camera (NaN where none)."""
+    within 5 ms), undistorted by ``cam`` into (n, 3) ray directions from the scene camera (NaN where none)."""
     tg, px = gaze
     out = np.full((len(t_ns), 3), np.nan)
     if not len(tg):
@@ -224,15 +225,15 @@ def _gaze_rays(gaze, t_ns: np.ndarray, K, dist) -> np.ndarray:
     k = np.where(np.abs(tg[lo] - t_ns) <= np.abs(tg[hi] - t_ns), lo, hi)
     ok = (np.abs(tg[k] - t_ns) <= 5_000_000) & np.all(np.isfinite(px[k]), axis=1)
     if ok.any():
-        out[ok] = np.column_stack([undistort_points(px[k][ok], K, dist), np.ones(int(ok.sum()))])
+        out[ok] = np.column_stack([cam.undistort_points(px[k][ok]), np.ones(int(ok.sum()))])
     return out
 
 
-def _binocular_sample(eyes: _Eyes, K=None, dist=None):
+def _binocular_sample(eyes: _Eyes, cam: CameraCalibration | None = None):
     """At most ``MAX_FIT_SAMPLES`` binocular samples spread over the recording: centres and
-    optical axes (2, n, 3) and, with ``K``, Neon's 2D gaze rays (n, 3) (else None)."""
+    optical axes (2, n, 3) and, with ``cam``, Neon's 2D gaze rays (n, 3) (else None)."""
     gaze = None
-    if K is not None:
+    if cam is not None:
         g = _stream(eyes.rec, "gaze", eyes.src, "gaze ps*.raw/.time, needed for the kappa offset without "
                                                 "--kappa-recording")
         gaze = (np.asarray(g.time, np.int64), np.asarray(g.point, float).reshape(-1, 2))
@@ -244,7 +245,7 @@ def _binocular_sample(eyes: _Eyes, K=None, dist=None):
             ch = eyes.chunk(a, min(a + CHUNK * step, len(eyes.t_ns)))
             sel = np.flatnonzero(ch["eye_ok"].all(axis=0))[::step]
             rows.append((ch["center"][:, sel], ch["axis"][:, sel],
-                         None if gaze is None else _gaze_rays(gaze, ch["t_ns"][sel], K, dist)))
+                         None if gaze is None else _gaze_rays(gaze, ch["t_ns"][sel], cam)))
     finally:
         eyes.imp = saved
     c = np.concatenate([r[0] for r in rows], axis=1)
@@ -299,25 +300,35 @@ def _verge_summary(c, d, kappa=None) -> dict:
 
 
 def _camera(rec, imp: SessionImport, options: ImportOptions, src: Path):
-    """The scene camera: ``camera.json`` from calibration.bin, the scene video if present, the
-    marker map; returns (K, dist, image size, fps, pose source)."""
+    """The scene camera: ``camera.json`` from ``--camera`` or else calibration.bin, the scene
+    video if present, the marker map. Returns (the camera Neon's 2D gaze was mapped through:
+    calibration.bin's, or ``--camera`` without it; image size; fps; the vendor's scene stream)."""
     cal = rec.calibration
-    if cal is None:
-        raise UserError(f"{src}: no calibration.bin (the scene camera's intrinsics); copy it from the recording")
-    K, dist = np.asarray(cal.scene_camera_matrix, float), np.asarray(cal.scene_distortion_coefficients, float)
-    if not np.allclose(np.asarray(cal.scene_extrinsics_affine_matrix, float), np.eye(4), atol=1e-6):
-        imp.note("calibration.bin scene extrinsics are not identity; the eye states are taken as given in the "
-                 "scene camera's frame")
+    user = load_camera(options.camera) if options.camera is not None else None
+    if cal is None and user is None:
+        raise UserError(f"{src}: no calibration.bin (the scene camera's intrinsics); copy it from the recording or "
+                        "give the scene camera's calibration with --camera")
     scene = _stream(rec, "scene", src, None)
     size, fps = SCENE_SIZE, None
     if scene is not None:
         size = (int(scene.width), int(scene.height))
-        t = (np.asarray(scene.time, np.int64) - 0) / 1e9
+        t = np.asarray(scene.time, np.int64) / 1e9
         fps = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else None
-    imp.set_camera(K, dist, size, serial=str(cal.serial))
+    if cal is not None:
+        if not np.allclose(np.asarray(cal.scene_extrinsics_affine_matrix, float), np.eye(4), atol=1e-6):
+            imp.note("calibration.bin scene extrinsics are not identity; the eye states are taken as given in the "
+                     "scene camera's frame")
+        device = CameraCalibration(np.asarray(cal.scene_camera_matrix, float),
+                                   np.asarray(cal.scene_distortion_coefficients, float), size)
+    if user is not None:
+        imp.set_camera(user.camera_matrix, user.dist_coeffs, user.image_size, user.model)
+        also = "" if cal is not None else " (no calibration.bin; also used for Neon's 2D gaze)"
+        imp.note(f"scene camera from --camera {options.camera}{also}")
+    else:
+        imp.set_camera(device.camera_matrix, device.dist_coeffs, size, serial=str(cal.serial))
     if options.markers is not None:
         imp.set_marker_map(options.markers)
-    return K, dist, size, fps, scene
+    return (device if cal is not None else user), size, fps, scene
 
 
 def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progress=None) -> None:
@@ -329,7 +340,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
     imp.drop("eye_state: records cut by the reader (.raw and .time differ in length)", eyes.truncated)
     for n in eyes.notes:
         imp.note(n)
-    K, dist, size, fps, scene = _camera(rec, imp, options, src)
+    cam, size, fps, scene = _camera(rec, imp, options, src)
     kappa_src = options.kappa_recording or (src if (src / TARGETS).is_file() else None)
     if kappa_src is not None:
         if Path(kappa_src) == src:
@@ -337,7 +348,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
         kappa = _fit_targets(Path(kappa_src))
         sample = _binocular_sample(eyes)
     else:
-        sample = _binocular_sample(eyes, K, dist)
+        sample = _binocular_sample(eyes, cam)
         kappa = _fit_cyclopean(eyes, *sample)
     n = len(eyes.t_ns)
     for a, ch in eyes.chunks():
