@@ -314,3 +314,11 @@ def test_round_trip_with_a_separate_kappa_recording_and_the_cyclopean_fallback(s
     assert 500 < k["rays_after"]["median_depth_in_front_mm"] < 1500          # set by the assumed 1 m
     for ang in _angles_to_sim(read_eye_rays(tmp_path / "b" / "eye_rays.csv"), sim):
         assert np.median(ang) < 1.2
+
+
+def test_round_trip_through_process_finds_the_targets_as_well_as_the_native_session(tmp_path_factory, tmp_path):
+    from roundtrip import rms, roundtrip_errors
+    native, imported, report = roundtrip_errors("pupil-neon", tmp_path_factory.getbasetemp(), tmp_path)
+    assert report["pose_source"] == "scene_video" and report["kappa"]["method"] == "targets"
+    assert np.all(np.isfinite(imported)), "every fixated target found"
+    assert rms(imported) <= 1.1 * rms(native)
