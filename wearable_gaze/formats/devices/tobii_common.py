@@ -93,8 +93,9 @@ def orthonormal(R) -> np.ndarray:
 
 
 def t_cam_from_glasses(cam: GlassesCamera, convention: str = "R p + position") -> np.ndarray:
-    """(4, 4) T_cam_from_glasses of a unit: [[R, s R-or-identity position], [0, 1]] with the
-    position read as ``convention`` (one of ``CONVENTIONS``)."""
+    """(4, 4) T_cam_from_glasses of a unit: rotation R and translation ``position`` (p_cam =
+    R p + position) or -R ``position`` (p_cam = R (p - position)), as ``convention`` says (one of
+    ``CONVENTIONS``)."""
     R = cam.rotation
     T = np.eye(4)
     T[:3, :3] = R
