@@ -173,7 +173,7 @@ def test_missing_streams_and_files_give_one_line(sample, copy, tmp_path):
     (copy / "eye_state ps1.raw").write_bytes(raw[:-120])                   # 1.5 records: a partial one
     one_line_error(copy, tmp_path / "c", f"partial 80-byte record.*truncate -s {len(raw) - 160} ")
     (copy / "eye_state ps1.raw").unlink()
-    one_line_error(copy, tmp_path / "e", "'eyeball' stream is missing")
+    one_line_error(copy, tmp_path / "e", r"stream is missing or unreadable \(eye_state ps")
     (copy / "info.json").write_text("{not json")
     one_line_error(copy, tmp_path / "d", "not a readable Neon recording")
 

@@ -148,8 +148,12 @@ class _Eyes:
         self.src, self.imp = src, imp
         self.rec = _open(src)
         self.truncated = _truncated(src, "eye_state")
+        # the vendor loads eye_state whole, once per stream: keep the lids' apertures only, and
+        # release that copy before the eyeball stream loads its own (halves the peak)
+        lids = _stream(self.rec, "eyelid", src, "eye_state ps*.raw/.time")
+        self.aperture = np.stack([np.ravel(lids.aperture_left), np.ravel(lids.aperture_right)]).astype(np.float32)
+        del lids, self.rec.eyelid
         self.eyes = _stream(self.rec, "eyeball", src, "eye_state ps*.raw/.time")
-        self.lids = _stream(self.rec, "eyelid", src, "eye_state ps*.raw/.time")
         self.t_ns = np.asarray(self.eyes.time, np.int64)
         if not len(self.t_ns):
             raise UserError(f"{src}: the eye_state stream has no records; record again or check the copy")
@@ -169,11 +173,11 @@ class _Eyes:
     def chunk(self, a: int, b: int) -> dict:
         """Samples a..b-1: ``t`` (s, session clock), ``center``/``axis`` (2, n, 3) per eye
         (left, right), ``eye_ok`` (2, n) and ``keep`` (n,) with each exclusion counted."""
-        part, lid = self.eyes[a:b], self.lids[a:b]
+        part = self.eyes[a:b]
         t_ns = self.t_ns[a:b]
         c = np.stack([part.center_left, part.center_right]).astype(float)
         d = np.stack([part.optical_axis_left, part.optical_axis_right]).astype(float)
-        aperture = np.stack([np.ravel(lid.aperture_left), np.ravel(lid.aperture_right)]).astype(float)
+        aperture = self.aperture[:, a:b].astype(float)
         keep = self.increasing[a:b].copy()
         self._drop("time not increasing", int((~keep).sum()))
         if self.worn is not None:
@@ -236,7 +240,8 @@ def _binocular_sample(eyes: _Eyes, cam: CameraCalibration | None = None):
     if cam is not None:
         g = _stream(eyes.rec, "gaze", eyes.src, "gaze ps*.raw/.time, needed for the kappa offset without "
                                                 "--kappa-recording")
-        gaze = (np.asarray(g.time, np.int64), np.asarray(g.point, float).reshape(-1, 2))
+        gaze = (np.array(g.time, np.int64), np.asarray(g.point, float).reshape(-1, 2))
+        del g, eyes.rec.gaze                      # only these two arrays are kept
     rows = []
     step = max(1, len(eyes.t_ns) // MAX_FIT_SAMPLES)
     saved, eyes.imp = eyes.imp, None          # counted once, when the rays are written
