@@ -68,6 +68,16 @@ def test_g2_real_counts_match_the_recording(g2_real):
     assert rays.t_s[0] == pytest.approx(0.019919, abs=1e-6)
 
 
+def test_g2_real_format_is_detected(g2_real):
+    """The Tobii project folder and the recording folder inside it are both tobii-g2 (and no
+    other format's files match them)."""
+    from wearable_gaze.formats.devices import detect_format  # noqa: PLC0415
+
+    root = g2_real[0] / "recording"
+    assert detect_format(root) == "tobii-g2" == detect_format(root / "recordings" / "t3ic6aq")
+    assert not tobii_g3.detect(root) and not tobii_g2.detect(root / "recordings")
+
+
 def test_g2_real_frame_mapping_reproduces_the_devices_2d_gaze(g2_real):
     """The unit's own rotation from et.tslv (1.07 deg from the nominal flip) maps gp3 onto gp to
     0.058 px median (the research's oracle 2; the bare flip gives 11.8 px): the TSLV reader, the
