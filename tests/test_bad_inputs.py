@@ -1014,7 +1014,7 @@ add("import-src-missing", "import", lambda e, d: ["import", str(d / "nothing"), 
     ("no such recording",))
 add("import-src-undetectable", "import", lambda e, d: ["import", e["session"], "-o", str(d / "s")],
     ("none of the known formats", "--format"))
-add("import-src-is-file", "import", lambda e, d: ["import", e["markers"], "-o", str(d / "s")], ("not a folder",))
+add("import-src-is-file", "import", lambda e, d: ["import", e["markers"], "-o", str(d / "s")], ("a file", "--format"))
 add("import-out-not-empty", "import", lambda e, d: ["import", e["session"], "-o", str(_mkdir(d / "o"))],
     ("not empty",))
 add("import-out-is-src", "import", lambda e, d: ["import", e["session"], "-o", e["session"]], ("also an input",))

@@ -35,9 +35,11 @@ def detect_format(src) -> str:
         UserError: no format, or more than one, matches.
     """
     src = Path(src)
+    if src.is_file():
+        raise UserError(f"{src}: a file, not a recording folder; pass the recording's folder, or name the format "
+                        "with --format (a Pupil Player gaze_positions CSV: --format pupil-core)")
     if not src.is_dir():
-        raise UserError(f"{src}: {'a file, not a folder' if src.exists() else 'no such folder'}; pass the "
-                        "recording's folder")
+        raise UserError(f"{src}: no such folder; pass the recording's folder")
     found = [name for name in MODULES if device_module(name).detect(src)]
     if len(found) != 1:
         what = "none of the known formats" if not found else f"more than one format ({', '.join(found)})"
