@@ -192,3 +192,15 @@ def vergence(left_centers_mm, left_directions, right_centers_mm, right_direction
     pair = closest_point_two_lines(lc, ld, rc, rd)
     return {"vergence_deg": np.degrees(_wrap(fick_angles(ld)[0] - fick_angles(rd)[0])),
             "depth_mm": pair.point_mm[:, 2], "in_front": pair.status == PairStatus.OK}
+
+
+def vergence_summary(left_centers_mm, left_directions, right_centers_mm, right_directions) -> dict:
+    """``vergence`` of N binocular rays in three numbers: ``median_vergence_deg``,
+    ``in_front_share`` (of samples whose rays meet ahead of both eyes) and
+    ``median_depth_in_front_mm`` (None when none do). An empty input gives {}."""
+    if not len(np.asarray(left_centers_mm).reshape(-1, 3)):
+        return {}
+    v = vergence(left_centers_mm, left_directions, right_centers_mm, right_directions)
+    front = v["in_front"]
+    return {"median_vergence_deg": float(np.median(v["vergence_deg"])), "in_front_share": float(front.mean()),
+            "median_depth_in_front_mm": float(np.median(v["depth_mm"][front])) if front.any() else None}

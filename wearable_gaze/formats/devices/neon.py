@@ -13,6 +13,10 @@ Files read (through Pupil Labs' reader ``pupil_labs.neon_recording``, the option
   scene camera's K and distortion, for the kappa offset (b) below and for ``camera.json``;
 - ``Neon Scene Camera v1 ps1.mp4`` + ``.time`` (optional): the scene video and its frame times.
 
+``ImportOptions.camera`` replaces calibration.bin's camera in ``camera.json`` (and stands in for
+a missing calibration.bin). Memory: the vendor reader loads each stream whole as numpy arrays;
+the import keeps only the arrays it needs and converts and writes in chunks of ``CHUNK``.
+
 Frames. Neon reports the eye states in the scene camera's frame with OpenCV axes (x right,
 y down, z forward), mm; ``calibration.bin`` holds the scene camera's extrinsics, identity in
 every recording seen. That frame is our head frame: ``T_HEAD_FROM_NEON_SCENE`` = identity.
@@ -20,9 +24,10 @@ every recording seen. That frame is our head frame: ``T_HEAD_FROM_NEON_SCENE`` =
 Kappa. The eye states are optical axes: they diverge (median 4.1 deg on the demo recording)
 and the rays meet behind the head. The import turns them into visual axes with a constant
 per-eye Fick-angle offset (``calibration.kappa``), fitted either
-(a) ``targets``: from ``ImportOptions.kappa_recording``, a Neon recording folder holding
-    ``targets.csv`` (``t_start, t_end`` s on that recording's session clock, ``x, y, z`` mm in
-    its scene-camera frame: the point looked at during each interval), or
+(a) ``targets``: from ``ImportOptions.kappa_recording`` (or the imported folder itself when it
+    holds the file), a Neon recording folder holding ``targets.csv`` (``t_start, t_end`` s on
+    that recording's session clock, ``x, y, z`` mm in its scene-camera frame: the point looked at
+    during each interval), or
 (b) ``cyclopean-ray``: from Neon's own 2D gaze, undistorted through the scene camera's K and
     distortion, taken as the cyclopean gaze ray from the scene camera, each eye's axis made to
     meet it at the fixed depth ``KAPPA_DEPTH_MM`` (the depth is an assumption: see
@@ -54,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.camera import CameraCalibration
-from calibration.kappa import apply_kappa, fit_kappa_cyclopean, fit_kappa_targets, vergence
+from calibration.kappa import apply_kappa, fit_kappa_cyclopean, fit_kappa_targets, vergence_summary
 
 from ...errors import UserError
 from ..camera import load_camera
@@ -291,19 +296,6 @@ def _fit_targets(folder: Path):
                         f"{TARGETS} intervals cover valid eye samples (times in s from the first eye sample)") from None
 
 
-def _verge_summary(c, d, kappa=None) -> dict:
-    """Median vergence (deg), median depth of the rays' meeting points in front (mm) and the
-    share of samples meeting in front, of binocular samples (2, n, 3) arrays."""
-    if kappa is not None:
-        d = np.stack([apply_kappa(d[0], kappa.left.kappa_deg), apply_kappa(d[1], kappa.right.kappa_deg)])
-    if not d.shape[1]:
-        return {}
-    v = vergence(c[0], d[0], c[1], d[1])
-    front = v["in_front"]
-    return {"median_vergence_deg": float(np.median(v["vergence_deg"])), "in_front_share": float(front.mean()),
-            "median_depth_in_front_mm": float(np.median(v["depth_mm"][front])) if front.any() else None}
-
-
 def _camera(rec, imp: SessionImport, options: ImportOptions, src: Path):
     """The scene camera: ``camera.json`` from ``--camera`` or else calibration.bin, the scene
     video if present, the marker map. Returns (the camera Neon's 2D gaze was mapped through:
@@ -389,8 +381,9 @@ def _finish(imp, rec, eyes: _Eyes, kappa, sample, pose_source, size, fps) -> Non
                 "depth_mm": kappa.depth_mm,
                 "source": ("Neon's 2D gaze ray at a fixed depth" if kappa.depth_mm is not None
                            else "a recording of known targets")}
-    k_report["rays_before"] = _verge_summary(*sample[:2])
-    k_report["rays_after"] = _verge_summary(*sample[:2], kappa)
+    (c, d), kl, kr = sample[:2], kappa.left.kappa_deg, kappa.right.kappa_deg
+    k_report["rays_before"] = vergence_summary(c[0], d[0], c[1], d[1])
+    k_report["rays_after"] = vergence_summary(c[0], apply_kappa(d[0], kl), c[1], apply_kappa(d[1], kr))
     imp.note(f"kappa offset by {kappa.method}" + (f" at {kappa.depth_mm:g} mm" if kappa.depth_mm else "")
              + f": left {k_report['left_deg']} deg, right {k_report['right_deg']} deg")
     start = rec.start_time
