@@ -306,6 +306,12 @@ def test_trajectory_times_going_back_give_one_line(copy, tmp_path):
     one_line_error(copy, tmp_path, "goes back")
 
 
+def test_a_damaged_file_gives_one_line(copy, tmp_path):
+    data = (copy / TRAJ).read_bytes()
+    (copy / TRAJ).write_bytes(data[:200000] + b"\xff\xfe" + data[200000:])
+    one_line_error(copy, tmp_path, "not UTF-8")
+
+
 def test_no_usable_pose_gives_one_line(copy, tmp_path):
     edit(copy / TRAJ, lambda ls: ls[:1])
     one_line_error(copy, tmp_path, "no usable pose row")

@@ -250,6 +250,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
     index = {n: j for j, n in enumerate(names) if n}
     for rows in csv_chunks(path, "eye-gaze CSV", CHUNK_ROWS):
         _import_chunk(_Gaze(rows, index, model), imp, options, trajectory, swapped, state, path)
+    trajectory.close()
     if trajectory.n_kept == 0:
         raise UserError(f"{traj}: no usable pose row; is the trajectory file complete?")
     if trajectory.n_low_quality:

@@ -26,7 +26,7 @@ from .common import SessionImport
 TIME = "tracking_timestamp_us"
 POSE_COLS = ("tx_world_device", "ty_world_device", "tz_world_device",
              "qx_world_device", "qy_world_device", "qz_world_device", "qw_world_device")
-CHUNK_ROWS = 16384
+CHUNK_ROWS = 4096
 
 
 def csv_header(path: Path, what: str, fix: str, required=()) -> list[str]:
@@ -176,6 +176,10 @@ class TrajectoryStream:
         t = (cols[TIME][sel] - self.t_ref_us) / 1e6
         self.t_first = t[0] if self.t_first is None else self.t_first
         self.t, self.T = np.concatenate([self.t, t]), np.concatenate([self.T, self.T_left @ T])
+
+    def close(self) -> None:
+        """Stop reading (the eye samples ended before the trajectory)."""
+        self._chunks.close()
 
     def _prune(self, tq: np.ndarray) -> None:
         """Keep only the poses around ``tq`` (both neighbours of each) and all from the last
