@@ -22,12 +22,13 @@ from .lines import (
     view_lines_to_camera,
     view_lines_to_world,
 )
-from .result import Ellipsoid, GazeEstimate, Status
+from .result import NEAR_POINT_MM, Ellipsoid, GazeEstimate, Status, near_point_check
 from .triangulation import PairStatus, closest_point_two_lines, lse_point, nearest_point_to_lines
 from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEstimator
 
 __all__ = [
-    "METHODS", "BinocularSample", "BinocularSamples", "Ellipsoid", "GazeEstimate", "MLConfig",
+    "METHODS", "NEAR_POINT_MM", "near_point_check",
+    "BinocularSample", "BinocularSamples", "Ellipsoid", "GazeEstimate", "MLConfig",
     "PairStatus", "PaperVoxelConfig", "PaperVoxelEstimator", "Status", "ViewLines", "VoxelConfig",
     "VoxelEstimator", "angular_log_likelihood", "batch_options", "calibration_plane_points", "closest_point_two_lines",
     "cramer_rao_bound",

@@ -14,7 +14,7 @@ import logging
 
 from .likelihood import MLConfig, ml_point
 from .lines import BinocularSample, BinocularSamples, samples_from_stream
-from .result import GazeEstimate, Status, failed
+from .result import GazeEstimate, Status, failed, near_point_check
 from .triangulation import lse_point, nearest_point_to_lines
 from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEstimator
 
@@ -118,6 +118,9 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
             result = est.update(samples.sample(i))
     else:
         result = est.add(samples)
+    if result.ok:
+        lines = samples.lines()
+        result = near_point_check(result, lines.origins_mm, lines.directions)
     log.info("%s: %d samples, %d lines: %s", method, result.n_samples, result.n_lines,
              f"{result.position_mm.round(1).tolist()} mm" if result.ok else f"{result.status.value}: {result.reason}")
     return est, result

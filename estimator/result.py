@@ -16,6 +16,7 @@ class Status(str, Enum):
     INSUFFICIENT = "insufficient-data"   # too few lines or samples yet
     DEGENERATE = "degenerate"            # lines (nearly) parallel: the point is not determined
     BEHIND = "behind"                    # the best point lies behind the eyes
+    TOO_NEAR = "too-near"                # nearer the eyes than anyone can fixate: the lines are wrong
 
 
 @dataclass(frozen=True)
@@ -96,3 +97,31 @@ def covariance_ellipsoid(center_mm, covariance_mm2, probability: float = 0.95) -
     w, V = np.linalg.eigh(0.5 * (C + C.T))
     k2 = chi2.ppf(probability, df=3)
     return Ellipsoid(np.asarray(center_mm, float), np.sqrt(np.clip(w, 0, None) * k2), V, probability)
+
+
+NEAR_POINT_MM = 70.0
+"""The nearest distance from the eyes at which a person can fixate (the near point of
+convergence is 5-10 cm in adults; Scheiman & Wick, Clinical Management of Binocular Vision):
+an estimate nearer than this, or behind the eyes, comes from wrong view lines (an eye model not
+fitted, optical instead of visual axes, swapped eyes), not from a gazed object."""
+
+
+def near_point_check(e: GazeEstimate, origins_mm, directions, near_mm: float = NEAR_POINT_MM) -> GazeEstimate:
+    """``e`` unchanged, or, when its point lies less than ``near_mm`` in front of the view lines'
+    origins (median over the lines of the distance along each line), the same estimate marked
+    ``Status.TOO_NEAR`` (not usable) with the reason.
+
+    Args:
+        e: an estimate.
+        origins_mm, directions: (N, 3) the lines it came from (eye centres, unit directions).
+    """
+    if not e.ok or e.position_mm is None or len(origins_mm) == 0:
+        return e
+    along = np.einsum("ij,ij->i", np.asarray(e.position_mm, float) - origins_mm, directions)
+    d = float(np.median(along))
+    if d >= near_mm:
+        return e
+    return GazeEstimate(e.method, Status.TOO_NEAR, e.position_mm, e.covariance_mm2, e.n_samples, e.n_lines,
+                        f"the point lies {d:.0f} mm in front of the eyes, nearer than anyone fixates ({near_mm:g} mm): "
+                        "the view lines are wrong (eye model, visual axes or eye labels)", e.info)
+

@@ -143,3 +143,19 @@ def test_the_manifest_records_the_source(simulated, tmp_path):
     man = json.loads((tmp_path / "s" / "session.json").read_text())
     assert man["source"] == {"device": "test", "path": str(session), "clock_offset_s": 12.5, "pose_source": "device"}
     assert set(man["files"]) == {"eye_rays", "head_poses", "device_gaze", "import_report"}
+
+
+@pytest.mark.parametrize("method", ["ml", "voxel", "lse", "paper"])
+def test_a_point_nearer_than_anyone_fixates_is_not_an_answer(rng, method):
+    """Lines that meet 40 mm in front of the eyes (an eye model not fitted: the Tufts rows) give
+    'too-near', not a confident point; the same lines toward 600 mm give one."""
+    from estimator import NEAR_POINT_MM, Status
+    t = np.arange(40) / 60.0
+    lo, ro = np.tile([-32.0, 0, 0], (40, 1)), np.tile([32.0, 0, 0], (40, 1))
+    for depth, want in ((40.0, Status.TOO_NEAR), (600.0, Status.OK)):
+        p = np.array([0.0, 0, depth])
+        s = BinocularSamples.from_arrays(t, lo, perturb_directions(p - lo, np.deg2rad(0.2), rng), ro,
+                                         perturb_directions(p - ro, np.deg2rad(0.2), rng))
+        e = estimate(s, method)
+        assert e.status == want, (method, depth, e.status, e.reason)
+    assert NEAR_POINT_MM > 40

@@ -15,6 +15,7 @@ from estimator import (
     cramer_rao_bound,
     density_point_cloud,
     make_estimator,
+    near_point_check,
     run_estimator,
 )
 
@@ -32,8 +33,12 @@ def running_estimate(samples: BinocularSamples, method: str, sigma_deg: float,
     stream = make_estimator(method, sigma_deg, **batch_options(method, len(samples)))
     bounds = np.unique(np.linspace(0, len(samples), min(chunks + 1, len(samples) + 1)).astype(int))
     e, usable = None, []
+    lines = samples.lines()
     for j0, j1 in zip(bounds[:-1], bounds[1:], strict=True):
         e = stream.add(samples.select(slice(j0, j1)))
+        if e.ok:                                  # nearer than the eyes fixate: not an answer
+            used = lines.sample_index < j1
+            e = near_point_check(e, lines.origins_mm[used], lines.directions[used])
         if e.ok:
             usable.append((float(samples.t_s[j1 - 1]), e))
     return e, usable
