@@ -109,9 +109,11 @@ def test_real_sample(sample, tmp_path):
     assert detect_format(sample) == "pupil-neon"
     out = tmp_path / "s"
     rep = run_import(sample, out)
-    assert rep["read"] == {"eye_state": 1788}
+    assert rep["read"]["eye_state"] == 1788
     assert rep["eye_samples_written"] + sum(v for k, v in rep["dropped"].items() if " eye:" not in k) == 1788
     assert rep["dropped"]["inside a blink (Neon's blinks stream)"] == 100     # Neon's two blinks, 5 ms apart
+    assert rep["dropped"]["right eye: eyelid closed (aperture < 1 mm)"] == 7  # lids closing outside them
+    assert rep["read"]["gaze"] == 1788
     man = json.loads((out / "session.json").read_text())
     assert man["eye_rate_hz"] == 200 and man["source"]["pose_source"] == "still_head"
     assert not (out / "device_gaze.csv").exists()                     # Neon has no 3D gaze point
@@ -124,6 +126,7 @@ def test_real_sample(sample, tmp_path):
     assert np.median(dt) == pytest.approx(0.005, abs=1e-6)
     blink = dt > 0.2                                                  # the gaps the blinks left
     assert blink.sum() == 2 and np.isclose(dt[~blink].max(), 0.015, atol=1e-6) and (dt[~blink] > 0.012).sum() == 1
+    assert rays.left_valid.all() and (~rays.right_valid).sum() == 7
     both = rays.left_valid & rays.right_valid
     ied = np.linalg.norm(rays.right_origin_mm[both] - rays.left_origin_mm[both], axis=1)
     assert np.median(ied) == pytest.approx(63.1, abs=0.5)

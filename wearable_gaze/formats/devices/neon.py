@@ -246,6 +246,8 @@ def _binocular_sample(eyes: _Eyes, cam: CameraCalibration | None = None):
         g = _stream(eyes.rec, "gaze", eyes.src, "gaze ps*.raw/.time, needed for the kappa offset without "
                                                 "--kappa-recording")
         gaze = (np.array(g.time, np.int64), np.asarray(g.point, float).reshape(-1, 2))
+        if eyes.imp is not None:
+            eyes.imp.count("gaze", len(gaze[0]))
         del g, eyes.rec.gaze                      # only these two arrays are kept
     rows = []
     step = max(1, len(eyes.t_ns) // MAX_FIT_SAMPLES)
