@@ -221,14 +221,14 @@ def test_pre_2024_model_gives_one_cyclopean_line(copy, tmp_path):
 
 
 def test_personalized_file_is_preferred_and_several_session_uids_are_noted(copy, tmp_path):
-    pers = copy / "eye_gaze" / "personalized_eye_gaze.csv"
+    pers = copy / "eye_gaze_vergence" / "personalized_gaze.csv"        # found after the general file
     shutil.copyfile(copy / GAZE, pers)
     edit(pers, lambda ls: ls[:60] + [ln.rsplit(",", 1)[0] + ",second-calibration" for ln in ls[60:]])
     report, rays, _, _ = run(copy, tmp_path / "s")
-    assert report["eye_gaze"]["file"] == "eye_gaze/personalized_eye_gaze.csv"
+    assert report["eye_gaze"]["file"] == "eye_gaze_vergence/personalized_gaze.csv"
     assert len(report["eye_gaze"]["session_uids"]) == 2 and len(rays) == 114
     assert any("2 session_uid values" in n for n in report["notes"])
-    assert any("not read: eye_gaze/eyegaze.csv, eye_gaze/generalized_eye_gaze.csv, " + GAZE in n
+    assert any(n.endswith("; not read: eye_gaze/eyegaze.csv, eye_gaze/generalized_eye_gaze.csv, " + GAZE)
                for n in report["notes"])
 
 
