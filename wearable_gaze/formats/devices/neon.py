@@ -449,7 +449,9 @@ def write_recording(sim: SimulatedRecording, dst: Path, kappa_deg: dict | None =
     for side, o, d, v in (("left", r.left_origin_mm, r.left_direction, r.left_valid),
                           ("right", r.right_origin_mm, r.right_direction, r.right_valid)):
         k = -np.asarray(kappa.get(side, (0.0, 0.0)), float)
-        axis = apply_kappa(np.where(v[:, None], d, np.nan), k)
+        # an invalid (blinking) eye: as Neon writes it, a closed lid with the eye looking ahead
+        axis = apply_kappa(np.where(v[:, None] & np.isfinite(d), d, [0.0, 0.0, 1.0]), k)
+        o = np.where(np.isfinite(o), o, np.nanmedian(o, axis=0))
         for a, i in zip("xyz", range(3), strict=True):
             cols[f"eyeball_center_{side}_{a}"] = o[:, i]
             cols[f"optical_axis_{side}_{a}"] = axis[:, i]
