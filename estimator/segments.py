@@ -46,12 +46,15 @@ class SegmentConfig:
 
     @classmethod
     def for_rate(cls, rate_hz: float, **settings) -> SegmentConfig:
-        """The settings for eye samples at ``rate_hz``: the window spans the same 0.13 s as the
-        default's 8 samples at 60 Hz, and at least 2 samples (10 Hz: 2 a side, so a 0.5 s
-        fixation of 5 samples is found; 200 Hz: 27). ``settings`` override the others."""
+        """The settings for eye samples at ``rate_hz``. The window's job is to beat the
+        per-sample noise, which takes a number of samples, not a time span: 8 as by default, but
+        never more than 0.13 s (the default's span at 60 Hz) and at least 2, so a 0.5 s fixation
+        of 5 samples at 10 Hz (Aria) is found (2 a side). At 200 Hz (Neon) it stays 8 (40 ms):
+        a window of 0.13 s there (27 samples) straddles the short fixations and finds none on
+        Neon's demo recording, 8 finds 7. ``settings`` override the others."""
         if not (np.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
-        return cls(window=max(2, int(round(cls.window * rate_hz / 60.0))), **settings)
+        return cls(window=min(cls.window, max(2, int(round(cls.window * rate_hz / 60.0)))), **settings)
 
 
 def cyclopean_directions(samples: BinocularSamples) -> np.ndarray:

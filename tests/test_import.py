@@ -30,6 +30,8 @@ def _import_simulated(session, out, pose_source, gaze=True):
             imp.add_head_poses(sim.t, sim.T_world_from_head)
         if gaze:
             imp.add_device_gaze(sim.t, sim.gaze_head_mm)
+        imp.note("kappa offset by cyclopean-ray at 1000 mm")
+        imp.drop("status 16", 3)
         imp.finish(sim.eye_rate_hz, 12.5, pose_source, {"head": "the scene camera"})
     return sim
 
@@ -51,6 +53,8 @@ def test_device_rays_and_poses_find_the_targets_as_well_as_the_native_session(si
     assert len(cmp) == len(res.targets) + 1
     page = html.unescape((tmp_path / "out" / "report.html").read_text())
     assert "Beside the device's own 3D gaze" in page and "Head poses: the device's own" in page
+    # what the import noted and dropped is said where the results are read
+    assert "Import (test): kappa offset by cyclopean-ray" in page and "dropped 3 (status 16)" in page
 
 
 def test_a_still_head_uses_only_vergence_and_the_report_says_so(simulated, tmp_path):

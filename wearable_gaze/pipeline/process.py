@@ -21,6 +21,7 @@ from ..errors import UserError
 from ..formats.atomic import remove_temporaries
 from ..formats.board import BOARD_FILE, read_board
 from ..formats.camera import load_camera
+from ..formats.devices.common import read_import_report
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
 from ..formats.jsonio import write_json
@@ -67,6 +68,7 @@ class _SessionFiles:
     device_gaze: Path | None = None         # ... the device's own 3D gaze (comparison only)
     pose_source: str | None = None          # ... 'device', 'scene_video' or 'still_head'
     eye_rate_hz: float | None = None
+    import_report: Path | None = None
 
     @classmethod
     def of(cls, s) -> _SessionFiles:
@@ -75,7 +77,8 @@ class _SessionFiles:
                    s.root / files.get("eye_calibration", "calibration/eye"), s.manifest.get("has_recording", True),
                    s.path("scene_video"), s.path("marker_map"), s.path("scene_timestamps"), s.path("eye_samples"),
                    s.path("eye_rays"), s.path("head_poses"), s.path("device_gaze"),
-                   s.manifest.get("source", {}).get("pose_source"), s.manifest.get("eye_rate_hz"))
+                   s.manifest.get("source", {}).get("pose_source"), s.manifest.get("eye_rate_hz"),
+                   s.path("import_report"))
 
 
 class _Values:
@@ -264,11 +267,27 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
     cam_ok = steps.status.get("camera") in GOOD and f.eye_samples is not None   # the overlay draws raw eye samples
     inputs = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"] + ([f.video] if cfg.overlay and f.video
                                                                                  else [])
+    extra = [f.import_report] if f.import_report else []
+
+    def do_report(cb):
+        notes = _report_notes(f, cfg)
+        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes)
+    steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}, do_report)
+
+
+def _report_notes(f: _SessionFiles, cfg: _Settings) -> list[str]:
+    """What the report must say first about an imported session: where the head poses came
+    from, the import's notes (kappa, eye labels, fallbacks) and what it dropped."""
     notes = [POSE_NOTES[f.pose_source]] if f.pose_source else []
     if f.eye_rays is not None and cfg.overlay:
         notes.append("No overlay video: an imported session's eye rays are drawn in the plots only.")
-    steps.run("report", inputs, {"overlay": cfg.overlay, "notes": notes},
-              lambda cb: write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes))
+    if f.import_report is not None:
+        rep = read_import_report(f.import_report)
+        notes += [f"Import ({rep['device']}): {n}" for n in rep.get("notes", [])]
+        if rep.get("dropped"):
+            notes.append(f"Import ({rep['device']}): dropped " + ", ".join(f"{n} ({why})" for why, n in
+                                                                          rep["dropped"].items()))
+    return notes
 
 
 def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:

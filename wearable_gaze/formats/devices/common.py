@@ -29,7 +29,7 @@ from ...errors import UserError
 from .. import eye_rays as rays_fmt
 from ..camera import camera_dict, load_camera, write_camera
 from ..eye_samples import read_eye_csv
-from ..jsonio import load_json, write_json
+from ..jsonio import load_json, read_json_text, write_json
 from ..poses import POSE_COLUMNS, POSE_FORMATS, pose_columns, read_poses_csv
 from ..session import FORMAT, VERSION, write_manifest
 from ..tables import TableWriter, read_table
@@ -217,6 +217,18 @@ class SessionImport:
             manifest["fps"] = float(fps)
         write_manifest(self.out, manifest)
         return manifest
+
+
+def read_import_report(path) -> dict:
+    """``import_report.json`` (written by ``SessionImport.finish``) as a dict.
+
+    Raises:
+        UserError: the file is missing, not JSON, or not an import report.
+    """
+    rep = read_json_text(path, "import report")
+    if not isinstance(rep, dict) or "device" not in rep or not isinstance(rep.get("notes", []), list):
+        raise UserError(f"{path}: not an import report (no 'device'); re-run 'wearable-gaze import'")
+    return rep
 
 
 # --- the simulator's sessions, for the device writers ------------------------------------------
