@@ -163,3 +163,34 @@ def test_a_point_nearer_than_anyone_fixates_is_not_an_answer(rng, method):
         e = estimate(s, method)
         assert e.status == want, (method, depth, e.status, e.reason)
     assert NEAR_POINT_MM > 40
+
+
+def test_a_poorly_fixed_fixation_is_not_merged_into_a_well_fixed_one(rng):
+    """Aria's two fixations: one with 400 mm of head travel fixes its point to a few cm, the
+    other (a still head: vergence only) to a metre in depth. When the good point lies 2 deg off
+    the vague fixation's lines, the covariances still overlap (with the 0.5 deg floor for
+    calibration bias), so ``same_target`` alone merged them and dragged the good point toward
+    the other lines; the lines' likelihood ratio keeps them apart. Two fixations of one point
+    still merge."""
+    from estimator.segments import same_target
+    from wearable_gaze.pipeline.fixations import find_targets
+
+    def fixation(point, heads, t0):
+        lo, ro = heads - [32, 0, 0], heads + [32, 0, 0]
+        return BinocularSamples.from_arrays(t0 + np.arange(len(heads)) / 10.0, lo,
+                                            perturb_directions(point - lo, np.deg2rad(1.0), rng), ro,
+                                            perturb_directions(point - ro, np.deg2rad(1.0), rng))
+    p_a = np.array([300.0, 0, 2400])
+    u = p_a / np.linalg.norm(p_a)
+    side = np.cross(u, [0, 1.0, 0])
+    p_b = 3400 * (np.cos(np.deg2rad(2.0)) * u + np.sin(np.deg2rad(2.0)) * side / np.linalg.norm(side))
+    moving = np.column_stack([np.linspace(-200, 200, 5), np.zeros(5), np.zeros(5)])
+    a = fixation(p_a, moving, 0.0)
+    b = fixation(p_b, np.zeros((9, 3)), 8.0)
+    c = fixation(p_a, moving[::-1] + [0, 0, 100], 20.0)
+    s = BinocularSamples.concatenate([a, b, c])
+    ea, eb = estimate(a, "ml"), estimate(b, "ml")
+    assert same_target(ea.position_mm, ea.covariance_mm2, eb.position_mm, eb.covariance_mm2, origin=[0, 0, 0])
+    res = find_targets(s, np.repeat([0, 1, 2], [5, 9, 5]), "ml", 1.0)
+    assert [t.fixations for t in res.targets] == [(0, 2), (1,)]
+    assert np.linalg.norm(res.targets[0].position_mm - p_a) < 3 * res.targets[0].crb_mm

@@ -518,3 +518,17 @@ def test_marker_sheets_print_at_exact_scale(tmp_path):
     assert main(["markers", "--ids", "0-3", "--size-mm", "80", "--dict", "DICT_4X4_50", "-o",
                  str(tmp_path / "x.png")]) == 0
     assert main(["markers", "--ids", "60-61", "--size-mm", "80", "-o", str(tmp_path / "y.png")]) == 2
+
+
+def test_first_surface_finds_the_nearest_wall_along_each_ray(rng):
+    from tracking.surface import first_surface
+    wall = np.column_stack([rng.uniform(-800, 800, 4000), rng.uniform(-800, 800, 4000), np.full(4000, 1500.0)])
+    far = wall + [0, 0, 1500]                                 # a second wall behind the first
+    stray = np.array([[0.0, 0, 700]])                         # one stray point is not a surface
+    cloud = np.vstack([wall, far, stray])
+    o = np.zeros((3, 3))
+    d = np.array([[0, 0, 1.0], [0.2, 0, 1], [0, 0, -1.0]])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    depth = first_surface(cloud, o, d)
+    assert depth[0] == pytest.approx(1500, abs=1) and depth[1] == pytest.approx(1500 / d[1, 2], abs=5)
+    assert np.isnan(depth[2])                                 # nothing behind the origin

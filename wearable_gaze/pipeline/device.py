@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tracking.surface import first_surface
 from tracking.timeline import interpolate_poses
 
 from ..errors import UserError
@@ -83,3 +84,24 @@ def device_comparison(device_gaze: Path, samples, targets: list, poses: Poses, o
                      "ours_y_mm": float(tg.position_mm[1]), "ours_z_mm": float(tg.position_mm[2])})
     write_device_comparison(out, rows)
     return rows
+
+
+def surface_reference(points_mm, device_gaze: Path, poses: Poses, t) -> tuple[np.ndarray, np.ndarray]:
+    """Reference gazed points where a map of the scene exists (Aria's SLAM points): the first
+    surface of the cloud along the device's own gaze direction at each time ``t`` (N,), s
+    (``tracking.surface.first_surface``). Returns (N, 3) points and (N, 3) head positions, world
+    frame, mm; NaN where the device gave no gaze, no pose is near, or no surface is found."""
+    t = np.asarray(t, float)
+    t_g, p_g = read_device_gaze(device_gaze)
+    T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, t, 0.1)
+    j = np.searchsorted(t_g, t).clip(0, max(len(t_g) - 1, 0))
+    same = ok & (len(t_g) > 0) & np.isclose(t_g[j] if len(t_g) else t, t, atol=1e-4)
+    d_head = np.where(same[:, None], p_g[j] if len(t_g) else np.nan, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d_head = d_head / np.linalg.norm(d_head, axis=1, keepdims=True)
+    origin = np.where(ok[:, None], T[:, :3, 3], np.nan)
+    d_world = np.einsum("nij,nj->ni", np.nan_to_num(T[:, :3, :3]), np.nan_to_num(d_head))
+    d_world[~np.all(np.isfinite(d_head), axis=1)] = np.nan
+    depth = first_surface(points_mm, np.nan_to_num(origin), np.where(np.isfinite(d_world), d_world, 0.0))
+    depth[~(ok & np.all(np.isfinite(d_world), axis=1))] = np.nan
+    return origin + depth[:, None] * d_world, origin

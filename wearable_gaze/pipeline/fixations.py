@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator import BinocularSamples, GazeEstimate, run_estimator
+from estimator import BinocularSamples, GazeEstimate, angular_log_likelihood, run_estimator
 from estimator.segments import same_target
 
 from ..formats.targets import ESTIMATE_COLUMNS, write_estimates, write_target_labels, write_targets
@@ -80,13 +80,36 @@ def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sig
         for g in groups:
             ge = g.estimate
             if same_target(e.position_mm, e.covariance_mm2, ge.position_mm, ge.covariance_mm2, origin=origin):
-                g.samples = np.sort(np.concatenate([g.samples, f.samples]))
+                both = np.sort(np.concatenate([g.samples, f.samples]))
+                merged = run_estimator(samples.select(both), method, sigma_deg)[1]
+                if not _lines_agree(samples, (g.samples, ge), (f.samples, e), merged, sigma_deg):
+                    continue
+                g.samples, g.estimate = both, merged
                 g.fixations.append(f.index)
-                g.estimate = run_estimator(samples.select(g.samples), method, sigma_deg)[1]
                 break
         else:
             groups.append(_Group(f.samples, [f.index], e))
     return groups
+
+
+MERGE_LR_THRESHOLD = 16.27     # chi-square 99.9 % point, 3 dof
+
+
+def _lines_agree(samples: BinocularSamples, a, b, merged: GazeEstimate, sigma_deg: float) -> bool:
+    """Whether two fixations' lines (``a``, ``b``: (sample indices, estimate)) fit one point:
+    the likelihood-ratio test of one point against two (3 more parameters), on the angular noise
+    model. ``same_target`` compares the two estimates' covariances, which cannot reject when one
+    fixation fixes its point poorly (a still head at 10 Hz: a depth range of metres); merging then
+    drags the good estimate toward the poor one's lines. This test uses the lines themselves."""
+    if not merged.ok:
+        return False
+    sigma = np.deg2rad(sigma_deg)
+    ll = 0.0
+    for idx, e in (a, b):
+        lines = samples.select(idx).lines()
+        ll += float(angular_log_likelihood(e.position_mm[None], lines.origins_mm, lines.directions, sigma)[0])
+        ll -= float(angular_log_likelihood(merged.position_mm[None], lines.origins_mm, lines.directions, sigma)[0])
+    return 2.0 * ll < MERGE_LR_THRESHOLD
 
 
 def write_targets_step(out: Path, result: TargetsResult, method: str) -> None:

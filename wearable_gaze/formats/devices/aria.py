@@ -44,7 +44,9 @@ trajectory rows with NaN, a non-unit quaternion, a repeated time or another SLAM
 than the first. Refused (``UserError``): a missing file or column, times going back, gen2 gaze.
 
 Not given by the device: per-eye pitch, eye rotation centres, per-sample validity, a scene video.
-Not read: the point cloud, online calibration, open-loop trajectory, summary.json.
+Not read by the import: online calibration, open-loop trajectory, summary.json. The semi-dense
+point cloud (``global_points.csv.gz``: ``px,py,pz_world`` m, ``dist_std`` m) is read by
+``read_point_cloud``, for the reference depths of the real-data tests and README table.
 
 projectaria-tools is not used: it pulls a ~450 MB closure (jupyter, a pinned rerun-sdk), cannot
 stream, prints to stdout and returns empty lists on errors; the files are documented CSVs and the
@@ -223,6 +225,31 @@ def _survey(path: Path, names: list[str], model: str) -> dict:
 
 
 # --- the reader -------------------------------------------------------------------------------
+
+POINTS_NAMES = ("trajectory/global_points.csv.gz", "slam/global_points.csv.gz", "global_points.csv.gz")
+
+
+def read_point_cloud(src: Path, max_dist_std_m: float = 0.02) -> np.ndarray:
+    """MPS's semi-dense points as (P, 3) in our world frame, mm, keeping those whose distance
+    uncertainty ``dist_std`` is at most ``max_dist_std_m`` (streamed; the file may be gzipped).
+
+    Raises:
+        UserError: no point-cloud file, or a missing column.
+    """
+    path = next((Path(src) / n for n in POINTS_NAMES if (Path(src) / n).is_file()), None)
+    if path is None:
+        raise UserError(f"{src}: no global_points.csv.gz (MPS's point cloud); download the SLAM outputs too")
+    cols = ("px_world", "py_world", "pz_world", "dist_std")
+    names = csv_header(path, "point cloud", "", cols)
+    index = {n: i for i, n in enumerate(names)}
+    out = []
+    for rows in csv_chunks(path, "point cloud", 65536):
+        v, _, finite = numbers(rows, index, cols)
+        keep = finite & (v["dist_std"] <= max_dist_std_m)
+        p = 1000.0 * np.column_stack([v["px_world"], v["py_world"], v["pz_world"]])[keep]
+        out.append(p @ T_WORLD_FROM_ARIAWORLD[:3, :3].T + T_WORLD_FROM_ARIAWORLD[:3, 3])
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
 
 def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progress=None) -> None:
     """Stream an Aria gen1 MPS folder into ``imp`` (see the module docstring); ``progress(bytes,

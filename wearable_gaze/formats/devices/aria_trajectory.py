@@ -12,6 +12,7 @@ another world than the first are dropped), ``quality_score`` (< 1 counted, kept)
 from __future__ import annotations
 
 import csv
+import gzip
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,7 @@ def csv_header(path: Path, what: str, fix: str, required=()) -> list[str]:
     """The column names of a CSV (its first line), checked: present, no repeat, ``required``."""
     if not path.is_file():
         raise UserError(f"{path}: no such file; {fix}")
-    with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
+    with _open_text(path, errors="replace") as fh:
         names = [h.strip() for h in next(csv.reader(fh), [])]
     if not any(names):
         raise UserError(f"{path}: the {what} is empty; {fix}")
@@ -47,11 +48,24 @@ def csv_header(path: Path, what: str, fix: str, required=()) -> list[str]:
     return names
 
 
+def _open_text(path: Path, errors: str = "strict"):
+    """A CSV file as text (UTF-8, a BOM skipped), gunzipped on the fly when it ends in .gz."""
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", newline="", encoding="utf-8-sig", errors=errors)
+    return open(path, newline="", encoding="utf-8-sig", errors=errors)
+
+
+def _raw_position(fh) -> int:
+    """How far into the file on disk a text handle has read, bytes."""
+    raw = getattr(fh.buffer, "fileobj", None)            # a GzipFile: its compressed file
+    return (raw or fh.buffer).tell()
+
+
 def csv_chunks(path: Path, what: str, rows_per_chunk: int, progress=None):
     """Yield lists of data rows (lists of cells, blank lines skipped) of a CSV, ``rows_per_chunk``
     at a time; ``progress(bytes read, file size)`` after each."""
     total = path.stat().st_size
-    with open(path, newline="", encoding="utf-8-sig") as fh:
+    with _open_text(path) as fh:
         reader = csv.reader(fh)
         rows = []
         try:
@@ -63,7 +77,7 @@ def csv_chunks(path: Path, what: str, rows_per_chunk: int, progress=None):
                     yield rows
                     rows = []
                     if progress:
-                        progress(fh.buffer.tell(), total)
+                        progress(min(_raw_position(fh), total), total)
         except csv.Error as exc:
             raise UserError(f"{path} line {reader.line_num}: the {what} is not valid CSV ({exc})") from None
         except UnicodeDecodeError:
