@@ -1,10 +1,14 @@
-"""Numeric CSV tables (eye samples, timestamps, poses): one reader that names the file, line and
-column of the first problem, and one atomic writer."""
+"""Numeric CSV tables (eye samples, timestamps, poses): a reader of whole files (``read_table``), a
+streaming one for long device files (``csv_header``, ``iter_csv_chunks``, ``chunk_numbers``: memory
+flat in the file's length, gzip aware), both naming the file, line and column of the first problem,
+and one atomic writer (``TableWriter``)."""
 
 from __future__ import annotations
 
 import csv
+import gzip
 import io
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -65,8 +69,7 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
                 try:
                     float(c)
                 except ValueError:
-                    raise UserError(f"{path} line {i + 2}, column {name}: '{printable(c)}' is not a number; write a "
-                                    "number there") from None
+                    raise not_a_number(path, i + 2, name, c) from None
         bad = np.flatnonzero(~np.isfinite(vals) & ~(np.array([c == "" for c in cells], bool) & (name in empty_ok)))
         if len(bad) and name in required:
             raise UserError(f"{path} line {bad[0] + 2}, column {name}: '{printable(cells[bad[0]])}' is not a finite "
@@ -86,8 +89,7 @@ def open_csv(path, required, what: str, fix: str):
         UserError: missing file ("no such file; " + ``fix``), empty file, missing columns.
     """
     path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: {'a folder, not a file' if path.is_dir() else 'no such file'}; {fix}")
+    _require_file(path, fix)
     data = path.read_bytes()
     if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in data[:4096]:
         raise UserError(f"{path}: the {what} is UTF-16 or binary, not text; save it as UTF-8 CSV")
@@ -100,20 +102,42 @@ def open_csv(path, required, what: str, fix: str):
         header = next(reader, None)
     except csv.Error as exc:
         raise UserError(f"{path} line 1: the {what} header is not CSV ({exc})") from None
-    if header is None or not any(h.strip() for h in header):
-        raise UserError(f"{path}: the {what} is empty; write a header line with columns {', '.join(required)} and "
-                        "the data below it")
-    names = [h.strip() for h in header]
+    names = check_header(path, header, what, required,
+                         f"write a header line with columns {', '.join(required)} and the data below it")
+    return names, _rows(path, reader, what)
+
+
+def _require_file(path: Path, fix: str) -> None:
+    if not path.is_file():
+        raise UserError(f"{path}: {'a folder, not a file' if path.is_dir() else 'no such file'}; {fix}")
+
+
+def check_header(path, header, what: str, required, empty_fix: str,
+                 columns_fix: str = "add them to the header line") -> list[str]:
+    """The column names of a CSV's header row (cells stripped), checked.
+
+    Raises:
+        UserError: no header ("... is empty; " + ``empty_fix``), a column named twice, a
+            ``required`` column missing ("...; " + ``columns_fix``).
+    """
+    names = [h.strip() for h in header or ()]
+    if not any(names):
+        raise UserError(f"{path}: the {what} is empty; {empty_fix}")
     dup = sorted({n for n in names if n and names.count(n) > 1})
     if dup:
         raise UserError(f"{path}: column {printable(dup[0])} appears more than once in the {what} header; "
                         "remove the repeated column")
     missing = [c for c in required if c not in names]
     if missing:
-        has = printable(", ".join(n for n in names if n), 120) if any(names) else "nothing"
+        has = printable(", ".join(n for n in names if n), 120)
         raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the {what} header (it has: {has}); "
-                        "add them to the header line")
-    return names, _rows(path, reader, what)
+                        f"{columns_fix}")
+    return names
+
+
+def not_a_number(path, line: int, name: str, cell: str, fix: str = "write a number there") -> UserError:
+    """The error of a cell that should hold a number."""
+    return UserError(f"{path} line {line}, column {name}: '{printable(cell)}' is not a number; {fix}")
 
 
 def _rows(path, reader, what):
@@ -122,6 +146,134 @@ def _rows(path, reader, what):
         yield from reader
     except csv.Error as exc:
         raise UserError(f"{path} line {reader.line_num}: the {what} is not valid CSV ({exc})") from None
+
+
+# --- streaming ---------------------------------------------------------------------------------
+
+_GZIP_ERRORS = (EOFError, gzip.BadGzipFile, zlib.error)
+
+
+def _open_text(path: Path, errors: str = "strict"):
+    """A CSV file as text (UTF-8, a BOM skipped), gunzipped on the fly when it ends in .gz."""
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", newline="", encoding="utf-8-sig", errors=errors)
+    return open(path, newline="", encoding="utf-8-sig", errors=errors)
+
+
+def _raw_position(fh) -> int:
+    """How far into the file on disk a text handle has read, bytes."""
+    raw = getattr(fh.buffer, "fileobj", None)            # a GzipFile: its compressed file
+    return (raw or fh.buffer).tell()
+
+
+def csv_header(path, what: str, fix: str, required=(), columns_fix: str = "add them to the header line") -> list[str]:
+    """The column names of a CSV or gzipped CSV (its first line), checked (``check_header``).
+
+    Raises:
+        UserError: missing file or empty file ("...; " + ``fix``), not gzip data where the name
+            ends in .gz, a header that is not CSV, a repeated column, a ``required`` column missing.
+    """
+    path = Path(path)
+    _require_file(path, fix)
+    try:
+        with _open_text(path, errors="replace") as fh:
+            header = next(csv.reader(fh), None)
+    except csv.Error as exc:
+        raise UserError(f"{path} line 1: the {what} header is not CSV ({exc})") from None
+    except _GZIP_ERRORS as exc:
+        raise UserError(f"{path}: the {what} is not a complete gzip file ({exc}); is the file damaged?") from None
+    return check_header(path, header, what, required, fix, columns_fix)
+
+
+def iter_csv_chunks(path, what: str, rows_per_chunk: int, progress=None, errors: str = "strict"):
+    """Stream the data rows of a CSV (gunzipped when its name ends in .gz; UTF-8, a BOM skipped):
+    yield (rows, lines), ``rows_per_chunk`` rows at a time: rows as lists of cells (empty lines
+    skipped; rows shorter or longer than the header as they are) and the file line of each. Check
+    the header first with ``csv_header``. ``progress(bytes read, file size)`` after each chunk;
+    ``errors='replace'`` reads bytes that are not UTF-8 as U+FFFD instead of refusing the file.
+
+    Raises:
+        UserError: a row that is not CSV, bytes that are not UTF-8, broken gzip data (one line
+            naming the file and line).
+    """
+    path = Path(path)
+    total = path.stat().st_size
+    with _open_text(path, errors) as fh:
+        reader = csv.reader(fh)
+        rows, lines = [], []
+        try:
+            next(reader, None)
+            for row in reader:
+                if row:
+                    rows.append(row)
+                    lines.append(reader.line_num)
+                    if len(rows) >= rows_per_chunk:
+                        yield rows, lines
+                        rows, lines = [], []
+                        if progress:
+                            progress(min(_raw_position(fh), total), total)
+        except csv.Error as exc:
+            raise UserError(f"{path} line {reader.line_num}: the {what} is not valid CSV ({exc})") from None
+        except UnicodeDecodeError:
+            raise UserError(f"{path} after line {reader.line_num}: the {what} is not UTF-8 text; is the file "
+                            "damaged?") from None
+        except _GZIP_ERRORS as exc:
+            raise UserError(f"{path} after line {reader.line_num}: the {what} is not a complete gzip file ({exc}); "
+                            "is the file damaged or cut short?") from None
+    if rows:
+        yield rows, lines
+    if progress:
+        progress(total, total)
+
+
+def chunk_numbers(rows, index: dict, names, lines=None, path=None,
+                  fix: str = "write a number there") -> tuple[dict, np.ndarray, np.ndarray]:
+    """The named columns of a chunk of rows as numbers.
+
+    Args:
+        rows: lists of cells (``iter_csv_chunks``).
+        index: {column name: cell index} of the header (its widest index is the width a row
+            needs to be whole).
+        names: the columns wanted (in ``index``).
+        lines, path: the rows' file lines and the file: given, a cell that is neither empty
+            nor a number raises (the first one, in file order), else it is NaN.
+
+    Returns:
+        ({name: (n,) float}, NaN where empty or not a number or the row is not whole; whole (n,)
+        bool: the row has every header cell; finite (n,) bool: whole and every named cell finite).
+
+    Raises:
+        UserError: with ``lines``, a cell that is not a number (``not_a_number`` + ``fix``).
+    """
+    width = max(index.values(), default=-1) + 1
+    whole = np.fromiter((len(r) >= width for r in rows), bool, len(rows))
+    kept = rows if whole.all() else [r for r, w in zip(rows, whole, strict=True) if w]
+    columns = list(zip(*kept, strict=False))                    # longer rows: extra cells cut
+    out, finite, bad = {}, whole.copy(), []
+    for k, name in enumerate(names):
+        cells = columns[index[name]] if columns else ()
+        try:
+            v = np.array(cells, dtype=float)
+        except ValueError:
+            vals = [_float(c) for c in cells]
+            if lines is not None and None in vals:
+                bad.append((vals.index(None), k))
+            v = np.array([np.nan if x is None else x for x in vals], float)
+        out[name] = np.full(len(rows), np.nan)
+        out[name][whole] = v
+        finite &= np.isfinite(out[name])
+    if bad:
+        i, k = min(bad)
+        raise not_a_number(path, np.asarray(lines)[whole][i], names[k], columns[index[names[k]]][i], fix)
+    return out, whole, finite
+
+
+def _float(cell: str) -> float | None:
+    """A cell's number: NaN if empty, None if not a number."""
+    try:
+        return float(cell)
+    except ValueError:
+        return np.nan if not cell.strip() else None
 
 
 def printable(text: str, limit: int = 60) -> str:

@@ -64,8 +64,8 @@ from scipy.spatial.transform import Rotation
 from tracking.timeline import interpolate_poses
 
 from ...errors import UserError
-from ..tables import TableWriter
-from .aria_trajectory import POSE_COLS, TIME, TrajectoryStream, csv_chunks, csv_header, in_order, numbers
+from ..tables import TableWriter, chunk_numbers, iter_csv_chunks
+from .aria_trajectory import POSE_COLS, TIME, TrajectoryStream, in_order, mps_header
 from .common import ImportOptions, SessionImport, SimulatedRecording
 
 log = logging.getLogger(__name__)
@@ -145,7 +145,7 @@ def _gaze_file(src: Path):
     """(path, header, model) of the eye-gaze CSV to read (see the module docstring)."""
     best = None
     for p in sorted(src.glob("eye_gaze*/*.csv")):
-        names = csv_header(p, "eye-gaze CSV", "pass an MPS output folder")
+        names = mps_header(p, "eye-gaze CSV", "pass an MPS output folder")
         if "yaw_rads_cpf" in names and "left_pitch_rads_cpf" in names and "right_pitch_rads_cpf" in names:
             raise UserError(f"{p}: an Aria gen2 eye-gaze file (per-eye pitch); only gen1 MPS output is supported")
         model = "per-eye" if all(c in names for c in PER_EYE) else "pre-2024" if all(c in names for c in LEGACY) else ""
@@ -157,7 +157,7 @@ def _gaze_file(src: Path):
         raise UserError(f"{src}: no MPS eye-gaze CSV in eye_gaze*/ (with {TIME}, left_yaw_rads_cpf, "
                         "right_yaw_rads_cpf, pitch_rads_cpf); pass the MPS output folder of one recording")
     _, path, names, model = best
-    csv_header(path, "eye-gaze CSV", "", (TIME,))
+    mps_header(path, "eye-gaze CSV", "pass an MPS output folder", (TIME,))
     return path, names, model
 
 
@@ -167,7 +167,7 @@ class _Gaze:
     def __init__(self, rows, index: dict, model: str):
         angles = PER_EYE if model == "per-eye" else LEGACY
         pos = [c for c in EYE_POS if c in index]
-        cols, self.whole, ok = numbers(rows, index, (TIME, *angles, *pos))
+        cols, self.whole, ok = chunk_numbers(rows, index, (TIME, *angles, *pos))
         self.t_us = cols[TIME]
         if model == "per-eye":
             self.yaw = np.column_stack([cols[PER_EYE[0]], cols[PER_EYE[1]]])
@@ -178,7 +178,7 @@ class _Gaze:
             self.yaw, self.pitch = cols[LEGACY[0]][:, None], cols[LEGACY[1]]
             self.eyes_m = np.zeros((len(rows), 1, 3))
         self.has_depth = "depth_m" in index
-        self.depth_m = (numbers(rows, index, ("depth_m",))[0]["depth_m"] if self.has_depth
+        self.depth_m = (chunk_numbers(rows, index, ("depth_m",))[0]["depth_m"] if self.has_depth
                         else np.full(len(rows), np.nan))
         self.finite = ok & np.all(np.isfinite(self.eyes_m.reshape(len(rows), -1)), axis=1)
         with np.errstate(invalid="ignore"):
@@ -200,7 +200,7 @@ def _survey(path: Path, names: list[str], model: str) -> dict:
     """First pass over the gaze CSV (small: 10 Hz): the first time, the rate, the label votes."""
     index = {n: j for j, n in enumerate(names) if n}
     info = {"t_first_us": None, "dt_us": None, "rows": 0, "diverging": 0, "converging": 0, "uids": set()}
-    for rows in csv_chunks(path, "eye-gaze CSV", CHUNK_ROWS):
+    for rows, _ in iter_csv_chunks(path, "eye-gaze CSV", CHUNK_ROWS):
         g = _Gaze(rows, index, model)
         info["rows"] += len(rows)
         t = g.t_us[g.usable]
@@ -240,11 +240,11 @@ def read_point_cloud(src: Path, max_dist_std_m: float = 0.02) -> np.ndarray:
     if path is None:
         raise UserError(f"{src}: no global_points.csv.gz (MPS's point cloud); download the SLAM outputs too")
     cols = ("px_world", "py_world", "pz_world", "dist_std")
-    names = csv_header(path, "point cloud", "", cols)
+    names = mps_header(path, "point cloud", "download the SLAM outputs again", cols)
     index = {n: i for i, n in enumerate(names)}
     out = []
-    for rows in csv_chunks(path, "point cloud", 65536):
-        v, _, finite = numbers(rows, index, cols)
+    for rows, _ in iter_csv_chunks(path, "point cloud", 65536):
+        v, _, finite = chunk_numbers(rows, index, cols)
         keep = finite & (v["dist_std"] <= max_dist_std_m)
         p = 1000.0 * np.column_stack([v["px_world"], v["py_world"], v["pz_world"]])[keep]
         out.append(p @ T_WORLD_FROM_ARIAWORLD[:3, :3].T + T_WORLD_FROM_ARIAWORLD[:3, 3])
@@ -275,7 +275,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
     trajectory = TrajectoryStream(traj, imp, info["t_first_us"], T_WORLD_FROM_ARIAWORLD, T_DEVICE_FROM_HEAD, progress)
     state = {"t0_us": None, "last_us": -np.inf, "capped": 0}
     index = {n: j for j, n in enumerate(names) if n}
-    for rows in csv_chunks(path, "eye-gaze CSV", CHUNK_ROWS):
+    for rows, _ in iter_csv_chunks(path, "eye-gaze CSV", CHUNK_ROWS):
         _import_chunk(_Gaze(rows, index, model), imp, options, trajectory, swapped, state, path)
     trajectory.close()
     if trajectory.n_kept == 0:

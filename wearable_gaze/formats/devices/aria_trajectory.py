@@ -1,6 +1,7 @@
-"""The streaming half of the Aria MPS importer (``aria.py``): a CSV read in chunks of rows (a
-1 kHz trajectory is 3.6 M rows an hour; never loaded whole), and the closed-loop trajectory merged
-with the eye samples, keeping only the poses around them (memory flat in the file's length).
+"""The streaming half of the Aria MPS importer (``aria.py``): CSVs read in chunks of rows
+(``tables.iter_csv_chunks``; a 1 kHz trajectory is 3.6 M rows an hour, never loaded whole), and
+the closed-loop trajectory merged with the eye samples, keeping only the poses around them (memory
+flat in the file's length).
 
 Columns of ``closed_loop_trajectory.csv`` used (by name; projectaria_tools
 website/docs-technical-specs/mps/data_formats/slam/mps_trajectory.mdx): ``tracking_timestamp_us``
@@ -11,8 +12,6 @@ another world than the first are dropped), ``quality_score`` (< 1 counted, kept)
 
 from __future__ import annotations
 
-import csv
-import gzip
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from tracking.timeline import interpolate_poses
 
 from ...errors import UserError
-from ..tables import printable
+from ..tables import chunk_numbers, csv_header, iter_csv_chunks
 from .common import SessionImport
 
 TIME = "tracking_timestamp_us"
@@ -30,91 +29,9 @@ POSE_COLS = ("tx_world_device", "ty_world_device", "tz_world_device",
 CHUNK_ROWS = 4096
 
 
-def csv_header(path: Path, what: str, fix: str, required=()) -> list[str]:
-    """The column names of a CSV (its first line), checked: present, no repeat, ``required``."""
-    if not path.is_file():
-        raise UserError(f"{path}: no such file; {fix}")
-    with _open_text(path, errors="replace") as fh:
-        names = [h.strip() for h in next(csv.reader(fh), [])]
-    if not any(names):
-        raise UserError(f"{path}: the {what} is empty; {fix}")
-    dup = sorted({n for n in names if n and names.count(n) > 1})
-    if dup:
-        raise UserError(f"{path}: column {printable(dup[0])} appears twice in the {what} header; remove the repeat")
-    missing = [c for c in required if c not in names]
-    if missing:
-        raise UserError(f"{path}: missing column(s) {', '.join(missing)} in the {what} header (it has: "
-                        f"{printable(', '.join(names), 120)}); is it an MPS {what}?")
-    return names
-
-
-def _open_text(path: Path, errors: str = "strict"):
-    """A CSV file as text (UTF-8, a BOM skipped), gunzipped on the fly when it ends in .gz."""
-    if path.suffix == ".gz":
-        return gzip.open(path, "rt", newline="", encoding="utf-8-sig", errors=errors)
-    return open(path, newline="", encoding="utf-8-sig", errors=errors)
-
-
-def _raw_position(fh) -> int:
-    """How far into the file on disk a text handle has read, bytes."""
-    raw = getattr(fh.buffer, "fileobj", None)            # a GzipFile: its compressed file
-    return (raw or fh.buffer).tell()
-
-
-def csv_chunks(path: Path, what: str, rows_per_chunk: int, progress=None):
-    """Yield lists of data rows (lists of cells, blank lines skipped) of a CSV, ``rows_per_chunk``
-    at a time; ``progress(bytes read, file size)`` after each."""
-    total = path.stat().st_size
-    with _open_text(path) as fh:
-        reader = csv.reader(fh)
-        rows = []
-        try:
-            next(reader, None)
-            for row in reader:
-                if row:
-                    rows.append(row)
-                if len(rows) >= rows_per_chunk:
-                    yield rows
-                    rows = []
-                    if progress:
-                        progress(min(_raw_position(fh), total), total)
-        except csv.Error as exc:
-            raise UserError(f"{path} line {reader.line_num}: the {what} is not valid CSV ({exc})") from None
-        except UnicodeDecodeError:
-            raise UserError(f"{path} after line {reader.line_num}: the {what} is not UTF-8 text; is the file "
-                            "damaged?") from None
-    if rows:
-        yield rows
-    if progress:
-        progress(total, total)
-
-
-def numbers(rows, index: dict, names) -> tuple[dict, np.ndarray, np.ndarray]:
-    """{name: (n,) float} of the named columns (NaN where empty or not a number, or the row lacks
-    header cells), whole (n,) bool: the row has every header cell, and finite (n,) bool: whole
-    and every named cell finite."""
-    width = max(index.values()) + 1
-    whole = np.fromiter((len(r) >= width for r in rows), bool, len(rows))
-    kept = rows if whole.all() else [r for r, w in zip(rows, whole, strict=True) if w]
-    columns = list(zip(*kept, strict=False))                    # longer rows: extra cells cut
-    out, finite = {}, whole.copy()
-    for name in names:
-        cells = columns[index[name]] if columns else ()
-        try:
-            v = np.array(cells, dtype=float)
-        except ValueError:
-            v = np.array([_float(c) for c in cells], float)
-        out[name] = np.full(len(rows), np.nan)
-        out[name][whole] = v
-        finite &= np.isfinite(out[name])
-    return out, whole, finite
-
-
-def _float(cell: str) -> float:
-    try:
-        return float(cell)
-    except ValueError:
-        return np.nan
+def mps_header(path: Path, what: str, fix: str, required=()) -> list[str]:
+    """The checked column names of an MPS CSV (``tables.csv_header``)."""
+    return csv_header(path, what, fix, required, f"is it an MPS {what}?")
 
 
 def in_order(path: Path, what: str, t_us: np.ndarray, last: float) -> np.ndarray:
@@ -143,23 +60,24 @@ class TrajectoryStream:
                  T_device_from_head: np.ndarray, progress=None):
         self.path, self.imp, self.t_ref_us = path, imp, t_ref_us
         self.T_left, self.T_right = T_world_from_ariaworld, T_device_from_head
-        names = csv_header(path, "trajectory CSV", "pass the MPS folder with trajectory/closed_loop_trajectory.csv",
-                        (TIME, *POSE_COLS))
+        names = mps_header(path, "trajectory CSV", "pass the MPS folder with trajectory/closed_loop_trajectory.csv",
+                           (TIME, *POSE_COLS))
         self.index = {n: j for j, n in enumerate(names) if n}
-        self._chunks = csv_chunks(path, "trajectory CSV", CHUNK_ROWS, progress)
+        self._chunks = iter_csv_chunks(path, "trajectory CSV", CHUNK_ROWS, progress)
         self.t = np.zeros(0)                  # s from t_ref_us
         self.T = np.zeros((0, 4, 4))          # T_world_from_device, our world, mm
         self.eof, self.graph_uid, self.t_first, self.t_last_us = False, None, None, -np.inf
         self.n_kept = self.n_low_quality = 0
 
     def _read_chunk(self) -> None:
-        rows = next(self._chunks, None)
-        if rows is None:
+        chunk = next(self._chunks, None)
+        if chunk is None:
             self.eof = True
             return
+        rows = chunk[0]
         imp, gi = self.imp, self.index.get("graph_uid")
         imp.count("trajectory rows", len(rows))
-        cols, whole, ok = numbers(rows, self.index, (TIME, *POSE_COLS))
+        cols, whole, ok = chunk_numbers(rows, self.index, (TIME, *POSE_COLS))
         imp.drop("trajectory row truncated (missing cells)", int(np.sum(~whole)))
         imp.drop("trajectory row with NaN or a non-number", int(np.sum(whole & ~ok)))
         if gi is not None:
@@ -178,7 +96,7 @@ class TrajectoryStream:
         imp.drop("trajectory row with a repeated time", int(dup.sum()))
         sel = np.flatnonzero(ok)[~dup]
         if "quality_score" in self.index:
-            quality = numbers(rows, self.index, ("quality_score",))[0]["quality_score"]
+            quality = chunk_numbers(rows, self.index, ("quality_score",))[0]["quality_score"]
             self.n_low_quality += int(np.sum(quality[sel] < 1))
         if not len(sel):
             return

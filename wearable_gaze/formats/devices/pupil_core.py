@@ -45,7 +45,6 @@ Not given by Pupil Core: eye validity beyond confidence; the marker size; intrin
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import shutil
@@ -59,7 +58,7 @@ from tracking.timeline import interpolate_poses
 from ...errors import UserError
 from ..camera import load_camera
 from ..markermap import load_marker_map
-from ..tables import TableWriter, printable, read_table, write_table
+from ..tables import TableWriter, chunk_numbers, csv_header, iter_csv_chunks, read_table, write_table
 from .common import ImportOptions, SessionImport, SimulatedRecording
 
 log = logging.getLogger(__name__)
@@ -127,57 +126,24 @@ def _locate(src: Path, imp: SessionImport) -> tuple[Path, Path, Path | None]:
 
 def csv_chunks(path: Path, columns, required, imp: SessionImport | None = None, rows: int | None = None,
                progress=None):
-    """Stream a CSV as {column: (n,) float} chunks of ``rows`` rows (empty cell: NaN), for the
-    ``columns`` in its header (``required`` must be); a row too short for them is dropped and
-    counted in ``imp`` (a truncated file).
+    """Stream a CSV (``tables.iter_csv_chunks``) as {column: (n,) float} chunks of ``rows`` rows
+    (empty cell: NaN), for the ``columns`` in its header (``required`` must be); a row too short
+    for them is dropped and counted in ``imp`` (a truncated file). Bytes that are not UTF-8 are
+    read as U+FFFD (a number cell holding one is refused; other cells are not read).
 
     Raises:
         UserError: missing file or column, a cell that is not a number (line and column named).
     """
-    if not path.is_file():
-        raise UserError(f"{path}: no such file; export it again from Pupil Player")
-    total = path.stat().st_size
-    with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
-        reader = csv.reader(fh)
-        header = [h.strip() for h in next(reader, [])]
-        missing = [c for c in required if c not in header]
-        if missing:
-            has = printable(", ".join(h for h in header if h), 120) or "nothing"
-            raise UserError(f"{path}: missing column(s) {', '.join(missing)} (it has: {has}); export it with Pupil "
-                            "Player's Raw Data Exporter")
-        names = [c for c in columns if c in header]
-        idx = [header.index(c) for c in names]
-        width = max(idx, default=-1) + 1
-        buf, lines = [], []
-        for row in reader:
-            if len(row) >= width:
-                buf.append([row[i].strip() or "nan" for i in idx])
-                lines.append(reader.line_num)
-            elif imp is not None and any(c.strip() for c in row):
-                imp.drop("row with fewer cells than the header (truncated file?)")
-            if len(buf) >= (rows or CHUNK_ROWS):
-                yield _to_arrays(path, names, buf, lines)
-                buf, lines = [], []
-                if progress is not None:
-                    progress(fh.buffer.tell(), total)
-        if buf:
-            yield _to_arrays(path, names, buf, lines)
-
-
-def _to_arrays(path: Path, names, buf, lines) -> dict:
-    """{name: (n,) float} of the text rows ``buf`` (file lines ``lines``)."""
-    try:
-        a = np.array(buf, dtype=float).reshape(len(buf), len(names))
-    except ValueError:
-        for row, line in zip(buf, lines, strict=True):
-            for name, cell in zip(names, row, strict=True):
-                try:
-                    float(cell)
-                except ValueError:
-                    raise UserError(f"{path} line {line}, column {name}: '{printable(cell)}' is not a number; fix the "
-                                    "cell or export again") from None
-        raise
-    return {n: a[:, j] for j, n in enumerate(names)}
+    what, fix = "Pupil Player CSV", "export it again from Pupil Player"
+    header = csv_header(path, what, fix, required, "export it with Pupil Player's Raw Data Exporter")
+    index = {c: header.index(c) for c in columns if c in header}
+    for cells, lines in iter_csv_chunks(path, what, rows or CHUNK_ROWS, progress, errors="replace"):
+        ch, whole, _ = chunk_numbers(cells, index, list(index), lines, path, "fix the cell or export again")
+        if imp is not None and not whole.all():
+            imp.drop("row with fewer cells than the header (truncated file?)",
+                     sum(any(c.strip() for c in r) for r, w in zip(cells, whole, strict=True) if not w))
+        if whole.any():
+            yield {n: v[whole] for n, v in ch.items()}
 
 
 # --- checks -----------------------------------------------------------------------------------
