@@ -49,7 +49,6 @@ poses (poses come from tracking the scene video with ``--markers``, else a still
 
 from __future__ import annotations
 
-import ast
 import json
 import logging
 import shutil
@@ -64,6 +63,7 @@ from calibration.kappa import apply_kappa, fit_kappa_cyclopean, fit_kappa_target
 from ...errors import UserError
 from ..camera import load_camera
 from ..tables import read_table, write_table
+from . import neon_streams as streams
 from .common import ImportOptions, SessionImport, SimulatedRecording
 
 log = logging.getLogger(__name__)
@@ -84,10 +84,17 @@ IED_RANGE_MM = (45.0, 85.0)
 SCENE_VIDEO = "Neon Scene Camera v1"
 SCENE_SIZE = (1600, 1200)   # Neon's scene camera, px, when there is no video to read it from
 TARGETS = "targets.csv"
-CHUNK = 20000               # eye samples per chunk
-MAX_FIT_SAMPLES = 100000    # kappa (b) fits on at most this many samples, evenly spread
+CHUNK = 4096                # eye samples per chunk
+MAX_FIT_SAMPLES = 10000     # the kappa fits and the report's vergence use at most this many samples, evenly spread
 MAX_TARGET_ROWS = 2000      # the writer's targets.csv
-EYE_STATE_FIELDS = 20       # float32 fields per eye_state record (data format 2.x)
+EYE_FIELDS = [f"{q}_{s}_{x}" for q in ("eyeball_center", "optical_axis") for s in ("left", "right") for x in "xyz"]
+EYE_FIELDS += ["eyelid_aperture_left_mm", "eyelid_aperture_right_mm"]
+# the reader's built-in record layouts, for a stream without its .dtype file (eye_state's has no lids)
+EYE_STATE_FALLBACK = np.dtype([(f"{f}_{s}{x}", "<f4") for s in ("left", "right") for f, x in
+                               (("pupil_diameter", "_mm"), *((q, f"_{a}") for q in ("eyeball_center", "optical_axis")
+                                                            for a in "xyz"))])
+GAZE_FALLBACK = np.dtype([("x", "<f4"), ("y", "<f4")])
+WORN_FALLBACK = np.dtype([("worn", "u1")])
 
 
 def detect(src: Path) -> bool:
@@ -96,28 +103,21 @@ def detect(src: Path) -> bool:
     return (src / "info.json").is_file() and any(src.glob("eye_state ps*.raw"))
 
 
-def _vendor():
-    try:
-        import pupil_labs.neon_recording as nr  # noqa: PLC0415
-    except ImportError:
-        raise UserError("the pupil-neon importer needs Pupil Labs' reader: pip install 'wearable-gaze[neon]'") from None
-    return nr
-
-
-def _stream(rec, name: str, src: Path, files: str | None):
-    """The vendor's stream ``name``; a missing one is a UserError naming its files when
-    ``files`` is given (a required stream), else None."""
+def _stream(rec, name: str):
+    """The vendor's (small) stream ``name``, or None when the recording lacks it."""
     try:
         return getattr(rec, name)
     except rec.SensorError:
-        if files is None:
-            return None
-        raise UserError(f"{src}: the Neon '{name}' stream is missing or unreadable ({files}); copy the complete "
-                        "recording folder from the Companion device or Pupil Cloud's native export") from None
+        return None
+
+
+def _missing(src: Path, name: str, files: str) -> UserError:
+    return UserError(f"{src}: the Neon '{name}' stream is missing or unreadable ({files}); copy the complete "
+                     "recording folder from the Companion device or Pupil Cloud's native export")
 
 
 def _open(src: Path):
-    nr = _vendor()
+    nr = streams.vendor()
     try:
         rec = nr.open(src)
         rec.info  # noqa: B018 (info.json is read lazily: fail here, not halfway)
@@ -127,67 +127,57 @@ def _open(src: Path):
     return rec
 
 
-def _truncated(src: Path, base: str) -> int:
-    """Records of ``base ps*.raw`` the vendor reader drops: it cuts records and timestamps to
-    the shorter of the two. A part ending in a partial record (the vendor cannot read it) is a
-    UserError giving the command that cuts it to whole records."""
-    dtype_file = src / f"{base}.dtype"
-    size = (np.dtype(ast.literal_eval(dtype_file.read_text())).itemsize if dtype_file.is_file()
-            else 4 * EYE_STATE_FIELDS)
-    n_raw = 0
-    for part in sorted(src.glob(f"{base} ps*.raw")):
-        n, rest = divmod(part.stat().st_size, size)
-        if rest:
-            raise UserError(f"{part}: ends in a partial {size}-byte record (the file was cut short); cut it to whole "
-                            f"records with: truncate -s {n * size} '{part}'")
-        n_raw += n
-    n_time = sum(p.stat().st_size for p in src.glob(f"{base} ps*.time")) // 8
-    return int(abs(n_raw - n_time))
+def _fields(rec: np.ndarray, names: list[str], shape) -> np.ndarray:
+    """The named float32 fields of structured records as one float64 array of ``shape``."""
+    return np.stack([rec[f] for f in names], axis=-1).astype(float).reshape(shape)
 
 
 class _Eyes:
-    """One recording's eye states, read in chunks with their validity (shared by the import and
-    the kappa recording)."""
+    """One recording's eye states, read in chunks of ``CHUNK`` records with their validity
+    (shared by the import and the kappa recording); memory does not grow with the length."""
 
     def __init__(self, src: Path, imp: SessionImport | None):
         self.src, self.imp = src, imp
         self.rec = _open(src)
-        self.truncated = _truncated(src, "eye_state")
-        # the vendor loads eye_state whole, once per stream: keep the lids' apertures only, and
-        # release that copy before the eyeball stream loads its own (halves the peak)
-        lids = _stream(self.rec, "eyelid", src, "eye_state ps*.raw/.time")
-        self.aperture = np.stack([np.ravel(lids.aperture_left), np.ravel(lids.aperture_right)]).astype(np.float32)
-        del lids, self.rec.eyelid
-        self.eyes = _stream(self.rec, "eyeball", src, "eye_state ps*.raw/.time")
-        self.t_ns = np.asarray(self.eyes.time, np.int64)
-        if not len(self.t_ns):
+        self.eyes = streams.open_stream(src, "eye_state", EYE_STATE_FALLBACK)
+        if self.eyes is None:
+            raise _missing(src, "eye_state", "eye_state ps*.raw/.time")
+        lacking = [f for f in EYE_FIELDS if f not in (self.eyes.dtype.names or ())]
+        if lacking:
+            raise UserError(f"{src}: the eye_state records have no {lacking[0]} field (eye_state.dtype is missing "
+                            "or from an older data format); copy the complete recording folder")
+        self.n, self.truncated = self.eyes.n, self.eyes.cut
+        if not self.n:
             raise UserError(f"{src}: the eye_state stream has no records; record again or check the copy")
-        self.t0 = int(self.t_ns[0])
-        worn = _stream(self.rec, "worn", src, None)
-        self.worn = None if worn is None else (np.asarray(worn.time, np.int64), np.asarray(worn.worn) != 0)
-        blinks = _stream(self.rec, "blinks", src, None)
+        self.t0 = int(self.eyes.read(0, 1)[0][0])
+        self.worn = streams.open_stream(src, "worn", WORN_FALLBACK)
+        if self.worn is not None and (not self.worn.n or "worn" not in (self.worn.dtype.names or ())):
+            self.worn = None
+        blinks = _stream(self.rec, "blinks")
         self.blinks = None if blinks is None else (np.asarray(blinks.start_time), np.asarray(blinks.stop_time))
-        self.notes = [f"no '{n}' stream: not checked" for n, s in (("worn", worn), ("blinks", blinks)) if s is None]
-        # non-increasing times: kept only where above every earlier time
-        self.increasing = np.concatenate([[True], self.t_ns[1:] > np.maximum.accumulate(self.t_ns)[:-1]])
+        self.notes = [f"no '{n}' stream: not checked" for n, s in (("worn", self.worn), ("blinks", blinks))
+                      if s is None]
 
     def _drop(self, reason: str, n: int) -> None:
-        if self.imp is not None:
+        if self.imp is not None and self.count:
             self.imp.drop(reason, n)
 
-    def chunk(self, a: int, b: int) -> dict:
-        """Samples a..b-1: ``t`` (s, session clock), ``center``/``axis`` (2, n, 3) per eye
-        (left, right), ``eye_ok`` (2, n) and ``keep`` (n,) with each exclusion counted."""
-        part = self.eyes[a:b]
-        t_ns = self.t_ns[a:b]
-        c = np.stack([part.center_left, part.center_right]).astype(float)
-        d = np.stack([part.optical_axis_left, part.optical_axis_right]).astype(float)
-        aperture = self.aperture[:, a:b].astype(float)
-        keep = self.increasing[a:b].copy()
+    def chunk(self, a: int, b: int, t_max: int | None) -> dict:
+        """Records a..b-1 (``t_max``: the latest time before a, None at the start): ``t`` (s, session
+        clock), ``center``/``axis`` (2, n, 3) per eye (left, right), ``eye_ok`` (2, n) and ``keep`` (n,)
+        with each exclusion counted."""
+        t_ns, part = self.eyes.read(a, b)
+        c = _fields(part, EYE_FIELDS[:6], (len(t_ns), 2, 3)).transpose(1, 0, 2)
+        d = _fields(part, EYE_FIELDS[6:12], (len(t_ns), 2, 3)).transpose(1, 0, 2)
+        aperture = _fields(part, EYE_FIELDS[12:], (len(t_ns), 2)).T
+        # non-increasing times: kept only where above every earlier time
+        before = np.maximum.accumulate(t_ns)[:-1]
+        keep = np.concatenate([[True] if t_max is None else [t_ns[0] > t_max],
+                               t_ns[1:] > (before if t_max is None else np.maximum(before, t_max))])
         self._drop("time not increasing", int((~keep).sum()))
         if self.worn is not None:
-            i = np.clip(np.searchsorted(self.worn[0], t_ns, side="right") - 1, 0, len(self.worn[0]) - 1)
-            off = keep & ~self.worn[1][i]
+            i = np.clip(self.worn.searchsorted(t_ns, side="right") - 1, 0, self.worn.n - 1)
+            off = keep & ~(self.worn.take(i)[1]["worn"] != 0)
             self._drop("not worn", int(off.sum()))
             keep &= ~off
         if self.blinks is not None and len(self.blinks[0]):
@@ -217,49 +207,53 @@ class _Eyes:
         return {"t": (t_ns - self.t0) / 1e9, "t_ns": t_ns, "center": c, "axis": d, "eye_ok": eye_ok & keep,
                 "keep": keep}
 
-    def chunks(self):
-        for a in range(0, len(self.t_ns), CHUNK):
-            yield a, self.chunk(a, min(a + CHUNK, len(self.t_ns)))
+    def chunks(self, count: bool = True):
+        """(a, chunk a..a+CHUNK-1) over the whole recording; with ``count`` the drops go to the import."""
+        self.count, t_max = count, None
+        for a in range(0, self.n, CHUNK):
+            ch = self.chunk(a, min(a + CHUNK, self.n), t_max)
+            t_max = int(ch["t_ns"].max()) if t_max is None else max(t_max, int(ch["t_ns"].max()))
+            yield a, ch
 
 
-def _gaze_rays(gaze, t_ns: np.ndarray, cam: CameraCalibration) -> np.ndarray:
-    """Neon's 2D gaze ``gaze`` = (times ns, points px) at the eye-state times (the nearest record
-    within 5 ms), undistorted by ``cam`` into (n, 3) ray directions from the scene camera (NaN where none)."""
-    tg, px = gaze
+def _gaze_rays(gaze: streams.Stream, t_ns: np.ndarray, cam: CameraCalibration) -> np.ndarray:
+    """Neon's 2D gaze stream at the eye-state times ``t_ns`` (the nearest record within 5 ms),
+    undistorted by ``cam`` into (n, 3) ray directions from the scene camera (NaN where none)."""
     out = np.full((len(t_ns), 3), np.nan)
-    if not len(tg):
+    if not gaze.n or not len(t_ns):
         return out
-    j = np.searchsorted(tg, t_ns)
-    lo, hi = np.clip(j - 1, 0, len(tg) - 1), np.clip(j, 0, len(tg) - 1)
-    k = np.where(np.abs(tg[lo] - t_ns) <= np.abs(tg[hi] - t_ns), lo, hi)
-    ok = (np.abs(tg[k] - t_ns) <= 5_000_000) & np.all(np.isfinite(px[k]), axis=1)
+    j = gaze.searchsorted(t_ns)
+    lo, hi = np.clip(j - 1, 0, gaze.n - 1), np.clip(j, 0, gaze.n - 1)
+    t_lo, t_hi = gaze.take(lo)[0], gaze.take(hi)[0]
+    k = np.where(np.abs(t_lo - t_ns) <= np.abs(t_hi - t_ns), lo, hi)
+    tg, rec = gaze.take(k)
+    px = _fields(rec, list(rec.dtype.names), (len(k), 2))
+    ok = (np.abs(tg - t_ns) <= 5_000_000) & np.all(np.isfinite(px), axis=1)
     if ok.any():
-        out[ok] = np.column_stack([cam.undistort_points(px[k][ok]), np.ones(int(ok.sum()))])
+        out[ok] = np.column_stack([cam.undistort_points(px[ok]), np.ones(int(ok.sum()))])
     return out
 
 
 def _binocular_sample(eyes: _Eyes, cam: CameraCalibration | None = None):
-    """At most ``MAX_FIT_SAMPLES`` binocular samples spread over the recording: centres and
-    optical axes (2, n, 3) and, with ``cam``, Neon's 2D gaze rays (n, 3) (else None)."""
+    """At most ``MAX_FIT_SAMPLES`` binocular samples evenly spread over the recording (every
+    valid one when there are fewer; the choice does not depend on ``CHUNK``): centres and optical
+    axes (2, n, 3) and, with ``cam``, Neon's 2D gaze rays (n, 3) (else None)."""
     gaze = None
     if cam is not None:
-        g = _stream(eyes.rec, "gaze", eyes.src, "gaze ps*.raw/.time, needed for the kappa offset without "
-                                                "--kappa-recording")
-        gaze = (np.array(g.time, np.int64), np.asarray(g.point, float).reshape(-1, 2))
+        gaze = streams.open_stream(eyes.src, "gaze", GAZE_FALLBACK)
+        if gaze is None or len(gaze.dtype.names or ()) != 2:
+            raise _missing(eyes.src, "gaze", "gaze ps*.raw/.time, needed for the kappa offset without "
+                                             "--kappa-recording")
         if eyes.imp is not None:
-            eyes.imp.count("gaze", len(gaze[0]))
-        del g, eyes.rec.gaze                      # only these two arrays are kept
-    rows = []
-    step = max(1, len(eyes.t_ns) // MAX_FIT_SAMPLES)
-    saved, eyes.imp = eyes.imp, None          # counted once, when the rays are written
-    try:
-        for a in range(0, len(eyes.t_ns), CHUNK * step):
-            ch = eyes.chunk(a, min(a + CHUNK * step, len(eyes.t_ns)))
-            sel = np.flatnonzero(ch["eye_ok"].all(axis=0))[::step]
-            rows.append((ch["center"][:, sel], ch["axis"][:, sel],
-                         None if gaze is None else _gaze_rays(gaze, ch["t_ns"][sel], cam)))
-    finally:
-        eyes.imp = saved
+            eyes.imp.count("gaze", gaze.n)
+    rows, seen, rate = [], 0, min(1.0, MAX_FIT_SAMPLES / eyes.n)
+    for _, ch in eyes.chunks(count=False):     # counted once, when the rays are written
+        ok = np.flatnonzero(ch["eye_ok"].all(axis=0))
+        v = seen + np.arange(len(ok), dtype=float)
+        sel = ok[np.floor((v + 1) * rate) > np.floor(v * rate)]   # the valid samples where a rate-counter ticks
+        seen += len(ok)
+        rows.append((ch["center"][:, sel], ch["axis"][:, sel],
+                     None if gaze is None else _gaze_rays(gaze, ch["t_ns"][sel], cam)))
     c = np.concatenate([r[0] for r in rows], axis=1)
     d = np.concatenate([r[1] for r in rows], axis=1)
     return c, d, None if gaze is None else np.concatenate([r[2] for r in rows])
@@ -288,8 +282,9 @@ def _fit_targets(folder: Path):
         j = np.searchsorted(t0, ch["t"], side="right") - 1
         on = (j >= 0) & (ch["t"] <= t1[np.clip(j, 0, None)])
         ok = ch["eye_ok"] & on
-        rows.append([np.where(ok[e][:, None], x[e], np.nan) for e in (0, 1) for x in (ch["center"], ch["axis"])]
-                    + [P[np.clip(j, 0, None)]])
+        r = ok.any(axis=0)            # only samples on a target with a valid eye: the rest would not count
+        rows.append([np.where(ok[e][r, None], x[e][r], np.nan) for e in (0, 1) for x in (ch["center"], ch["axis"])]
+                    + [P[np.clip(j[r], 0, None)]])
     cols = [np.concatenate(r) for r in zip(*rows, strict=True)]
     try:
         return fit_kappa_targets(*cols)
@@ -307,7 +302,7 @@ def _camera(rec, imp: SessionImport, options: ImportOptions, src: Path):
     if cal is None and user is None:
         raise UserError(f"{src}: no calibration.bin (the scene camera's intrinsics); copy it from the recording or "
                         "give the scene camera's calibration with --camera")
-    scene = _stream(rec, "scene", src, None)
+    scene = _stream(rec, "scene")
     size, fps = SCENE_SIZE, None
     if scene is not None:
         size = (int(scene.width), int(scene.height))
@@ -335,7 +330,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
     src = Path(src)
     eyes = _Eyes(src, imp)
     rec = eyes.rec
-    imp.count("eye_state", len(eyes.t_ns))
+    imp.count("eye_state", eyes.n)
     imp.drop("eye_state: records cut by the reader (.raw and .time differ in length)", eyes.truncated)
     for n in eyes.notes:
         imp.note(n)
@@ -349,7 +344,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
     else:
         sample = _binocular_sample(eyes, cam)
         kappa = _fit_cyclopean(eyes, *sample)
-    n = len(eyes.t_ns)
+    n = eyes.n
     for a, ch in eyes.chunks():
         k = ch["keep"]
         vis = [apply_kappa(ch["axis"][e][k], kap.kappa_deg) for e, kap in enumerate((kappa.left, kappa.right))]
@@ -372,7 +367,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
 
 
 def _finish(imp, rec, eyes: _Eyes, kappa, sample, pose_source, size, fps) -> None:
-    rate = rec.info.get("gaze_frequency") or 1e9 / np.median(np.diff(eyes.t_ns))
+    rate = rec.info.get("gaze_frequency") or 1e9 / np.median(np.diff(eyes.eyes.read(0, MAX_FIT_SAMPLES)[0]))
     k_report = {"method": kappa.method, "left_deg": kappa.left.kappa_deg.round(4).tolist(),
                 "right_deg": kappa.right.kappa_deg.round(4).tolist(),
                 "spread_deg": {"left": kappa.left.spread_deg.round(4).tolist(),
