@@ -89,3 +89,33 @@ def rendered_marker_scene(rng, dictionary="DICT_4X4_50", side_mm=120.0, n_marker
         planes.append(marker_plane(dictionary, mid, side_mm, T))
         truth[mid] = cam.project(marker_corners_world(side_mm, T))
     return finish(render(cam, np.eye(4), planes)), truth
+
+
+def run_import(module, src, out, **options) -> dict:
+    """Import ``src`` with a device ``module`` (formats/devices: its ``NAME`` and
+    ``read_recording``) into the session folder ``out``, ``ImportOptions(**options)``; the
+    import report (import_report.json)."""
+    import json
+    from pathlib import Path
+
+    from wearable_gaze.formats.devices.common import ImportOptions, SessionImport
+
+    with SessionImport(out, module.NAME, src) as imp:
+        module.read_recording(src, imp, ImportOptions(**options))
+    return json.loads((Path(out) / "import_report.json").read_text())
+
+
+def one_line_error(module, src, out, *fragments, match=None, **options) -> str:
+    """Import as ``run_import`` does, expecting a ``UserError`` of one line (no traceback) that
+    holds each of ``fragments`` and matches the regular expression ``match``; its message."""
+    import pytest
+
+    from wearable_gaze.errors import UserError
+
+    with pytest.raises(UserError, match=match) as err:
+        run_import(module, src, out, **options)
+    msg = str(err.value)
+    assert "\n" not in msg and "Traceback" not in msg, msg
+    for f in fragments:
+        assert f in msg, msg
+    return msg

@@ -7,14 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import one_line_error, run_import
 from roundtrip import rms, roundtrip_errors
 
 from estimator.api import estimate
 from estimator.likelihood import angular_residuals
 from estimator.lines import BinocularSamples, ViewLines
-from wearable_gaze.errors import UserError
 from wearable_gaze.formats.devices import aria, aria_trajectory, detect_format
-from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, read_simulated_recording
+from wearable_gaze.formats.devices.common import read_simulated_recording
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.tables import read_table
@@ -42,22 +42,10 @@ def copy(sample, tmp_path):
 
 def run(src, out, **options):
     """Import ``src`` into ``out``: (report, rays, (t, T) head poses, (t, points) device gaze)."""
-    with SessionImport(out, aria.NAME, src) as imp:
-        aria.read_recording(src, imp, ImportOptions(**options))
-    report = json.loads((out / "import_report.json").read_text())
+    report = run_import(aria, src, out, **options)
     t, _, T, _ = read_poses_csv(out / "head_poses.csv")
     dev = read_device_gaze(out / "device_gaze.csv") if (out / "device_gaze.csv").is_file() else None
     return report, read_eye_rays(out / "eye_rays.csv"), (t, T), dev
-
-
-def one_line_error(src, tmp_path, *fragments):
-    with pytest.raises(UserError) as e:
-        run(src, tmp_path / "bad")
-    msg = str(e.value)
-    assert "\n" not in msg
-    for f in fragments:
-        assert f in msg, msg
-    return msg
 
 
 def edit(path: Path, fn) -> None:
@@ -236,26 +224,26 @@ def test_personalized_file_is_preferred_and_several_session_uids_are_noted(copy,
 
 def test_missing_or_wrong_files_give_one_line(copy, tmp_path):
     (copy / TRAJ).rename(copy / "moved.csv")
-    one_line_error(copy, tmp_path, "closed_loop_trajectory.csv")
+    one_line_error(aria, copy, tmp_path / "bad", "closed_loop_trajectory.csv")
     (copy / "moved.csv").rename(copy / TRAJ)
     edit(copy / TRAJ, lambda ls: [ls[0].replace("qw_world_device", "qw")] + ls[1:])
-    one_line_error(copy, tmp_path, "missing column(s) qw_world_device")
+    one_line_error(aria, copy, tmp_path / "bad", "missing column(s) qw_world_device")
     edit(copy / TRAJ, lambda ls: [ls[0].replace("qw", "qw_world_device")] + ls[1:])
     for p in copy.glob("eye_gaze*/*.csv"):
         edit(p, lambda ls: [ls[0].replace("pitch_rads_cpf", "pitch")] + ls[1:])
-    one_line_error(copy, tmp_path, "no MPS eye-gaze CSV")
+    one_line_error(aria, copy, tmp_path / "bad", "no MPS eye-gaze CSV")
     shutil.rmtree(copy / "eye_gaze")
     shutil.rmtree(copy / "eye_gaze_vergence")
-    one_line_error(copy, tmp_path, "no MPS eye-gaze CSV")
+    one_line_error(aria, copy, tmp_path / "bad", "no MPS eye-gaze CSV")
 
 
 def test_gen2_and_wrong_units_are_refused(copy, tmp_path):
     gen2 = ",yaw_rads_cpf,left_pitch_rads_cpf,right_pitch_rads_cpf"
     edit(copy / GAZE, lambda ls: [ls[0] + gen2] + [ln + ",0,0,0" for ln in ls[1:]])
-    one_line_error(copy, tmp_path, "gen2")
+    one_line_error(aria, copy, tmp_path / "bad", "gen2")
     edit(copy / GAZE, lambda ls: [ln.rsplit(",", 3)[0] for ln in ls])
     edit(copy / GAZE, lambda ls: ls[:1] + [set_cell(ln, 0, str(int(ln.split(",")[0]) / 1e6)) for ln in ls[1:]])
-    one_line_error(copy, tmp_path, "microseconds")
+    one_line_error(aria, copy, tmp_path / "bad", "microseconds")
 
 
 def test_bad_gaze_rows_are_counted(copy, tmp_path):
@@ -284,7 +272,7 @@ def test_bad_gaze_rows_are_counted(copy, tmp_path):
 
 def test_gaze_times_going_back_give_one_line(copy, tmp_path):
     edit(copy / GAZE, lambda ls: ls[:40] + [ls[41], ls[40]] + ls[42:])
-    one_line_error(copy, tmp_path, "goes back", "time order")
+    one_line_error(aria, copy, tmp_path / "bad", "goes back", "time order")
 
 
 def test_bad_trajectory_rows_are_counted_and_gaps_drop_samples(copy, tmp_path):
@@ -315,18 +303,18 @@ def test_bad_trajectory_rows_are_counted_and_gaps_drop_samples(copy, tmp_path):
 
 def test_trajectory_times_going_back_give_one_line(copy, tmp_path):
     edit(copy / TRAJ, lambda ls: ls[:500] + [ls[501], ls[500]] + ls[502:])
-    one_line_error(copy, tmp_path, "goes back")
+    one_line_error(aria, copy, tmp_path / "bad", "goes back")
 
 
 def test_a_damaged_file_gives_one_line(copy, tmp_path):
     data = (copy / TRAJ).read_bytes()
     (copy / TRAJ).write_bytes(data[:200000] + b"\xff\xfe" + data[200000:])
-    one_line_error(copy, tmp_path, "not UTF-8")
+    one_line_error(aria, copy, tmp_path / "bad", "not UTF-8")
 
 
 def test_no_usable_pose_gives_one_line(copy, tmp_path):
     edit(copy / TRAJ, lambda ls: ls[:1])
-    one_line_error(copy, tmp_path, "no usable pose row")
+    one_line_error(aria, copy, tmp_path / "bad", "no usable pose row")
 
 
 # --- the writer's round trip ---------------------------------------------------------------------

@@ -8,11 +8,11 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+from helpers import one_line_error, run_import
 
-from wearable_gaze.errors import UserError
 from wearable_gaze.formats.devices import detect_format
 from wearable_gaze.formats.devices import pupil_core as pc
-from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, read_simulated_recording
+from wearable_gaze.formats.devices.common import read_simulated_recording
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.video import read_frame_times
@@ -21,18 +21,6 @@ from wearable_gaze.sim.simulate import simulate_scenario
 TUFTS = "tufts_gaze_depth/test.csv"
 SAMPLE_DROPS = ("gaze_timestamp", "confidence", "eye centres outside", "no usable eye", "repeated", "out of order",
                 "no head pose", "fewer cells")
-
-
-def run_import(src, out, **options):
-    with SessionImport(out, "pupil-core", src) as imp:
-        pc.read_recording(src, imp, ImportOptions(**options))
-    return json.loads((out / "import_report.json").read_text())
-
-
-def one_line_error(src, out, match, **options):
-    with pytest.raises(UserError, match=match) as err:
-        run_import(src, out, **options)
-    assert "\n" not in str(err.value)
 
 
 def sample_drops(report):
@@ -67,7 +55,7 @@ def write_gaze(folder, rows, columns=None):
 
 def test_tufts_rows_are_counted_with_reasons_and_never_used(real_data, tmp_path):
     src = real_data / TUFTS
-    rep = run_import(src, tmp_path / "s")
+    rep = run_import(pc, src, tmp_path / "s")
     d = rep["dropped"]
     # the research's own counts (docs/devices/tobii-pupil.md 3.7): Pupil's default centres and eye1 far away
     assert d["left eye (eye1): eye centre is Pupil's default (-40.0, 15.0, -20.0) mm (3D eye model not fitted)"] == 4025
@@ -125,7 +113,8 @@ def test_tufts_through_import_and_process_shows_its_rays_measure_no_depth(real_d
 
 
 def test_tufts_folder_without_gaze_positions_names_the_fix(real_data, tmp_path):
-    one_line_error(real_data / "tufts_gaze_depth", tmp_path / "s", "no gaze_positions.csv.*pass the CSV file itself")
+    one_line_error(pc, real_data / "tufts_gaze_depth", tmp_path / "s",
+                   match="no gaze_positions.csv.*pass the CSV file itself")
 
 
 # --- detection and malformed exports ---------------------------------------------------------------
@@ -146,7 +135,7 @@ def test_detect_finds_recordings_exports_and_nothing_else(tmp_path):
 def test_the_last_export_is_read_and_named(tmp_path):
     write_gaze(tmp_path / "rec" / "exports" / "000", [{"t": 1.0}])
     write_gaze(tmp_path / "rec" / "exports" / "001", [{"t": 1.0}, {"t": 1.01}])
-    rep = run_import(tmp_path / "rec", tmp_path / "s")
+    rep = run_import(pc, tmp_path / "rec", tmp_path / "s")
     assert rep["eye_samples_written"] == 2
     assert any("read the last, exports/001" in n for n in rep["notes"])
 
@@ -163,7 +152,7 @@ def test_bad_rows_are_counted_per_reason(tmp_path):
             {"t": 10.09, "e0": None, "e1": None},                              # no eye cells
             {"t": 10.10}, {"t": 10.10, "e1": None},                            # repeat: the binocular stays
             {"t": 11.50}, {"t": 10.20}, {"t": 12.0}]                           # 10.20 < 11.50 - 1 s: too late
-    rep = run_import(write_gaze(tmp_path / "exp", rows), tmp_path / "s")
+    rep = run_import(pc, write_gaze(tmp_path / "exp", rows), tmp_path / "s")
     d = rep["dropped"]
     assert d["confidence below 0.6"] == 1 and d["gaze_timestamp empty or not finite"] == 2
     assert d["right eye (eye0): eye centre is Pupil's default (20.0, 15.0, -20.0) mm (3D eye model not fitted)"] == 1
@@ -191,7 +180,7 @@ def test_bad_rows_are_counted_per_reason(tmp_path):
 def test_rows_out_of_order_within_a_second_are_sorted_across_chunks(tmp_path, monkeypatch):
     monkeypatch.setattr(pc, "CHUNK_ROWS", 3)
     t = [5.00, 5.01, 5.03, 5.02, 5.05, 5.04, 5.06, 5.08, 5.07]       # the swaps straddle the 3-row chunks
-    rep = run_import(write_gaze(tmp_path / "exp", [{"t": x} for x in t]), tmp_path / "s")
+    rep = run_import(pc, write_gaze(tmp_path / "exp", [{"t": x} for x in t]), tmp_path / "s")
     r = read_eye_rays(tmp_path / "s" / "eye_rays.csv")
     assert np.allclose(r.t_s + 5.0, sorted(t)) and rep["dropped"] == {}
     assert rep["clock_offset_s"] == 5.0
@@ -205,29 +194,29 @@ def test_rows_out_of_order_within_a_second_are_sorted_across_chunks(tmp_path, mo
 def test_structural_problems_give_one_line(tmp_path, mutate, match):
     exp = write_gaze(tmp_path / "exp", [{"t": 1.0}, {"t": 1.01}])
     mutate(exp / pc.GAZE_FILE)
-    one_line_error(exp, tmp_path / "s", match)
+    one_line_error(pc, exp, tmp_path / "s", match=match)
 
 
 def test_a_truncated_last_row_is_dropped_and_counted(tmp_path):
     exp = write_gaze(tmp_path / "exp", [{"t": 1.0}, {"t": 1.01}, {"t": 1.02}])
     text = (exp / pc.GAZE_FILE).read_text()
     (exp / pc.GAZE_FILE).write_text(text[:text.rstrip().rfind(",") - 40])
-    rep = run_import(exp, tmp_path / "s")
+    rep = run_import(pc, exp, tmp_path / "s")
     assert rep["dropped"] == {"row with fewer cells than the header (truncated file?)": 1}
     assert rep["eye_samples_written"] == 2
 
 
 def test_an_export_with_no_usable_row_says_why(tmp_path):
     exp = write_gaze(tmp_path / "exp", [{"t": 1.0, "conf": 0.1}, {"t": 1.1, "conf": 0.2}])
-    one_line_error(exp, tmp_path / "s", "no usable eye sample.*2 confidence below 0.6")
+    one_line_error(pc, exp, tmp_path / "s", match="no usable eye sample.*2 confidence below 0.6")
 
 
 def test_old_recordings_and_empty_folders_name_the_fix(tmp_path):
     (tmp_path / "old").mkdir()
     (tmp_path / "old" / "pupil_data").write_bytes(b"\x80")
-    one_line_error(tmp_path / "old", tmp_path / "s1", "older than v1.8.*Pupil Player")
+    one_line_error(pc, tmp_path / "old", tmp_path / "s1", match="older than v1.8.*Pupil Player")
     (tmp_path / "empty").mkdir()
-    one_line_error(tmp_path / "empty", tmp_path / "s2", "no gaze_positions.csv.*Raw Data Exporter")
+    one_line_error(pc, tmp_path / "empty", tmp_path / "s2", match="no gaze_positions.csv.*Raw Data Exporter")
 
 
 # --- head poses ------------------------------------------------------------------------------------
@@ -260,7 +249,7 @@ def test_head_poses_are_camera_in_world_scaled_by_the_marker_size(tmp_path, rng)
     rows[3] = ["nan"] * 9                                                 # the tracker lost the markers
     exp = write_gaze(tmp_path / "exp", [{"t": x} for x in 100.0 + np.arange(0, 0.2, 0.005)])
     write_poses(exp, t, rows)
-    rep = run_import(exp, tmp_path / "s", marker_size_mm=42.0)
+    rep = run_import(pc, exp, tmp_path / "s", marker_size_mm=42.0)
     tp, _, T, _ = read_poses_csv(tmp_path / "s" / "head_poses.csv")
     assert np.allclose(tp, t - 100.0)
     ok = np.arange(6) != 3
@@ -278,9 +267,9 @@ def test_head_poses_are_camera_in_world_scaled_by_the_marker_size(tmp_path, rng)
 def test_head_poses_without_marker_size_or_in_mm_give_one_line(tmp_path):
     exp = write_gaze(tmp_path / "exp", [{"t": 1.0}])
     write_poses(exp, [1.0], [pupil_pose_row(np.eye(4), 1.0)])
-    one_line_error(exp, tmp_path / "s1", "pass --marker-size-mm")
+    one_line_error(pc, exp, tmp_path / "s1", match="pass --marker-size-mm")
     write_poses(exp, [1.0], [pupil_pose_row(np.eye(4), 1.0)], side=50.0)
-    one_line_error(exp, tmp_path / "s2", "sides are 50 units, not 1", marker_size_mm=50.0)
+    one_line_error(pc, exp, tmp_path / "s2", match="sides are 50 units, not 1", marker_size_mm=50.0)
 
 
 # --- simulated sessions written as a Player export ----------------------------------------------------
@@ -295,7 +284,7 @@ def sim(tmp_path_factory):
 def test_write_then_read_gives_the_same_rays_poses_and_gaze(sim, tmp_path):
     pc.write_recording(sim, tmp_path / "rec")
     size = json.loads(sim.marker_map.read_text())["marker_size_mm"]
-    rep = run_import(tmp_path / "rec", tmp_path / "s", marker_size_mm=size)
+    rep = run_import(pc, tmp_path / "rec", tmp_path / "s", marker_size_mm=size)
     assert rep["clock_offset_s"] == pytest.approx(pc.PUPIL_EPOCH_S + sim.t[0])
     r = read_eye_rays(tmp_path / "s" / "eye_rays.csv")
     i = np.searchsorted(sim.t - sim.t[0], r.t_s - 1e-9)
@@ -322,11 +311,11 @@ def test_without_poses_the_world_video_is_tracked_or_the_head_is_still(sim, tmp_
     pc.write_recording(sim, tmp_path / "rec")
     exp = tmp_path / "rec" / "exports" / "000"
     (exp / pc.POSES_FILE).unlink()
-    rep = run_import(tmp_path / "rec", tmp_path / "still")
+    rep = run_import(pc, tmp_path / "rec", tmp_path / "still")
     assert rep["pose_source"] == "still_head" and any("--camera" in n and "--markers" in n for n in rep["notes"])
     cam = tmp_path / "camera.json"
     shutil.copyfile(sim.video.parent / "truth" / "camera.json", cam)
-    rep = run_import(tmp_path / "rec", tmp_path / "tracked", camera=cam, markers=sim.marker_map)
+    rep = run_import(pc, tmp_path / "rec", tmp_path / "tracked", camera=cam, markers=sim.marker_map)
     assert rep["pose_source"] == "scene_video"
     _, ft = read_frame_times(tmp_path / "tracked" / "scene_timestamps.csv")
     assert np.allclose(ft, sim.frame_times - sim.t[0], atol=1e-6)

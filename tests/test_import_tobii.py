@@ -12,24 +12,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import one_line_error, run_import
 
 from calibration.camera import CameraCalibration
 from estimator.likelihood import MLConfig, ml_point
 from estimator.lines import BinocularSamples
-from wearable_gaze.errors import UserError
 from wearable_gaze.formats.devices import tobii_common, tobii_g2, tobii_g3
 from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, SimulatedRecording
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.video import open_video_writer
 
 G2_SAMPLE = "glassesvalidator_tobii_g2_example"
-
-
-def run_import(module, src: Path, out: Path, options: ImportOptions | None = None) -> dict:
-    """Import ``src`` with ``module`` into ``out``; the import report."""
-    with SessionImport(out, module.NAME, src) as imp:
-        module.read_recording(src, imp, options or ImportOptions())
-    return json.loads((out / "import_report.json").read_text())
 
 
 # --- the real Tobii Pro Glasses 2 sample ----------------------------------------------------------
@@ -269,7 +262,7 @@ def test_markers_make_the_pose_source_the_scene_video(tmp_path):
     markers.write_text(json.dumps({"format": "wearable-gaze-marker-map", "version": 1, "dictionary": "DICT_4X4_50",
                                    "marker_size_mm": 100.0,
                                    "markers": [{"id": 0, "T_world_from_marker": np.eye(4).tolist()}]}))
-    rep = run_import(tobii_g3, tmp_path / "rec", tmp_path / "out", ImportOptions(markers=markers))
+    rep = run_import(tobii_g3, tmp_path / "rec", tmp_path / "out", markers=markers)
     assert rep["pose_source"] == "scene_video"
     assert (tmp_path / "out" / "markers.json").is_file()
 
@@ -333,12 +326,6 @@ def g2_folder(root: Path, extra=(), n: int = 50, replace=None) -> Path:
     return root / "rec"
 
 
-def one_line(exc: pytest.ExceptionInfo) -> str:
-    msg = str(exc.value)
-    assert "\n" not in msg and "Traceback" not in msg
-    return msg
-
-
 def test_bad_samples_are_counted_with_reasons(tmp_path):
     """Non-zero status, NaN, an eye centre 200 mm away, a backwards direction, a line that is
     not JSON, a time that is not a number, and an eye whose gd line is missing: each is counted
@@ -379,9 +366,7 @@ def test_bad_samples_are_counted_with_reasons(tmp_path):
 ])
 def test_g2_structural_problems_are_one_line(tmp_path, make, needle):
     make(tmp_path)
-    with pytest.raises(UserError) as exc:
-        run_import(tobii_g2, tmp_path / "rec", tmp_path / "out")
-    assert needle in one_line(exc)
+    one_line_error(tobii_g2, tmp_path / "rec", tmp_path / "out", needle)
 
 
 def test_g2_not_gzip_and_truncated(tmp_path):
@@ -391,9 +376,7 @@ def test_g2_not_gzip_and_truncated(tmp_path):
     live = src / "segments" / "1" / "livedata.json.gz"
     data = live.read_bytes()
     live.write_bytes(b"plain text, not gzip\n")
-    with pytest.raises(UserError) as exc:
-        run_import(tobii_g2, src, tmp_path / "out_a")
-    assert "not a gzip file" in one_line(exc)
+    one_line_error(tobii_g2, src, tmp_path / "out_a", "not a gzip file")
     live.write_bytes(data[: len(data) * 2 // 3])
     rep = run_import(tobii_g2, src, tmp_path / "out_b")
     assert any("truncated" in n for n in rep["notes"])
@@ -403,17 +386,13 @@ def test_g2_not_gzip_and_truncated(tmp_path):
 def test_g2_all_samples_invalid_is_one_line(tmp_path):
     src = g2_folder(tmp_path, replace={i: [s.format(ts=1_000_000 + 20_000 * i, g=i).replace('"s":0', '"s":16')
                                            for s in GOOD] for i in range(50)})
-    with pytest.raises(UserError) as exc:
-        run_import(tobii_g2, src, tmp_path / "out")
-    assert "no usable eye sample" in one_line(exc) and "status 16" in str(exc.value)
+    one_line_error(tobii_g2, src, tmp_path / "out", "no usable eye sample", "status 16")
 
 
 def test_g2_video_without_calibration_is_one_line(tmp_path):
     src = g2_folder(tmp_path)
     (src / "segments" / "1" / "fullstream.mp4").write_bytes(b"")
-    with pytest.raises(UserError) as exc:
-        run_import(tobii_g2, src, tmp_path / "out")
-    assert "--camera" in one_line(exc)
+    one_line_error(tobii_g2, src, tmp_path / "out", "--camera")
 
 
 def test_g3_problems(tmp_path):
@@ -438,9 +417,7 @@ def test_g3_problems(tmp_path):
         else:
             change(m)
             meta_path.write_text(json.dumps(m))
-        with pytest.raises(UserError) as exc:
-            run_import(tobii_g3, tmp_path / "rec", tmp_path / f"bad{i}")
-        assert needle in one_line(exc)
+        one_line_error(tobii_g3, tmp_path / "rec", tmp_path / f"bad{i}", needle)
     shutil.rmtree(tmp_path / "rec")
 
 
