@@ -426,3 +426,104 @@ def test_a_header_only_estimates_csv_is_empty_but_a_broken_one_is_one_line(tmp_p
     (tmp_path / "short.csv").write_text("t,segment\n")
     with pytest.raises(UserError, match="missing column"):
         read_estimates(tmp_path / "short.csv")
+
+
+# --- the streaming CSV reader (tables.csv_header, iter_csv_chunks, chunk_numbers) ------------------
+
+def _stream_csv(path, data: bytes):
+    """Write ``data`` to ``path``, gzipped when its name ends in .gz."""
+    import gzip
+
+    path.write_bytes(gzip.compress(data) if path.suffix == ".gz" else data)
+    return path
+
+
+@pytest.mark.parametrize("name", ["t.csv", "t.csv.gz"])
+def test_streaming_reader_gives_chunks_with_their_lines_plain_or_gzipped(tmp_path, name):
+    """Rows come in chunks of the size asked for, blank lines skipped, each with its file line; a
+    BOM is skipped and a .gz file read through; progress ends at the file's size; a truncated row
+    is not whole and its cells are NaN, the rest of its chunk intact."""
+    from wearable_gaze.formats.tables import chunk_numbers, csv_header, iter_csv_chunks
+
+    rows = [f"{i},{i / 10},{2 * i}" for i in range(10)]
+    rows[7] = "7,0.7"                                           # truncated: a cell short
+    text = "\ufefft, x ,y\n" + "\n".join(rows[:5]) + "\n\n" + "\n".join(rows[5:]) + "\n"
+    path = _stream_csv(tmp_path / name, text.encode("utf-8"))
+    names = csv_header(path, "test CSV", "pass one", ("t", "x"))
+    assert names == ["t", "x", "y"]
+    seen = []
+    chunks = list(iter_csv_chunks(path, "test CSV", 4, progress=lambda done, total: seen.append((done, total))))
+    assert [len(r) for r, _ in chunks] == [4, 4, 2]
+    assert [ln for _, lines in chunks for ln in lines] == [2, 3, 4, 5, 6, 8, 9, 10, 11, 12]
+    done = [a for a, _ in seen]
+    assert len(seen) == 3 and seen[-1] == (path.stat().st_size,) * 2 and done == sorted(done)
+    index = {n: j for j, n in enumerate(names)}
+    v, whole, finite = chunk_numbers(chunks[1][0], index, ("t", "x", "y"))
+    assert whole.tolist() == [True, True, True, False] == finite.tolist()
+    assert v["t"][:3].tolist() == [4, 5, 6] and np.isnan(v["t"][3]) and np.isnan(v["y"][3])
+    assert v["y"][:3].tolist() == [8, 10, 12] and v["x"][:3].tolist() == [0.4, 0.5, 0.6]
+
+
+def test_streaming_reader_non_numbers_are_nan_or_one_line_naming_the_first(tmp_path):
+    """Without line numbers a cell that is not a number is NaN (an empty one too); with them the
+    first in file order is a UserError naming the file, its line and its column."""
+    from wearable_gaze.formats.tables import chunk_numbers, iter_csv_chunks
+
+    path = _stream_csv(tmp_path / "n.csv", b"a,b\n1,2\n3,\n\n5,x\ny,7\n")
+    rows, lines = next(iter_csv_chunks(path, "test CSV", 100))
+    v, whole, finite = chunk_numbers(rows, {"a": 0, "b": 1}, ("a", "b"))
+    assert whole.all() and finite.tolist() == [True, False, False, False]
+    assert v["a"][:3].tolist() == [1, 3, 5] and np.isnan(v["b"][1:3]).all() and np.isnan(v["a"][3])
+    with pytest.raises(UserError) as err:
+        chunk_numbers(rows, {"a": 0, "b": 1}, ("a", "b"), lines, path, "fix it")
+    assert str(err.value) == f"{path} line 5, column b: 'x' is not a number; fix it"
+
+
+@pytest.mark.parametrize("name", ["bad.csv", "bad.csv.gz"])
+def test_streaming_reader_a_bad_byte_or_broken_csv_is_one_line(tmp_path, name):
+    """A byte that is not UTF-8 is one line naming the file and where (plain or gzipped); read
+    with errors='replace' it becomes U+FFFD; a row that is not CSV (an unclosed quote running
+    past the csv module's field limit) names its line."""
+    from wearable_gaze.formats.tables import iter_csv_chunks
+
+    good = "".join(f"{i},{i}\n" for i in range(3000)).encode()
+    path = _stream_csv(tmp_path / name, b"a,b\n" + good + b"1,\xe9\n")
+    with pytest.raises(UserError) as err:
+        list(iter_csv_chunks(path, "test CSV", 64))
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith(f"{path} after line ") and "the test CSV is not UTF-8 text" in msg
+    assert int(msg.split("after line ")[1].split(":")[0]) <= 3001
+    rows = [r for chunk, _ in iter_csv_chunks(path, "test CSV", 64, errors="replace") for r in chunk]
+    assert rows[-1] == ["1", "\ufffd"] and len(rows) == 3001
+    path = _stream_csv(tmp_path / name, b"a,b\n1,2\n3,\"4" + b"5\n" * 70000)
+    with pytest.raises(UserError, match="line [0-9]+: the test CSV is not valid CSV .*field limit"):
+        list(iter_csv_chunks(path, "test CSV", 64))
+
+
+def test_streaming_reader_a_cut_gzip_file_and_header_problems_are_one_line(tmp_path):
+    """A gzip file cut short, a .gz that is not gzip, and the header checks (the same messages
+    as read_table's: one function) are one line each."""
+    from wearable_gaze.formats.tables import csv_header, iter_csv_chunks, read_table
+
+    data = b"a,b\n" + "".join(f"{i},{i * 7 % 13}\n" for i in range(20000)).encode()
+    path = _stream_csv(tmp_path / "cut.csv.gz", data)
+    path.write_bytes(path.read_bytes()[:len(path.read_bytes()) // 2])
+    with pytest.raises(UserError, match="cut.csv.gz after line [0-9]+: the test CSV is not a complete gzip file"):
+        list(iter_csv_chunks(path, "test CSV", 1000))
+    (tmp_path / "not.csv.gz").write_bytes(b"a,b\n1,2\n")
+    with pytest.raises(UserError, match="not.csv.gz: the test CSV is not a complete gzip file"):
+        csv_header(tmp_path / "not.csv.gz", "test CSV", "pass one")
+    with pytest.raises(UserError, match="nothere.csv: no such file; pass one"):
+        csv_header(tmp_path / "nothere.csv", "test CSV", "pass one")
+    _stream_csv(tmp_path / "empty.csv", b"\n")
+    with pytest.raises(UserError, match="empty.csv: the test CSV is empty; pass one"):
+        csv_header(tmp_path / "empty.csv", "test CSV", "pass one")
+    for head, required in ((b"a,b,a\n", ()), (b"a,b\n", ("a", "c"))):
+        p = _stream_csv(tmp_path / "h.csv", head + b"1,2,3\n")
+        with pytest.raises(UserError) as streamed:
+            csv_header(p, "test CSV", "pass one", required)
+        with pytest.raises(UserError) as whole:
+            read_table(p, required, what="test CSV")
+        assert str(streamed.value) == str(whole.value) and "\n" not in str(whole.value)
+    with pytest.raises(UserError, match=r"missing column\(s\) c in the test CSV header \(it has: a, b\); is it X\?"):
+        csv_header(p, "test CSV", "pass one", ("c",), "is it X?")
