@@ -349,3 +349,78 @@ def test_round_trip_through_process_finds_the_targets_as_well_as_the_native_sess
     assert report["pose_source"] == "scene_video" and report["kappa"]["method"] == "targets"
     assert np.all(np.isfinite(imported)), "every fixated target found"
     assert rms(imported) <= 1.1 * rms(native)
+
+
+# --- streaming: chunks and multi-part files -------------------------------------------------------
+
+def _split(folder, base, at, itemsize):
+    """Cut ``<base> ps1.raw`` (and its ``.time``, if any) into parts ps1 (the first ``at``
+    records) and ps2 (the rest), as the Companion app splits a long recording."""
+    for ext, size in (("raw", itemsize), ("time", 8)):
+        path = folder / f"{base} ps1.{ext}"
+        if path.exists():
+            data = path.read_bytes()
+            path.write_bytes(data[:at * size])
+            (folder / f"{base} ps2.{ext}").write_bytes(data[at * size:])
+
+
+def _messy(folder, split):
+    """The demo recording with times going back and samples not worn near the part and chunk
+    boundaries, gaze and worn from the ``gaze ps*`` parts, split in two parts with ``split``."""
+    (folder / "gaze_200hz.raw").unlink()
+    t = np.fromfile(folder / "eye_state ps1.time", "<i8")
+    t[[49, 1001, 1500]] = t[[47, 999, 1490]]                      # back: first of a 7-chunk, of part 2, ...
+    t.tofile(folder / "eye_state ps1.time")
+    worn = np.fromfile(folder / "worn ps1.raw", "u1")
+    worn[[897, 898, 899, 900, 1200]] = 0
+    worn.tofile(folder / "worn ps1.raw")
+    if split:
+        _split(folder, "eye_state", 1001, 80)
+        _split(folder, "gaze", 900, 8)
+        _split(folder, "worn", 900, 1)
+
+
+def _files(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_chunk_size_and_parts_do_not_change_the_session(sample, tmp_path, monkeypatch):
+    """Read 7 records at a time, a two-part recording gives byte for byte the session it gives
+    in the default chunks; and the same rays and counts as the same recording in one part. The
+    kappa fit's subsample (here at most 500 samples) is chosen independently of the chunks."""
+    multi, single = tmp_path / "multi", tmp_path / "single"
+    for folder, split in ((multi, True), (single, False)):
+        shutil.copytree(sample, folder)
+        for p in folder.iterdir():
+            p.chmod(0o644)
+        _messy(folder, split)
+    assert (multi / "eye_state ps2.raw").stat().st_size == 787 * 80
+    monkeypatch.setattr(neon, "MAX_FIT_SAMPLES", 500)
+    rep = run_import(multi, tmp_path / "default")
+    monkeypatch.setattr(neon, "CHUNK", 7)
+    run_import(multi, tmp_path / "small")
+    assert _files(tmp_path / "default") == _files(tmp_path / "small")
+    assert rep["dropped"]["time not increasing"] == 3 and rep["dropped"]["not worn"] == 5
+    assert 400 < rep["kappa"]["samples"]["left"] <= 500          # evenly spread over 1788 records
+    one = run_import(single, tmp_path / "one")
+    assert (tmp_path / "one" / "eye_rays.csv").read_bytes() == (tmp_path / "default" / "eye_rays.csv").read_bytes()
+    assert {k: v for k, v in one.items() if k != "source"} == {k: v for k, v in rep.items() if k != "source"}
+
+
+def test_a_short_part_is_cut_alone_and_counted(sample, copy, tmp_path):
+    """Part 1's .raw two records shorter than its .time: those two times are cut and counted, and
+    part 2's records keep their own times (the vendor reader, which cuts the joined parts once,
+    would shift every later record by two samples)."""
+    _split(copy, "eye_state", 1001, 80)
+    raw = copy / "eye_state ps1.raw"
+    raw.write_bytes(raw.read_bytes()[:-160])
+    rep = run_import(copy, tmp_path / "s")
+    assert rep["dropped"]["eye_state: records cut by the reader (.raw and .time differ in length)"] == 2
+    assert rep["read"]["eye_state"] == 1786
+    run_import(sample, tmp_path / "whole")
+    rays, whole = read_eye_rays(tmp_path / "s" / "eye_rays.csv"), read_eye_rays(tmp_path / "whole" / "eye_rays.csv")
+    t_cut = (np.fromfile(sample / "eye_state ps1.time", "<i8")[999:1001] - rep["clock"]["first_sample_ns"]) / 1e9
+    gone = np.isin(np.round(whole.t_s, 6), np.round(t_cut, 6))       # the two, if they were kept at all
+    np.testing.assert_array_equal(rays.t_s, whole.t_s[~gone])
+    for side in ("left", "right"):                                   # the raw eye centres: no kappa in them
+        np.testing.assert_array_equal(getattr(rays, f"{side}_origin_mm"), getattr(whole, f"{side}_origin_mm")[~gone])
