@@ -206,6 +206,10 @@ def argv_estimate(e, vl, extra=()):
     return ["estimate", vl, *extra]
 
 
+def argv_fixations(e, d, vl=None, out=None, extra=()):
+    return ["fixations", vl or e["viewlines"], "-o", out or str(d / "fx.csv"), *extra]
+
+
 def argv_viewlines(e, d, eye=None, eyes=None, poses=None, out=None):
     return ["viewlines", eye or e["eye"], "--eyes", eyes or e["eyes"], "--poses", poses or e["poses"],
             "-o", out or str(d / "vl.csv")]
@@ -240,6 +244,7 @@ def argv_process(e, d, session, extra=()):
 
 FILE_SLOTS = [
     ("estimate-viewlines", "estimate", ".csv", lambda e, d, p: argv_estimate(e, p)),
+    ("fixations-viewlines", "fixations", ".csv", lambda e, d, p: argv_fixations(e, d, p)),
     ("viewlines-eye", "viewlines", ".csv", lambda e, d, p: argv_viewlines(e, d, eye=p)),
     ("viewlines-poses", "viewlines", ".csv", lambda e, d, p: argv_viewlines(e, d, poses=p)),
     ("viewlines-eyes", "viewlines", ".json", lambda e, d, p: argv_viewlines(e, d, eyes=p)),
@@ -348,6 +353,7 @@ add_csv_cases("viewlines-eye", "viewlines", "eye", EYE_REQ, lambda e, d, p: argv
 add_csv_cases("viewlines-poses", "viewlines", "poses", POSE_REQ, lambda e, d, p: argv_viewlines(e, d, poses=p),
               time_col=None)
 add_csv_cases("estimate", "estimate", "viewlines", VL_REQ, lambda e, d, p: argv_estimate(e, p), time_col=None)
+add_csv_cases("fixations", "fixations", "viewlines", VL_REQ, lambda e, d, p: argv_fixations(e, d, p), time_col=None)
 add_csv_cases("track-timestamps", "track", "timestamps", ["frame", "t"],
               lambda e, d, p: argv_track(e, d, extra=["--timestamps", p]), time_col="t",
               skip=("truncated-row",))
@@ -754,6 +760,53 @@ add("estimate-partly-empty-eye", "estimate",
     lambda e, d: argv_estimate(e, write(d, "vl.csv", _vl_with(e, "left_oy", ""))), ("left_oy", "empty"))
 
 
+for opt, values in (("--window", ["0", "-1", "abc"]), ("--jump-deg", ["0", "nan"]), ("--eye-rate-hz", ["0", "inf"]),
+                    ("--min-fixation-s", ["-1"]), ("--max-gap-s", ["abc"])):
+    opt_cases("fixations", lambda e, d, x: argv_fixations(e, d, extra=x), opt, values)
+
+
+def _vl_unsegmented(e, d) -> str:
+    """View lines of two 1 s fixations 20 deg apart at 60 Hz, without a segment column."""
+    import numpy as np  # noqa: PLC0415
+
+    from estimator import BinocularSamples  # noqa: PLC0415
+    from wearable_gaze.formats.viewlines import write_viewlines_csv  # noqa: PLC0415
+    from wearable_gaze.sim.protocol import simulate_lines  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    parts = [simulate_lines(p, rng).select(slice(0, 60)) for p in ([0, 0, 1500.0], [600.0, 0, 1500.0])]
+    both = BinocularSamples.concatenate(parts)
+    s = BinocularSamples(np.arange(120) / 60.0, both.left_origin_mm, both.left_direction, both.right_origin_mm,
+                         both.right_direction, both.left_valid, both.right_valid)
+    write_viewlines_csv(d / "unsegmented.csv", s)
+    return str(d / "unsegmented.csv")
+
+
+def _vl_segment(e, d, value) -> str:
+    """The session's view lines with every segment cell replaced by ``value``."""
+    lines = Path(e["viewlines"]).read_text().splitlines()
+    j = lines[0].split(",").index("segment")
+    rows = [ln.split(",") for ln in lines[1:]]
+    for r in rows:
+        r[j] = value
+    return write(d, "vl.csv", "\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+
+
+add("estimate-unsegmented-several-fixations", "estimate", lambda e, d: argv_estimate(e, _vl_unsegmented(e, d)),
+    ("no segment column", "fixations", "--one-point"))
+add("estimate-targets-unsegmented", "estimate",
+    lambda e, d: argv_estimate(e, _vl_unsegmented(e, d), ["--targets"]), ("--targets", "no segment column"))
+add("estimate-targets-text-segment", "estimate",
+    lambda e, d: argv_estimate(e, _vl_segment(e, d, "near"), ["--targets"]), ("segment 'near'", "fixations"))
+add("estimate-one-point-segmented", "estimate", lambda e, d: argv_estimate(e, e["viewlines"], ["--one-point"]),
+    ("--one-point", "has a segment column"))
+add("estimate-one-point-and-targets", "estimate",
+    lambda e, d: argv_estimate(e, e["viewlines"], ["--one-point", "--targets"]), ("--targets", "not allowed"))
+add("estimate-targets-export-density", "estimate",
+    lambda e, d: argv_estimate(e, e["viewlines"], ["--targets", "--export-density", str(d / "d.ply")]),
+    ("--export-density", "per target"))
+
+
 def _vl_with(e, col, value):
     lines = Path(e["viewlines"]).read_text().splitlines()
     j = lines[0].split(",").index(col)
@@ -970,6 +1023,7 @@ FILE_OUTPUTS = [
     ("calibrate-camera", "-o", ".json", lambda e, d, o: argv_calibrate_camera(e, d, out=o)),
     ("calibrate-eyes", "-o", ".json", lambda e, d, o: argv_calibrate_eyes(e, d, out=o)),
     ("viewlines", "-o", ".csv", lambda e, d, o: argv_viewlines(e, d, out=o)),
+    ("fixations", "-o", ".csv", lambda e, d, o: argv_fixations(e, d, out=o)),
     ("track", "-o", ".csv", lambda e, d, o: argv_track(e, d, out=o)),
     ("track-overlay", "--overlay", ".mp4", lambda e, d, o: argv_track(e, d, extra=["--overlay", o])),
     ("markers", "-o", ".pdf", lambda e, d, o: ["markers", "--ids", "0-3", "--size-mm", "50", "-o", o]),
@@ -1038,6 +1092,8 @@ add("export-recording-format-unknown", "export-recording",
 
 # -o equal to an input (the issue's four, and their neighbours)
 SAME = [
+    ("fixations-out-is-viewlines", "fixations", lambda e, d: argv_fixations(e, d, _cp(e.viewlines, d),
+                                                                            str(d / "viewlines.csv"))),
     ("viewlines-out-is-eye-csv", "viewlines",
      lambda e, d: argv_viewlines(e, d, eye=_cp(e.eye, d), out=str(d / "eye.csv"))),
     ("viewlines-out-is-poses", "viewlines", lambda e, d: argv_viewlines(e, d, poses=_cp(e.poses, d),
@@ -1119,8 +1175,8 @@ def test_bad_input(c: Case, env, case_dir, capsys):
 
 
 def test_matrix_covers_every_command_with_enough_cases():
-    commands = {"estimate", "reproduce", "calibrate-camera", "calibrate-eyes", "viewlines", "track", "markers",
-                "simulate", "process", "live", "emulate", "demo", "import", "export-recording"}
+    commands = {"estimate", "fixations", "reproduce", "calibrate-camera", "calibrate-eyes", "viewlines", "track",
+                "markers", "simulate", "process", "live", "emulate", "demo", "import", "export-recording"}
     per = {k: sum(c.command == k for c in CASES) for k in commands}
     assert all(n >= 5 for n in per.values()), per
     assert len(CASES) >= 250, len(CASES)

@@ -1,7 +1,7 @@
 """The ``wearable-gaze`` command line: each command parses its arguments, calls one library
-function and prints (one module per command group: estimate, paper, calibrate, track, sim,
-process, live, importer). Bad input at any boundary gets one line on stderr and exit status 2, never a
-traceback (``safety``).
+function and prints (one module per command group: estimate, paper, calibrate, fixations, track,
+sim, process, live, importer). Bad input at any boundary gets one line on stderr and exit status 2,
+never a traceback (``safety``).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import logging
 import sys
 
 from ..errors import UserError
-from . import calibrate, estimate, importer, live, paper, process, safety, sim, track
+from . import calibrate, estimate, fixations, importer, live, paper, process, safety, sim, track
 from .args import Parser, one_line
 
 
@@ -24,9 +24,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for add in (estimate.add_estimate, paper.add_reproduce, calibrate.add_calibrate_camera,
-                calibrate.add_calibrate_eyes, calibrate.add_viewlines, track.add_track, track.add_markers,
-                sim.add_simulate, importer.add_import, importer.add_export, process.add_process, live.add_live,
-                sim.add_emulate, process.add_demo):
+                calibrate.add_calibrate_eyes, calibrate.add_viewlines, fixations.add_fixations, track.add_track,
+                track.add_markers, sim.add_simulate, importer.add_import, importer.add_export, process.add_process,
+                live.add_live, sim.add_emulate, process.add_demo):
         add(sub)
     return p
 

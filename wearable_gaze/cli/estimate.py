@@ -1,8 +1,10 @@
-"""``wearable-gaze estimate``: gazed points from a view-line CSV."""
+"""``wearable-gaze estimate``: gazed points from a view-line CSV: one per segment (segment -1,
+no fixation, skipped), or the targets of its fixations (``--targets``)."""
 
 from __future__ import annotations
 
 import json
+import sys
 
 from estimator import METHODS
 
@@ -11,17 +13,21 @@ from . import args as A
 
 
 def cmd_estimate(args) -> int:
-    from ..pipeline.estimate import estimate_file, format_table  # noqa: PLC0415
+    from ..pipeline.estimate import estimate_file, format_table, skipped_note  # noqa: PLC0415
 
     if args.export_density and args.method not in ("voxel", "paper"):
         raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no "
                         "density); add one of them or drop --export-density")
-    results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density)
-    if args.json:
+    results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density, args.one_point,
+                            args.targets)
+    if args.json:                               # the skipped rows are an entry of their own (status 'skipped')
         for r in results:
             print(json.dumps(r))
-    else:
-        print(format_table(results))
+        return 0
+    print(format_table(results))
+    note = skipped_note(results)
+    if note:
+        print(f"wearable-gaze estimate: {note}", file=sys.stderr)
     return 0
 
 
@@ -30,7 +36,13 @@ def add_estimate(sub) -> None:
     e = sub.add_parser("estimate", help="estimate gazed points from a view-line CSV")
     e.add_argument("viewlines", metavar="VIEWLINES.csv", help="view-line CSV (docs/formats.md)")
     e.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")
-    e.add_argument("--json", action="store_true", help="one JSON object per segment per line")
+    e.add_argument("--json", action="store_true", help="one JSON object per segment (or target) per line")
+    how = e.add_mutually_exclusive_group()
+    how.add_argument("--targets", action="store_true",
+                     help="merge the fixations (segment column from 'fixations') into targets as process does")
+    how.add_argument("--one-point", action="store_true",
+                     help="a file without a segment column: estimate all its rows as one point, even if they hold "
+                          "several fixations")
     e.add_argument("--sigma-deg", type=A.positive_float, default=1.0, metavar="S",
                    help="angular noise of a view line, degrees per axis (default: 1.0)")
     e.add_argument("--export-density", metavar="OUT.ply",

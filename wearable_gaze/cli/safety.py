@@ -16,6 +16,7 @@ from ..errors import UserError, check_output
 # file or an unwritable folder, before the command runs.
 OUTPUTS = {
     "estimate": [("export_density", False, ("viewlines",))],
+    "fixations": [("out", False, ("viewlines",))],
     "reproduce": [("out", True, ())],
     "track": [("out", False, ("video", "camera", "markers", "reference", "timestamps")),
               ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],

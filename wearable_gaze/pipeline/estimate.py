@@ -22,6 +22,7 @@ from estimator import (
 from ..errors import UserError
 from ..formats.atomic import atomic_path
 from ..formats.viewlines import read_viewlines_csv
+from .segmentation import NO_FIXATION, measured_rate_hz, read_in_time_order, segment_config, segment_view_lines
 from .types import Target
 
 
@@ -81,40 +82,135 @@ def _density_path(base: Path, key, n_segments: int) -> Path:
     return base.with_name(f"{base.stem}-{safe}{base.suffix}")
 
 
-def estimate_file(path, method: str = "voxel", sigma_deg: float = 1.0, export_density=None) -> list[dict]:
-    """Estimate each segment of a view-line CSV.
+def estimate_file(path, method: str = "voxel", sigma_deg: float = 1.0, export_density=None, one_point: bool = False,
+                  targets: bool = False) -> list[dict]:
+    """``wearable-gaze estimate``: estimate each segment of a view-line CSV (docs/processing.md).
+
+    Rows of segment -1 (saccades, blinks, gaps: ``wearable-gaze fixations``) are never estimated;
+    they are returned as one entry with status ``skipped``. A file without a ``segment`` column is
+    one segment, but only if it holds at most one fixation (``segment_view_lines`` over it) or
+    ``one_point`` is set: several fixations estimated as one point would be a meaningless average,
+    so a ``UserError`` says how to segment it.
 
     Returns one dict per segment, in order of first appearance: ``segment`` (value or None),
     ``method``, ``status``, ``reason``, ``position_mm`` [x, y, z] or None, ``n_samples``,
     ``n_lines``, ``covariance_mm2`` (3x3 or None), ``ellipsoid95_radii_mm``, ``density_ply``.
     With ``export_density`` (a .ply path) the density of each segment is written there
-    (``NAME-SEGMENT.ply`` when there are several segments).
+    (``NAME-SEGMENT.ply`` when there are several segments). With ``targets`` the segments are
+    fixations merged into targets as ``process`` merges them (``targets_of_segments``).
     """
+    if export_density is not None and Path(export_density).suffix.lower() != ".ply":
+        raise UserError(f"--export-density {export_density}: the file name must end in .ply; give a .ply name")
+    if one_point and targets:
+        raise UserError("--one-point and --targets exclude each other (one point for the whole file, or the targets of "
+                        "its fixations); drop one of them")
+    if targets and export_density is not None:
+        raise UserError("--export-density writes one density per segment, not per target; drop --targets or "
+                        "--export-density")
     segments = read_viewlines_csv(path)
-    if export_density is not None:
-        export_density = Path(export_density)
-        if export_density.suffix.lower() != ".ply":
-            raise UserError(f"--export-density {export_density}: the file name must end in .ply; give a .ply name")
+    _check_segmentation(path, segments, one_point, targets)
+    if targets:
+        return targets_of_segments(path, method, sigma_deg)
     out = []
     for seg in segments:
+        if seg.key == NO_FIXATION:
+            out.append(_skipped(method, len(seg.samples), len(seg.samples.lines().origins_mm)))
+            continue
         est, r = run_estimator(seg.samples, method, sigma_deg)
         d = {"segment": seg.key, **r.to_dict()}
         d["density_ply"] = None
         if export_density is not None and getattr(est, "grid", None) is not None:
-            target = _density_path(export_density, seg.key, len(segments))
-            pc = density_point_cloud(est)
-            from estimator._open3d import import_open3d  # noqa: PLC0415
-            o3d = import_open3d()
-            with atomic_path(target) as tmp:
-                if not o3d.t.io.write_point_cloud(str(tmp), pc):
-                    raise UserError(f"could not write {target}; check the folder is writable")
-            d["density_ply"] = str(target)
+            d["density_ply"] = str(_write_density(est, _density_path(Path(export_density), seg.key,
+                                                                     len(segments))))
         out.append(d)
     return out
 
 
+def _write_density(est, target: Path) -> Path:
+    pc = density_point_cloud(est)
+    from estimator._open3d import import_open3d  # noqa: PLC0415
+    o3d = import_open3d()
+    with atomic_path(target) as tmp:
+        if not o3d.t.io.write_point_cloud(str(tmp), pc):
+            raise UserError(f"could not write {target}; check the folder is writable")
+    return target
+
+
+def _skipped(method: str, n_samples: int, n_lines: int) -> dict:
+    """The entry of the rows of segment -1, which no estimate uses."""
+    return {"segment": NO_FIXATION, "method": method, "status": "skipped",
+            "reason": "rows in no fixation (saccades, blinks, gaps): never estimated", "position_mm": None,
+            "covariance_mm2": None, "ellipsoid95_radii_mm": None, "n_samples": n_samples, "n_lines": n_lines,
+            "density_ply": None}
+
+
+def _check_segmentation(path, segments: list, one_point: bool, targets: bool) -> None:
+    """Refuse what would silently give a wrong answer: an unsegmented file holding several
+    fixations (or any unsegmented file with ``targets``), ``one_point`` with a segmented file."""
+    segmented = segments[0].key is not None
+    fix = (f"run 'wearable-gaze fixations {path} -o SEGMENTED.csv' and estimate that file (--targets merges its "
+           "fixations into targets as process does)")
+    if one_point and segmented:
+        raise UserError(f"--one-point: {path} has a segment column, so its rows are not one point; drop --one-point "
+                        "to estimate each segment")
+    if one_point:
+        return
+    if not segmented and targets:
+        raise UserError(f"--targets: {path} has no segment column (no fixations to merge); {fix}")
+    if not segmented:
+        samples = segments[0].samples
+        samples = samples.select(np.argsort(samples.t_s, kind="stable"))
+        labels = segment_view_lines(samples, segment_config(measured_rate_hz(samples.t_s)))
+        n = int(labels.max()) + 1
+        if n >= 2:
+            raise UserError(f"{path} has no segment column and its rows hold {n} fixations, which one estimate would "
+                            f"average into a point none of them looked at; {fix}, or pass --one-point to estimate "
+                            "every row as one point")
+
+
+def targets_of_segments(path, method: str, sigma_deg: float) -> list[dict]:
+    """The targets of a view-line CSV whose ``segment`` column holds fixation labels (integers,
+    -1 for none; ``wearable-gaze fixations``): each fixation estimated and fixations of one target
+    merged exactly as ``process`` does (``fixations.find_targets``), so on the same view lines
+    the positions are the same as process's targets.csv. Returns one dict per target (the keys of
+    targets.csv, ``fixations`` as the file's segment labels, ``covariance_mm2``), then the
+    skipped entry of the rows of segment -1 if any."""
+    from .fixations import find_targets  # noqa: PLC0415  (fixations imports this module)
+
+    samples, keys = read_in_time_order(path)
+    bad = next((k for k in keys if isinstance(k, bool) or not isinstance(k, int) or k < NO_FIXATION), None)
+    if bad is not None:
+        raise UserError(f"--targets: {path} has segment '{bad}', not a fixation label (an integer, -1 for no "
+                        "fixation); run 'wearable-gaze fixations' on it first")
+    order = list(dict.fromkeys(k for k in keys if k != NO_FIXATION))      # the fixations by first row
+    number = {k: i for i, k in enumerate(order)}
+    labels = np.array([number.get(k, NO_FIXATION) for k in keys], dtype=int)
+    result = find_targets(samples, labels, method, sigma_deg)
+    out = []
+    for tg in result.targets:
+        row = tg.row()
+        row["fixations"] = [order[f] for f in tg.fixations]
+        row["covariance_mm2"] = None if tg.covariance_mm2 is None else np.asarray(tg.covariance_mm2).tolist()
+        out.append(row)
+    n_none = int((labels == NO_FIXATION).sum())
+    if n_none:
+        none = samples.select(np.flatnonzero(labels == NO_FIXATION))
+        out.append(_skipped(method, n_none, len(none.lines().origins_mm)))
+    return out
+
+
+def skipped_note(results: list[dict]) -> str | None:
+    """The line saying how many rows of segment -1 were not estimated (None: none)."""
+    n = sum(r["n_samples"] for r in results if r.get("status") == "skipped")
+    return (f"{n} row(s) of segment {NO_FIXATION} (saccades, blinks, gaps) not estimated" if n else None)
+
+
 def format_table(results: list[dict]) -> str:
-    """A readable table of ``estimate_file`` results."""
+    """A readable table of ``estimate_file`` results (per segment, or per target with
+    ``targets``); the skipped rows of segment -1 are left out (``skipped_note`` says them)."""
+    results = [r for r in results if r.get("status") != "skipped"]
+    if results and "target" in results[0]:
+        return _targets_table(results)
     head = (f"{'segment':>10} {'method':>9} {'status':>17} {'x mm':>9} {'y mm':>9} {'z mm':>9} {'95% radii mm':>22} "
             f"{'samples':>8}")
     rows = [head, "-" * len(head)]
@@ -130,4 +226,16 @@ def format_table(results: list[dict]) -> str:
                     f"{r['n_samples']:>8}")
         if r.get("density_ply"):
             rows.append(f"{'':>10} density written to {r['density_ply']}")
+    return "\n".join(rows)
+
+
+def _targets_table(results: list[dict]) -> str:
+    head = (f"{'target':>6} {'status':>17} {'x mm':>9} {'y mm':>9} {'z mm':>9} {'95% semi-axes mm':>22} "
+            f"{'samples':>8} {'time s':>12} fixations")
+    rows = [head, "-" * len(head)]
+    for r in results:
+        axes = " ".join(f"{r[k]:.1f}" for k in ("axis1_mm", "axis2_mm", "axis3_mm"))
+        rows.append(f"{r['target']:>6} {r['status']:>17} {r['x_mm']:>9.1f} {r['y_mm']:>9.1f} {r['z_mm']:>9.1f} "
+                    f"{axes:>22} {r['n_samples']:>8} {r['t_start']:>5.1f}-{r['t_end']:<6.1f} "
+                    + ";".join(str(f) for f in r["fixations"]))
     return "\n".join(rows)

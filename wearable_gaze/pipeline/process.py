@@ -15,7 +15,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from estimator.segments import SegmentConfig, segment_fixations
+from estimator.segments import SegmentConfig
 
 from ..errors import UserError
 from ..formats.atomic import remove_temporaries
@@ -35,6 +35,7 @@ from .calibrate import calibrate_camera_files, calibrate_eyes, read_eye_recordin
 from .device import POSE_NOTES, device_comparison, device_poses, ray_view_lines, still_head_poses
 from .fixations import find_targets, write_targets_step
 from .report import OverlayInputs, write_report
+from .segmentation import segment_view_lines
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
 from .track import frame_times, track_video
 from .types import Poses, Target
@@ -221,7 +222,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
-        result = find_targets(samples, segment_fixations(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb)
+        result = find_targets(samples, segment_view_lines(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb)
         write_targets_step(out, result, cfg.method)
         if f.device_gaze is not None:
             device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
