@@ -9,6 +9,8 @@ import csv
 import gzip
 import io
 import zlib
+from array import array
+from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -188,9 +190,10 @@ def csv_header(path, what: str, fix: str, required=(), columns_fix: str = "add t
 def iter_csv_chunks(path, what: str, rows_per_chunk: int, progress=None, errors: str = "strict"):
     """Stream the data rows of a CSV (gunzipped when its name ends in .gz; UTF-8, a BOM skipped):
     yield (rows, lines), ``rows_per_chunk`` rows at a time: rows as lists of cells (empty lines
-    skipped; rows shorter or longer than the header as they are) and the file line of each. Check
-    the header first with ``csv_header``. ``progress(bytes read, file size)`` after each chunk;
-    ``errors='replace'`` reads bytes that are not UTF-8 as U+FFFD instead of refusing the file.
+    skipped; rows shorter or longer than the header as they are) and the file line of each (an
+    ``array('q')``). Check the header first with ``csv_header``. ``progress(bytes read, file
+    size)`` after each chunk; ``errors='replace'`` reads bytes that are not UTF-8 as U+FFFD
+    instead of refusing the file.
 
     Raises:
         UserError: a row that is not CSV, bytes that are not UTF-8, broken gzip data (one line
@@ -200,7 +203,7 @@ def iter_csv_chunks(path, what: str, rows_per_chunk: int, progress=None, errors:
     total = path.stat().st_size
     with _open_text(path, errors) as fh:
         reader = csv.reader(fh)
-        rows, lines = [], []
+        rows, lines = [], array("q")
         try:
             next(reader, None)
             for row in reader:
@@ -208,8 +211,8 @@ def iter_csv_chunks(path, what: str, rows_per_chunk: int, progress=None, errors:
                     rows.append(row)
                     lines.append(reader.line_num)
                     if len(rows) >= rows_per_chunk:
-                        yield rows, lines
-                        rows, lines = [], []
+                        box, rows, lines = [(rows, lines)], [], array("q")
+                        yield box.pop()         # no reference kept here while the caller works on it
                         if progress:
                             progress(min(_raw_position(fh), total), total)
         except csv.Error as exc:
@@ -248,10 +251,9 @@ def chunk_numbers(rows, index: dict, names, lines=None, path=None,
     width = max(index.values(), default=-1) + 1
     whole = np.fromiter((len(r) >= width for r in rows), bool, len(rows))
     kept = rows if whole.all() else [r for r, w in zip(rows, whole, strict=True) if w]
-    columns = list(zip(*kept, strict=False))                    # longer rows: extra cells cut
     out, finite, bad = {}, whole.copy(), []
     for k, name in enumerate(names):
-        cells = columns[index[name]] if columns else ()
+        cells = list(map(itemgetter(index[name]), kept))        # one column at a time: memory
         try:
             v = np.array(cells, dtype=float)
         except ValueError:
@@ -264,7 +266,7 @@ def chunk_numbers(rows, index: dict, names, lines=None, path=None,
         finite &= np.isfinite(out[name])
     if bad:
         i, k = min(bad)
-        raise not_a_number(path, np.asarray(lines)[whole][i], names[k], columns[index[names[k]]][i], fix)
+        raise not_a_number(path, np.asarray(lines)[whole][i], names[k], kept[i][index[names[k]]], fix)
     return out, whole, finite
 
 

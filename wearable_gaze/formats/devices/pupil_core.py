@@ -142,6 +142,7 @@ def csv_chunks(path: Path, columns, required, imp: SessionImport | None = None, 
         if imp is not None and not whole.all():
             imp.drop("row with fewer cells than the header (truncated file?)",
                      sum(any(c.strip() for c in r) for r, w in zip(cells, whole, strict=True) if not w))
+        del cells, lines                                # free the text before the caller works on the chunk
         if whole.any():
             yield {n: v[whole] for n, v in ch.items()}
 
