@@ -119,3 +119,13 @@ def one_line_error(module, src, out, *fragments, match=None, **options) -> str:
     for f in fragments:
         assert f in msg, msg
     return msg
+
+
+def walkabout_recording(root):
+    """A 4 s simulated lab-walkabout session (seed 1) written in ``root`` and read back as a
+    ``SimulatedRecording``, for the device writers' round trips."""
+    from wearable_gaze.formats.devices.common import read_simulated_recording
+    from wearable_gaze.sim.simulate import simulate_scenario
+
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 4.0, "calibration": {"camera_views": 4}}, root, seed=1)
+    return read_simulated_recording(root)

@@ -7,18 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import one_line_error, run_import
+from helpers import one_line_error, run_import, walkabout_recording
 from roundtrip import rms, roundtrip_errors
 
 from estimator.api import estimate
 from estimator.likelihood import angular_residuals
 from estimator.lines import BinocularSamples, ViewLines
 from wearable_gaze.formats.devices import aria, aria_trajectory, detect_format
-from wearable_gaze.formats.devices.common import read_simulated_recording
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.tables import read_table
-from wearable_gaze.sim.simulate import simulate_scenario
 
 GAZE = "eye_gaze_vergence/generalized_gaze.csv"
 TRAJ = "trajectory/closed_loop_trajectory.csv"
@@ -321,9 +319,7 @@ def test_no_usable_pose_gives_one_line(copy, tmp_path):
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
-    root = tmp_path_factory.mktemp("aria_sim") / "session"
-    simulate_scenario({"base": "lab-walkabout", "duration_s": 4.0, "calibration": {"camera_views": 4}}, root, seed=1)
-    return read_simulated_recording(root)
+    return walkabout_recording(tmp_path_factory.mktemp("aria_sim") / "session")
 
 
 def test_write_then_read_gives_back_the_rays(sim, tmp_path):

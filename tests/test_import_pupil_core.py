@@ -8,15 +8,13 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-from helpers import one_line_error, run_import
+from helpers import one_line_error, run_import, walkabout_recording
 
 from wearable_gaze.formats.devices import detect_format
 from wearable_gaze.formats.devices import pupil_core as pc
-from wearable_gaze.formats.devices.common import read_simulated_recording
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.video import read_frame_times
-from wearable_gaze.sim.simulate import simulate_scenario
 
 TUFTS = "tufts_gaze_depth/test.csv"
 SAMPLE_DROPS = ("gaze_timestamp", "confidence", "eye centres outside", "no usable eye", "repeated", "out of order",
@@ -276,9 +274,7 @@ def test_head_poses_without_marker_size_or_in_mm_give_one_line(tmp_path):
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
-    root = tmp_path_factory.mktemp("pupil_sim") / "session"
-    simulate_scenario({"base": "lab-walkabout", "duration_s": 4.0, "calibration": {"camera_views": 4}}, root, seed=1)
-    return read_simulated_recording(root)
+    return walkabout_recording(tmp_path_factory.mktemp("pupil_sim") / "session")
 
 
 def test_write_then_read_gives_the_same_rays_poses_and_gaze(sim, tmp_path):
