@@ -16,6 +16,8 @@ for 60 minutes.)
 
 from __future__ import annotations
 
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
@@ -89,6 +91,31 @@ def measure(src: Path, out: Path) -> tuple[float, float, int, dict]:
     return result[2], result[0], imp.n_rays, dict(imp.dropped)
 
 
+RSS_SCRIPT = """
+import sys
+from pathlib import Path
+import cv2, pupil_labs.neon_recording.utils
+from wearable_gaze.formats.devices import neon
+from wearable_gaze.formats.devices.common import ImportOptions, SessionImport
+def hwm():   # this process's peak resident set, kB (ru_maxrss would carry the parent's over fork and exec)
+    return next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM:"))
+before = hwm()
+with SessionImport(Path(sys.argv[2]), "pupil-neon", Path(sys.argv[1])) as imp:
+    neon.read_recording(Path(sys.argv[1]), imp, ImportOptions())
+print((hwm() - before) / 1024)
+"""
+
+
+def rss_growth(src: Path, out: Path) -> float:
+    """MiB the peak resident set (VmHWM, Linux) grows by over one import in a fresh process (it
+    also counts the memory-mapped file pages, which tracemalloc does not see); NaN elsewhere."""
+    if not Path("/proc/self/status").is_file():
+        return float("nan")
+    res = subprocess.run([sys.executable, "-c", RSS_SCRIPT, str(src), str(out)], capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).parent)
+    return float(res.stdout.split()[-1])
+
+
 def main():
     args = size_and_seed(__doc__, "--minutes", float, 60.0, 0, "minutes of the long recording")
     print(f"Pupil Neon native import, {RATE_HZ:g} Hz, tracemalloc peak (Python allocations incl. numpy)")
@@ -109,6 +136,8 @@ def main():
                   f"({peak * 2**20 / max(n, 1):5.0f} B/sample), {dt:6.1f} s ({n / dt / 1e3:5.0f} k samples/s), "
                   f"dropped {sum(dropped.values())}")
             peaks.append(peak)
+            print(f"        peak resident set grows by {rss_growth(rec, root / f'rss{m:g}'):6.1f} MiB over the import "
+                  "(a fresh process; includes memory-mapped pages)")
         print(f"  peak at {args.minutes:g} min / peak at 1 min: {peaks[1] / peaks[0]:.2f} (flat memory: close to 1)")
 
 

@@ -1,9 +1,11 @@
 """Pupil Labs Neon, native recording format ("pupil-neon"; docs/importers.md, research in
 docs/devices/tobii-pupil.md section 4).
 
-Files read (through Pupil Labs' reader ``pupil_labs.neon_recording``, the optional extra
-``wearable-gaze[neon]``: it joins multi-part files ``ps1, ps2, ...`` and reads each stream's
-``.dtype`` file, which changed across data-format versions):
+Files read. Pupil Labs' reader ``pupil_labs.neon_recording`` (the optional extra
+``wearable-gaze[neon]``) finds and orders the multi-part files ``ps1, ps2, ...`` and reads
+``info.json``, ``calibration.bin``, blinks and the scene video; the large streams (eye_state,
+gaze, worn) are read by ``neon_streams`` in chunks, with each stream's ``.dtype`` file (which
+changed across data-format versions) or the reader's built-in layout:
 
 - ``info.json``: ``gaze_frequency`` (Hz), ``start_time`` (ns) for the report;
 - ``eye_state ps*.raw/.time`` + ``eye_state.dtype`` (required): per eye the eyeball centre (mm)
@@ -14,8 +16,10 @@ Files read (through Pupil Labs' reader ``pupil_labs.neon_recording``, the option
 - ``Neon Scene Camera v1 ps1.mp4`` + ``.time`` (optional): the scene video and its frame times.
 
 ``ImportOptions.camera`` replaces calibration.bin's camera in ``camera.json`` (and stands in for
-a missing calibration.bin). Memory: the vendor reader loads each stream whole as numpy arrays;
-the import keeps only the arrays it needs and converts and writes in chunks of ``CHUNK``.
+a missing calibration.bin). Memory is flat in the recording's length: the large streams are
+memory-mapped and read ``CHUNK`` records at a time (``neon_streams``: the reader itself loads a
+stream whole); the kappa fit (a first pass) and the report's vergence use at most
+``MAX_FIT_SAMPLES`` evenly spread binocular samples; the rays go out in a second pass.
 
 Frames. Neon reports the eye states in the scene camera's frame with OpenCV axes (x right,
 y down, z forward), mm; ``calibration.bin`` holds the scene camera's extrinsics, identity in
@@ -35,13 +39,15 @@ per-eye Fick-angle offset (``calibration.kappa``), fitted either
 
 Clock. Neon timestamps are Unix ns; session t = (t_ns - t_first) / 1e9 with t_first the first
 eye-state record, so ``clock_offset_s`` = t_first / 1e9 (Unix s). The report also gives the
-first sample's offset from ``info.json`` ``start_time`` (2.247 s in the demo recording).
+first sample's offset from ``info.json`` ``start_time`` (2.247 s in the demo recording). Without
+``gaze_frequency`` in info.json, the eye rate is the median interval of the first
+``MAX_FIT_SAMPLES`` records.
 
-Dropped and counted: records the vendor reader cut because a ``.raw`` and its ``.time`` differ
-in length; times that do not increase; samples not worn, inside a blink, with implausible eye
-centres (beyond ``MAX_CENTER_MM`` or an eye distance outside ``IED_RANGE_MM``) or no valid eye;
-per eye: non-finite values, an axis not pointing forward, a closed lid (aperture below
-``MIN_APERTURE_MM``).
+Dropped and counted: records cut because a part's ``.raw`` and ``.time`` differ in length
+(per part: later parts keep their own times); times that do not increase; samples not worn,
+inside a blink, with implausible eye centres (beyond ``MAX_CENTER_MM`` or an eye distance
+outside ``IED_RANGE_MM``) or no valid eye; per eye: non-finite values, an axis not pointing
+forward, a closed lid (aperture below ``MIN_APERTURE_MM``).
 
 What Neon lacks: a 3D gaze point (no ``device_gaze.csv``: its 2D gaze has no depth) and head
 poses (poses come from tracking the scene video with ``--markers``, else a still head).
