@@ -122,9 +122,9 @@ def _locate(src: Path, imp: SessionImport) -> tuple[Path, Path, Path | None]:
                     "Data Exporter, or pass the CSV file itself")
 
 
-# --- CSV chunks ------------------------------------------------------------------------------
+# --- CSV column chunks ------------------------------------------------------------------------------
 
-def csv_chunks(path: Path, columns, required, imp: SessionImport | None = None, rows: int | None = None,
+def column_chunks(path: Path, columns, required, imp: SessionImport | None = None, rows: int | None = None,
                progress=None):
     """Stream a CSV (``tables.iter_csv_chunks``) as {column: (n,) float} chunks of ``rows`` rows
     (empty cell: NaN), for the ``columns`` in its header (``required`` must be); a row too short
@@ -256,7 +256,7 @@ def _import_poses(folder: Path, offset: float, imp: SessionImport, options: Impo
                         "export the head-pose model again from Pupil Player")
     imp.count(f"{MODEL_FILE} markers", len(v))
     good, last = [], -np.inf
-    for ch in csv_chunks(folder / POSES_FILE, POSE_COLUMNS, POSE_COLUMNS[:7], imp):
+    for ch in column_chunks(folder / POSES_FILE, POSE_COLUMNS, POSE_COLUMNS[:7], imp):
         t = ch["timestamp"] - offset
         T = head_pose_matrices(np.column_stack([ch[f"rotation_{a}"] for a in "xyz"]),
                                np.column_stack([ch[f"translation_{a}"] for a in "xyz"]), options.marker_size_mm)
@@ -340,7 +340,7 @@ def _stream_gaze(path: Path, offset: float | None, pose_t, imp: SessionImport, o
     """Stream ``gaze_positions.csv`` into ``imp``; return the eye rate (Hz)."""
     reorder, dts, seen = _Reorder(imp), [], 0
     required = EYE_COLUMNS[0] + EYE_COLUMNS[1]
-    for ch in csv_chunks(path, [c for c in GAZE_COLUMNS if c != "base_data"], required, imp, progress=progress):
+    for ch in column_chunks(path, [c for c in GAZE_COLUMNS if c != "base_data"], required, imp, progress=progress):
         n = len(ch[required[0]])
         imp.count(f"{path.name} rows", n)
         ch["t"] = ch["gaze_timestamp"] - offset if offset is not None else (seen + np.arange(n)) / UNTIMED_RATE_HZ
@@ -361,7 +361,7 @@ def _stream_gaze(path: Path, offset: float | None, pose_t, imp: SessionImport, o
 
 def _first_time(path: Path) -> tuple[float | None, bool]:
     """(the first finite ``gaze_timestamp`` or None without the column, has a confidence column)."""
-    for ch in csv_chunks(path, ["gaze_timestamp", "confidence"], []):
+    for ch in column_chunks(path, ["gaze_timestamp", "confidence"], []):
         t = ch.get("gaze_timestamp", np.ones(1))
         if "gaze_timestamp" not in ch or np.isfinite(t).any():
             return (float(t[np.isfinite(t)].min()) if "gaze_timestamp" in ch else None), "confidence" in ch
