@@ -50,6 +50,8 @@ def roundtrip_errors(fmt: str, base: Path, work: Path, markers: bool = True, **o
     """(native errors (K,), imported errors (K,), import report) for format ``fmt``. ``base``: a
     folder shared by the test run (``tmp_path_factory.getbasetemp()``); ``work``: this test's."""
     session, native_err = native(str(base))
+    if fmt == "pupil-core" and "marker_size_mm" not in options:      # Pupil's head poses are in marker sides
+        options["marker_size_mm"] = json.loads((session / "markers.json").read_text())["marker_size_mm"]
     export_recording(session, work / "recording", fmt)
     opts = ImportOptions(markers=session / "markers.json" if markers else None, **options)
     _, report = import_recording(work / "recording", work / "imported", fmt, opts)
