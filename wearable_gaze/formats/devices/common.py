@@ -13,6 +13,7 @@ that did not finish.
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 from collections import Counter
 from contextlib import ExitStack
@@ -146,11 +147,14 @@ class SessionImport:
         self.files["camera"] = "camera.json"
 
     def add_scene_video(self, video, frame_times_s) -> None:
-        """Copy the scene video in as ``scene<ext>`` and write ``scene_timestamps.csv`` (frame
-        times on the session clock, s, increasing)."""
+        """Link (or, across file systems, copy) the scene video in as ``scene<ext>`` and write
+        ``scene_timestamps.csv`` (frame times on the session clock, s, increasing)."""
         video = Path(video)
         dst = self.out / f"scene{video.suffix.lower()}"
-        shutil.copyfile(video, dst)
+        try:                                    # an hour of video: a second name, not a second copy
+            os.link(video, dst)
+        except OSError:                         # another file system, or links not allowed
+            shutil.copyfile(video, dst)
         t = np.asarray(frame_times_s, float)
         write_frame_times(self.out / "scene_timestamps.csv", np.arange(len(t)), t)
         self.files["scene_video"] = dst.name
