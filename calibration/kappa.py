@@ -68,6 +68,16 @@ def apply_kappa(directions, kappa_deg) -> np.ndarray:
     return out
 
 
+def angular_errors_deg(centers_mm, directions, points_mm) -> np.ndarray:
+    """(N,) angles, degrees, between each direction (N, 3) and the direction from its centre
+    (N, 3, mm) to its point (N, 3, mm), one frame; NaN where a row is not finite."""
+    c, d, p = (np.asarray(a, float).reshape(-1, 3) for a in (centers_mm, directions, points_mm))
+    to_point = p - c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.sum(d * to_point, axis=1) / (np.linalg.norm(d, axis=1) * np.linalg.norm(to_point, axis=1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 

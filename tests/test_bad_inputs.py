@@ -945,6 +945,64 @@ add("process-eyes-bad-json", "process", lambda e, d: argv_process(
     ("eyes",), many=True)
 
 
+
+# --- learn-bias, and --person of process and viewlines (issue 15) --------------------------------
+
+def argv_learn_bias(e, d, validation=None, processed=None, out=None):
+    """learn-bias on the fixture session; its 'processed' folder is the base (poses.csv, eyes.json)."""
+    return ["learn-bias", e["session"], "--validation", validation or str(e.session / "truth" / "targets.json"),
+            "--processed", processed or str(e.base), "-o", out or str(d / "person.json")]
+
+
+def _validation(e, edit=None) -> dict:
+    truth = json.loads((e.session / "truth" / "targets.json").read_text())["targets"]
+    d = {"format": "wearable-gaze-validation", "version": 1,
+         "targets": [{"position_mm": t["position_mm"], "fixations_s": t["fixations_s"]}
+                     for t in truth if not t["moving"] and t["fixations_s"]]}
+    if edit:
+        edit(d)
+    return d
+
+
+def _bad_validation(edit):
+    return lambda e, d: argv_learn_bias(e, d, write(d, "v.json", _validation(e, edit)))
+
+
+def _person(edit=None) -> dict:
+    d = {"format": "wearable-gaze-person", "version": 1,
+         "eyes": [{"eye": "left", "correction_deg": [1.0, 0.5]}, {"eye": "right", "correction_deg": [1.0, 0.5]}]}
+    if edit:
+        edit(d)
+    return d
+
+
+add("learn-bias-validation-missing", "learn-bias", lambda e, d: argv_learn_bias(e, d, str(d / "nope.json")),
+    "no such file")
+add("learn-bias-validation-not-json", "learn-bias",
+    lambda e, d: argv_learn_bias(e, d, write(d, "v.json", "{targets: [}")), "not valid json")
+add("learn-bias-validation-no-targets", "learn-bias", _bad_validation(lambda v: v.update(targets=[])),
+    ("validation", "targets"))
+add("learn-bias-validation-interval-reversed", "learn-bias",
+    _bad_validation(lambda v: v["targets"][0].update(fixations_s=[[1.5, 0.5]])), ("fixations_s[0]", "start < end"))
+add("learn-bias-validation-position-2d", "learn-bias",
+    _bad_validation(lambda v: v["targets"][0].update(position_mm=[0.0, 0.0])), "position_mm")
+add("learn-bias-validation-other-clock", "learn-bias", _bad_validation(
+    lambda v: [t.update(fixations_s=[[a + 1000, b + 1000] for a, b in t["fixations_s"]]) for t in v["targets"]]),
+    ("too few eye samples", "clock"))
+add("learn-bias-not-processed", "learn-bias", lambda e, d: argv_learn_bias(e, d, processed=str(d)),
+    ("no head poses", "process"))
+add("learn-bias-out-is-validation", "learn-bias", lambda e, d: argv_learn_bias(
+    e, d, out=_cp(e.session / "truth" / "targets.json", d, "t.json"),
+    validation=str(d / "t.json")), "-o")
+add("process-person-missing", "process", lambda e, d: argv_process(e, d, e["session"],
+                                                                   ["--person", str(d / "nope.json")]),
+    ("no such file", "per-person bias"))
+add("process-person-correction-huge", "process", lambda e, d: argv_process(e, d, e["session"], [
+    "--person", write(d, "p.json", _person(lambda p: p["eyes"][0].update(correction_deg=[90.0, 0.0])))]),
+    ("correction_deg", "per-person bias"))
+add("viewlines-person-eyes-swapped", "viewlines", lambda e, d: argv_viewlines(e, d) + [
+    "--person", write(d, "p.json", _person(lambda p: p["eyes"].reverse()))], ("left then the right",))
+
 def _session_copy_full(e, d):
     s = d / "sess"
     if not s.exists():
@@ -1176,7 +1234,8 @@ def test_bad_input(c: Case, env, case_dir, capsys):
 
 def test_matrix_covers_every_command_with_enough_cases():
     commands = {"estimate", "fixations", "reproduce", "calibrate-camera", "calibrate-eyes", "viewlines", "track",
-                "markers", "simulate", "process", "live", "emulate", "demo", "import", "export-recording"}
+                "markers", "simulate", "process", "live", "emulate", "demo", "import", "export-recording",
+                "learn-bias"}
     per = {k: sum(c.command == k for c in CASES) for k in commands}
     assert all(n >= 5 for n in per.values()), per
     assert len(CASES) >= 250, len(CASES)

@@ -38,7 +38,7 @@ def cmd_calibrate_eyes(args) -> int:
 def cmd_viewlines(args) -> int:
     from ..pipeline.calibrate import viewlines_files  # noqa: PLC0415
 
-    counts = viewlines_files(args.eye, args.eyes, args.poses, args.out, args.max_gap)
+    counts = viewlines_files(args.eye, args.eyes, args.poses, args.out, args.max_gap, args.person)
     print(f"wrote {args.out}: {counts['written']} of {counts['samples']} samples "
           f"({counts['no_pose']} without a head pose within {args.max_gap} s, "
           f"{counts['both_eyes_invalid']} with both eyes invalid)")
@@ -83,4 +83,6 @@ def add_viewlines(sub) -> None:
     vl.add_argument("-o", "--out", required=True, metavar="viewlines.csv", help="view-line CSV to write")
     vl.add_argument("--max-gap", type=A.positive_float, default=0.1, metavar="S",
                     help="use a sample only with head poses within S seconds on both sides (default 0.1)")
+    vl.add_argument("--person", metavar="person.json",
+                    help="apply this person's per-eye gaze correction (from learn-bias)")
     vl.set_defaults(func=cmd_viewlines)

@@ -16,7 +16,7 @@ def cmd_process(args) -> int:
 
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
-                          progress_factory=lambda name: progress_bar(name, 1))
+                          progress_factory=lambda name: progress_bar(name, 1), person=args.person)
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
@@ -37,6 +37,8 @@ def add_process(sub) -> None:
     pr.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")
     pr.add_argument("--camera", metavar="camera.json", help="use this camera calibration instead of the session's")
     pr.add_argument("--eyes", metavar="eyes.json", help="use this eye calibration instead of the session's")
+    pr.add_argument("--person", metavar="person.json",
+                    help="apply this person's per-eye gaze correction (from learn-bias) to the view lines")
     pr.add_argument("--force", action="store_true", help="redo every step")
     pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
     pr.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",

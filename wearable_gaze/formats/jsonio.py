@@ -1,7 +1,7 @@
 """Reading and writing the project's JSON files: one mechanism for every format.
 
 Each format has a JSON Schema in ``wearable_gaze/formats/schemas/NAME.schema.json`` (session, camera,
-eyes, marker-map, board, walls, scenario). ``load_json(path, name)`` reads the file, checks it
+eyes, marker-map, board, walls, scenario, validation, person). ``load_json(path, name)`` reads the file, checks it
 against its schema and then runs the format's numeric checks that a schema cannot express
 (matrix consistency, principal point inside the image, ...). Any problem is a ``UserError``
 whose message is one line: the file, the JSON path of the bad field, what was expected and how
@@ -22,7 +22,7 @@ from .atomic import write_text
 
 log = logging.getLogger(__name__)
 
-SCHEMA_NAMES = ("session", "camera", "eyes", "marker-map", "board", "walls", "scenario")
+SCHEMA_NAMES = ("session", "camera", "eyes", "marker-map", "board", "walls", "scenario", "validation", "person")
 
 
 @cache

@@ -29,6 +29,7 @@ from calibration.eyes import (
     target_readings,
     wall_pose,
 )
+from calibration.kappa import apply_kappa
 from estimator import BinocularSamples
 from estimator.frames import rotate_directions, transform_points
 from tracking.markers import MarkerDetector
@@ -39,6 +40,7 @@ from ..formats.camera import calibration_dict, load_camera, write_camera
 from ..formats.eye_samples import EyeSamples, read_eye_csv
 from ..formats.eyes import eyes_dict, load_eyes, write_eyes
 from ..formats.images import IMAGE_EXT, image_files, read_grey_image, write_image
+from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv
 from ..formats.video import sampled_grey_frames
 from ..formats.viewlines import write_viewlines_csv
@@ -356,40 +358,60 @@ def format_eyes_report(result: dict) -> str:
 
 # --- viewlines ---------------------------------------------------------------------------------
 
-def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1) -> dict:
-    """``view_lines`` from files: writes the view-line CSV and returns the counts."""
-    check_output(out, [eye_csv, eyes_json, poses_csv], "-o")
+def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1, person=None) -> dict:
+    """``view_lines`` from files: writes the view-line CSV and returns the counts. ``person``: a
+    person.json whose per-eye correction is applied (docs/calibration.md, per-person bias)."""
+    check_output(out, [eye_csv, eyes_json, poses_csv] + ([person] if person else []), "-o")
+    correction = person_correction_deg(read_person(person)) if person else None
     eye, _ = read_eye_csv(eye_csv)
     cals = load_eyes(eyes_json)
-    result = view_lines(eye, cals, Poses(*read_poses_csv(poses_csv)), max_gap_s, poses_csv)
+    result = view_lines(eye, cals, Poses(*read_poses_csv(poses_csv)), max_gap_s, poses_csv, correction)
     write_viewlines_csv(out, result.samples)
     return result.counts
 
 
-def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = 0.1, source="the poses"
-               ) -> ViewLinesResult:
+def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = 0.1, source="the poses",
+               correction_deg=None) -> ViewLinesResult:
     """Raw eye samples -> world view lines (eq. 1-8) with the head poses interpolated to each
     sample; samples without a pose within ``max_gap_s`` are dropped and counted, invalid eyes
     stay empty (monocular samples are kept). ``eyes``: the (left, right) calibrations;
-    ``source``: where the poses come from, for the message when none is near a sample."""
+    ``source``: where the poses come from, for the message when none is near a sample;
+    ``correction_deg``: a per-person correction (``head_lines_to_world``)."""
+    return head_lines_to_world(head_view_lines(eye, eyes), poses, max_gap_s, source, correction_deg)
+
+
+def head_view_lines(eye: EyeSamples, eyes: list) -> BinocularSamples:
+    """Raw eye samples -> view lines in the head frame (eq. 1-6; invalid eyes NaN)."""
     arrays = []
     for e, cal in enumerate(eyes[:2]):
         lines = cal.lines(eye.raw[:, e])
         arrays += [lines.origins_mm, np.where(eye.valid[:, e][:, None], lines.directions, np.nan)]
-    head = BinocularSamples.from_arrays(eye.t, *arrays, frame="head")
-    return head_lines_to_world(head, poses, max_gap_s, source)
+    return BinocularSamples.from_arrays(eye.t, *arrays, frame="head")
 
 
-def head_lines_to_world(head: BinocularSamples, poses: Poses, max_gap_s: float = 0.1, source="the poses"
-                        ) -> ViewLinesResult:
+def correct_head_lines(head: BinocularSamples, correction_deg) -> BinocularSamples:
+    """Each eye's head-frame directions with a per-person correction ``correction_deg`` (2, 2)
+    [eye (left, right), (horizontal, vertical)] degrees added to their Fick angles
+    (``calibration.kappa.apply_kappa``; docs/calibration.md, per-person bias)."""
+    c = np.asarray(correction_deg, float).reshape(2, 2)
+    return BinocularSamples.from_arrays(head.t_s, head.left_origin_mm, apply_kappa(head.left_direction, c[0]),
+                                        head.right_origin_mm, apply_kappa(head.right_direction, c[1]),
+                                        head.left_valid, head.right_valid, frame=head.frame)
+
+
+def head_lines_to_world(head: BinocularSamples, poses: Poses, max_gap_s: float = 0.1, source="the poses",
+                        correction_deg=None) -> ViewLinesResult:
     """View lines in the head frame (``frame="head"``: calibrated eye samples, or a device's
     eye rays) -> world view lines, with the head poses ``T_world_from_cam`` interpolated to each
     sample. Samples without a pose within ``max_gap_s`` are dropped and counted, as are those
-    with neither eye valid; monocular samples are kept.
+    with neither eye valid; monocular samples are kept. ``correction_deg``: None, or a
+    per-person correction (2, 2) applied in the head frame first (``correct_head_lines``).
 
     Raises:
         UserError: no valid sample has a pose (naming ``source``).
     """
+    if correction_deg is not None:
+        head = correct_head_lines(head, correction_deg)
     T_wc, ok = interpolate_poses(poses.t, poses.T_world_from_cam, head.t_s, max_gap_s)
     valid = head.left_valid | head.right_valid
     keep = ok & valid

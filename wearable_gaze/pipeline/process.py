@@ -22,17 +22,19 @@ from ..formats.atomic import remove_temporaries
 from ..formats.board import BOARD_FILE, read_board
 from ..formats.camera import load_camera
 from ..formats.devices.common import read_import_report
+from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
 from ..formats.jsonio import write_json
 from ..formats.markermap import load_marker_map
+from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv, write_poses_csv
 from ..formats.session import load_session
 from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
-from .calibrate import calibrate_camera_files, calibrate_eyes, read_eye_recordings, view_lines
-from .device import POSE_NOTES, device_comparison, device_poses, ray_view_lines, still_head_poses
+from .calibrate import calibrate_camera_files, calibrate_eyes, head_lines_to_world, read_eye_recordings, view_lines
+from .device import POSE_NOTES, device_comparison, device_poses, still_head_poses
 from .fixations import find_targets, write_targets_step
 from .report import OverlayInputs, write_report
 from .segmentation import segment_view_lines
@@ -50,6 +52,7 @@ class _Settings:
     report: bool
     track_every: int
     segment_config: SegmentConfig
+    person: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -106,7 +109,7 @@ class _Values:
 
 def process_session(session, out=None, method: str = "voxel", camera=None, eyes=None, force: bool = False,
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
-                    segment_config: SegmentConfig | None = None, progress_factory=None) -> ProcessResult:
+                    segment_config: SegmentConfig | None = None, progress_factory=None, person=None) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -120,6 +123,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
             fps, far finer than head motion; 1 tracks every frame).
         segment_config: fixation segmentation settings (default ``SegmentConfig()``).
         progress_factory: name -> context manager yielding a progress(done, total) callback.
+        person: a person.json (``learn-bias``) whose per-eye correction the view lines get.
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
@@ -129,6 +133,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         UserError: the session itself cannot be read.
     """
     s = load_session(session)
+    person = Path(person) if person is not None else None
+    correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
     out = Path(out) if out is not None else s.root / "processed"
     out.mkdir(parents=True, exist_ok=True)
     res = ProcessResult(out)
@@ -149,14 +155,16 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     f = _SessionFiles.of(s)
     if segment_config is None:          # the window follows the eye rate: 8 samples at 60 Hz, 2 at 10 Hz
         segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
-    cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config)
+    cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person)
+    if correction is not None:
+        res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
     cam_path = Path(camera) if camera else out / "camera.json"
     eyes_path = Path(eyes) if eyes else out / "eyes.json"
     vals = _Values(f, cam_path, eyes_path, out)
     try:
         _calibration_steps(f, steps, vals, cam_path if camera else None, eyes_path if eyes else None, out)
         if f.has_recording:
-            _recording_steps(f, out, steps, res, vals, cam_path, eyes_path, cfg)
+            _recording_steps(f, out, steps, res, vals, cam_path, eyes_path, cfg, correction)
         else:
             res.problems.append("session: a calibration-only session has no recording to process")
             for name in ("tracking", "viewlines", "targets", "report"):
@@ -203,21 +211,23 @@ def _calibration_steps(f: _SessionFiles, steps: Steps, vals: _Values, camera: Pa
 
 
 def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResult, vals: _Values, cam_path: Path,
-                     eyes_path: Path, cfg: _Settings) -> None:
-    """3. head tracking, 4. view lines, 5. fixations and targets, 6. plots, overlay, report."""
+                     eyes_path: Path, cfg: _Settings, correction=None) -> None:
+    """3. head tracking, 4. view lines (with the per-person ``correction``, if any), 5. fixations
+    and targets, 6. plots, overlay, report."""
     poses_path = out / "poses.csv"
     _tracking_step(f, steps, vals, cam_path, poses_path, cfg)
     raw_vl, counts_path = out / ".viewlines_unsegmented.csv", out / ".viewlines_counts.json"
 
     def do_viewlines(cb):
         if f.eye_rays is not None:
-            result = ray_view_lines(f.eye_rays, vals["poses"], 0.1, poses_path)
+            result = head_lines_to_world(read_eye_rays(f.eye_rays), vals["poses"], 0.1, poses_path, correction)
         else:
-            result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], source=poses_path)
+            result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], 0.1, poses_path, correction)
         write_viewlines_csv(raw_vl, result.samples)
         write_json(counts_path, result.counts)
     eye_inputs = [f.eye_rays] if f.eye_rays is not None else [f.eye_samples, eyes_path]
-    if steps.run("viewlines", eye_inputs + [poses_path], {}, do_viewlines):
+    person = {} if correction is None else {"person": correction.tolist()}
+    if steps.run("viewlines", eye_inputs + [poses_path], person, do_viewlines):
         res.summary["viewlines"] = json.loads(counts_path.read_text(encoding="utf-8"))
 
     def do_targets(cb):
