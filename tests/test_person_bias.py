@@ -163,3 +163,23 @@ def test_an_imported_sessions_eye_rays_learn_and_take_the_correction(person_p, t
     without, with_ = _rms_error_mm(plain, later), _rms_error_mm(fixed, later)
     print(f"imported later session RMS target error: {without:.0f} mm without, {with_:.0f} mm with the correction")
     assert with_ < 0.75 * without
+
+
+def test_viewlines_turns_each_eye_by_its_correction(person_p, tmp_path):
+    """``viewlines --person``: each eye's lines turn by its own correction (about 1.45 deg left,
+    1.47 deg right here), the origins stay."""
+    from wearable_gaze.formats.viewlines import read_viewlines_csv
+
+    val, person, _, _, _ = person_p
+    argv = ["viewlines", str(val / "eye.csv"), "--eyes", str(val / "processed" / "eyes.json"), "--poses",
+            str(val / "processed" / "poses.csv")]
+    assert main(argv + ["-o", str(tmp_path / "a.csv")]) == 0
+    assert main(argv + ["-o", str(tmp_path / "b.csv"), "--person", str(person)]) == 0
+    a, b = (read_viewlines_csv(tmp_path / n)[0].samples for n in ("a.csv", "b.csv"))
+    corr = [e["correction_deg"] for e in read_person(person)["eyes"]]
+    for side, (h, v) in zip(("left", "right"), corr, strict=True):
+        da, db = getattr(a, f"{side}_direction"), getattr(b, f"{side}_direction")
+        ok = getattr(a, f"{side}_valid")
+        turn = np.degrees(np.arccos(np.clip(np.sum(da[ok] * db[ok], axis=1), -1, 1)))
+        assert abs(np.median(turn) - np.hypot(h, v)) < 0.05, (side, np.median(turn), (h, v))
+        np.testing.assert_allclose(getattr(a, f"{side}_origin_mm")[ok], getattr(b, f"{side}_origin_mm")[ok])
