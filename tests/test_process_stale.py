@@ -93,7 +93,7 @@ def test_a_failed_camera_calibration_invalidates_every_later_step_and_exits_2(pr
 
 def test_no_target_estimated_without_any_failure_still_exits_2_and_says_so(processed, monkeypatch, capsys):
     s, out = processed
-    monkeypatch.setattr(process_mod, "segment_fixations", lambda samples, config: np.full(len(samples), -1))
+    monkeypatch.setattr(process_mod, "segment_view_lines", lambda samples, config: np.full(len(samples), -1))
     capsys.readouterr()
     assert main(["process", str(s), "--no-overlay", "--method", "ml"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
