@@ -18,8 +18,7 @@ from ..errors import UserError
 from ..formats.eye_rays import read_device_gaze, read_eye_rays
 from ..formats.poses import read_poses_csv, write_poses_csv
 from ..formats.targets import write_device_comparison
-from .calibrate import head_lines_to_world
-from .types import Poses, ViewLinesResult
+from .types import Poses
 
 log = logging.getLogger(__name__)
 
@@ -51,11 +50,6 @@ def still_head_poses(eye_rays: Path, out: Path) -> None:
     grid = np.arange(t[0] - 1.0 / STILL_HEAD_RATE_HZ, t[-1] + 2.0 / STILL_HEAD_RATE_HZ, 1.0 / STILL_HEAD_RATE_HZ)
     T = np.broadcast_to(np.eye(4), (len(grid), 4, 4))
     write_poses_csv(out, grid, np.arange(len(grid)), T, {"status": np.full(len(grid), "still_head", object)})
-
-
-def ray_view_lines(eye_rays: Path, poses: Poses, max_gap_s: float, source) -> ViewLinesResult:
-    """The device's eye rays (head frame) -> world view lines with the poses."""
-    return head_lines_to_world(read_eye_rays(eye_rays), poses, max_gap_s, source)
 
 
 def device_comparison(device_gaze: Path, samples, targets: list, poses: Poses, out: Path) -> list[dict]:
