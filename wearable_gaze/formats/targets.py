@@ -7,7 +7,15 @@ targets.json and targets.csv hold the same rows, one per target, keyed by ``TARG
 ``n_samples``, ``t_start, t_end`` (s), ``fixations`` (``;``-separated indices), ``method``,
 ``status``, ``crb_mm``. A value that does not exist (no usable estimate) is NaN in the JSON and an
 empty cell in the CSV. targets.json adds ``version`` and ``method``; targets.csv rounds to 0.1 mm
-and 1 ms, for spreadsheets.
+and 1 ms, for spreadsheets. A moving target (smooth pursuit) has ``"moving": true`` in its
+targets.json row, status ``moving`` and as its point the path's position at its middle time;
+targets.csv then has a last column ``moving`` (1 or 0) for every row. A session without a moving
+target writes neither (the files of earlier versions, byte for byte); a row without the key is a
+static target.
+
+``target_paths.csv`` holds the moving targets' paths, one row per knot: ``target``, ``t`` (s),
+``x, y, z`` (world frame, mm) and the covariance terms ``cxx, cxy, cxz, cyy, cyz, czz`` (mm^2);
+a header alone when no target moves. ``write_target_paths`` and ``read_target_paths``.
 
 One writer, ``write_targets`` (both files), and one reader, ``read_targets`` (the rows of
 targets.json, exact). ``target_labels.npy`` has ``write_target_labels`` and
@@ -39,6 +47,10 @@ TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axi
                   "t_end", "fixations", "method", "status", "crb_mm")
 TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "crb_mm")} | {
     "t_start": ".3f", "t_end": ".3f"}
+MOVING_COLUMN = "moving"
+PATH_COLUMNS = ("target", "t", "x", "y", "z", "cxx", "cxy", "cxz", "cyy", "cyz", "czz")
+PATH_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f"} | {k: ".6g" for k in PATH_COLUMNS[5:]}
+_COV_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 ESTIMATE_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
 ESTIMATE_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
 
@@ -46,10 +58,14 @@ log = logging.getLogger(__name__)
 
 
 def write_targets(out, rows: list[dict], method: str) -> None:
-    """Write ``rows`` (keys ``TARGET_COLUMNS``, plain Python values) as ``out``/targets.csv and
-    ``out``/targets.json (with ``method``, the estimator), each atomically."""
+    """Write ``rows`` (keys ``TARGET_COLUMNS``, and ``moving`` on a moving target's row; plain
+    Python values) as ``out``/targets.csv and ``out``/targets.json (with ``method``, the
+    estimator), each atomically."""
     out = Path(out)
-    write_table(out / "targets.csv", {k: np.array([r[k] for r in rows]) for k in TARGET_COLUMNS}, TARGET_FORMATS)
+    columns = {k: np.array([r[k] for r in rows]) for k in TARGET_COLUMNS}
+    if any(r.get(MOVING_COLUMN) for r in rows):
+        columns[MOVING_COLUMN] = np.array([int(bool(r.get(MOVING_COLUMN))) for r in rows])
+    write_table(out / "targets.csv", columns, TARGET_FORMATS)
     write_json(out / "targets.json", {"version": 1, "method": method, "targets": rows})
 
 
@@ -68,6 +84,40 @@ def read_targets(path) -> list[dict]:
         raise UserError(f"{path}: not a targets.json ({type(exc).__name__}: {exc}); run the targets step of "
                         "'wearable-gaze process' again (--force)") from None
     return rows
+
+
+def write_target_paths(path, paths: dict) -> None:
+    """Write target_paths.csv, atomically: ``paths`` maps a target index to its path as
+    (t (K,) s, positions (K, 3) world mm, covariances (K, 3, 3) mm^2); rows in target order."""
+    cols = {k: [] for k in PATH_COLUMNS}
+    for index in sorted(paths):
+        t, pos, cov = (np.asarray(a, float) for a in paths[index])
+        cols["target"].append(np.full(len(t), int(index)))
+        cols["t"].append(t)
+        for j, name in enumerate("xyz"):
+            cols[name].append(pos[:, j])
+        for name, (i, j) in zip(PATH_COLUMNS[5:], _COV_INDEX, strict=True):
+            cols[name].append(cov[:, i, j])
+    out = {k: np.concatenate(v) if v else np.zeros(0, int if k == "target" else float) for k, v in cols.items()}
+    write_table(path, out, PATH_FORMATS)
+
+
+def read_target_paths(path) -> dict:
+    """The paths of a target_paths.csv: {target index: (t (K,), positions (K, 3), covariances
+    (K, 3, 3))}; a header alone is no path, not an error.
+
+    Raises:
+        UserError: a missing file or column, a cell that is not a number (one line).
+    """
+    cols = read_table(path, list(PATH_COLUMNS), what="target-path CSV (target_paths.csv)", rows_required=False)
+    out = {}
+    for index in dict.fromkeys(int(v) for v in cols["target"]):
+        sel = cols["target"] == index
+        cov = np.zeros((int(sel.sum()), 3, 3))
+        for name, (i, j) in zip(PATH_COLUMNS[5:], _COV_INDEX, strict=True):
+            cov[:, i, j] = cov[:, j, i] = cols[name][sel]
+        out[index] = (cols["t"][sel], np.column_stack([cols[k][sel] for k in "xyz"]), cov)
+    return out
 
 
 def write_target_labels(path, labels: np.ndarray) -> None:

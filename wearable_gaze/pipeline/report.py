@@ -17,7 +17,13 @@ from tracking.markermap import MarkerMap
 from ..formats.atomic import atomic_path, write_text
 from ..formats.eye_samples import EyeSamples
 from ..formats.poses import read_poses_csv
-from ..formats.targets import read_device_comparison, read_estimates, read_target_labels, read_targets
+from ..formats.targets import (
+    read_device_comparison,
+    read_estimates,
+    read_target_labels,
+    read_target_paths,
+    read_targets,
+)
 from ..formats.video import open_video
 from ..formats.viewlines import read_viewlines_csv
 from .types import Target
@@ -59,6 +65,8 @@ class _ReportData:
         head: (M, 3) head positions with a pose; centre (3,): their mean.
         est: the running estimates (estimates.csv columns).
         orig, cyc: (N, 3) each sample's origin and direction (left eye, else right).
+        paths: the moving targets' paths (target_paths.csv): {index: (t (K,), positions (K, 3),
+            covariances (K, 3, 3))}; {} without the file.
     """
 
     targets: list
@@ -69,6 +77,7 @@ class _ReportData:
     est: dict
     orig: np.ndarray
     cyc: np.ndarray
+    paths: dict
 
 
 def _report_data(out: Path, T_p: np.ndarray) -> _ReportData:
@@ -84,8 +93,9 @@ def _report_data(out: Path, T_p: np.ndarray) -> _ReportData:
     cyc = samples.left_direction.copy()
     cyc[~samples.left_valid] = samples.right_direction[~samples.left_valid]
     orig = np.where(samples.left_valid[:, None], samples.left_origin_mm, samples.right_origin_mm)
+    paths = read_target_paths(out / "target_paths.csv") if (out / "target_paths.csv").is_file() else {}
     return _ReportData(targets, samples, tlabels, head, head.mean(axis=0) if len(head) else np.zeros(3), est,
-                       orig, cyc)
+                       orig, cyc, paths)
 
 
 @dataclass(frozen=True)
@@ -157,11 +167,13 @@ def _plot_depth(d: _ReportData, out: Path) -> tuple[str, str]:
 
 
 def _plot_density(d: _ReportData, out: Path) -> tuple[str, str]:
-    """Log-likelihood slices (horizontal) through each of the first four targets."""
+    """Log-likelihood slices (horizontal) through each of the first four static targets (a moving
+    one's lines meet no one point)."""
     plt = _plt()
-    n_t = max(len(d.targets), 1)
+    static = [tg for tg in d.targets if not tg.moving][:4]
+    n_t = max(len(static), 1)
     fig, axes = plt.subplots(1, min(n_t, 4), figsize=(3.2 * min(n_t, 4), 3.2), squeeze=False)
-    for i, tg in enumerate(d.targets[:4]):
+    for i, tg in enumerate(static):
         ax = axes[0, i]
         X = tg.position_mm
         lines = d.samples.select(np.flatnonzero(d.tlabels == tg.index)).lines()
@@ -182,7 +194,8 @@ def _plot_density(d: _ReportData, out: Path) -> tuple[str, str]:
 
 
 def _plot_3d(d: _ReportData, out: Path) -> tuple[str, str]:
-    """3D view: head path, every 10th view line of each target, the targets."""
+    """3D view: head path, every 10th view line of each target, the targets (a moving one as its
+    path)."""
     plt = _plt()
     fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
@@ -190,23 +203,32 @@ def _plot_3d(d: _ReportData, out: Path) -> tuple[str, str]:
     for i, tg in enumerate(d.targets):
         X = tg.position_mm
         c = COLOURS[i % len(COLOURS)]
-        for a, b in _line_segments(tg, d.orig, d.cyc, d.tlabels):
+        for a, b in _line_segments(tg, d, d.cyc):
             ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], color=c, lw=0.3, alpha=0.5)
-        ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {i}")
+        if tg.index in d.paths:
+            P = d.paths[tg.index][1]
+            ax.plot(P[:, 0], P[:, 2], -P[:, 1], "-", color=c, lw=2, label=f"target {i} (moving: its path)")
+        else:
+            ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {i}")
     _finish(fig, ax, out / "plot_3d.png", "Head path, view lines and targets", "x (mm)", "z (mm)", "up (mm)")
     return ("plot_3d.png", "3D view: head trajectory, view lines, targets")
 
 
 def _plot_top(d: _ReportData, out: Path) -> tuple[str, str]:
-    """Top view: head path, view lines, targets with their largest 95 % semi-axis."""
+    """Top view: head path, view lines, targets with their largest 95 % semi-axis; a moving
+    target as its path, with the 95 % interval of its depth (largest semi-axis) at every 10th
+    knot."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 6))
     ax.plot(d.head[:, 0], d.head[:, 2], "k-", lw=1, label="head")
     for i, tg in enumerate(d.targets):
         X = tg.position_mm
         c = COLOURS[i % len(COLOURS)]
-        for a, b in _line_segments(tg, d.orig, d.cyc, d.tlabels):
+        for a, b in _line_segments(tg, d, d.cyc):
             ax.plot([a[0], b[0]], [a[2], b[2]], color=c, lw=0.3, alpha=0.4)
+        if tg.index in d.paths:
+            _top_path(ax, plt, d.paths[tg.index], c, f"target {i} (moving: its path)")
+            continue
         r = tg.axes95_mm[2] if np.isfinite(tg.axes95_mm[2]) else 0
         ax.add_patch(plt.Circle((X[0], X[2]), r, fill=False, color=c, lw=1))
         ax.plot(X[0], X[2], "o", color=c, label=f"target {i} ({np.linalg.norm(X - d.centre) / 1000:.2f} m)")
@@ -215,10 +237,26 @@ def _plot_top(d: _ReportData, out: Path) -> tuple[str, str]:
     return ("plot_top_view.png", "Top view")
 
 
-def _line_segments(tg, orig, directions, tlabels, every: int = 10):
-    """Every ``every``-th view line of a target, from the eye to the target's distance."""
-    for j in np.flatnonzero(tlabels == tg.index)[::every]:
-        yield orig[j], orig[j] + directions[j] * np.linalg.norm(tg.position_mm - orig[j])
+def _top_path(ax, plt, path, colour, label: str) -> None:
+    """A moving target's path seen from above, circles of its largest 95 % semi-axis on every
+    10th knot."""
+    _, P, cov = path
+    ax.plot(P[:, 0], P[:, 2], "-", color=colour, lw=2, label=label)
+    k95 = np.sqrt(7.8147)                                   # chi-square 95 %, 3 dof
+    for k in range(0, len(P), 10):
+        r = k95 * np.sqrt(max(np.linalg.eigvalsh(cov[k])[-1], 0.0))
+        ax.add_patch(plt.Circle((P[k, 0], P[k, 2]), r, fill=False, color=colour, lw=0.5))
+
+
+def _line_segments(tg, d: _ReportData, directions, every: int = 10):
+    """Every ``every``-th view line of a target, from the eye to the target's distance (a moving
+    target's: its path's point at the line's time)."""
+    for j in np.flatnonzero(d.tlabels == tg.index)[::every]:
+        X = tg.position_mm
+        if tg.index in d.paths:
+            t, P, _ = d.paths[tg.index]
+            X = np.array([np.interp(d.samples.t_s[j], t, P[:, m]) for m in range(3)])
+        yield d.orig[j], d.orig[j] + directions[j] * np.linalg.norm(X - d.orig[j])
 
 
 OVERLAY_FPS = 15.0
@@ -323,8 +361,10 @@ def _device_rows(out: Path) -> str:
 def _html(out: Path, name: str, targets, images, video_name, notes=(), device_table: str = "") -> None:
     rows = "".join(
         "<tr><td>{}</td><td>{:.0f}, {:.0f}, {:.0f}</td><td>{:.0f} / {:.0f} / {:.0f}</td><td>{}</td><td>{:.1f}-{:.1f}"
-        "</td><td>{}</td><td>{:.0f}</td></tr>".format(t.index, *t.position_mm, *t.axes95_mm, t.n_samples, t.t_start,
-                                                      t.t_end, html.escape(";".join(map(str, t.fixations))), t.crb_mm)
+        "</td><td>{}</td><td>{:.0f}</td><td>{}</td></tr>".format(
+            t.index, *t.position_mm, *t.axes95_mm, t.n_samples, t.t_start, t.t_end,
+            html.escape(";".join(map(str, t.fixations))), t.crb_mm,
+            "moving: the point is its path's middle (target_paths.csv)" if t.moving else html.escape(t.status))
         for t in targets)
     imgs = "".join(f'<figure><img src="{html.escape(n)}" alt="{html.escape(c)}"><figcaption>{html.escape(c)}'
                    f"</figcaption></figure>" for n, c in images)
@@ -340,7 +380,7 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}f
 {"".join(f"<p><b>{html.escape(n)}</b></p>" for n in notes)}
 <p>{len(targets)} fixated target(s). Positions in the world frame{"" if notes else " of the marker map"}, mm.</p>
 <table><tr><th>target</th><th>position (x, y, z)</th><th>95 % semi-axes</th><th>samples</th><th>time (s)</th>
-<th>fixations</th><th>Cramér-Rao bound (mm)</th></tr>{rows}</table>
+<th>fixations</th><th>Cramér-Rao bound (mm)</th><th>status</th></tr>{rows}</table>
 {device_table}
 {video}
 <h2>Plots</h2>{imgs}

@@ -15,8 +15,9 @@ import numpy as np
 
 from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
+from estimator.motion import STATIC, Trajectory
 
-from ..formats.targets import TARGET_COLUMNS  # noqa: F401  (the file format's columns: the keys of a row)
+from ..formats.targets import MOVING_COLUMN, TARGET_COLUMNS  # noqa: F401  (the file format's columns: a row's keys)
 
 
 @dataclass
@@ -26,16 +27,23 @@ class Fixation:
     Attributes:
         index: the fixation's number (its label in viewlines.csv).
         samples: (K,) indices of its view lines in the session's view lines, increasing.
-        estimate: the estimate from its lines (fed in chunks as a live session would), or None.
+        estimate: the estimate from its lines (fed in chunks as a live session would), or None
+            (none for a moving fixation: a point estimate of a moving point is no answer).
+        motion: what its lines looked at (``estimator.motion.classify_lines``): 'static' or
+            'moving' (a fixation of two points is split into two static ones before this).
+        trajectory: a moving fixation's path (``estimator.motion.smooth_trajectory``), or None.
     """
 
     index: int
     samples: np.ndarray
     estimate: GazeEstimate | None
+    motion: str = STATIC
+    trajectory: Trajectory | None = None
 
     @property
     def usable(self) -> bool:
-        return self.estimate is not None and self.estimate.ok
+        """A static fixation with an estimate that is ok (it may merge with others)."""
+        return self.motion == STATIC and self.estimate is not None and self.estimate.ok
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,6 +67,10 @@ class Target:
             the lines do not fix a point).
         samples: (n_samples,) indices of its view lines, or None when read from a file (the
             view lines' target labels are in target_labels.npy).
+        moving: a moving target (smooth pursuit): its point is the path's position at the
+            middle knot and its status 'moving'; the path is ``trajectory``.
+        trajectory: a moving target's path (``estimator.motion.Trajectory``; target_paths.csv),
+            or None (a static target, or one read from targets.json).
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -76,23 +88,30 @@ class Target:
     method: str
     crb_mm: float
     samples: np.ndarray | None = None
+    moving: bool = False
+    trajectory: Trajectory | None = None
 
     @property
     def ok(self) -> bool:
+        """A static target with a usable point estimate."""
         return self.status == "ok" and bool(np.all(np.isfinite(self.position_mm)))
 
     def row(self) -> dict:
-        """The row of targets.json / targets.csv (keys ``TARGET_COLUMNS``, plain Python values)."""
+        """The row of targets.json / targets.csv (keys ``TARGET_COLUMNS``, plain Python values),
+        with ``moving: True`` (``MOVING_COLUMN``) for a moving target (a static one's row has no
+        such key: ``formats.targets.write_targets`` fills it in when a session has moving targets)."""
         x, y, z = (float(v) for v in self.position_mm)
         a1, a2, a3 = (float(v) for v in self.axes95_mm)
         return {"target": int(self.index), "x_mm": x, "y_mm": y, "z_mm": z, "axis1_mm": a1, "axis2_mm": a2,
                 "axis3_mm": a3, "n_samples": int(self.n_samples), "t_start": float(self.t_start),
                 "t_end": float(self.t_end), "fixations": ";".join(str(f) for f in self.fixations),
-                "method": self.method, "status": self.status, "crb_mm": float(self.crb_mm)}
+                "method": self.method, "status": self.status, "crb_mm": float(self.crb_mm)} | (
+                    {MOVING_COLUMN: True} if self.moving else {})
 
     @classmethod
     def from_row(cls, row: dict) -> Target:
-        """A target from a row of targets.json (no covariance, no sample indices)."""
+        """A target from a row of targets.json (no covariance, no sample indices, no trajectory:
+        read_target_paths has the paths)."""
         fix = str(row["fixations"])
         return cls(index=int(row["target"]),
                    position_mm=np.array([row["x_mm"], row["y_mm"], row["z_mm"]], float),
@@ -100,7 +119,7 @@ class Target:
                    axes95_mm=np.array([row["axis1_mm"], row["axis2_mm"], row["axis3_mm"]], float),
                    status=str(row["status"]), n_samples=int(row["n_samples"]), t_start=float(row["t_start"]),
                    t_end=float(row["t_end"]), fixations=tuple(int(f) for f in fix.split(";") if f),
-                   method=str(row["method"]), crb_mm=float(row["crb_mm"]))
+                   method=str(row["method"]), crb_mm=float(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,131 @@
+"""estimator.motion on synthetic view lines: the motion test (static / moving / two points) and
+the moving point's smoothed path with its covariance."""
+
+import numpy as np
+import pytest
+
+from estimator import BinocularSamples
+from estimator.likelihood import perturb_directions
+from estimator.motion import MOVING, STATIC, TWO_POINTS, classify_lines, smooth_trajectory
+
+IPD_MM = 65.0
+
+
+def _samples(path, duration_s=2.0, rate_hz=60.0, sigma_deg=1.0, sway_mm=150.0, seed=0):
+    """Binocular view lines toward ``path(t)`` (N, 3) from a swaying head, 1 deg noise per axis."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    phase = rng.uniform(0, 2 * np.pi)
+    head = np.column_stack([sway_mm * np.sin(2 * np.pi * 0.3 * t + phase), 20 * np.sin(2 * np.pi * 0.5 * t),
+                            np.zeros_like(t)])
+    target = path(t)
+    arrays = []
+    for dx in (-IPD_MM / 2, IPD_MM / 2):
+        o = head + [dx, 0.0, 0.0]
+        d = target - o
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        arrays += [o, perturb_directions(d, np.deg2rad(sigma_deg), rng)]
+    return BinocularSamples.from_arrays(t, *arrays)
+
+
+def _static(p):
+    return lambda t: np.tile(np.asarray(p, float), (len(t), 1))
+
+
+def _sweep(t):
+    """300 mm/s across at 2 m."""
+    return np.column_stack([-300.0 + 300.0 * t, 50.0 + 0 * t, 2000.0 + 0 * t])
+
+
+def test_a_point_moving_across_is_called_moving_and_its_path_is_near_its_accuracy():
+    errs, sds = [], []
+    for seed in range(4):
+        s = _samples(_sweep, seed=seed)
+        test = classify_lines(s, 1.0)
+        assert test.kind == MOVING, test
+        assert 200 < test.speed_mm_s < 400
+        tr = smooth_trajectory(s, 1.0)
+        assert tr.t_s[0] == pytest.approx(0.0) and tr.t_s[-1] == pytest.approx(s.t_s[-1])
+        errs.append(np.linalg.norm(tr.positions_mm - _sweep(tr.t_s), axis=1))
+        sds.append(np.sqrt(np.trace(tr.covariances_mm2, axis1=1, axis2=2)))
+        # across the line of sight the path is good to a few centimetres
+        assert np.sqrt(np.mean((tr.positions_mm[:, 0] - _sweep(tr.t_s)[:, 0]) ** 2)) < 40.0
+    rms = float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
+    sd = float(np.sqrt(np.mean(np.concatenate(sds) ** 2)))
+    # the errors are of the size the covariance says (neither hidden nor overstated 3x)
+    assert rms < 150.0 and 0.33 < rms / sd < 1.5, (rms, sd)
+
+
+def test_a_point_swinging_back_and_forth_is_moving_not_two_points():
+    """No constant velocity fits it, and two points fit it badly: the smooth path wins."""
+
+    def swing(t):
+        return np.column_stack([400.0 * np.sin(2 * np.pi * 0.4 * t), 0 * t, 2000.0 + 0 * t])
+
+    s = _samples(swing, duration_s=3.0, seed=6)
+    test = classify_lines(s, 1.0)
+    assert test.kind == MOVING, test
+    assert test.bic["path"] < min(test.bic[k] for k in (STATIC, MOVING, TWO_POINTS))
+    tr = smooth_trajectory(s, 1.0)
+    assert np.sqrt(np.mean((tr.positions_mm[:, 0] - swing(tr.t_s)[:, 0]) ** 2)) < 60.0
+
+
+def test_the_path_at_interpolates_its_knots():
+    tr = smooth_trajectory(_samples(_sweep, seed=9), 1.0)
+    mid = 0.5 * (tr.t_s[3] + tr.t_s[4])
+    np.testing.assert_allclose(tr.at([mid])[0], 0.5 * (tr.positions_mm[3] + tr.positions_mm[4]))
+    p, c = tr.middle()
+    assert c.shape == (3, 3) and np.all(np.isfinite(p))
+
+
+def test_static_fixations_are_called_moving_at_most_2_percent_of_the_time():
+    rng = np.random.default_rng(42)
+    kinds = []
+    for seed in range(60):
+        depth = rng.uniform(500, 4000)
+        p = depth * np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2), 1.0])
+        kinds.append(classify_lines(_samples(_static(p), duration_s=rng.uniform(0.5, 3.0), seed=seed), 1.0).kind)
+    assert kinds.count(MOVING) <= 1, kinds          # 2 % of 60
+    assert kinds.count(STATIC) >= 57, kinds
+
+
+def test_two_points_at_two_depths_are_split_at_the_switch():
+    near, far = np.array([100.0, 0.0, 600.0]), np.array([300.0, 0.0, 2500.0])
+
+    def path(t):
+        return np.where((t < 1.2)[:, None], near, far)
+
+    s = _samples(path, duration_s=2.4, seed=3)
+    test = classify_lines(s, 1.0)
+    assert test.kind == TWO_POINTS, test
+    assert abs(test.split_t - 1.2) < 0.05
+    np.testing.assert_allclose(test.points_mm[0], near, atol=60)
+    assert np.linalg.norm(test.points_mm[1] - far) < 500
+
+
+def test_a_static_point_s_smoothed_path_stays_on_the_point():
+    p = np.array([200.0, 100.0, 1500.0])
+    tr = smooth_trajectory(_samples(_static(p), seed=2), 1.0)
+    err = tr.positions_mm - p
+    # within its covariance at every knot (99.9 % of a chi-square of 3 dof), near it on average
+    m2 = np.einsum("ki,kij,kj->k", err, np.linalg.inv(tr.covariances_mm2), err)
+    assert np.all(m2 < 16.27), m2
+    assert np.linalg.norm(err.mean(axis=0)) < 60.0
+
+
+def test_over_dispersed_lines_are_judged_on_their_scatter():
+    """3 deg of noise read as 1 deg: the fits' scatter, not the nominal sigma, decides."""
+    s = _samples(_static([0.0, 0.0, 1500.0]), duration_s=3.0, sigma_deg=3.0, seed=4)
+    test = classify_lines(s, 1.0)
+    assert test.kind == STATIC and test.dispersion > 5.0
+
+
+def test_bad_arguments_raise():
+    s = _samples(_sweep)
+    with pytest.raises(ValueError, match="sigma_deg"):
+        classify_lines(s, 0.0)
+    with pytest.raises(ValueError, match="accel_mm_s2"):
+        smooth_trajectory(s, 1.0, accel_mm_s2=-1.0)
+    with pytest.raises(ValueError, match="at least"):
+        smooth_trajectory(s.select(slice(0, 3)), 1.0)
+    assert classify_lines(s.select(slice(0, 3)), 1.0).kind == STATIC
