@@ -117,8 +117,8 @@ def _biased_fixation(point, head_mm, yaw_deg, t0, rng, bias_deg, n=90):
 def test_revisits_through_a_biased_calibration_merge_and_two_targets_do_not():
     """A target fixated four times from a walking, turning head through eyes with a fixed bias
     of about 0.5 deg (vertical disparity too: the lines never meet) is one target; a second
-    target 3 deg above it is another. (Without the bias in the test each revisit stays apart;
-    with a bias free in each fixation, not shared, the two targets merge.)"""
+    target 3 deg above it is another. (Without the bias allowance in the merge test each revisit
+    stays apart.)"""
     rng = np.random.default_rng(11)
     bias = [(0.4, 0.3), (-0.3, -0.4)]
     a, b = np.array([200.0, -100.0, 2200.0]), np.array([200.0, 20.0, 2200.0])
