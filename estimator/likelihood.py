@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._checks import check_points, check_vector
+from .errormodel import ErrorModel, model_covariance
 from .frames import tangent_basis
 from .lines import ViewLines
 from .result import GazeEstimate, Status, failed
@@ -234,6 +235,9 @@ class MLConfig:
         huber_k: Huber threshold, RMS residual in sigmas, for ``huber``.
         max_iterations: Levenberg-Marquardt iteration limit.
         tolerance_mm: stop when a step moves the point less than this.
+        error_model: the covariance's error model (``estimator.errormodel``: per-eye noise and
+            over-dispersion from the residuals, head pose, per-eye bias); None gives the inverse
+            Fisher information of ``sigma_deg`` alone.
     """
 
     sigma_deg: float = 1.0
@@ -242,10 +246,13 @@ class MLConfig:
     huber_k: float = 2.0
     max_iterations: int = 100
     tolerance_mm: float = 1e-7
+    error_model: ErrorModel | None = None
 
     def __post_init__(self):
         if not self.sigma_deg > 0:
             raise ValueError(f"sigma_deg must be positive, got {self.sigma_deg}")
+        if self.error_model is not None and not isinstance(self.error_model, ErrorModel):
+            raise ValueError(f"error_model must be an ErrorModel or None, got {type(self.error_model).__name__}")
         if self.loss not in LOSSES:
             raise ValueError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         if not 0 <= self.outlier_prob < 1:
@@ -339,11 +346,13 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
     Levenberg-Marquardt on the gnomonic residuals, started from the geometric least-squares
     point (or ``x0_mm``). Robust losses are iteratively reweighted per binocular sample
     (``lines.sample_index``). The covariance is ``sigma^2 (J^T W J)^-1`` at the optimum: the
-    inverse Fisher information, which the estimate attains for well-conditioned geometries.
+    inverse Fisher information, which the estimate attains for well-conditioned geometries; with
+    ``config.error_model`` it is that model's (``errormodel.model_covariance``).
 
     Returns:
         ``GazeEstimate`` with method ``ml``; ``info`` holds ``iterations``,
-        ``residual_rms_deg`` and (robust losses) ``inlier_weight_mean``.
+        ``residual_rms_deg``, (robust losses) ``inlier_weight_mean`` and (with an error model)
+        ``error_model``, what the model found (its ``note`` says when the residuals inflated it).
     """
     n = len(lines)
     ns = _n_samples(lines)
@@ -362,6 +371,10 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
             "residual_rms_deg": float(np.rad2deg(np.sqrt(np.mean(np.sum(r * r, axis=1) / 2))))}
     if config.loss != "gaussian":
         info["inlier_weight_mean"] = float(np.mean(problem.line_w))
+    if config.error_model is not None:
+        model_cov, info["error_model"] = model_covariance(x, lines, problem.sigma, config.error_model, problem.line_w)
+        info["error_model"].pop("bias_cov", None)
+        cov = model_cov if model_cov is not None else cov
     log.debug("ml: %d lines, %d iterations, converged %s, residual RMS %.3f deg", n, it, converged,
               info["residual_rms_deg"])
     return _point_result("ml", x, cov, lines, info)

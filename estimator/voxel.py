@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errormodel import ErrorModel, model_covariance
 from .grid import DensityGrid, _quadratic_fit_local
 from .likelihood import (
     MAX_TAN2,
@@ -154,6 +155,13 @@ class VoxelConfig:
         work_initial: line re-evaluations allowed before any line is added.
         work_burst: the allowance saved up is at most this many times the kept lines (and at
             least ``work_initial``), so one update makes at most about this many passes over them.
+        error_model: the reported covariance's error model (``estimator.errormodel``); None reports
+            the grid's Laplace covariance (the angular noise ``sigma_deg`` alone). The model is
+            evaluated over all kept lines when their number has grown by ``model_growth`` since
+            the last time (so O(1) per line, amortised); in between, its noise part shrinks as
+            1/lines and its bias floor stays. The grid, the seed and the reliability weights keep
+            the plain likelihood of ``sigma_deg``.
+        model_growth: see ``error_model``.
     """
 
     sigma_deg: float = 1.0
@@ -169,6 +177,8 @@ class VoxelConfig:
     work_per_line: float = 16.0
     work_initial: float = 0.0
     work_burst: float = 4.0
+    error_model: ErrorModel | None = None
+    model_growth: float = 1.1
 
     def __post_init__(self):
         if not self.sigma_deg > 0:
@@ -186,6 +196,10 @@ class VoxelConfig:
             raise ValueError(f"refine_factor must exceed 1, got {self.refine_factor}")
         if not 0 <= self.outlier_prob < 1:
             raise ValueError(f"outlier_prob must be in [0, 1), got {self.outlier_prob}")
+        if self.error_model is not None and not isinstance(self.error_model, ErrorModel):
+            raise ValueError(f"error_model must be an ErrorModel or None, got {type(self.error_model).__name__}")
+        if not self.model_growth > 1:
+            raise ValueError(f"model_growth must exceed 1, got {self.model_growth}")
 
 
 class VoxelEstimator:
@@ -213,6 +227,8 @@ class VoxelEstimator:
         self._last: GazeEstimate | None = None
         self.work = VoxelWork()
         self._allowance = float(config.work_initial)   # line re-evaluations still allowed
+        self._posterior = None        # (point, Laplace covariance) of the last peak: the weights' posterior
+        self._model = None            # (lines then, noise covariance then, bias floor, info) of the error model
 
     def __len__(self) -> int:
         return self._buf.n
@@ -296,6 +312,7 @@ class VoxelEstimator:
         return ""
 
     def _fail(self, status, reason) -> GazeEstimate:
+        self._posterior = None
         return failed(self.method, status, reason, self._buf.n, self._n_lines())
 
     def _seed(self, x0=None):
@@ -340,9 +357,9 @@ class VoxelEstimator:
         if self.config.outlier_prob <= 0:
             return
         if center is None:
-            if self._last is None or self._last.position_mm is None:
+            if self._posterior is None:
                 return
-            center, cov = self._last.position_mm, self._last.covariance_mm2
+            center, cov = self._posterior
         b = self._buf
         if isinstance(sl, slice) and sl.stop - sl.start == 1:
             i = sl.start
@@ -422,9 +439,29 @@ class VoxelEstimator:
         ratio = np.maximum(np.sqrt(np.maximum(np.diag(cov_local), 0.0)), floor) / self._design_std
         return bool(ratio.max() > self.config.refine_factor or ratio.min() < 1 / self.config.refine_factor)
 
+    def _reported_covariance(self, point, cov, info: dict):
+        """The covariance to report for the peak ``point`` with Laplace covariance ``cov``: the
+        error model's (see ``VoxelConfig.error_model``), else ``cov``."""
+        model = self.config.error_model
+        if model is None:
+            return cov
+        L = self._buf.n_lines
+        if self._model is None or L >= self.config.model_growth * self._model[0]:
+            o, d, si = self._buf.lines()
+            C, minfo = model_covariance(point, ViewLines(o, d, "world", si), self._sigma, model, self._buf.weight[si])
+            if C is None:
+                return cov
+            bias = minfo.pop("bias_cov")
+            self._model = (L, C - bias, bias, minfo)
+        n0, noise, bias, minfo = self._model
+        info["error_model"] = minfo
+        return noise * (n0 / L) + bias
+
     def _result(self, point, cov) -> GazeEstimate:
         g = self.grid
         info = {"voxel_mm": g.spacing_mm.tolist(), "relayouts": self.work.layouts, "seed_fits": self.work.seed_fits}
+        self._posterior = (point, cov)
+        cov = self._reported_covariance(point, cov, info)
         # behind the eyes? check against the latest sample's lines (O(1) per update)
         i = self._buf.n - 1
         valid = self._buf.valid[i]

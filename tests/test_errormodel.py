@@ -1,0 +1,147 @@
+"""The error model behind the covariances of ``ml`` and ``voxel`` (estimator.errormodel)."""
+
+import numpy as np
+import pytest
+from helpers import walkabout_samples
+from scipy.stats import chi2
+
+from estimator import BinocularSamples, MLConfig, ViewLines, ml_point, run_estimator
+from estimator.errormodel import (
+    DEFAULT_BIAS_DEG,
+    ErrorModel,
+    bias_from_calibration,
+    eye_labels,
+    model_covariance,
+    pose_angular_sigma_deg,
+)
+from estimator.frames import tangent_basis
+
+X = np.array([200.0, -100.0, 2000.0])
+
+
+def _biased(samples: BinocularSamples, beta_rad) -> BinocularSamples:
+    """The samples with each eye's directions turned by its 2D angle ``beta_rad[eye]`` (2, 2) in a
+    basis fixed to that eye's mean direction."""
+    dirs = []
+    for k, d in enumerate((samples.left_direction, samples.right_direction)):
+        m = d.mean(axis=0)
+        c1, c2 = tangent_basis((m / np.linalg.norm(m))[None])
+        dirs.append(d + beta_rad[k, 0] * c1 + beta_rad[k, 1] * c2)
+    return BinocularSamples.from_arrays(samples.t_s, samples.left_origin_mm, dirs[0], samples.right_origin_mm, dirs[1])
+
+
+def test_without_bias_or_excess_noise_it_is_the_inverse_fisher_information(rng):
+    lines = walkabout_samples(X, rng, n=300).lines()
+    plain = ml_point(lines)
+    modelled = ml_point(lines, MLConfig(error_model=ErrorModel(bias_deg=0.0)))
+    assert np.allclose(modelled.position_mm, plain.position_mm)
+    assert np.allclose(modelled.covariance_mm2, plain.covariance_mm2, rtol=1e-6)
+    em = modelled.info["error_model"]
+    assert em["inflated"] is False and em["note"] == "" and em["sigma_eye_deg"] == [1.0, 1.0]
+
+
+def test_over_dispersion_inflates_the_covariance_and_says_so(rng):
+    lines = walkabout_samples(X, rng, n=300, sigma_deg=2.0).lines()
+    plain = ml_point(lines)
+    r = ml_point(lines, MLConfig(error_model=ErrorModel(bias_deg=0.0)))
+    em = r.info["error_model"]
+    assert em["inflated"] is True and "inflated" in em["note"]
+    assert em["sigma_eye_deg"] == pytest.approx([2.0, 2.0], rel=0.1)
+    assert np.trace(r.covariance_mm2) / np.trace(plain.covariance_mm2) == pytest.approx(4.0, rel=0.2)
+
+
+def test_a_per_eye_bias_is_a_floor_that_gives_calibrated_ellipsoids():
+    """1 deg noise and a per-eye bias of 0.5 deg per axis that does not average down: the ellipsoids
+    of the model hold the truth as often as they say; the noise alone's hardly ever."""
+    rng = np.random.default_rng(7)
+    d_model, d_plain = [], []
+    for _ in range(150):
+        s = _biased(walkabout_samples(X, rng, n=120), rng.normal(0, np.deg2rad(0.5), (2, 2)))
+        for cfg, out in ((MLConfig(error_model=ErrorModel(bias_deg=0.5)), d_model), (MLConfig(), d_plain)):
+            r = ml_point(s.lines(), cfg)
+            e = r.position_mm - X
+            out.append(e @ np.linalg.solve(r.covariance_mm2, e))
+    q95, q68 = chi2.ppf(0.95, 3), chi2.ppf(0.68, 3)
+    assert 0.90 <= np.mean(np.array(d_model) <= q95) <= 0.99
+    assert 0.58 <= np.mean(np.array(d_model) <= q68) <= 0.78
+    assert np.mean(np.array(d_plain) <= q95) < 0.6
+
+
+def test_voxel_reports_the_same_model_as_ml(rng):
+    s = walkabout_samples(X, rng, n=240)
+    model = ErrorModel()
+    m = ml_point(s.lines(), MLConfig(error_model=model))
+    _, v = run_estimator(s, "voxel", error_model=model)
+    _, plain = run_estimator(s, "voxel")
+    assert v.ok and "error_model" in v.info and "error_model" not in plain.info
+    assert np.allclose(v.position_mm, plain.position_mm)                  # the point does not change
+    ratio = np.sqrt(np.diag(v.covariance_mm2) / np.diag(m.covariance_mm2))
+    assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
+    assert np.trace(v.covariance_mm2) > 4 * np.trace(plain.covariance_mm2)     # the floor is there
+
+
+def test_noise_shared_by_the_eyes_and_over_time_is_found_and_widens_the_ellipsoid(rng):
+    """The same noise on both eyes of a sample, slowly varying (a head pose error, smoothed): the
+    residuals are correlated between the eyes and over time, and the covariance grows for it."""
+    s = walkabout_samples(X, rng, n=300, sigma_deg=0.3)
+    n = len(s)
+    common = np.zeros((n, 2))
+    for i in range(1, n):                       # AR(1), lag-one correlation 0.8, 1 deg std
+        common[i] = 0.8 * common[i - 1] + rng.normal(0, np.deg2rad(1.0) * 0.6, 2)
+    dirs = []
+    for d in (s.left_direction, s.right_direction):
+        b1, b2 = tangent_basis(d)
+        dirs.append(d + common[:, [0]] * b1 + common[:, [1]] * b2)
+    shared = BinocularSamples.from_arrays(s.t_s, s.left_origin_mm, dirs[0], s.right_origin_mm, dirs[1])
+    r = ml_point(shared.lines(), MLConfig(error_model=ErrorModel(bias_deg=0.0)))
+    off = ml_point(shared.lines(), MLConfig(error_model=ErrorModel(bias_deg=0.0, correlations=False)))
+    em = r.info["error_model"]
+    assert em["eye_correlation"] > 0.6 and em["time_correlation"] > 0.5 and "correlated in time" in em["note"]
+    assert np.trace(r.covariance_mm2) > 3 * np.trace(off.covariance_mm2)
+
+
+def test_eye_labels_follow_the_samples_and_place_lone_lines(rng):
+    s = walkabout_samples(X, rng, n=40)
+    lv, rv = np.ones(40, bool), np.ones(40, bool)
+    lv[[3, 10, 11]] = False
+    rv[[5, 20]] = False
+    s = BinocularSamples.from_arrays(s.t_s, s.left_origin_mm, s.left_direction, s.right_origin_mm, s.right_direction,
+                                     lv, rv)
+    lines = s.lines()
+    truth = np.concatenate([np.zeros(lv.sum(), int), np.ones(rv.sum(), int)])
+    side = np.concatenate([np.flatnonzero(lv), np.flatnonzero(rv)])
+    order = np.argsort(side, kind="stable")
+    assert np.array_equal(eye_labels(lines), truth[order])
+    # the samples in reverse (each sample still left first): the lone lines are placed by their origins
+    rev = np.argsort(-lines.sample_index, kind="stable")
+    again = ViewLines(lines.origins_mm[rev], lines.directions[rev], "world", lines.sample_index[rev])
+    assert np.array_equal(eye_labels(again), truth[order][rev])
+
+
+def test_bias_from_the_calibration_and_pose_sigma():
+    assert bias_from_calibration([None, None]) == pytest.approx(DEFAULT_BIAS_DEG)
+    assert bias_from_calibration([0.4, 0.4], slip_deg=0.0) == pytest.approx(0.4 / np.sqrt(2))
+    assert bias_from_calibration([0.3, float("nan")], slip_deg=0.5) == pytest.approx(np.sqrt(0.3**2 / 2 + 0.25))
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = np.eye(3) * np.deg2rad(0.2) ** 2
+    assert pose_angular_sigma_deg(cov, 1000.0) == pytest.approx(0.2)
+    cov[3:, 3:] = np.eye(3) * 10.0**2                    # 10 mm at 1 m: 0.573 deg
+    assert pose_angular_sigma_deg(cov, 1000.0) == pytest.approx(np.hypot(0.2, np.rad2deg(0.01)), rel=1e-3)
+
+
+def test_the_pose_term_widens_the_lateral_extent(rng):
+    lines = walkabout_samples(X, rng, n=300).lines()
+    base, _ = model_covariance(ml_point(lines).position_mm, lines, np.deg2rad(1.0), ErrorModel(bias_deg=0.0))
+    pose, _ = model_covariance(ml_point(lines).position_mm, lines, np.deg2rad(1.0),
+                               ErrorModel(bias_deg=0.0, pose_sigma_deg=1.0))
+    # a shared 1 deg pose error per sample: the lateral variance (x, y) roughly triples
+    assert np.all(np.diag(pose)[:2] > 2.5 * np.diag(base)[:2])
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="bias_correlation"):
+        ErrorModel(bias_correlation=1.5)
+    with pytest.raises(ValueError, match="bias_deg"):
+        ErrorModel(bias_deg=-1)
+    with pytest.raises(ValueError, match="error_model"):
+        MLConfig(error_model="on")
