@@ -194,3 +194,23 @@ def test_a_poorly_fixed_fixation_is_not_merged_into_a_well_fixed_one(rng):
     res = find_targets(s, np.repeat([0, 1, 2], [5, 9, 5]), "ml", 1.0)
     assert [t.fixations for t in res.targets] == [(0, 2), (1,)]
     assert np.linalg.norm(res.targets[0].position_mm - p_a) < 3 * res.targets[0].crb_mm
+
+
+def test_a_target_whose_depth_is_not_fixed_is_unresolved_not_ok(rng):
+    """A still head looking at a point 8 m away with 1 deg of noise assumed: the lines fix its
+    direction, not its depth (the 95 % region, 8.9 m along the line of sight, reaches past twice
+    the distance): the target is published as 'unresolved'. The
+    same lines toward 1 m give an 'ok' target, and a moving target's point nearer the eyes than
+    anyone fixates is 'too-near', not 'moving'."""
+    from wearable_gaze.pipeline.estimate import UNRESOLVED, target_status
+    from wearable_gaze.pipeline.fixations import find_targets
+
+    t = np.arange(30) / 60.0
+    lo, ro = np.tile([-32.0, 0, 0], (30, 1)), np.tile([32.0, 0, 0], (30, 1))
+    for depth, want in ((8000.0, UNRESOLVED), (1000.0, "ok")):
+        p = np.array([100.0, 0, depth])
+        s = BinocularSamples.from_arrays(t, lo, p - lo, ro, p - ro)          # exact lines: the model's covariance
+        res = find_targets(s, np.zeros(30, int), "ml", 1.0)
+        assert [tg.status for tg in res.targets] == [want], (depth, res.targets)
+    assert target_status("moving", np.array([0, 0, 30.0]), np.ones(3), s) == "too-near"
+    assert target_status("moving", np.array([100, 0, 1000.0]), np.ones(3), s) == "moving"

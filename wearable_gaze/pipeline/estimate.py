@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from estimator import (
+    NEAR_POINT_MM,
     BinocularSamples,
     GazeEstimate,
+    Status,
     batch_options,
     cramer_rao_bound,
     density_point_cloud,
@@ -60,11 +62,34 @@ def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixa
     radii = e.ellipsoid(0.95).radii_mm if e.covariance_mm2 is not None else np.full(3, np.nan)
     t = samples.t_s[idx]
     crb = _crb(samples.select(idx), e.position_mm, sigma_deg) if e.ok else None
+    status = target_status(e.status.value, pos, radii, samples.select(idx))
     return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2,
-                  axes95_mm=np.asarray(radii, float), status=e.status.value, n_samples=len(idx),
+                  axes95_mm=np.asarray(radii, float), status=status, n_samples=len(idx),
                   t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in fixations), method=method,
                   crb_mm=float(np.sqrt(np.trace(crb))) if crb is not None else float("nan"), samples=idx)
+
+
+UNRESOLVED = "unresolved"
+"""A target's status when its 95 % region reaches from the eyes to beyond twice its distance:
+the lines fix a direction but not a depth (a still head beyond a few metres), and the point is
+no answer to "where did the person look"."""
+
+
+def target_status(status: str, position_mm, axes95_mm, samples: BinocularSamples) -> str:
+    """The status a target is published with: the estimator's, unless its point is nearer the
+    eyes than anyone fixates (``too-near``; also for a moving target's point) or its 95 %
+    ellipsoid's longest semi-axis exceeds its distance from the eyes (``unresolved``)."""
+    if status not in ("ok", "moving") or not np.all(np.isfinite(position_mm)):
+        return status
+    lines = samples.lines()
+    dist = float(np.median(np.einsum("ij,ij->i", np.asarray(position_mm, float) - lines.origins_mm,
+                                     lines.directions)))
+    if dist < NEAR_POINT_MM:
+        return Status.TOO_NEAR.value
+    if np.all(np.isfinite(axes95_mm)) and float(np.max(axes95_mm)) > dist:
+        return UNRESOLVED
+    return status
 
 
 def _crb(samples: BinocularSamples, point_mm, sigma_deg: float):

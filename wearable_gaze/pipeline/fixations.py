@@ -26,7 +26,7 @@ from ..formats.targets import (
     write_targets,
 )
 from ..formats.viewlines import write_viewlines_csv
-from .estimate import estimate_target, radius95_mm, running_estimate
+from .estimate import estimate_target, radius95_mm, running_estimate, target_status
 from .types import Fixation, Target, TargetsResult
 
 log = logging.getLogger(__name__)
@@ -122,8 +122,9 @@ def moving_target(index: int, samples: BinocularSamples, group, method: str) -> 
     pos, cov = tr.middle()
     idx = group.samples
     t = samples.t_s[idx]
+    radii = np.asarray(covariance_ellipsoid(pos, cov, 0.95).radii_mm, float)
     return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=cov,
-                  axes95_mm=np.asarray(covariance_ellipsoid(pos, cov, 0.95).radii_mm, float), status=MOVING,
+                  axes95_mm=radii, status=target_status(MOVING, pos, radii, samples.select(idx)),
                   n_samples=len(idx), t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in group.fixations), method=method, crb_mm=float("nan"),
                   samples=idx, moving=True, trajectory=tr)

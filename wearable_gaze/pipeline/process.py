@@ -318,12 +318,12 @@ def format_result(res: ProcessResult) -> str:
     """The text ``process`` prints: this run's targets, and what failed or was not done."""
     lines = [f"{len(res.found)} fixated target(s) in {res.out}:"]
     lines.append(f"{'target':>6} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'95% semi-axes mm':>20} {'samples':>8} "
-                 f"{'time s':>12}")
+                 f"{'time s':>12}  status")
     for t in res.found:
         x, y, z = t.position_mm
         a1, a2, a3 = t.axes95_mm
         lines.append(f"{t.index:>6} {x:>8.0f} {y:>8.0f} {z:>8.0f} {a1:>6.0f} {a2:>6.0f} {a3:>6.0f} {t.n_samples:>8} "
-                     f"{t.t_start:>5.1f}-{t.t_end:<5.1f}")
+                     f"{t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}")
     if res.failed:
         lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")
     if res.not_done:
