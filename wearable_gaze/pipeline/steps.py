@@ -26,13 +26,14 @@ OUTPUTS = {
     "tracking": ("poses.csv",),
     "viewlines": (".viewlines_unsegmented.csv", ".viewlines_counts.json"),
     "targets": ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy",
-                "device_comparison.csv"),
+                "device_comparison.csv", "target_paths.csv"),
     "report": REPORT_FILES,
 }
 # ... and the steps whose outputs it reads
 NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines": ("eyes", "tracking"),
          "targets": ("viewlines",), "report": ("targets",)}
-OPTIONAL = ("overlay.webp", "overlay_error.txt", "device_comparison.csv")   # written or not: not needed to skip
+# written or not: not needed to skip a step
+OPTIONAL = ("overlay.webp", "overlay_error.txt", "device_comparison.csv", "target_paths.csv")
 OTHER_FILES = ("summary.json", ".steps.json")
 GOOD = ("done", "cached", "external", "device")   # usable: outputs, a file given instead, or the device's own
 
