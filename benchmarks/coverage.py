@@ -30,12 +30,10 @@ import _onecore  # noqa: F401  (first: pins the cores before numpy and OpenCV lo
 import numpy as np
 from scipy.stats import chi2
 
-import estimator.api
-import wearable_gaze.pipeline.estimate
 from estimator.segments import SegmentConfig, segment_fixations
 from wearable_gaze.formats.viewlines import read_viewlines_csv
 from wearable_gaze.pipeline.fixations import find_targets
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process import process_session, session_error_model
 from wearable_gaze.sim.simulate import simulate_scenario
 
 REAL = Path(os.environ.get("WEARABLE_GAZE_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
@@ -55,28 +53,6 @@ def scenario(rng, k: int) -> dict:
             "head": head}
 
 
-def use_error_model(model) -> None:
-    """Have ``process``'s targets step build ``ml`` and ``voxel`` with ``model`` (the change
-    proposed for pipeline.fixations / pipeline.estimate: pass ``error_model`` to
-    ``make_estimator`` and ``run_estimator``), by wrapping ``make_estimator`` where they call it."""
-    plain = estimator.api.__dict__.setdefault("_plain_make_estimator", estimator.api.make_estimator)
-
-    def make(method="voxel", sigma_deg=1.0, **options):
-        if model is not None and method in ("ml", "voxel"):
-            options = {"error_model": model, **options}
-        return plain(method, sigma_deg, **options)
-    estimator.api.make_estimator = make
-    wearable_gaze.pipeline.estimate.make_estimator = make
-
-
-def calibration_bias_deg(out: Path) -> float:
-    """``bias_from_calibration`` of the leave-one-out RMS errors in ``out``/eyes.json."""
-    from estimator.errormodel import bias_from_calibration  # noqa: PLC0415 (absent before issue 15)
-
-    eyes = json.loads((out / "eyes.json").read_text())["eyes"]
-    return bias_from_calibration([e["report"].get("loo_rms_deg") for e in eyes])
-
-
 def session_targets(work: Path, rng, k: int, seed: int, method: str, model: str):
     """(truth targets fixated >= 1 s, estimated targets) of session ``k``, simulated and processed
     into ``work`` once; the targets are estimated again each run."""
@@ -87,13 +63,10 @@ def session_targets(work: Path, rng, k: int, seed: int, method: str, model: str)
     if not (out / ".viewlines_unsegmented.csv").is_file():
         process_session(root, out, method=method, overlay=False, report=False)
     samples = read_viewlines_csv(out / ".viewlines_unsegmented.csv")[0].samples
-    if model == "none":
-        use_error_model(None)
-    else:
-        from estimator.errormodel import ErrorModel  # noqa: PLC0415 (absent before issue 15: --model none runs there)
-        use_error_model(ErrorModel(bias_deg=calibration_bias_deg(out)))
+    em = None if model == "none" else session_error_model(False, out / "eyes.json")     # as process's
     rate = (len(samples) - 1) / max(samples.t_s[-1] - samples.t_s[0], 1e-9)
-    found = find_targets(samples, segment_fixations(samples, SegmentConfig.for_rate(rate)), method, 1.0).targets
+    labels = segment_fixations(samples, SegmentConfig.for_rate(rate))
+    found = find_targets(samples, labels, method, 1.0, error_model=em).targets
     truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
     fixated = [t for t in truth if "position_mm" in t and sum(b - a for a, b in t["fixations_s"]) >= 1.0]
     return fixated, found, samples.t_s
@@ -138,9 +111,7 @@ def aria_coverage(work: Path, model: str) -> None:
     if not (work / "aria_out" / "viewlines.csv").is_file():
         process_session(work / "aria", work / "aria_out", overlay=False, report=False)
     poses, cloud = Poses(*read_poses_csv(work / "aria_out" / "poses.csv")), aria.read_point_cloud(src)
-    if model != "none":
-        from estimator.errormodel import ErrorModel  # noqa: PLC0415
-    em = None if model == "none" else ErrorModel()
+    em = None if model == "none" else session_error_model(True, work / "aria_out" / "eyes.json")   # as process's
     gaze = work / "aria" / "device_gaze.csv"
     rows = {m: [] for m in ("ml", "voxel")}
     for seg in read_viewlines_csv(work / "aria_out" / "viewlines.csv"):

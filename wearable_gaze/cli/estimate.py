@@ -13,13 +13,13 @@ from . import args as A
 
 
 def cmd_estimate(args) -> int:
-    from ..pipeline.estimate import estimate_file, format_table, skipped_note  # noqa: PLC0415
+    from ..pipeline.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note  # noqa: PLC0415
 
     if args.export_density and args.method not in ("voxel", "paper"):
         raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no "
                         "density); add one of them or drop --export-density")
     results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density, args.one_point,
-                            args.targets)
+                            args.targets, None if args.no_error_model else DEFAULT_ERROR_MODEL)
     if args.json:                               # the skipped rows are an entry of their own (status 'skipped')
         for r in results:
             print(json.dumps(r))
@@ -45,6 +45,9 @@ def add_estimate(sub) -> None:
                           "several fixations")
     e.add_argument("--sigma-deg", type=A.positive_float, default=1.0, metavar="S",
                    help="angular noise of a view line, degrees per axis (default: 1.0)")
+    e.add_argument("--no-error-model", action="store_true",
+                   help="ml and voxel: report the inverse Fisher information (Cramer-Rao bound) as the covariance "
+                        "instead of the error model's (docs/estimators.md)")
     e.add_argument("--export-density", metavar="OUT.ply",
                    help="write the voxel density as a PLY point cloud (voxel and paper methods)")
     e.set_defaults(func=cmd_estimate)

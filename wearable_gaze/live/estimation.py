@@ -14,6 +14,7 @@ from estimator import BinocularSample, ViewLines, make_estimator, view_lines_to_
 from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter, same_target
 
+from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options
 from ..pipeline.types import Target
 
 log = logging.getLogger(__name__)
@@ -91,7 +92,7 @@ def warm_up(method: str) -> None:
     """Run the estimator once on synthetic lines before the session starts: its first update
     in a process pays one-time costs (about 1.5 s for ``voxel``) that would otherwise hold up the
     first eye samples of the session."""
-    est = make_estimator(method)
+    est = make_estimator(method, **model_options(method, DEFAULT_ERROR_MODEL))
     X = np.array([100.0, -50.0, 1500.0])                       # a point 1.5 m ahead, mm
     for k in range(30):
         lo = np.array([-32.0 + 3.0 * np.sin(k), 0.0, 0.0])
@@ -105,7 +106,8 @@ class GazeEstimation:
 
     Fixations are found online (``OnlineSegmenter``, on binocular samples' cyclopean
     directions); a sample inside a saccade belongs to no target; each fixation gets a fresh
-    streaming estimator (``estimator.make_estimator(method)``).
+    streaming estimator (``estimator.make_estimator(method)``), whose covariance for ``ml`` and
+    ``voxel`` follows the default error model (``pipeline.estimate.DEFAULT_ERROR_MODEL``).
 
     Args:
         eyes: [left, right] ``EyeCalibration``.
@@ -122,7 +124,7 @@ class GazeEstimation:
         self._new_fixation()
 
     def _new_fixation(self) -> None:
-        self.estimator = make_estimator(self.method)
+        self.estimator = make_estimator(self.method, **model_options(self.method, DEFAULT_ERROR_MODEL))
         self.n_samples = 0
         self.t_start: float | None = None
         self.last: tuple | None = None    # (GazeEstimate, t_s) of the latest estimate

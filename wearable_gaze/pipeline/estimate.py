@@ -20,6 +20,7 @@ from estimator import (
     near_point_check,
     run_estimator,
 )
+from estimator.errormodel import ErrorModel
 
 from ..errors import UserError
 from ..formats.atomic import atomic_path
@@ -27,13 +28,25 @@ from ..formats.viewlines import read_viewlines_csv
 from .segmentation import NO_FIXATION, measured_rate_hz, read_in_time_order, segment_config, segment_view_lines
 from .types import Target
 
+DEFAULT_ERROR_MODEL = ErrorModel()
+"""The error model of ``estimate`` (and of ``process`` on an imported session): the defaults."""
+MODEL_METHODS = ("ml", "voxel")
+"""The estimators whose covariance follows an ``ErrorModel`` (``estimator.errormodel``)."""
+
+
+def model_options(method: str, error_model: ErrorModel | None) -> dict:
+    """The estimator options that give ``method`` the error model ``error_model`` (none for a
+    method without one, or for None: the inverse Fisher information)."""
+    return {"error_model": error_model} if error_model is not None and method in MODEL_METHODS else {}
+
 
 def running_estimate(samples: BinocularSamples, method: str, sigma_deg: float,
-                     chunks: int = 20) -> tuple[GazeEstimate | None, list]:
+                     chunks: int = 20, error_model: ErrorModel | None = None) -> tuple[GazeEstimate | None, list]:
     """The estimator fed one fixation's samples (N,) in about ``chunks`` chunks, as a live session
-    would. Returns the last estimate (None without samples) and the usable ones as (time of the
-    chunk's last sample s, estimate) pairs."""
-    stream = make_estimator(method, sigma_deg, **batch_options(method, len(samples)))
+    would, its covariance from ``error_model`` (``model_options``). Returns the last estimate (None
+    without samples) and the usable ones as (time of the chunk's last sample s, estimate) pairs."""
+    stream = make_estimator(method, sigma_deg, **batch_options(method, len(samples),
+                                                               **model_options(method, error_model)))
     bounds = np.unique(np.linspace(0, len(samples), min(chunks + 1, len(samples) + 1)).astype(int))
     e, usable = None, []
     lines = samples.lines()
@@ -108,7 +121,7 @@ def _density_path(base: Path, key, n_segments: int) -> Path:
 
 
 def estimate_file(path, method: str = "voxel", sigma_deg: float = 1.0, export_density=None, one_point: bool = False,
-                  targets: bool = False) -> list[dict]:
+                  targets: bool = False, error_model: ErrorModel | None = DEFAULT_ERROR_MODEL) -> list[dict]:
     """``wearable-gaze estimate``: estimate each segment of a view-line CSV (docs/processing.md).
 
     Rows of segment -1 (saccades, blinks, gaps: ``wearable-gaze fixations``) are never estimated;
@@ -119,7 +132,10 @@ def estimate_file(path, method: str = "voxel", sigma_deg: float = 1.0, export_de
 
     Returns one dict per segment, in order of first appearance: ``segment`` (value or None),
     ``method``, ``status``, ``reason``, ``position_mm`` [x, y, z] or None, ``n_samples``,
-    ``n_lines``, ``covariance_mm2`` (3x3 or None), ``ellipsoid95_radii_mm``, ``density_ply``.
+    ``n_lines``, ``covariance_mm2`` (3x3 or None), ``ellipsoid95_radii_mm``, ``density_ply``,
+    ``covariance_model`` (``covariance_model(method, error_model)``). The covariances of ``ml``
+    and ``voxel`` follow ``error_model`` (default ``ErrorModel()``; None: the inverse Fisher
+    information, the Cramér-Rao bound).
     With ``export_density`` (a .ply path) the density of each segment is written there
     (``NAME-SEGMENT.ply`` when there are several segments). With ``targets`` the segments are
     fixations merged into targets as ``process`` merges them (``targets_of_segments``).
@@ -135,20 +151,29 @@ def estimate_file(path, method: str = "voxel", sigma_deg: float = 1.0, export_de
     segments = read_viewlines_csv(path)
     _check_segmentation(path, segments, one_point, targets)
     if targets:
-        return targets_of_segments(path, method, sigma_deg)
+        return targets_of_segments(path, method, sigma_deg, error_model)
     out = []
     for seg in segments:
         if seg.key == NO_FIXATION:
             out.append(_skipped(method, len(seg.samples), len(seg.samples.lines().origins_mm)))
             continue
-        est, r = run_estimator(seg.samples, method, sigma_deg)
-        d = {"segment": seg.key, **r.to_dict()}
+        est, r = run_estimator(seg.samples, method, sigma_deg, **model_options(method, error_model))
+        d = {"segment": seg.key, **r.to_dict(), "covariance_model": covariance_model(method, error_model)}
         d["density_ply"] = None
         if export_density is not None and getattr(est, "grid", None) is not None:
             d["density_ply"] = str(_write_density(est, _density_path(Path(export_density), seg.key,
                                                                      len(segments))))
         out.append(d)
     return out
+
+
+def covariance_model(method: str, error_model: ErrorModel | None) -> str:
+    """What an estimate's covariance is: 'error-model' (``estimator.errormodel``: ``ml`` and
+    ``voxel`` with a model), 'inverse-fisher' (``ml`` and ``voxel`` without: the Cramér-Rao bound
+    at the estimate) or 'method' (another method's own)."""
+    if method not in MODEL_METHODS:
+        return "method"
+    return "error-model" if error_model is not None else "inverse-fisher"
 
 
 def _write_density(est, target: Path) -> Path:
@@ -193,13 +218,13 @@ def _check_segmentation(path, segments: list, one_point: bool, targets: bool) ->
                             "every row as one point")
 
 
-def targets_of_segments(path, method: str, sigma_deg: float) -> list[dict]:
+def targets_of_segments(path, method: str, sigma_deg: float, error_model: ErrorModel | None = None) -> list[dict]:
     """The targets of a view-line CSV whose ``segment`` column holds fixation labels (integers,
     -1 for none; ``wearable-gaze fixations``): each fixation estimated and fixations of one target
     merged exactly as ``process`` does (``fixations.find_targets``), so on the same view lines
     the positions are the same as process's targets.csv. Returns one dict per target (the keys of
     targets.csv, ``fixations`` as the file's segment labels, ``covariance_mm2``), then the
-    skipped entry of the rows of segment -1 if any."""
+    skipped entry of the rows of segment -1 if any. ``error_model``: as in ``find_targets``."""
     from .fixations import find_targets  # noqa: PLC0415  (fixations imports this module)
 
     samples, keys = read_in_time_order(path)
@@ -210,12 +235,13 @@ def targets_of_segments(path, method: str, sigma_deg: float) -> list[dict]:
     order = list(dict.fromkeys(k for k in keys if k != NO_FIXATION))      # the fixations by first row
     number = {k: i for i, k in enumerate(order)}
     labels = np.array([number.get(k, NO_FIXATION) for k in keys], dtype=int)
-    result = find_targets(samples, labels, method, sigma_deg)
+    result = find_targets(samples, labels, method, sigma_deg, error_model=error_model)
     out = []
     for tg in result.targets:
         row = tg.row()
         row["fixations"] = [order[f] for f in tg.fixations]
         row["covariance_mm2"] = None if tg.covariance_mm2 is None else np.asarray(tg.covariance_mm2).tolist()
+        row["covariance_model"] = "smoothed-path" if tg.moving else covariance_model(method, error_model)
         out.append(row)
     n_none = int((labels == NO_FIXATION).sum())
     if n_none:

@@ -13,6 +13,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from estimator import BinocularSamples, GazeEstimate, run_estimator
+from estimator.errormodel import ErrorModel
 from estimator.frames import tangent_basis
 from estimator.likelihood import gnomonic_residuals
 from estimator.motion import MOVING, STATIC, TWO_POINTS, Trajectory, classify_lines, smooth_trajectory
@@ -26,7 +27,7 @@ from ..formats.targets import (
     write_targets,
 )
 from ..formats.viewlines import write_viewlines_csv
-from .estimate import estimate_target, radius95_mm, running_estimate, target_status
+from .estimate import estimate_target, model_options, radius95_mm, running_estimate, target_status
 from .types import Fixation, Target, TargetsResult
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,7 @@ MIN_SPLIT_SAMPLES = 5
 
 
 def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sigma_deg: float,
-                 progress=None) -> TargetsResult:
+                 progress=None, error_model: ErrorModel | None = None) -> TargetsResult:
     """Test each fixation of view lines (N,) segmented into fixations for motion, estimate the
     static ones (their running estimates too), merge the static fixations of one target and
     estimate each target from all its lines; a moving fixation is a moving target of its own.
@@ -51,6 +52,8 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
             (``estimator.segments.segment_fixations``).
         method, sigma_deg: the estimator and its angular noise.
         progress: called as progress(done, total) after each fixation.
+        error_model: the covariances' error model for ``ml`` and ``voxel`` (running estimates,
+            fixations, merges and targets); None: the inverse Fisher information.
     """
     labels, motion = split_two_point_fixations(samples, labels, sigma_deg)
     n_seg = len(motion)
@@ -58,10 +61,10 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
     running = {k: [] for k in ESTIMATE_COLUMNS}
     for k in range(n_seg):
         idx = np.flatnonzero(labels == k)
-        fixations.append(_fixation(samples, k, idx, motion[k], method, sigma_deg, running))
+        fixations.append(_fixation(samples, k, idx, motion[k], method, sigma_deg, running, error_model))
         if progress:
             progress(k + 1, n_seg + 1)
-    groups = merge_fixations(fixations, samples, method, sigma_deg)
+    groups = merge_fixations(fixations, samples, method, sigma_deg, error_model)
     groups += [_Group(f.samples, [f.index], None, f.trajectory) for f in fixations if f.motion == MOVING]
     groups.sort(key=lambda g: g.fixations[0])
     targets = [moving_target(i, samples, g, method) if g.trajectory is not None else
@@ -76,12 +79,12 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
 
 
 def _fixation(samples: BinocularSamples, k: int, idx: np.ndarray, motion: str, method: str, sigma_deg: float,
-              running: dict) -> Fixation:
+              running: dict, error_model: ErrorModel | None = None) -> Fixation:
     """Fixation ``k`` of the view lines ``idx``: a static one estimated as a live session would
     (its usable running estimates appended to ``running``), a moving one with its path."""
     if motion == MOVING:
         return Fixation(k, idx, None, MOVING, smooth_trajectory(samples.select(idx), sigma_deg))
-    e, usable = running_estimate(samples.select(idx), method, sigma_deg)
+    e, usable = running_estimate(samples.select(idx), method, sigma_deg, error_model=error_model)
     for t, ek in usable:
         for name, v in zip(ESTIMATE_COLUMNS, (t, k, *(float(v) for v in ek.position_mm), radius95_mm(ek)),
                            strict=True):
@@ -142,12 +145,14 @@ class _Group:
     parts: list = field(default_factory=list)
 
 
-def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sigma_deg: float) -> list:
+def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sigma_deg: float,
+                    error_model: ErrorModel | None = None) -> list:
     """Static fixations of one target merged and estimated again from all their lines: each
     fixation joins the group (seen within ``MERGE_MAX_DEG`` of it from the fixation's first eye)
     whose lines fit one point with its own best (``merge_statistic`` below
     ``MERGE_LR_THRESHOLD``, the least of them), else starts a group; fixations without a usable
-    estimate are left out. Returns the groups in order of first fixation."""
+    estimate are left out; merged estimates' covariances follow ``error_model``. Returns the groups
+    in order of first fixation."""
     groups = []
     for f in fixations:
         if not f.usable:
@@ -164,7 +169,7 @@ def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sig
                 scored.append((lr, len(scored), g))
         for _, _, g in sorted(scored, key=lambda x: x[:2]):
             both = np.sort(np.concatenate([g.samples, f.samples]))
-            merged = run_estimator(samples.select(both), method, sigma_deg)[1]
+            merged = run_estimator(samples.select(both), method, sigma_deg, **model_options(method, error_model))[1]
             if merged.ok:
                 g.samples, g.estimate = both, merged
                 g.fixations.append(f.index)

@@ -10,11 +10,13 @@ older run's result presented as this one's.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from estimator.errormodel import ErrorModel, bias_from_calibration
 from estimator.segments import SegmentConfig
 
 from ..errors import UserError
@@ -232,12 +234,15 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
-        result = find_targets(samples, segment_view_lines(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb)
+        result = find_targets(samples, segment_view_lines(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb,
+                              error_model)
         write_targets_step(out, result, cfg.method)
         if f.device_gaze is not None:
             device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
         vals.set("targets", result.targets)
-    params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__}
+    error_model = session_error_model(f.eye_rays is not None, eyes_path)
+    params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__,
+              "error_model": dataclasses.asdict(error_model)}
     if steps.run("targets", [raw_vl], params, do_targets):
         res.found = vals["targets"]
         if not res.found:
@@ -246,6 +251,22 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
     if cfg.report:
         _report_step(f, out, steps, vals, eyes_path, cfg)
+
+
+def session_error_model(imported: bool, eyes_path: Path) -> ErrorModel:
+    """The error model of the targets' covariances (``estimator.errormodel``): an ``imported``
+    session's device calibrated the eyes (``ErrorModel()``: the default bias); a calibrated
+    session's bias is ``bias_from_calibration`` of each eye's leave-one-out RMS error in
+    ``eyes_path``'s report (eyes.json; the default bias when it has none)."""
+    if imported:
+        return ErrorModel()
+    try:
+        eyes = json.loads(eyes_path.read_text(encoding="utf-8"))["eyes"]
+        loo = [e.get("report", {}).get("loo_rms_deg") for e in eyes]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        log.warning("%s: no leave-one-out errors (%s); the default eye bias", eyes_path, exc)
+        loo = []
+    return ErrorModel(bias_deg=bias_from_calibration(loo))
 
 
 def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path, poses_path: Path,
