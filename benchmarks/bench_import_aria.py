@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import tempfile  # noqa: E402
 import time  # noqa: E402
-import tracemalloc  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import _onecore  # noqa: F401  (first: pins one core before numpy loads)
 import numpy as np  # noqa: E402
 from _args import size_and_seed  # noqa: E402
+from _traced import traced_import  # noqa: E402
 
 from estimator.lines import BinocularSamples  # noqa: E402
 from wearable_gaze.formats.devices import aria  # noqa: E402
-from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, SimulatedRecording  # noqa: E402
+from wearable_gaze.formats.devices.common import SimulatedRecording  # noqa: E402
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "aria_mps_sample_gen1"
 
@@ -48,14 +48,8 @@ def walk(minutes: float, rng, rate_hz: float = 10.0) -> SimulatedRecording:
 
 def timed_import(src: Path, out: Path) -> tuple[float, float, dict]:
     """(seconds, peak traced MB, report counts) of importing ``src`` into ``out``."""
-    tracemalloc.start()
-    t0 = time.perf_counter()
-    with SessionImport(out, aria.NAME, src) as imp:
-        aria.read_recording(src, imp, ImportOptions())
-    dt = time.perf_counter() - t0
-    peak = tracemalloc.get_traced_memory()[1] / 1e6
-    tracemalloc.stop()
-    return dt, peak, {"kept": imp.n_rays, "poses read": imp.read["trajectory rows"]}
+    dt, peak, imp = traced_import(aria, src, out)
+    return dt, peak / 1e6, {"kept": imp.n_rays, "poses read": imp.read["trajectory rows"]}
 
 
 def main():

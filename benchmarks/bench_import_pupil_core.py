@@ -13,16 +13,14 @@ Target (issue 14): memory flat in the recording's length.
 from __future__ import annotations
 
 import tempfile  # noqa: E402
-import time  # noqa: E402
-import tracemalloc  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np  # noqa: E402
 from _args import size_and_seed  # noqa: E402
+from _traced import traced_import  # noqa: E402
 
 from wearable_gaze.formats.devices import pupil_core  # noqa: E402
-from wearable_gaze.formats.devices.common import ImportOptions, SessionImport  # noqa: E402
 
 RATE_HZ = 200.0
 T0 = 86_400.0          # Pupil time of the first row, s
@@ -61,13 +59,7 @@ def measure(root: Path, minutes: float, seed: int) -> tuple[int, float, float, i
     """(rows, peak traced MiB, seconds, eye samples written, drops) of importing ``minutes``."""
     export = root / f"rec{minutes:g}"
     n_rows = write_gaze_positions(export, minutes, seed)
-    tracemalloc.start()
-    t0 = time.perf_counter()
-    with SessionImport(root / f"out{minutes:g}", "pupil-core", export) as imp:
-        pupil_core.read_recording(export, imp, ImportOptions())
-    dt = time.perf_counter() - t0
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    dt, peak, imp = traced_import(pupil_core, export, root / f"out{minutes:g}")
     return n_rows, peak / 2**20, dt, imp.n_rays, dict(imp.dropped)
 
 

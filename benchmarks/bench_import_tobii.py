@@ -13,16 +13,14 @@ from __future__ import annotations
 
 import gzip  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
-import tracemalloc  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np  # noqa: E402
 from _args import size_and_seed  # noqa: E402
+from _traced import traced_import  # noqa: E402
 
 from wearable_gaze.formats.devices import tobii_g2  # noqa: E402
-from wearable_gaze.formats.devices.common import ImportOptions, SessionImport  # noqa: E402
 
 RATE_HZ = 50.0
 TS0_US = 84_000_000
@@ -64,13 +62,7 @@ def measure(root: Path, minutes: float, seed: int) -> tuple[int, float, float, i
     """(lines, peak traced MiB, seconds, eye samples written) of importing ``minutes`` of livedata."""
     rec = root / f"rec{minutes:g}"
     n_lines = write_livedata(rec / "segments" / "1", minutes, seed)
-    tracemalloc.start()
-    t0 = time.perf_counter()
-    with SessionImport(root / f"out{minutes:g}", "tobii-g2", rec) as imp:
-        tobii_g2.read_recording(rec, imp, ImportOptions())
-    dt = time.perf_counter() - t0
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    dt, peak, imp = traced_import(tobii_g2, rec, root / f"out{minutes:g}")
     return n_lines, peak / 2**20, dt, imp.n_rays
 
 
