@@ -1,7 +1,8 @@
 """Estimation in the live session (docs/live.md, The loop): an eye record and the head pose at
 its time -> world view lines (the paper's eq. 1-8, through ``calibration`` and
 ``estimator.view_lines_to_world``), fixations detected online, a streaming estimator per
-fixation, and target ids kept across fixations."""
+fixation, target ids kept across fixations, and a finished fixation's lines tested for motion
+(``estimator.motion``): a moving point is published with its smoothed path."""
 
 from __future__ import annotations
 
@@ -10,14 +11,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator import BinocularSample, ViewLines, make_estimator, view_lines_to_world
+from estimator import BinocularSample, BinocularSamples, ViewLines, make_estimator, view_lines_to_world
+from estimator.motion import DEFAULT_KNOT_S, MIN_LINES, MOVING, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter, same_target
 
-from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options
+from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, target_status
 from ..pipeline.types import Target
 
 log = logging.getLogger(__name__)
+
+MOTION_SIGMA_DEG = 1.0
+"""The angular noise the motion test and the path assume, degrees (``process``'s default)."""
+MAX_MOTION_LINES = 240
+"""A finished fixation's lines are thinned evenly to at most this many (4 s at 60 Hz) before the
+motion test and the path, whose knots are at least ``DEFAULT_KNOT_S`` apart and at most
+``MAX_MOTION_KNOTS``: their cost, paid once per fixation end in the loop, stays bounded (about
+0.2 s on a 2-core machine, against 12 s for a 20 s pursuit at 0.1 s knots)."""
+MAX_MOTION_KNOTS = 30
 
 
 @dataclass(frozen=True)
@@ -74,17 +85,24 @@ class TargetIds:
     as ``process`` merges fixations) gets that target's id, any other a new one."""
 
     def __init__(self):
-        self.known: list = []        # (position_mm (3,), covariance_mm2 (3, 3) or None) of each id
+        self.known: list = []        # (position_mm (3,), covariance_mm2 (3, 3) or None) of each id,
+                                     # None for a moving target's (never matched again)
 
     def __len__(self) -> int:
         return len(self.known)
 
     def id_for(self, position_mm, covariance_mm2, origin_mm=None) -> int:
         """The id of the target at ``position_mm`` (world, mm), seen from ``origin_mm``."""
-        for k, (x, c) in enumerate(self.known):
-            if same_target(position_mm, covariance_mm2, x, c, origin=origin_mm):
+        for k, known in enumerate(self.known):
+            if known is not None and same_target(position_mm, covariance_mm2, *known, origin=origin_mm):
                 return k
         self.known.append((position_mm, covariance_mm2))
+        return len(self.known) - 1
+
+    def new_moving(self) -> int:
+        """A new id for a moving target (as in ``process``, a moving fixation is a target of its
+        own: no later fixation is matched to it)."""
+        self.known.append(None)
         return len(self.known) - 1
 
 
@@ -128,6 +146,7 @@ class GazeEstimation:
         self.n_samples = 0
         self.t_start: float | None = None
         self.last: tuple | None = None    # (GazeEstimate, t_s) of the latest estimate
+        self.lines: list = []             # the fixation's BinocularSample, for the motion test at its end
 
     @property
     def current_mm(self) -> np.ndarray | None:
@@ -147,35 +166,76 @@ class GazeEstimation:
         ended = None
         if rec.left_valid and rec.right_valid:              # one eye alone is off the cyclopean line by
             cyc = sample.left_direction + sample.right_direction    # half the vergence: not a saccade
-            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc)):
-                ended = self.end_fixation()
+            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc)):      # a saccade seen, or a gap
+                ended = self.end_fixation(self.segmenter.config.window if self.segmenter.in_saccade else 0)
         if self.segmenter.in_saccade:                       # between fixations: no target's line
             return ended, None
         if self.t_start is None:
             self.t_start = t_s
         est = self.estimator.update(sample)
         self.n_samples += 1
+        self.lines.append(sample)
         if not est.ok:
             return ended, None
         self.last = (est, t_s)
         return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
 
-    def end_fixation(self) -> Target | None:
+    def end_fixation(self, saccade_lines: int = 0) -> Target | None:
         """End the current fixation (a saccade, or the session's end): its target when it lasted
         ``min_fixation_s`` and had an estimate, else None. The next fixation starts afresh.
 
-        The target (``pipeline.types.Target``) has the id of the same target seen before, or a
+        Its lines but the last ``saccade_lines`` (a saccade is seen once it fills half the
+        segmenter's windows: up to ``window`` lines already after it), thinned to
+        ``MAX_MOTION_LINES``, are tested for motion (``estimator.motion.classify_lines``, as
+        ``process`` does): a moving point is a moving target (``moving_target``) with a new id.
+        A static one (``pipeline.types.Target``) has the id of the same target seen before, or a
         new one, as ``index``; its one fixation in ``fixations``; no Cramér-Rao bound (NaN)."""
         target = None
         if (self.last is not None and self.t_start is not None
                 and self.last[1] - self.t_start >= self.segmenter.config.min_fixation_s):
-            est, t_end = self.last
-            r = est.ellipsoid(0.95)
-            target = Target(index=self.targets.id_for(est.position_mm, est.covariance_mm2, self.head_mm),
-                            position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
-                            axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm, status=str(est.status.value),
-                            n_samples=self.n_samples, t_start=self.t_start, t_end=t_end, fixations=(self.fixation,),
-                            method=self.method, crb_mm=float("nan"))
+            target = self.moving_target(self.lines[:len(self.lines) - saccade_lines])
+            if target is None:
+                est, t_end = self.last
+                r = est.ellipsoid(0.95)
+                target = Target(index=self.targets.id_for(est.position_mm, est.covariance_mm2, self.head_mm),
+                                position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
+                                axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm,
+                                status=str(est.status.value), n_samples=self.n_samples, t_start=self.t_start,
+                                t_end=t_end, fixations=(self.fixation,), method=self.method, crb_mm=float("nan"))
         self.fixation += 1
         self._new_fixation()
         return target
+
+    def moving_target(self, lines: list) -> Target | None:
+        """The current fixation's target when its ``lines`` (``BinocularSample``, in time order)
+        are of a moving point, else None: its path (``estimator.motion.smooth_trajectory``) in
+        ``trajectory``, its point the path's at the middle knot with that knot's covariance,
+        status 'moving' (or why not, as ``pipeline.estimate.target_status`` says), as ``process``
+        reports one."""
+        if len(lines) < MIN_LINES:
+            return None
+        step = -(-len(lines) // MAX_MOTION_LINES)                    # ceil: at most MAX_MOTION_LINES
+        samples = lines_to_samples(lines[::step])
+        knot_s = max(DEFAULT_KNOT_S, float(np.ptp(samples.t_s)) / (MAX_MOTION_KNOTS - 1))
+        if classify_lines(samples, MOTION_SIGMA_DEG, knot_s=knot_s).kind != MOVING:
+            return None
+        path = smooth_trajectory(samples, MOTION_SIGMA_DEG, knot_s=knot_s)
+        pos, cov = path.middle()
+        radii = np.asarray(covariance_ellipsoid(pos, cov, 0.95).radii_mm, float)
+        log.debug("fixation %d: a moving target over %d lines", self.fixation, len(samples))
+        return Target(index=self.targets.new_moving(), position_mm=np.asarray(pos, float), covariance_mm2=cov,
+                      axes95_mm=radii, status=target_status(MOVING, pos, radii, samples), n_samples=self.n_samples,
+                      t_start=self.t_start, t_end=float(lines[-1].t_s), fixations=(self.fixation,),
+                      method=self.method, crb_mm=float("nan"), moving=True, trajectory=path)
+
+
+def lines_to_samples(lines: list) -> BinocularSamples:
+    """Streaming ``BinocularSample`` (a missing eye's origin and direction None) as
+    ``BinocularSamples`` (NaN where an eye is missing), world frame."""
+    nan = np.full(3, np.nan)
+
+    def rows(name):
+        return [nan if getattr(s, name) is None else getattr(s, name) for s in lines]
+
+    return BinocularSamples.from_arrays([s.t_s for s in lines], rows("left_origin_mm"), rows("left_direction"),
+                                        rows("right_origin_mm"), rows("right_direction"))
