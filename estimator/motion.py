@@ -219,12 +219,19 @@ def _normal_equations(L, X, k0, k1, w0, w1, K, sigma_rad):
     r, J = _residuals(L, w0[:, None] * X[k0] + w1[:, None] * X[k1])
     JtJ = np.einsum("nki,nkj->nij", J, J) / sigma_rad**2
     Jtr = np.einsum("nki,nk->ni", J, r) / sigma_rad**2
+    return _scatter(K, k0, k1, w0, w1, JtJ, Jtr)
+
+
+def _scatter(K: int, k0, k1, w0, w1, M, v):
+    """Per-line blocks onto the knots: the path's point of line n is ``w0 X[k0] + w1 X[k1]``, so
+    its (3, 3) block ``M[n]`` adds ``wa wb M[n]`` to knot pair (ka, kb) and its vector ``v[n]``
+    adds ``wa v[n]`` to knot ka. Returns (3K, 3K) and (3K,)."""
     H = np.zeros((K, K, 3, 3))
     g = np.zeros((K, 3))
     for ka, wa in ((k0, w0), (k1, w1)):
-        np.add.at(g, ka, wa[:, None] * Jtr)
+        np.add.at(g, ka, wa[:, None] * v)
         for kb, wb in ((k0, w0), (k1, w1)):
-            np.add.at(H, (ka, kb), (wa * wb)[:, None, None] * JtJ)
+            np.add.at(H, (ka, kb), (wa * wb)[:, None, None] * M)
     return H.transpose(0, 2, 1, 3).reshape(3 * K, 3 * K), g.ravel()
 
 
@@ -252,16 +259,9 @@ def _linear_start(L: _Lines, knots, sigma_rad: float, prior, x_static, rounds: i
     X = np.repeat(np.asarray(x_static, float).reshape(1, 3), K, axis=0)
     for _ in range(rounds):
         A = Pm / (sigma_rad * rho)[:, None, None] ** 2
-        Ao = np.einsum("nij,nj->ni", A, L.o)
-        H = np.zeros((K, K, 3, 3))
-        b = np.zeros((K, 3))
-        for ka, wa in ((k0, w0), (k1, w1)):
-            np.add.at(b, ka, wa[:, None] * Ao)
-            for kb, wb in ((k0, w0), (k1, w1)):
-                np.add.at(H, (ka, kb), (wa * wb)[:, None, None] * A)
-        H = H.transpose(0, 2, 1, 3).reshape(3 * K, 3 * K) + prior
+        H, b = _scatter(K, k0, k1, w0, w1, A, np.einsum("nij,nj->ni", A, L.o))
         try:
-            X = np.linalg.solve(H, b.ravel()).reshape(K, 3)
+            X = np.linalg.solve(H + prior, b).reshape(K, 3)
         except np.linalg.LinAlgError:
             break
         p = w0[:, None] * X[k0] + w1[:, None] * X[k1]
