@@ -31,7 +31,7 @@ from wearable_gaze.formats.devices import aria  # noqa: E402
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays  # noqa: E402
 from wearable_gaze.formats.poses import read_poses_csv  # noqa: E402
 from wearable_gaze.formats.viewlines import read_viewlines_csv  # noqa: E402
-from wearable_gaze.pipeline.device import surface_reference  # noqa: E402
+from wearable_gaze.pipeline.device import device_gaze_at, surface_reference  # noqa: E402
 from wearable_gaze.pipeline.importer import import_recording  # noqa: E402
 from wearable_gaze.pipeline.process import process_session  # noqa: E402
 from wearable_gaze.pipeline.types import Poses  # noqa: E402
@@ -41,9 +41,7 @@ REAL = Path(os.environ.get("WEARABLE_GAZE_REAL_DATA", Path(__file__).resolve().p
 
 def device_depths(gaze_csv: Path, t) -> np.ndarray:
     """The device's gaze depth (distance of its 3D gaze point from the head), mm, at times t."""
-    t_g, p_g = read_device_gaze(gaze_csv)
-    j = np.searchsorted(t_g, t).clip(0, len(t_g) - 1)
-    return np.where(np.isclose(t_g[j], t, atol=1e-4), np.linalg.norm(p_g[j], axis=1), np.nan)
+    return np.linalg.norm(device_gaze_at(*read_device_gaze(gaze_csv), t, 1e-4), axis=1)
 
 
 def aria_rows(tmp: Path):
