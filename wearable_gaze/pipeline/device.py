@@ -15,7 +15,7 @@ from tracking.surface import first_surface
 from tracking.timeline import interpolate_poses
 
 from ..errors import UserError
-from ..formats.eye_rays import read_device_gaze, read_eye_rays
+from ..formats.eye_rays import read_device_gaze
 from ..formats.poses import read_poses_csv, write_poses_csv
 from ..formats.targets import write_device_comparison
 from .types import Poses
@@ -43,10 +43,9 @@ def device_poses(head_poses: Path, out: Path) -> None:
     write_poses_csv(out, t, frame, T, {"status": status})
 
 
-def still_head_poses(eye_rays: Path, out: Path) -> None:
+def still_head_poses(t, out: Path) -> None:
     """Identity poses (the head frame is the world) every 1/``STILL_HEAD_RATE_HZ`` s over the
-    span of the eye rays, as poses.csv with status 'still_head'."""
-    t = read_eye_rays(eye_rays).t_s
+    span of the eye samples' times t (N,), s, as poses.csv with status 'still_head'."""
     grid = np.arange(t[0] - 1.0 / STILL_HEAD_RATE_HZ, t[-1] + 2.0 / STILL_HEAD_RATE_HZ, 1.0 / STILL_HEAD_RATE_HZ)
     T = np.broadcast_to(np.eye(4), (len(grid), 4, 4))
     write_poses_csv(out, grid, np.arange(len(grid)), T, {"status": np.full(len(grid), "still_head", object)})

@@ -96,6 +96,7 @@ class _Values:
         self._values = {}
         self._load = {"camera": lambda: load_camera(cam_path), "eyes": lambda: load_eyes(eyes_path),
                       "eye_samples": lambda: read_eye_csv(f.eye_samples)[0],
+                      "eye_rays": lambda: read_eye_rays(f.eye_rays),
                       "marker_map": lambda: load_marker_map(f.markers),
                       "poses": lambda: Poses(*read_poses_csv(out / "poses.csv")),
                       "targets": lambda: [Target.from_row(r) for r in read_targets(out / "targets.json")]}
@@ -222,7 +223,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     def do_viewlines(cb):
         if f.eye_rays is not None:
-            result = head_lines_to_world(read_eye_rays(f.eye_rays), vals["poses"], 0.1, poses_path, correction)
+            result = head_lines_to_world(vals["eye_rays"], vals["poses"], 0.1, poses_path, correction)
         else:
             result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], 0.1, poses_path, correction)
         write_viewlines_csv(raw_vl, result.samples)
@@ -277,7 +278,7 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
         return
     if f.eye_rays is not None and f.pose_source == "still_head":
         steps.run("tracking", [f.eye_rays], {"source": "still_head"},
-                  lambda cb: still_head_poses(f.eye_rays, poses_path))
+                  lambda cb: still_head_poses(vals["eye_rays"].t_s, poses_path))
         return
 
     def do_tracking(cb):
