@@ -10,12 +10,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import minimize
 
 from estimator import BinocularSamples, GazeEstimate, run_estimator
 from estimator.errormodel import ErrorModel
-from estimator.frames import tangent_basis
-from estimator.likelihood import gnomonic_residuals
+from estimator.merge import TargetMerger
 from estimator.motion import MOVING, STATIC, TWO_POINTS, Trajectory, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
 
@@ -147,114 +145,24 @@ class _Group:
 
 def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sigma_deg: float,
                     error_model: ErrorModel | None = None) -> list:
-    """Static fixations of one target merged and estimated again from all their lines: each
-    fixation joins the group (seen within ``MERGE_MAX_DEG`` of it from the fixation's first eye)
-    whose lines fit one point with its own best (``merge_statistic`` below
-    ``MERGE_LR_THRESHOLD``, the least of them), else starts a group; fixations without a usable
-    estimate are left out; merged estimates' covariances follow ``error_model``. Returns the groups
-    in order of first fixation."""
-    groups = []
+    """Static fixations of one target merged and estimated again from all their lines, one
+    fixation at a time in order, by ``estimator.merge.TargetMerger`` (the test the live session
+    runs too): a fixation joins the group whose pooled lines fit one point with its own, else
+    starts a group; fixations without a usable estimate are left out; merged estimates (from
+    ``method`` with ``sigma_deg``) have covariances that follow ``error_model``. Returns the
+    groups in order of first fixation, each with its sorted view-line indices (N,) and parts."""
+    options = model_options(method, error_model)
+    merger = TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg)
+    by_index = {}
     for f in fixations:
-        if not f.usable:
-            continue
-        e, first = f.estimate, f.samples[0]
-        origin = samples.left_origin_mm[first] if samples.left_valid[first] else samples.right_origin_mm[first]
-        scored = []
-        for g in groups:
-            u, v = e.position_mm - origin, g.estimate.position_mm - origin
-            if np.degrees(np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))) > MERGE_MAX_DEG:
-                continue
-            lr = merge_statistic(samples, (g.parts, g.estimate.position_mm), ([f.samples], e.position_mm), sigma_deg)
-            if lr < MERGE_LR_THRESHOLD:
-                scored.append((lr, len(scored), g))
-        for _, _, g in sorted(scored, key=lambda x: x[:2]):
-            both = np.sort(np.concatenate([g.samples, f.samples]))
-            merged = run_estimator(samples.select(both), method, sigma_deg, **model_options(method, error_model))[1]
-            if merged.ok:
-                g.samples, g.estimate = both, merged
-                g.fixations.append(f.index)
-                g.parts.append(f.samples)
-                break
-        else:
-            groups.append(_Group(f.samples, [f.index], e, parts=[f.samples]))
+        if f.usable:
+            merger.add(samples.select(f.samples), f.estimate, key=f.index)
+            by_index[f.index] = f
+    groups = []
+    for g in merger.groups:
+        parts = [by_index[k].samples for k in g.members]
+        groups.append(_Group(np.sort(np.concatenate(parts)), list(g.members), g.estimate, parts=parts))
     return groups
-
-
-MERGE_LR_THRESHOLD = 16.27     # chi-square 99.9 % point, 3 dof
-MERGE_MAX_DEG = 5.0
-"""Only groups seen within this angle of a fixation's estimate are tested (a shortcut: the test
-rejects anything this far off)."""
-MERGE_BIAS_DEG = 0.5
-"""The merge test's prior on each eye's fixed angular offset (standard deviation per axis,
-degrees): an eye calibration's bias, the same in every fixation."""
-MERGE_FIXATION_DEG = 0.1
-"""... and on each eye's offset in one fixation beyond it (the calibration's error differs with
-where the eye looks, which the head changes between revisits)."""
-
-
-def merge_statistic(samples: BinocularSamples, a, b, sigma_deg: float) -> float:
-    """The likelihood-ratio statistic of one point against two (3 more parameters) for two sets
-    of fixations (``a``, ``b``: (a list of each fixation's sample indices, start point (3,) mm)),
-    on the angular noise model with two offsets of each eye's lines marginalised out
-    (``_bias_chi2``): one shared by all the fixations (prior sd ``MERGE_BIAS_DEG`` per axis: an
-    eye calibration's bias) and one of each fixation (``MERGE_FIXATION_DEG``: the calibration's
-    error differs where the eye looks), each chi2 minimised from the start points.
-
-    It uses the lines themselves, not the estimates' covariances, which cannot reject when one
-    fixation fixes its point poorly (a still head at 10 Hz: a depth range of metres; merging
-    then drags the good estimate toward the poor one's lines). The offsets keep the revisits of
-    a target seen through a biased eye calibration from a walking head together (without them
-    most revisits were new targets); the shared one cannot explain two points seen a few
-    degrees apart."""
-    sigma = np.deg2rad(sigma_deg)
-    chunks = [(line, k, (k, j)) for k, (parts, _) in enumerate((a, b)) for j, idx in enumerate(parts)
-              for line in _eye_lines(samples.select(idx))]
-    apart = _min_bias_chi2(chunks, np.concatenate([a[1], b[1]]), sigma)
-    together = _min_bias_chi2([(line, 0, f) for line, _, f in chunks], np.asarray(a[1], float), sigma)
-    return together - apart
-
-
-def _eye_lines(s: BinocularSamples) -> list:
-    """The lines of each eye with any: [(eye 0 left / 1 right, origins (n, 3), directions (n, 3),
-    b1, b2), ...]."""
-    out = []
-    for eye, (valid, o, d) in enumerate(((s.left_valid, s.left_origin_mm, s.left_direction),
-                                         (s.right_valid, s.right_origin_mm, s.right_direction))):
-        if valid.any():
-            out.append((eye, o[valid], d[valid], *tangent_basis(d[valid])))
-    return out
-
-
-def _bias_chi2(X, chunks, sigma: float) -> float:
-    """chi2 of line chunks, ``(eye lines, point k, fixation key)`` each, at their points ``X``
-    (3K,), with per eye a shared offset (sd ``MERGE_BIAS_DEG`` per axis) and one per fixation
-    (``MERGE_FIXATION_DEG``) marginalised: per axis the residuals' covariance is
-    ``sigma^2 I + f_i^2 (block ones) + f_s^2 (ones)``, inverted in closed form (Woodbury)."""
-    P = np.asarray(X, float).reshape(-1, 3)
-    fs2, fi2, s2 = np.deg2rad(MERGE_BIAS_DEG) ** 2, np.deg2rad(MERGE_FIXATION_DEG) ** 2, sigma**2
-    total = 0.0
-    for eye in (0, 1):
-        sums = {}
-        for (e, o, d, b1, b2), k, key in chunks:
-            if e == eye:
-                r = gnomonic_residuals(P[k], o, d, b1, b2)[0]
-                q, sm, n = sums.get(key, (0.0, np.zeros(2), 0))
-                sums[key] = (q + float(np.sum(r * r)), sm + r.sum(axis=0), n + len(r))
-        u, w = np.zeros(2), 0.0
-        for q, sm, n in sums.values():
-            total += q / s2 - fi2 * float(sm @ sm) / (s2 * (s2 + n * fi2))
-            u += sm / (s2 + n * fi2)
-            w += n / (s2 + n * fi2)
-        total -= fs2 * float(u @ u) / (1.0 + fs2 * w)
-    return total
-
-
-def _min_bias_chi2(chunks, x0, sigma: float) -> float:
-    """The least ``_bias_chi2`` over the points, from ``x0`` (3K,) (searched in units of 100 mm)."""
-    x0 = np.asarray(x0, float)
-    fit = minimize(lambda z: _bias_chi2(100.0 * z, chunks, sigma), x0 / 100.0, method="BFGS",
-                   options={"gtol": 1e-4})
-    return float(fit.fun)
 
 
 def write_targets_step(out: Path, result: TargetsResult, method: str) -> None:

@@ -1,0 +1,172 @@
+"""Static fixations of one target merged across revisits (issue 15; docs/processing.md, Merging):
+a fixation joins the earlier group whose lines and its own fit one point (a likelihood-ratio
+test on the pooled view lines, each eye's calibration offsets marginalised), else it starts a
+group of its own. Groups never merge with each other, so a group's id, once given, keeps its
+meaning. ``process`` (``wearable_gaze.pipeline.fixations.merge_fixations``) and the live session
+(``wearable_gaze.live.estimation.TargetIds``) both use ``TargetMerger``.
+
+World frame, mm, seconds; angles in degrees where the name says ``_deg``."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+
+from .frames import tangent_basis
+from .likelihood import gnomonic_residuals
+from .lines import BinocularSamples
+from .result import GazeEstimate
+
+MERGE_LR_THRESHOLD = 16.27     # chi-square 99.9 % point, 3 dof
+MERGE_MAX_DEG = 5.0
+"""Only groups seen within this angle of a fixation's estimate are tested (a shortcut: the test
+rejects anything this far off)."""
+MERGE_BIAS_DEG = 0.5
+"""The merge test's prior on each eye's fixed angular offset (standard deviation per axis,
+degrees): an eye calibration's bias, the same in every fixation."""
+MERGE_FIXATION_DEG = 0.1
+"""... and on each eye's offset in one fixation beyond it (the calibration's error differs with
+where the eye looks, which the head changes between revisits)."""
+
+
+@dataclass
+class MergeGroup:
+    """One target's static fixations so far.
+
+    Attributes:
+        parts: each fixation's view lines (``BinocularSamples``, world frame), in the order they
+            joined.
+        members: the key the caller gave each fixation (``TargetMerger.add``), same order.
+        estimate: the estimate from all their lines (``GazeEstimate``, world frame, mm).
+    """
+
+    parts: list = field(default_factory=list)
+    members: list = field(default_factory=list)
+    estimate: GazeEstimate | None = None
+
+    def lines_with(self, more: BinocularSamples) -> BinocularSamples:
+        """Its lines and ``more`` as one ``BinocularSamples``, in time order (stable: lines of one
+        time keep the order they joined in)."""
+        both = BinocularSamples.concatenate([*self.parts, more])
+        return both.select(np.argsort(both.t_s, kind="stable"))
+
+
+class TargetMerger:
+    """The groups of static fixations merged so far, and the test that adds one more.
+
+    Args:
+        estimate: called with a group's pooled view lines (``BinocularSamples``, world frame, in
+            time order) when a fixation joins it; returns their ``GazeEstimate`` (the caller's
+            estimator, method and error model: nothing of the application here).
+        sigma_deg: the angular noise of a view line the merge test assumes, degrees.
+    """
+
+    def __init__(self, estimate: Callable[[BinocularSamples], GazeEstimate], sigma_deg: float = 1.0):
+        self.estimate = estimate
+        self.sigma_deg = float(sigma_deg)
+        self.groups: list[MergeGroup] = []
+
+    def __len__(self) -> int:
+        return len(self.groups)
+
+    def add(self, lines: BinocularSamples, estimate: GazeEstimate, key: Hashable = None) -> int:
+        """A finished static fixation: its view lines (world frame, time order) and its own
+        usable estimate. Returns the id (index into ``groups``) of the group it joins or starts.
+
+        It joins the group (seen within ``MERGE_MAX_DEG`` of its estimate from the fixation's
+        first eye) whose lines fit one point with its own best (``merge_statistic`` below
+        ``MERGE_LR_THRESHOLD``, the least of them) and whose pooled lines give a usable estimate
+        (``estimate``), which becomes the group's; else it starts a group. ``key`` (e.g. the
+        fixation's index) is kept in the group's ``members``."""
+        if not estimate.ok:
+            raise ValueError(f"a fixation without a usable estimate cannot be merged ({estimate.status.value})")
+        origin = lines.left_origin_mm[0] if lines.left_valid[0] else lines.right_origin_mm[0]
+        scored = []
+        for k, g in enumerate(self.groups):
+            u, v = estimate.position_mm - origin, g.estimate.position_mm - origin
+            if np.degrees(np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))) > MERGE_MAX_DEG:
+                continue
+            lr = merge_statistic((g.parts, g.estimate.position_mm), ([lines], estimate.position_mm), self.sigma_deg)
+            if lr < MERGE_LR_THRESHOLD:
+                scored.append((lr, len(scored), k))
+        for _, _, k in sorted(scored):
+            g = self.groups[k]
+            merged = self.estimate(g.lines_with(lines))
+            if merged.ok:
+                g.parts.append(lines)
+                g.members.append(key)
+                g.estimate = merged
+                return k
+        self.groups.append(MergeGroup([lines], [key], estimate))
+        return len(self.groups) - 1
+
+
+def merge_statistic(a, b, sigma_deg: float) -> float:
+    """The likelihood-ratio statistic of one point against two (3 more parameters) for two sets
+    of fixations (``a``, ``b``: (a list of each fixation's view lines as ``BinocularSamples``,
+    world frame; a start point (3,) mm)), on the angular noise model (``sigma_deg``) with two
+    offsets of each eye's lines marginalised out (``_bias_chi2``): one shared by all the
+    fixations (prior sd ``MERGE_BIAS_DEG`` per axis: an eye calibration's bias) and one of each
+    fixation (``MERGE_FIXATION_DEG``: the calibration's error differs where the eye looks),
+    each chi2 minimised from the start points.
+
+    It uses the lines themselves, not the estimates' covariances, which cannot reject when one
+    fixation fixes its point poorly (a still head at 10 Hz: a depth range of metres; merging
+    then drags the good estimate toward the poor one's lines). The offsets keep the revisits of
+    a target seen through a biased eye calibration from a walking head together (without them
+    most revisits were new targets); the shared one cannot explain two points seen a few
+    degrees apart."""
+    sigma = np.deg2rad(sigma_deg)
+    chunks = [(line, k, (k, j)) for k, (parts, _) in enumerate((a, b)) for j, part in enumerate(parts)
+              for line in _eye_lines(part)]
+    apart = _min_bias_chi2(chunks, np.concatenate([a[1], b[1]]), sigma)
+    together = _min_bias_chi2([(line, 0, f) for line, _, f in chunks], np.asarray(a[1], float), sigma)
+    return together - apart
+
+
+def _eye_lines(s: BinocularSamples) -> list:
+    """The lines of each eye with any: [(eye 0 left / 1 right, origins (n, 3), directions (n, 3),
+    b1, b2), ...]."""
+    out = []
+    for eye, (valid, o, d) in enumerate(((s.left_valid, s.left_origin_mm, s.left_direction),
+                                         (s.right_valid, s.right_origin_mm, s.right_direction))):
+        if valid.any():
+            out.append((eye, o[valid], d[valid], *tangent_basis(d[valid])))
+    return out
+
+
+def _bias_chi2(X, chunks, sigma: float) -> float:
+    """chi2 of line chunks, ``(eye lines, point k, fixation key)`` each, at their points ``X``
+    (3K,) mm, with per eye a shared offset (sd ``MERGE_BIAS_DEG`` per axis) and one per fixation
+    (``MERGE_FIXATION_DEG``) marginalised: per axis the residuals' covariance is
+    ``sigma^2 I + f_i^2 (block ones) + f_s^2 (ones)`` (``sigma`` in radians), inverted in closed
+    form (Woodbury)."""
+    P = np.asarray(X, float).reshape(-1, 3)
+    fs2, fi2, s2 = np.deg2rad(MERGE_BIAS_DEG) ** 2, np.deg2rad(MERGE_FIXATION_DEG) ** 2, sigma**2
+    total = 0.0
+    for eye in (0, 1):
+        sums = {}
+        for (e, o, d, b1, b2), k, key in chunks:
+            if e == eye:
+                r = gnomonic_residuals(P[k], o, d, b1, b2)[0]
+                q, sm, n = sums.get(key, (0.0, np.zeros(2), 0))
+                sums[key] = (q + float(np.sum(r * r)), sm + r.sum(axis=0), n + len(r))
+        u, w = np.zeros(2), 0.0
+        for q, sm, n in sums.values():
+            total += q / s2 - fi2 * float(sm @ sm) / (s2 * (s2 + n * fi2))
+            u += sm / (s2 + n * fi2)
+            w += n / (s2 + n * fi2)
+        total -= fs2 * float(u @ u) / (1.0 + fs2 * w)
+    return total
+
+
+def _min_bias_chi2(chunks, x0, sigma: float) -> float:
+    """The least ``_bias_chi2`` over the points, from ``x0`` (3K,) mm (searched in units of
+    100 mm); ``sigma`` in radians."""
+    x0 = np.asarray(x0, float)
+    fit = minimize(lambda z: _bias_chi2(100.0 * z, chunks, sigma), x0 / 100.0, method="BFGS",
+                   options={"gtol": 1e-4})
+    return float(fit.fun)
