@@ -20,14 +20,15 @@ def _moving_point(t):
 
 
 def _run(stream):
-    """Feed (t, record, pose) through ``GazeEstimation``; the target messages it ends with."""
+    """Feed (t, record, pose) through ``GazeEstimation``; the target messages of the fixations
+    it ends (each finished after the stream, as the loop's target worker would)."""
     est = GazeEstimation(_eyes(), "voxel")
     targets = []
     for t, rec, T in stream:
         ended, _ = est.add(t, rec, T)
         targets += [ended] if ended is not None else []
     targets.append(est.end_fixation())
-    return [target_message(x) for x in targets if x is not None]
+    return [target_message(est.finish(x)) for x in targets if x is not None]
 
 
 def _pursuit(eyes, seconds=3.0, rng=None):
@@ -66,7 +67,7 @@ def test_static_fixations_give_no_moving_target():
 
 
 def test_a_long_pursuit_is_smoothed_on_a_bounded_number_of_knots():
-    """The motion test and the path run in the loop at a fixation's end: a 12 s pursuit gets
+    """The motion test and the path run at a fixation's end (in the target worker): a 12 s pursuit gets
     at most ``MAX_MOTION_KNOTS`` knots over its whole span (0.1 s knots would be 120)."""
     eyes, rng = _eyes(), np.random.default_rng(2)
     stream = []

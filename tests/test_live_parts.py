@@ -12,6 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calibration.eyes import EyeCalibration, RawMap, plane_points
+from estimator import BinocularSamples, estimate, perturb_directions
 from estimator.frames import invert
 from tracking.markermap import MarkerMap
 from wearable_gaze.errors import UserError
@@ -156,9 +157,9 @@ def test_estimation_finds_each_fixation_and_gives_a_target_seen_again_its_id():
     targets, running = [], []
     for t, rec, T in _walk(eyes, [(A, 1.5), (B, 1.5), (A, 1.5)], rng=np.random.default_rng(0)):
         ended, e = est.add(t, rec, T)
-        targets += [ended] if ended is not None else []
+        targets += [est.finish(ended)] if ended is not None else []
         running += [e] if e is not None else []
-    targets.append(est.end_fixation())
+    targets.append(est.finish(est.end_fixation()))
     assert [x.index for x in targets] == [0, 1, 0]                      # A, B, A again: A's id
     assert [x.fixations for x in targets] == [(0,), (1,), (2,)]
     for x, truth in zip(targets, (A, B, A), strict=True):
@@ -180,7 +181,7 @@ def test_a_monocular_sample_neither_ends_a_fixation_nor_is_lost():
             rec = rec._replace(right_valid=False)
         ended, _ = est.add(t, rec, T)
         assert ended is None
-    target = est.end_fixation()
+    target = est.finish(est.end_fixation())
     assert target is not None and target.n_samples == len(stream)
 
 
@@ -192,13 +193,28 @@ def test_a_short_fixation_gives_no_target():
     assert est.end_fixation() is None and est.fixation == 1 and len(est.targets) == 0
 
 
-def test_target_ids_merge_what_is_one_target_seen_twice():
-    ids = TargetIds()
-    cov = np.eye(3) * 25.0
-    assert ids.id_for(np.array([0.0, 0, 2000]), cov) == 0
-    assert ids.id_for(np.array([300.0, 0, 2000]), cov) == 1
-    assert ids.id_for(np.array([5.0, 3, 2004]), cov) == 0
-    assert len(ids) == 2
+def _fixation_lines(point, t0, rng, n=60):
+    """``n`` samples at 60 Hz from ``t0`` of a head swaying 300 mm sideways while looking at
+    ``point`` (3,), 0.2 deg of noise: world-frame ``BinocularSamples``, their estimate."""
+    head = np.column_stack([150.0 * np.sin(np.linspace(0, np.pi, n)), np.zeros(n), np.zeros(n)])
+    lo, ro = head - [32.0, 0, 0], head + [32.0, 0, 0]
+    s = BinocularSamples.from_arrays(t0 + np.arange(n) / 60.0, lo, perturb_directions(point - lo, np.deg2rad(0.2), rng),
+                                     ro, perturb_directions(point - ro, np.deg2rad(0.2), rng))
+    return s, estimate(s, "voxel")
+
+
+def test_target_ids_merge_what_is_one_target_seen_twice_and_never_reuse_an_id():
+    """Static fixations get the id of the target whose lines theirs join (``TargetMerger``); a
+    moving one's id is its own, between them; an id given is never given to another target."""
+    rng = np.random.default_rng(4)
+    ids = TargetIds("voxel")
+    A, B = np.array([0.0, 0, 2000]), np.array([300.0, 0, 2000])
+    assert ids.id_for(*_fixation_lines(A, 0.0, rng)) == 0
+    assert ids.new_own() == 1                                            # a moving target
+    assert ids.id_for(*_fixation_lines(B, 2.0, rng)) == 2
+    assert ids.id_for(*_fixation_lines(A, 4.0, rng), key="third") == 0     # A again
+    assert ids.id_for(*_fixation_lines(B, 6.0, rng)) == 2
+    assert len(ids) == 3 and [g.members for g in ids.merger.groups] == [[None, "third"], [None, None]]
 
 
 # --- messages --------------------------------------------------------------------------------
@@ -318,10 +334,12 @@ class _FakeCamera(_FakeThread):
 
 
 class _FakeEstimation:
-    """Every sample gives an estimate; the sample at ``end_at`` ends a fixation with a target."""
+    """Every sample gives an estimate; the sample at ``end_at`` ends a fixation, whose target
+    ``finish`` makes (in the loop's target worker; ``finish_fails``: it raises)."""
 
-    def __init__(self, end_at, fail_at=None):
-        self.end_at, self.fail_at, self.seen, self.targets = end_at, fail_at, [], TargetIds()
+    def __init__(self, end_at, fail_at=None, finish_fails=False):
+        self.end_at, self.fail_at, self.seen, self.targets = end_at, fail_at, [], []
+        self.finish_fails = finish_fails
         self.current_mm = None
 
     def _target(self, k):
@@ -332,11 +350,17 @@ class _FakeEstimation:
         if rec.counter == self.fail_at:
             raise IndexError("list index out of range")
         self.seen.append((t_s, rec.counter, T))
-        ended = self._target(0) if rec.counter == self.end_at else None
+        ended = 0 if rec.counter == self.end_at else None
         return ended, LiveEstimate(t_s, 0, np.array([1.0, 2.0, 3.0]), None, len(self.seen))
 
     def end_fixation(self):
-        return self._target(1)
+        return 1
+
+    def finish(self, k):
+        if self.finish_fails:
+            raise ZeroDivisionError("float division by zero")
+        self.targets.append(k)
+        return self._target(k)
 
 
 class _FakePublisher:
@@ -359,7 +383,8 @@ class _FakeRecorder:
         self.lines, self.complete = [], None
 
     def message(self, line):
-        self.lines.append(line)
+        if self.complete is None:                        # as ``Recorder``: nothing once closed
+            self.lines.append(line)
 
     def close(self, complete=True):
         self.complete = complete
@@ -388,10 +413,11 @@ def test_the_loop_estimates_with_the_pose_at_each_samples_time_publishes_and_rec
     assert st.no_pose == 2 and st.samples == 6              # 5: 0.1 s after the last frame (no pose)
     assert est.seen[0][2][0, 3] == pytest.approx(70.0)      # 0.57 s waited for the next frame: interpolated
     assert est.seen[1][2][0, 3] == 100.0 and est.seen[2][2][0, 3] == 100.0    # 0.6 s, and 0.62 s held
-    kinds = [json.loads(x)["type"] for x in pub.lines]
-    assert kinds == ["estimate", "target", "estimate", "estimate", "target"]   # the ended fixation before its
-    assert rec.lines == pub.lines and rec.complete is True                      # sample's estimate; the last at the end
-    assert st.published == 5 and st.targets == 2 and st.latency_all.n == 3
+    msgs = [json.loads(x) for x in pub.lines]
+    assert [m["t"] for m in msgs if m["type"] == "estimate"] == [0.57, 0.6, 0.62]
+    assert [m["target"] for m in msgs if m["type"] == "target"] == [0, 1]   # in the order the fixations ended,
+    assert rec.lines == pub.lines and rec.complete is True                   # the last at the session's end
+    assert st.published == 5 and st.targets == 2 and st.latency_all.n == 3 and st.distinct_targets == 2
     assert st.end_reason == "the camera ended" and pub.closed
     assert session.reader.stopped and session.frames.stopped
 
@@ -401,6 +427,14 @@ def test_an_error_inside_the_loop_ends_it_with_a_user_error_and_an_incomplete_re
     with pytest.raises(UserError, match=r"IndexError: list index out of range\).*REC is kept, marked incomplete"):
         session.run(duration_s=5.0)
     assert rec.complete is False and pub.closed
+
+
+def test_an_error_in_the_target_worker_ends_the_session_with_a_user_error():
+    session, pub, rec = _loop(_eye_items([0.5, 0.51, 0.52]), [(0.5, _pose())], _FakeEstimation(1, finish_fails=True))
+    with pytest.raises(UserError, match=r"the target worker failed: ZeroDivisionError: float division by zero"):
+        session.run(duration_s=5.0)
+    assert rec.complete is False and pub.closed and not session.worker.is_alive()
+    assert not [x for x in pub.lines if b'"target"' in x]
 
 
 def test_a_failed_reader_thread_ends_the_session():
@@ -426,3 +460,67 @@ def test_frames_skipped_counts_the_camera_queues_drops_and_the_loops_own_skips()
     session.tracking_skipped = 2                         # passed over by the loop
     assert session.update_stats().frames_skipped == 5
     assert session.update_stats().frames_skipped == 5    # copied, not added up again
+
+
+class _ExactHead:
+    """Head tracking faked: the exact pose at each sample's time, no waiting for frames."""
+
+    markers_in_view = 1
+
+    def __init__(self, poses):
+        self.poses = dict(poses)
+
+    def track(self, t, grey):
+        pass
+
+    def must_wait(self, t_s, waited_s):
+        return False
+
+    def pose_at(self, t_s):
+        return self.poses[t_s]
+
+
+class _WatchingPublisher(_FakePublisher):
+    """Sets ``next_fixation`` once an estimate of a fixation after the first is sent."""
+
+    def __init__(self):
+        super().__init__()
+        self.next_fixation = threading.Event()
+
+    def send(self, msg):
+        if msg["type"] == "estimate" and msg["fixation"] >= 1:
+            self.next_fixation.set()
+        return super().send(msg)
+
+
+def test_a_slow_fixation_end_does_not_hold_the_next_samples_and_every_target_is_published(monkeypatch):
+    """The motion test (here held until the loop has published an estimate of the next fixation,
+    then slow) runs in the target worker: the loop goes on estimating meanwhile, and at the
+    session's end it waits for the worker, so every target is published and recorded, in
+    fixation order with the ids ``process`` would give (A, B, A: 0, 1, 0)."""
+    import wearable_gaze.live.estimation as estimation
+
+    eyes = _eyes()
+    A, B = np.array([100.0, -50.0, 1500.0]), np.array([-500.0, 150.0, 1200.0])
+    stream = _walk(eyes, [(A, 1.5), (B, 1.5), (A, 1.5)], rng=np.random.default_rng(0))
+    now = time.monotonic()
+    reader, camera = _FakeReader([(now, t, rec) for t, rec, _ in stream]), _FakeCamera([])
+    pub, rec = _WatchingPublisher(), _FakeRecorder()
+    session = LiveSession(reader, camera, _ExactHead((t, T) for t, _, T in stream), GazeEstimation(eyes, "voxel"),
+                          pub, rec)
+    real, calls = estimation.classify_lines, []
+
+    def held_classifier(*args, **kw):
+        calls.append(pub.next_fixation.wait(30.0))       # False: the loop was held (the old way)
+        time.sleep(0.3)
+        return real(*args, **kw)
+    monkeypatch.setattr(estimation, "classify_lines", held_classifier)
+    st = session.run(duration_s=60.0)
+    msgs = [json.loads(x) for x in pub.lines]
+    first_target = next(i for i, m in enumerate(msgs) if m["type"] == "target")
+    assert msgs[first_target]["fixation"] == 0
+    assert any(m["type"] == "estimate" and m["fixation"] == 1 for m in msgs[:first_target])   # not held
+    targets = [m for m in msgs if m["type"] == "target"]
+    assert [(m["fixation"], m["target"]) for m in targets] == [(0, 0), (1, 1), (2, 0)]
+    assert calls == [True, True, True] and st.targets == 3 and st.distinct_targets == 2
+    assert rec.lines == pub.lines and rec.complete is True and not session.worker.is_alive()

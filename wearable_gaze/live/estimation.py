@@ -1,8 +1,9 @@
 """Estimation in the live session (docs/live.md, The loop): an eye record and the head pose at
 its time -> world view lines (the paper's eq. 1-8, through ``calibration`` and
 ``estimator.view_lines_to_world``), fixations detected online, a streaming estimator per
-fixation, target ids kept across fixations, and a finished fixation's lines tested for motion
-(``estimator.motion``): a moving point is published with its smoothed path."""
+fixation, and at a fixation's end (``GazeEstimation.finish``, in the loop's target worker) its
+lines tested for motion (``estimator.motion``: a moving point is published with its smoothed
+path) or merged with the static targets seen before (``estimator.merge``, as ``process`` merges)."""
 
 from __future__ import annotations
 
@@ -11,23 +12,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator import BinocularSample, BinocularSamples, ViewLines, make_estimator, view_lines_to_world
+from estimator import (
+    BinocularSample,
+    BinocularSamples,
+    GazeEstimate,
+    ViewLines,
+    make_estimator,
+    run_estimator,
+    view_lines_to_world,
+)
+from estimator.merge import TargetMerger
 from estimator.motion import DEFAULT_KNOT_S, MIN_LINES, MOVING, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
-from estimator.segments import OnlineSegmenter, same_target
+from estimator.segments import OnlineSegmenter
 
 from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, target_status
 from ..pipeline.types import Target
 
 log = logging.getLogger(__name__)
 
-MOTION_SIGMA_DEG = 1.0
-"""The angular noise the motion test and the path assume, degrees (``process``'s default)."""
-MAX_MOTION_LINES = 240
+SIGMA_DEG = 1.0
+"""The angular noise the motion test, the path and the merge test assume, degrees (``process``'s
+default, and the streaming estimators')."""
+MAX_END_LINES = 240
 """A finished fixation's lines are thinned evenly to at most this many (4 s at 60 Hz) before the
-motion test and the path, whose knots are at least ``DEFAULT_KNOT_S`` apart and at most
-``MAX_MOTION_KNOTS``: their cost, paid once per fixation end in the loop, stays bounded (about
-0.2 s on a 2-core machine, against 12 s for a 20 s pursuit at 0.1 s knots)."""
+motion test, the path and the merge test (which keeps them for later revisits); the path's knots
+are at least ``DEFAULT_KNOT_S`` apart and at most ``MAX_MOTION_KNOTS``: the cost, paid once per
+fixation end in the target worker, stays bounded (about 0.2 s for the motion test on a 2-core
+machine, against 12 s for a 20 s pursuit at 0.1 s knots)."""
 MAX_MOTION_KNOTS = 30
 
 
@@ -81,29 +93,59 @@ def world_sample(eyes, t_s: float, rec, T_world_from_cam) -> BinocularSample:
 
 
 class TargetIds:
-    """Target ids: an estimate that is a target seen before (``estimator.segments.same_target``,
-    as ``process`` merges fixations) gets that target's id, any other a new one."""
+    """Target ids kept across fixations (issue 15): a static fixation's lines and estimate go to
+    the merge test (``estimator.merge.TargetMerger``, the one ``process`` merges with; groups
+    re-estimated by ``method`` with the default error model): it takes the id of the group it
+    joins, or a new one. A moving fixation gets a new id no later fixation takes. An id, once
+    given, never changes meaning: groups only grow, and never merge with each other.
 
-    def __init__(self):
-        self.known: list = []        # (position_mm (3,), covariance_mm2 (3, 3) or None) of each id,
-                                     # None for a moving target's (never matched again)
+    Not thread-safe: only the loop's target worker calls it (fixations in order).
+    """
+
+    def __init__(self, method: str = "voxel", sigma_deg: float = SIGMA_DEG):
+        options = model_options(method, DEFAULT_ERROR_MODEL)
+        self.merger = TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg)
+        self.group_ids: list[int] = []     # the id of each of the merger's groups
+        self.n_ids = 0
 
     def __len__(self) -> int:
-        return len(self.known)
+        return self.n_ids
 
-    def id_for(self, position_mm, covariance_mm2, origin_mm=None) -> int:
-        """The id of the target at ``position_mm`` (world, mm), seen from ``origin_mm``."""
-        for k, known in enumerate(self.known):
-            if known is not None and same_target(position_mm, covariance_mm2, *known, origin=origin_mm):
-                return k
-        self.known.append((position_mm, covariance_mm2))
-        return len(self.known) - 1
+    def id_for(self, lines: BinocularSamples, estimate: GazeEstimate, key=None) -> int:
+        """The id of a finished static fixation's target: ``lines`` its view lines (world frame,
+        mm, time order), ``estimate`` its own usable estimate, ``key`` kept in its group."""
+        group = self.merger.add(lines, estimate, key)
+        if group == len(self.group_ids):
+            self.group_ids.append(self.new_own())
+        return self.group_ids[group]
 
-    def new_moving(self) -> int:
-        """A new id for a moving target (as in ``process``, a moving fixation is a target of its
-        own: no later fixation is matched to it)."""
-        self.known.append(None)
-        return len(self.known) - 1
+    def new_own(self) -> int:
+        """A new id that no later fixation is matched to (a moving target's: as in ``process``, a
+        moving fixation is a target of its own)."""
+        self.n_ids += 1
+        return self.n_ids - 1
+
+
+@dataclass(frozen=True)
+class FinishedFixation:
+    """A fixation that has ended, as the loop hands it to the target worker: all its target
+    needs, taken from the estimation's state at its end (``GazeEstimation.end_fixation``).
+
+    Attributes:
+        fixation: its index (0, 1, ... in the session).
+        lines: its ``BinocularSample`` (world frame, time order), without the lines the segmenter
+            took in before it saw the saccade.
+        estimate: its streaming estimator's latest usable ``GazeEstimate``.
+        t_start, t_end: its first sample's and its latest estimate's session times, s.
+        n_samples: samples its estimator took.
+    """
+
+    fixation: int
+    lines: tuple
+    estimate: GazeEstimate
+    t_start: float
+    t_end: float
+    n_samples: int
 
 
 def warm_up(method: str) -> None:
@@ -120,12 +162,16 @@ def warm_up(method: str) -> None:
 
 
 class GazeEstimation:
-    """Eye records with their head poses in; running estimates and finished fixations' targets out.
+    """Eye records with their head poses in; running estimates and finished fixations out (``add``,
+    ``end_fixation``: cheap, on the loop's thread), and a finished fixation's target (``finish``:
+    the motion and merge tests, in the loop's target worker; docs/live.md, The loop).
 
     Fixations are found online (``OnlineSegmenter``, on binocular samples' cyclopean
     directions); a sample inside a saccade belongs to no target; each fixation gets a fresh
     streaming estimator (``estimator.make_estimator(method)``), whose covariance for ``ml`` and
     ``voxel`` follows the default error model (``pipeline.estimate.DEFAULT_ERROR_MODEL``).
+    ``add`` and ``end_fixation`` are called from one thread, ``finish`` from one other (it alone
+    touches ``targets``).
 
     Args:
         eyes: [left, right] ``EyeCalibration``.
@@ -136,9 +182,8 @@ class GazeEstimation:
         self.eyes = eyes
         self.method = method
         self.segmenter = OnlineSegmenter()
-        self.targets = TargetIds()
+        self.targets = TargetIds(method)
         self.fixation = 0                 # the current fixation's index
-        self.head_mm = None               # (3,) an eye's origin at the latest sample, world, mm
         self._new_fixation()
 
     def _new_fixation(self) -> None:
@@ -146,23 +191,22 @@ class GazeEstimation:
         self.n_samples = 0
         self.t_start: float | None = None
         self.last: tuple | None = None    # (GazeEstimate, t_s) of the latest estimate
-        self.lines: list = []             # the fixation's BinocularSample, for the motion test at its end
+        self.lines: list = []             # the fixation's BinocularSample, for ``finish`` at its end
 
     @property
     def current_mm(self) -> np.ndarray | None:
         """(3,) the current fixation's latest estimate, world, mm (None before one)."""
         return None if self.last is None else self.last[0].position_mm
 
-    def add(self, t_s: float, rec, T_world_from_cam) -> tuple[Target | None, LiveEstimate | None]:
+    def add(self, t_s: float, rec, T_world_from_cam) -> tuple[FinishedFixation | None, LiveEstimate | None]:
         """One eye record at session time ``t_s`` with at least one valid eye, and the head pose
         (4, 4) at that time.
 
         Returns:
-            (the target of the fixation this sample ended, or None; the running estimate after
+            (the fixation this sample ended, for ``finish``, or None; the running estimate after
             this sample, or None: in a saccade, or the estimator has none yet).
         """
         sample = world_sample(self.eyes, t_s, rec, T_world_from_cam)
-        self.head_mm = sample.left_origin_mm if sample.left_origin_mm is not None else sample.right_origin_mm
         ended = None
         if rec.left_valid and rec.right_valid:              # one eye alone is off the cyclopean line by
             cyc = sample.left_direction + sample.right_direction    # half the vergence: not a saccade
@@ -180,52 +224,63 @@ class GazeEstimation:
         self.last = (est, t_s)
         return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
 
-    def end_fixation(self, saccade_lines: int = 0) -> Target | None:
-        """End the current fixation (a saccade, or the session's end): its target when it lasted
-        ``min_fixation_s`` and had an estimate, else None. The next fixation starts afresh.
-
-        Its lines but the last ``saccade_lines`` (a saccade is seen once it fills half the
-        segmenter's windows: up to ``window`` lines already after it), thinned to
-        ``MAX_MOTION_LINES``, are tested for motion (``estimator.motion.classify_lines``, as
-        ``process`` does): a moving point is a moving target (``moving_target``) with a new id.
-        A static one (``pipeline.types.Target``) has the id of the same target seen before, or a
-        new one, as ``index``; its one fixation in ``fixations``; no Cramér-Rao bound (NaN)."""
-        target = None
+    def end_fixation(self, saccade_lines: int = 0) -> FinishedFixation | None:
+        """End the current fixation (a saccade, or the session's end); the next starts afresh.
+        Cheap, on the loop's thread: returns what its target needs (``finish`` makes it) when it
+        lasted ``min_fixation_s`` and had an estimate, else None. Its lines but the last
+        ``saccade_lines`` (a saccade is seen once it fills half the segmenter's windows: up to
+        ``window`` lines already after it) are kept."""
+        done = None
         if (self.last is not None and self.t_start is not None
                 and self.last[1] - self.t_start >= self.segmenter.config.min_fixation_s):
-            target = self.moving_target(self.lines[:len(self.lines) - saccade_lines])
-            if target is None:
-                est, t_end = self.last
-                r = est.ellipsoid(0.95)
-                target = Target(index=self.targets.id_for(est.position_mm, est.covariance_mm2, self.head_mm),
-                                position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
-                                axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm,
-                                status=str(est.status.value), n_samples=self.n_samples, t_start=self.t_start,
-                                t_end=t_end, fixations=(self.fixation,), method=self.method, crb_mm=float("nan"))
+            est, t_end = self.last
+            done = FinishedFixation(self.fixation, tuple(self.lines[:len(self.lines) - saccade_lines]), est,
+                                    self.t_start, t_end, self.n_samples)
         self.fixation += 1
         self._new_fixation()
-        return target
+        return done
 
-    def moving_target(self, lines: list) -> Target | None:
-        """The current fixation's target when its ``lines`` (``BinocularSample``, in time order)
-        are of a moving point, else None: its path (``estimator.motion.smooth_trajectory``) in
-        ``trajectory``, its point the path's at the middle knot with that knot's covariance,
-        status 'moving' (or why not, as ``pipeline.estimate.target_status`` says), as ``process``
-        reports one."""
-        if len(lines) < MIN_LINES:
+    def finish(self, done: FinishedFixation) -> Target:
+        """The target of a finished fixation (in the loop's target worker, fixations in order).
+
+        Its lines, thinned evenly to ``MAX_END_LINES``, are tested for motion
+        (``estimator.motion.classify_lines``, as ``process`` does): a moving point is a moving
+        target (``moving_target``) with a new id. A static one (``pipeline.types.Target``: its
+        own estimate) has as ``index`` the id of the target whose lines its own join
+        (``TargetIds.id_for``, the merge test ``process`` runs), or a new one; its one fixation
+        in ``fixations``; no Cramér-Rao bound (NaN)."""
+        step = -(-len(done.lines) // MAX_END_LINES)                  # ceil: at most MAX_END_LINES
+        samples = lines_to_samples(done.lines[::step]) if done.lines else None
+        target = None if samples is None else self.moving_target(done, samples)
+        if target is not None:
+            return target
+        est = done.estimate
+        r = est.ellipsoid(0.95)
+        index = (self.targets.new_own() if samples is None
+                 else self.targets.id_for(samples, est, key=done.fixation))
+        return Target(index=index, position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
+                      axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm, status=str(est.status.value),
+                      n_samples=done.n_samples, t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,),
+                      method=self.method, crb_mm=float("nan"))
+
+    def moving_target(self, done: FinishedFixation, samples: BinocularSamples) -> Target | None:
+        """The target of the finished fixation ``done`` when its (thinned) lines ``samples``
+        (world frame, time order) are of a moving point, else None: its path
+        (``estimator.motion.smooth_trajectory``) in ``trajectory``, its point the path's at the
+        middle knot with that knot's covariance, status 'moving' (or why not, as
+        ``pipeline.estimate.target_status`` says), as ``process`` reports one."""
+        if len(samples) < MIN_LINES:
             return None
-        step = -(-len(lines) // MAX_MOTION_LINES)                    # ceil: at most MAX_MOTION_LINES
-        samples = lines_to_samples(lines[::step])
         knot_s = max(DEFAULT_KNOT_S, float(np.ptp(samples.t_s)) / (MAX_MOTION_KNOTS - 1))
-        if classify_lines(samples, MOTION_SIGMA_DEG, knot_s=knot_s).kind != MOVING:
+        if classify_lines(samples, SIGMA_DEG, knot_s=knot_s).kind != MOVING:
             return None
-        path = smooth_trajectory(samples, MOTION_SIGMA_DEG, knot_s=knot_s)
+        path = smooth_trajectory(samples, SIGMA_DEG, knot_s=knot_s)
         pos, cov = path.middle()
         radii = np.asarray(covariance_ellipsoid(pos, cov, 0.95).radii_mm, float)
-        log.debug("fixation %d: a moving target over %d lines", self.fixation, len(samples))
-        return Target(index=self.targets.new_moving(), position_mm=np.asarray(pos, float), covariance_mm2=cov,
-                      axes95_mm=radii, status=target_status(MOVING, pos, radii, samples), n_samples=self.n_samples,
-                      t_start=self.t_start, t_end=float(lines[-1].t_s), fixations=(self.fixation,),
+        log.debug("fixation %d: a moving target over %d lines", done.fixation, len(samples))
+        return Target(index=self.targets.new_own(), position_mm=np.asarray(pos, float), covariance_mm2=cov,
+                      axes95_mm=radii, status=target_status(MOVING, pos, radii, samples), n_samples=done.n_samples,
+                      t_start=done.t_start, t_end=float(done.lines[-1].t_s), fixations=(done.fixation,),
                       method=self.method, crb_mm=float("nan"), moving=True, trajectory=path)
 
 

@@ -21,14 +21,58 @@ log = logging.getLogger(__name__)
 QUIET_END_S = 0.5       # after the camera file ends, the session ends once eye data have been quiet this long
 
 
+class TargetWorker(threading.Thread):
+    """The end-of-fixation work off the loop's thread (docs/live.md, The loop): finished
+    fixations are taken from a queue one at a time, in the order they ended (so target ids are
+    given deterministically), each turned into its target (``finish``: the motion test or path,
+    the merge test, 0.05-1 s) and published (``publish``) while the loop goes on with the next
+    eye samples. ``drain`` returns once every fixation queued before it is done.
+
+    An error in ``finish`` or ``publish`` is kept in ``failure`` (the loop ends the session on
+    it); the fixations after it are dropped.
+    """
+
+    def __init__(self, finish, publish):
+        super().__init__(name="targets", daemon=True)
+        self.finish, self.publish = finish, publish
+        self.queue: queue.Queue = queue.Queue()      # unbounded: one item per fixation, a few a second at most
+        self.failure: str | None = None
+
+    def put(self, done) -> None:
+        """Queue a finished fixation (``estimation.FinishedFixation``)."""
+        self.queue.put(done)
+
+    def run(self) -> None:
+        while (done := self.queue.get()) is not None:
+            if self.failure is not None:
+                continue
+            try:
+                target = self.finish(done)
+                if target is not None:
+                    self.publish(target)
+            except Exception as exc:  # noqa: BLE001  (the loop raises it: the session ends, the recording kept)
+                log.debug("the target worker failed", exc_info=True)
+                self.failure = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
+    def drain(self) -> None:
+        """Wait until every fixation queued so far is done, then end the thread (a worker never
+        started ends at once)."""
+        if self.is_alive():
+            self.queue.put(None)
+            self.join()
+
+
 class LiveSession:
     """Runs until the camera file ends, ``duration_s`` passes, or ``stop()`` (Ctrl-C, SIGTERM).
 
     Readers (serial, camera) run in threads; the recorder takes every intact eye record and
     every frame from them directly, so nothing the loop or the subscribers do can keep a
     sample out of the recording. The loop tracks, estimates and publishes; publishing never
-    blocks it (``publish.Publisher``). Any error inside the loop ends the session: the
-    recording is kept, marked incomplete, and ``run`` raises a ``UserError`` saying so.
+    blocks it (``publish.Publisher``). A finished fixation's target is made and published by
+    one worker thread (``TargetWorker``), so that the motion and merge tests do not hold up the
+    next eye samples; the session waits for it before the recording is closed. Any error inside
+    the loop or the worker ends the session: the recording is kept, marked incomplete, and
+    ``run`` raises a ``UserError`` saying so.
 
     Args:
         reader: the eye reader (``serial_in.EyeReader``): a thread whose queue holds
@@ -51,15 +95,26 @@ class LiveSession:
         self.pending: deque = deque()                # (arrival, t_s, record) waiting for a pose
         self.last_arrival: float | None = None       # monotonic time the newest eye record arrived
         self.camera_ended_at: float | None = None
+        self.publish_lock = threading.Lock()         # the loop and the target worker both publish
+        self.worker = TargetWorker(estimation.finish, self._publish_target)
 
     def stop(self, *_):
         self.stop_event.set()
 
     def _publish(self, msg: dict) -> None:
-        line = self.publisher.send(msg)
-        if self.recorder is not None:
-            self.recorder.message(line)
-        self.stats.published += 1
+        """Send ``msg`` and record it: from the loop or the target worker, one at a time, so that
+        the recording has the messages in the order subscribers get them."""
+        with self.publish_lock:
+            line = self.publisher.send(msg)
+            if self.recorder is not None:
+                self.recorder.message(line)
+            self.stats.published += 1
+
+    def _publish_target(self, target) -> None:
+        """A finished fixation's target (in the target worker)."""
+        self._publish(target_message(target))
+        with self.publish_lock:
+            self.stats.targets += 1
 
     def update_stats(self) -> LiveStats:
         """Copy the readers' and the publisher's counters into ``stats``."""
@@ -85,10 +140,14 @@ class LiveSession:
             self._close(complete=False)
             raise UserError(f"--serial: {self.reader.error}")
         self.frames.start()
+        self.worker.start()
         failure = None
         try:
             self._loop(duration_s)
             self._ended(self.estimation.end_fixation())
+            self.worker.drain()                      # every target published and recorded
+            if self.worker.failure:
+                raise RuntimeError(f"the target worker failed: {self.worker.failure}")
         except Exception as exc:  # noqa: BLE001  (one line to the user; the recording kept, not complete)
             log.debug("live session failed", exc_info=True)
             failure = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
@@ -104,7 +163,8 @@ class LiveSession:
         t_start = time.monotonic()
         last_status = 0.0
         while not self.stop_event.is_set():
-            for th, what in ((self.reader, "the eye reader"), (self.frames, "the camera")):
+            for th, what in ((self.reader, "the eye reader"), (self.frames, "the camera"),
+                             (self.worker, "the target worker")):
                 if th.failure:
                     raise RuntimeError(f"{what} failed: {th.failure}")
             busy = self._drain_frames()
@@ -193,11 +253,10 @@ class LiveSession:
             self.stats.add_latency(lat)
             self._publish(estimate_message(est, lat))
 
-    def _ended(self, target) -> None:
-        """Publish a finished fixation's target (None: the fixation gave none)."""
-        if target is not None:
-            self._publish(target_message(target))
-            self.stats.targets += 1
+    def _ended(self, done) -> None:
+        """Hand a finished fixation to the target worker (None: the fixation gave none)."""
+        if done is not None:
+            self.worker.put(done)
 
     def _status(self) -> None:
         s = self.update_stats()
@@ -214,6 +273,7 @@ class LiveSession:
         for th in (self.reader, self.frames):
             if th.is_alive():
                 th.join(2.0)
+        self.worker.drain()                          # after an error too: the targets found are kept
         self.publisher.close()
         if self.recorder is not None:
             self.recorder.close(complete=complete)
