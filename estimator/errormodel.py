@@ -252,6 +252,25 @@ def _noise_meat(J, w, eye, si, nz: dict, pose_rad: float) -> np.ndarray:
     return M
 
 
+def bias_floor(Hi, J, lines: ViewLines, model: ErrorModel, weights=None) -> np.ndarray:
+    """The bias floor (P, P) of any fit with P parameters to ``lines`` (N): its covariance when
+    every line of an eye turns by one 2D angle of std ``model.bias_deg`` per axis.
+
+    Args:
+        Hi: (P, P) the inverse of the fit's normal matrix ``sum w J^T J`` (in the units of ``J``).
+        J: (N, 2, P) each line's gnomonic residuals' Jacobian with respect to the parameters,
+            radians per parameter unit (a path's knots: the point's Jacobian times the line's
+            interpolation weights).
+        lines: the view lines (``sample_index`` pairs the eyes).
+        model: the ``ErrorModel``.
+        weights: (N,) line weights, default 1.
+    """
+    w = np.ones(len(lines)) if weights is None else np.asarray(weights, float).reshape(len(lines))
+    b1, b2 = tangent_basis(lines.directions)
+    return _bias_floor(np.asarray(Hi, float), np.asarray(J, float), w, eye_labels(lines), lines.directions, b1, b2,
+                       model)
+
+
 def _bias_floor(Hi, J, w, eye, d, b1, b2, model: ErrorModel) -> np.ndarray:
     """Covariance (3, 3) of the point when every line of an eye turns by one 2D angle of std
     ``bias_deg`` per axis (in a basis fixed to that eye's mean direction), the eyes' angles

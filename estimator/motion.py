@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errormodel import ErrorModel, bias_floor
 from .frames import tangent_basis
 from .likelihood import gnomonic_residuals
 from .lines import BinocularSamples, ViewLines
@@ -50,6 +51,10 @@ MIN_SWEEP_DEG = 4.0
 times the eye calibration's error (biases of up to 1.3 deg per eye in benchmarks/
 moving_targets.py), which a walking head turns into apparent motion of a static point (at 2 deg,
 4 % of static fixations there were called moving; at 3 deg, 1-2 %)."""
+MIN_DEPARTURE_DEG = MIN_SWEEP_DEG / 2
+"""... and leave the static point by at least this angle as seen from the eyes at its own time
+(``departure_deg``): a static point seen from a walking head through a biased eye calibration
+slides along the line of sight, which can span ``MIN_SWEEP_DEG`` from the eyes' mean origin."""
 MIN_DEPTH_RATIO = 1.5
 """Two points must be ``MIN_SWEEP_DEG`` apart as seen from the eyes, or their distances from
 the eyes differ by this ratio (a switch between a near and a far object along one line)."""
@@ -61,6 +66,13 @@ DEFAULT_ACCEL_MM_S2 = 100.0
 ACCEL_GRID_MM_S2 = (30.0, 100.0, 300.0, 1000.0, 3000.0)
 """The priors ``smooth_trajectory`` chooses from by AIC when none is given, mm/s^2."""
 DEFAULT_KNOT_S = 0.1
+RADIAL_SPEEDS_MM_S = (300.0, 100.0, 30.0, 10.0)
+"""Priors on the path's speed along the line of sight (RMS, mm/s) tried after the acceleration
+prior is chosen, by BIC against none: depth is what vergence and parallax fix worst (a still head
+2 m from a target sees its depth to about a metre per sample), and the acceleration prior leaves
+a constant drift in depth free, so a path with it alone wanders in depth by hundreds of mm. AIC
+cannot tell these apart (the data hardly fix depth); BIC keeps the stiffer depth unless the data
+pay for the motion in depth."""
 MAX_KNOTS = 200
 
 
@@ -102,6 +114,8 @@ class Trajectory:
         accel_mm_s2: the smoothness prior's RMS acceleration (given, or chosen by AIC).
         dispersion: the chi2 per residual degree of freedom of the roughest path tried (>= 1);
             the covariances are scaled by it.
+        radial_mm_s: the prior's RMS speed along the line of sight, mm/s (``RADIAL_SPEEDS_MM_S``
+            chosen by BIC), or None (the acceleration prior alone).
     """
 
     t_s: np.ndarray
@@ -111,6 +125,7 @@ class Trajectory:
     n_lines: int
     accel_mm_s2: float = DEFAULT_ACCEL_MM_S2
     dispersion: float = 1.0
+    radial_mm_s: float | None = None
 
     def at(self, t_s) -> np.ndarray:
         """(M, 3) the path at times ``t_s`` (M,), linear between knots, held beyond the ends."""
@@ -161,20 +176,27 @@ def _residuals(L: _Lines, p):
     return r, J
 
 
-def _smoothness_prior(knots, accel_mm_s2):
-    """Precision (3K, 3K) of the white-acceleration prior on K knots (0 for K < 3)."""
+def _smoothness_prior(knots, accel_mm_s2, radial_mm_s=None, axis=None):
+    """Precision (3K, 3K) of the path's prior on K knots: white acceleration of RMS
+    ``accel_mm_s2`` (0 for K < 3), and, with ``radial_mm_s``, a white velocity of that RMS along
+    ``axis`` (a (3,) vector: the line of sight; 0 for K < 2): a depth that changes slowly."""
     K = len(knots)
     P = np.zeros((3 * K, 3 * K))
-    if K < 3 or not np.isfinite(accel_mm_s2):
-        return P
-    D = np.zeros((K - 2, K))
-    for k in range(K - 2):
-        h0, h1 = knots[k + 1] - knots[k], knots[k + 2] - knots[k + 1]
-        hm = 0.5 * (h0 + h1)
-        # acceleration estimate at knot k+1; its integral over hm seconds is the prior's energy
-        D[k, k], D[k, k + 1], D[k, k + 2] = 1 / (h0 * hm), -(1 / h0 + 1 / h1) / hm, 1 / (h1 * hm)
-        D[k] *= math.sqrt(hm) / accel_mm_s2
-    return np.kron(D.T @ D, np.eye(3))
+    if K >= 3 and np.isfinite(accel_mm_s2):
+        D = np.zeros((K - 2, K))
+        for k in range(K - 2):
+            h0, h1 = knots[k + 1] - knots[k], knots[k + 2] - knots[k + 1]
+            hm = 0.5 * (h0 + h1)
+            # acceleration estimate at knot k+1; its integral over hm seconds is the prior's energy
+            D[k, k], D[k, k + 1], D[k, k + 2] = 1 / (h0 * hm), -(1 / h0 + 1 / h1) / hm, 1 / (h1 * hm)
+            D[k] *= math.sqrt(hm) / accel_mm_s2
+        P += np.kron(D.T @ D, np.eye(3))
+    if K >= 2 and radial_mm_s is not None and axis is not None:
+        h = np.diff(knots)
+        V = (np.eye(K, k=1)[:-1] - np.eye(K)[:-1]) / (np.sqrt(h)[:, None] * radial_mm_s)    # velocity x sqrt(h)
+        u = np.asarray(axis, float) / np.linalg.norm(axis)
+        P += np.kron(V.T @ V, np.outer(u, u))
+    return P
 
 
 def _fit_knots(L: _Lines, knots, sigma_rad: float, x0, prior=None, iterations: int = 20):
@@ -341,7 +363,9 @@ def classify_lines(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: flo
     bic = {k: v / dispersion + params[k] * math.log(n_obs) for k, v in chi2.items()}
     eye = L.o.mean(axis=0)
     bic_kind = dict(bic)
-    if sweep_deg(np.vstack([Xp, Xc]), eye) < MIN_SWEEP_DEG or knots[1] - knots[0] < MIN_MOVING_S:
+    kp = np.linspace(knots[0], knots[1], len(Xp))
+    if (sweep_deg(np.vstack([Xp, Xc]), eye) < MIN_SWEEP_DEG or knots[1] - knots[0] < MIN_MOVING_S
+            or max(departure_deg(L, kp, Xp, Xs[0]), departure_deg(L, knots, Xc, Xs[0])) < MIN_DEPARTURE_DEG):
         del bic_kind[MOVING], bic_kind[PATH]                    # no motion that matters
     depths = np.linalg.norm(pts - eye, axis=1)
     if not (sweep_deg(pts, eye) >= MIN_SWEEP_DEG or abs(math.log(depths[0] / depths[1])) >= math.log(MIN_DEPTH_RATIO)):
@@ -353,6 +377,33 @@ def classify_lines(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: flo
     return MotionTest(kind, bic, chi2, dispersion, split, pts, speed, len(L))
 
 
+def departure_deg(L: _Lines, t_s, points_mm, static_mm) -> float:
+    """The largest angle, degrees, between a path's points (M, 3) at times ``t_s`` (M,) and the
+    static point (3,), each seen from the eyes' mean origin at that time: how far the eyes had to
+    turn away from the static point. A walking head's view of a static point through a biased eye
+    calibration slides along the line of sight (a depth that changes as the head nears it), which
+    this does not count; a pursuit sweeps across it."""
+    o = np.column_stack([np.interp(t_s, L.t, L.o[:, j]) for j in range(3)])
+    u, v = np.asarray(points_mm, float) - o, np.asarray(static_mm, float) - o
+    c = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-9)
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))).max())
+
+
+def _path_bias_floor(L: _Lines, knots, X, Hi, model: ErrorModel) -> np.ndarray:
+    """(3K, 3K) the bias floor of the path with knots ``X`` (K, 3): ``bias_floor`` with each
+    line's Jacobian spread onto its two knots by the interpolation weights; ``Hi`` the inverse
+    normal matrix in units of the residuals' Jacobian (the fit's covariance over sigma^2)."""
+    K = len(knots)
+    k0, k1, w0, w1 = _interp_weights(L.t, knots)
+    _, J = _residuals(L, w0[:, None] * X[k0] + w1[:, None] * X[k1])
+    Jp = np.zeros((len(L), 2, 3 * K))
+    n = np.arange(len(L))
+    for j in range(3):
+        Jp[n, :, 3 * k0 + j] += w0[:, None] * J[:, :, j]
+        Jp[n, :, 3 * k1 + j] += w1[:, None] * J[:, :, j]
+    return bias_floor(Hi, Jp, L.lines, model)
+
+
 def sweep_deg(points_mm, origin_mm) -> float:
     """The angle a set of points (M, 3) spans as seen from ``origin_mm`` (3,), degrees: the
     largest angle between the directions to two of them."""
@@ -361,13 +412,15 @@ def sweep_deg(points_mm, origin_mm) -> float:
     return float(np.degrees(np.arccos(np.clip((v @ v.T).min(), -1.0, 1.0))))
 
 
-def _smooth_fit(L: _Lines, sigma: float, accel_mm_s2: float, knot_s: float, x_static):
+def _smooth_fit(L: _Lines, sigma: float, accel_mm_s2: float, knot_s: float, x_static, radial_mm_s=None):
     """The smooth path's fit: (knots (K,), points (K, 3), covariance (3K, 3K)), its data chi2,
-    and its effective number of parameters (the trace of cov @ data information)."""
+    and its effective number of parameters (the trace of cov @ data information). With
+    ``radial_mm_s``, the prior also holds the speed along the line of sight (the lines' mean
+    direction) to about that, mm/s."""
     t0, t1 = float(L.t.min()), float(L.t.max())
     K = int(min(MAX_KNOTS, max(2, math.ceil((t1 - t0) / knot_s) + 1)))
     knots = np.linspace(t0, t1, K) if t1 > t0 else np.array([t0])
-    prior = _smoothness_prior(knots, accel_mm_s2)
+    prior = _smoothness_prior(knots, accel_mm_s2, radial_mm_s, L.d.mean(axis=0))
     X, H, chi = _fit_knots(L, knots, sigma, _linear_start(L, knots, sigma, prior, x_static), prior)
     cov = np.linalg.pinv(H, hermitian=True)
     edf = float(np.trace(cov @ (H - prior)))
@@ -375,14 +428,17 @@ def _smooth_fit(L: _Lines, sigma: float, accel_mm_s2: float, knot_s: float, x_st
 
 
 def smooth_trajectory(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: float | None = None,
-                      knot_s: float = DEFAULT_KNOT_S, start_mm=None) -> Trajectory:
+                      knot_s: float = DEFAULT_KNOT_S, start_mm=None, error_model: ErrorModel | None = None
+                      ) -> Trajectory:
     """The path of a moving gazed point from its view lines: knots every ``knot_s`` seconds
     (at most ``MAX_KNOTS``), linear between them, fitted with a white-acceleration smoothness
     prior (module docstring). Without ``accel_mm_s2`` the prior is chosen from
     ``ACCEL_GRID_MM_S2`` by AIC (``chi2 / dispersion + 2 * effective parameters``): a slow sweep
     gets a stiff path (its depth, which only vergence and parallax fix, averaged over seconds), a
-    fast swing a supple one. The covariances are scaled by the over-dispersion of the roughest
-    path (at least 1).
+    fast swing a supple one; then a speed prior along the line of sight (``RADIAL_SPEEDS_MM_S``)
+    by BIC. The choices weigh the chi2 by the roughest path's scatter (its chi2 per degree of
+    freedom: lines less noisy than ``sigma_deg`` say more); the covariances are scaled by it when
+    it is above 1 (over-dispersion), never below.
 
     Args:
         samples: the view lines (world frame, mm, s), in time order; at least ``MIN_LINES``.
@@ -390,6 +446,9 @@ def smooth_trajectory(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: 
         accel_mm_s2: the prior's RMS acceleration, mm/s^2 (larger: a rougher path), or None.
         knot_s: the knot spacing, s.
         start_mm: optional (3,) starting point (else the nearest point to the lines).
+        error_model: with a per-eye bias, each knot's covariance gets the path's bias floor
+            (``estimator.errormodel.bias_floor``: each eye's lines all turned by one angle),
+            which no smoothing averages down; None: noise alone.
 
     Returns:
         ``Trajectory``: knot times (K,), positions (K, 3), covariances (K, 3, 3).
@@ -408,11 +467,23 @@ def smooth_trajectory(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: 
     x0 = _start_point(L) if start_mm is None else np.asarray(start_mm, float)
     Xs, _, _ = _fit_knots(L, np.zeros(1), sigma, x0)
     grid = ACCEL_GRID_MM_S2 if accel_mm_s2 is None else (accel_mm_s2,)
-    fits = {q: _smooth_fit(L, sigma, q, knot_s, Xs[0]) for q in sorted(grid)}
+    fits = {(q, None): _smooth_fit(L, sigma, q, knot_s, Xs[0]) for q in sorted(grid)}
     _, chi_rough, edf_rough = fits[max(fits)]
-    dispersion = max(1.0, chi_rough / max(2 * len(L) - edf_rough, 1.0))
-    q = min(fits, key=lambda a: fits[a][1] / dispersion + 2.0 * fits[a][2])
-    (knots, X, cov), chi, _ = fits[q]
-    blocks = np.stack([cov[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k in range(len(knots))]) * dispersion
-    log.debug("path over %d lines: prior %g mm/s^2, dispersion %.2f", len(L), q, dispersion)
-    return Trajectory(knots, X, blocks, chi, len(L), float(q), float(dispersion))
+    scatter = max(chi_rough / max(2 * len(L) - edf_rough, 1.0), 1e-3)     # the data's own, for choosing
+    dispersion = max(1.0, scatter)                                       # never below sigma, for covariances
+
+    def aic(key):
+        return fits[key][1] / scatter + 2.0 * fits[key][2]
+    key = min(fits, key=aic)
+    if accel_mm_s2 is None:                 # then a speed prior along the line of sight, by BIC
+        q = key[0]
+        stiff = {(q, v): _smooth_fit(L, sigma, q, knot_s, Xs[0], v) for v in RADIAL_SPEEDS_MM_S}
+        fits.update(stiff)
+        key = min([key, *stiff], key=lambda k: fits[k][1] / scatter + math.log(2 * len(L)) * fits[k][2])
+    (knots, X, cov), chi, _ = fits[key]
+    full = cov * dispersion
+    if error_model is not None and error_model.bias_deg > 0 and L.lines is not None:
+        full = full + _path_bias_floor(L, knots, X, cov / sigma**2, error_model)
+    blocks = np.stack([full[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k in range(len(knots))])
+    log.debug("path over %d lines: prior %g mm/s^2, %s mm/s in depth, dispersion %.2f", len(L), *key, dispersion)
+    return Trajectory(knots, X, blocks, chi, len(L), float(key[0]), float(dispersion), key[1])

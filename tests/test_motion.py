@@ -143,3 +143,58 @@ def test_a_point_drifting_less_than_a_calibration_error_is_static():
     test = classify_lines(_samples(drift, duration_s=2.5, sway_mm=60.0, seed=8), 1.0)
     assert test.kind == STATIC, test
     assert test.bic[STATIC] > min(test.bic[MOVING], test.bic[TWO_POINTS])     # significant, but too small
+
+
+def _still_sweep(t):
+    """A triangle sweep +-500 mm across at 2 m, 150 mm/s: what a still head follows."""
+    x = 500.0 - np.abs((150.0 * t) % 2000.0 - 1000.0)
+    return np.column_stack([x, 0 * t, 2000.0 + 0 * t])
+
+
+def test_a_still_heads_path_keeps_its_depth_with_the_speed_prior_along_the_line_of_sight():
+    """From a still head depth comes from vergence alone (about a metre per sample at 2 m): with
+    the acceleration prior alone the path drifts in depth by hundreds of mm; the speed prior along
+    the line of sight, chosen by BIC, holds it (the moving-target scenario's fault)."""
+    depth_free, depth_held = [], []
+    for seed in range(3):
+        s = _samples(_still_sweep, duration_s=10.0, sway_mm=0.0, seed=seed)
+        held = smooth_trajectory(s, 1.0)
+        free = smooth_trajectory(s, 1.0, accel_mm_s2=held.accel_mm_s2)         # a given prior: none along it
+        assert held.radial_mm_s is not None and free.radial_mm_s is None
+        for tr, out in ((held, depth_held), (free, depth_free)):
+            out.append(np.sqrt(np.mean((tr.positions_mm[:, 2] - 2000.0) ** 2)))
+    assert np.mean(depth_held) < 0.5 * np.mean(depth_free), (depth_held, depth_free)
+    assert max(depth_held) < 150.0, depth_held
+
+
+def test_a_point_moving_in_depth_keeps_its_motion():
+    """The speed prior along the line of sight is chosen by the data: a point that comes 1 m
+    nearer in 3 s, seen from a swaying head, is not held at one depth."""
+
+    def approach(t):
+        return np.column_stack([-300.0 + 200.0 * t, 0 * t, 2500.0 - 333.0 * t])
+
+    tr = smooth_trajectory(_samples(approach, duration_s=3.0, seed=4), 1.0)
+    assert tr.positions_mm[0, 2] - tr.positions_mm[-1, 2] > 600.0, tr.positions_mm[[0, -1], 2]
+
+
+def test_the_paths_covariance_holds_a_per_eye_bias_with_the_error_model():
+    """A bias common to an eye's lines never averages down: with the error model each knot's
+    covariance has its floor, and the true path falls in the 95 % ellipsoids of most knots; with
+    noise alone it does not."""
+    from scipy.stats import chi2
+
+    from estimator.errormodel import ErrorModel
+
+    s = _samples(_still_sweep, duration_s=6.0, sway_mm=100.0, seed=5)
+    turn = np.deg2rad(0.6)
+    R = np.array([[np.cos(turn), 0, np.sin(turn)], [0, 1, 0], [-np.sin(turn), 0, np.cos(turn)]])
+    s = BinocularSamples.from_arrays(s.t_s, s.left_origin_mm, s.left_direction @ R.T, s.right_origin_mm,
+                                     s.right_direction @ R)          # the eyes turned 0.6 deg apart: a depth bias
+    inside = {}
+    for name, model in (("noise", None), ("model", ErrorModel(bias_deg=0.6))):
+        tr = smooth_trajectory(s, 1.0, error_model=model)
+        e = tr.positions_mm - _still_sweep(tr.t_s)
+        d2 = np.einsum("ki,ki->k", e, np.linalg.solve(tr.covariances_mm2, e[..., None])[..., 0])
+        inside[name] = float(np.mean(d2 <= chi2.ppf(0.95, 3)))
+    assert inside["model"] >= 0.9 and inside["noise"] < 0.5, inside

@@ -274,7 +274,7 @@ class GazeEstimation:
         knot_s = max(DEFAULT_KNOT_S, float(np.ptp(samples.t_s)) / (MAX_MOTION_KNOTS - 1))
         if classify_lines(samples, SIGMA_DEG, knot_s=knot_s).kind != MOVING:
             return None
-        path = smooth_trajectory(samples, SIGMA_DEG, knot_s=knot_s)
+        path = smooth_trajectory(samples, SIGMA_DEG, knot_s=knot_s, error_model=DEFAULT_ERROR_MODEL)
         pos, cov = path.middle()
         radii = np.asarray(covariance_ellipsoid(pos, cov, 0.95).radii_mm, float)
         log.debug("fixation %d: a moving target over %d lines", done.fixation, len(samples))

@@ -91,8 +91,10 @@ no answer to "where did the person look"."""
 
 def target_status(status: str, position_mm, axes95_mm, samples: BinocularSamples) -> str:
     """The status a target is published with: the estimator's, unless its point is nearer the
-    eyes than anyone fixates (``too-near``; also for a moving target's point) or its 95 %
-    ellipsoid's longest semi-axis exceeds its distance from the eyes (``unresolved``)."""
+    eyes than anyone fixates (``too-near``; also for a moving target's point) or a static
+    target's 95 % ellipsoid's longest semi-axis exceeds its distance from the eyes
+    (``unresolved``). A moving target stays ``moving`` (never ``ok``): its path's covariances
+    (target_paths.csv, with the eyes' bias floor) say how well its depth is known."""
     if status not in ("ok", "moving") or not np.all(np.isfinite(position_mm)):
         return status
     lines = samples.lines()
@@ -100,7 +102,7 @@ def target_status(status: str, position_mm, axes95_mm, samples: BinocularSamples
                                      lines.directions)))
     if dist < NEAR_POINT_MM:
         return Status.TOO_NEAR.value
-    if np.all(np.isfinite(axes95_mm)) and float(np.max(axes95_mm)) > dist:
+    if status == "ok" and np.all(np.isfinite(axes95_mm)) and float(np.max(axes95_mm)) > dist:
         return UNRESOLVED
     return status
 

@@ -81,7 +81,8 @@ def _fixation(samples: BinocularSamples, k: int, idx: np.ndarray, motion: str, m
     """Fixation ``k`` of the view lines ``idx``: a static one estimated as a live session would
     (its usable running estimates appended to ``running``), a moving one with its path."""
     if motion == MOVING:
-        return Fixation(k, idx, None, MOVING, smooth_trajectory(samples.select(idx), sigma_deg))
+        path = smooth_trajectory(samples.select(idx), sigma_deg, error_model=error_model)
+        return Fixation(k, idx, None, MOVING, path)
     e, usable = running_estimate(samples.select(idx), method, sigma_deg, error_model=error_model)
     for t, ek in usable:
         for name, v in zip(ESTIMATE_COLUMNS, (t, k, *(float(v) for v in ek.position_mm), radius95_mm(ek)),
