@@ -46,6 +46,11 @@ Pupil Core 3D: 1.0-1.5 deg; Kassner et al. 2014, Niehorster et al. 2020), which 
 about 0.35-0.7 deg."""
 
 
+FAR_SIDE_K = 2.8
+"""``ErrorModel.far_side_k``: the 95 % ellipsoid's radius in sds (sqrt of chi2(3)'s 95 % point,
+7.81), so that the 95 % ellipsoid reaches the far end of the 95 % interval in inverse depth."""
+
+
 @dataclass(frozen=True)
 class ErrorModel:
     """The view lines' error sources beyond the estimator's angular noise ``sigma``.
@@ -59,6 +64,8 @@ class ErrorModel:
             residuals' own spread; 0 never does.
         correlations: estimate the eyes' and the time correlation of the residuals (and use them
             when significant).
+        far_side_k: the depth sd is stretched to reach the far end of this many sds in inverse
+            depth (``far_side``); 0 leaves the linearised covariance.
     """
 
     bias_deg: float = DEFAULT_BIAS_DEG
@@ -66,6 +73,7 @@ class ErrorModel:
     pose_sigma_deg: float = 0.0
     overdispersion_p: float = 0.01
     correlations: bool = True
+    far_side_k: float = FAR_SIDE_K
 
     def __post_init__(self):
         if not (self.bias_deg >= 0 and self.pose_sigma_deg >= 0):
@@ -198,8 +206,9 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
                      weights=None) -> tuple[np.ndarray | None, dict]:
     """Covariance (3, 3), mm^2, of a point fitted to ``lines`` under the error model, and what it
     found (``info``: per-eye noise in degrees, chi-square ratios, whether it inflated the noise,
-    correlations, the bias, the floor's share of the trace and ``bias_cov`` (3, 3) the floor
-    itself, a ``note`` for people).
+    correlations, the bias, the floor's share of the trace, the far side's stretch, ``bias_cov``
+    (3, 3) the floor itself and ``linear_cov`` (3, 3) the covariance before the stretch, a
+    ``note`` for people). The covariance is stretched along the line of sight by ``far_side``.
 
     Args:
         point_mm: (3,) the fitted point, world, mm.
@@ -223,17 +232,51 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
     f_t = (1 + nz["rho_t"]) / (1 - nz["rho_t"])
     C_noise = Hi @ meat @ Hi * f_t
     C_bias = _bias_floor(Hi, J, w, eye, lines.directions, b1, b2, model)
-    C = C_noise + C_bias
+    C_lin = C_noise + C_bias
+    C, far = far_side(C_lin, X, lines.origins_mm.mean(axis=0), model.far_side_k)
     C = 0.5 * (C + C.T)
     inflated = any(nz["inflated"])
     info = {"sigma_eye_deg": np.rad2deg(nz["sigma"]).round(4).tolist(),
             "chi2_ratio": nz["chi2_ratio"].round(3).tolist(), "inflated": bool(inflated or f_t > 1),
             "eye_correlation": round(nz["rho"], 3), "time_correlation": round(nz["rho_t"], 3),
             "bias_deg": model.bias_deg, "pose_sigma_deg": model.pose_sigma_deg,
-            "bias_share": float(np.trace(C_bias) / max(np.trace(C), 1e-300))}
+            "bias_share": float(np.trace(C_bias) / max(np.trace(C), 1e-300)), "far_side_factor": round(far, 3)}
     info["note"] = _note(nz, f_t, sigma_rad)
-    info["bias_cov"] = C_bias
+    info["bias_cov"], info["linear_cov"] = C_bias, 0.5 * (C_lin + C_lin.T)
     return C, info
+
+
+FAR_SIDE_CAP = 10.0
+"""The largest depth stretch ``far_side`` applies (a point whose far side has no end is
+``unresolved`` anyway)."""
+
+
+def far_side(C, point_mm, origin_mm, k: float) -> tuple[np.ndarray, float]:
+    """The covariance (3, 3) stretched along the line of sight so that its depth interval reaches
+    the far end of the interval that is symmetric in inverse depth, and the stretch.
+
+    Depth from vergence and parallax is Gaussian in inverse depth (angles), not in depth: a point
+    estimated too near has a truth farther away than its linearised sd says (the sd, evaluated at
+    the estimate, shrinks as depth squared), one estimated too far a truth nearer than it says.
+    With ``r`` the relative depth sd, the interval of ``k`` sds in inverse depth ends at
+    ``D / (1 - k r)`` on the far side; the depth sd is stretched by ``f = 1 / (1 - k r)`` so that
+    ``k`` of its sds reach it (at most ``FAR_SIDE_CAP``). The near side is then wider than it
+    needs to be. ``k`` = 0: unchanged.
+
+    Args:
+        C: (3, 3) covariance of the point, mm^2.
+        point_mm, origin_mm: (3,) the point and the eyes' mean origin, world, mm.
+        k: the interval's half-width in sds (``ErrorModel.far_side_k``).
+    """
+    v = np.asarray(point_mm, float) - np.asarray(origin_mm, float)
+    D = float(np.linalg.norm(v))
+    if k <= 0 or not D > 0 or not np.all(np.isfinite(C)):
+        return C, 1.0
+    u = v / D
+    kr = k * math.sqrt(max(float(u @ C @ u), 0.0)) / D
+    f = FAR_SIDE_CAP if kr >= 1.0 - 1.0 / FAR_SIDE_CAP else 1.0 / (1.0 - kr)
+    S = np.eye(3) + (f - 1.0) * np.outer(u, u)
+    return S @ C @ S, float(f)
 
 
 def _noise_meat(J, w, eye, si, nz: dict, pose_rad: float) -> np.ndarray:

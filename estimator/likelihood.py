@@ -374,6 +374,7 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
     if config.error_model is not None:
         model_cov, info["error_model"] = model_covariance(x, lines, problem.sigma, config.error_model, problem.line_w)
         info["error_model"].pop("bias_cov", None)
+        info["error_model"].pop("linear_cov", None)
         cov = model_cov if model_cov is not None else cov
     log.debug("ml: %d lines, %d iterations, converged %s, residual RMS %.3f deg", n, it, converged,
               info["residual_rms_deg"])

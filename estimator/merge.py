@@ -131,6 +131,16 @@ def merge_statistic(a, b, sigma_deg: float) -> float:
     return (together - apart) / max(1.0, apart / dof)
 
 
+def offset_chi2(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
+    """The least chi2 of one fixation's view lines (world frame) at one point, searched from
+    ``start_mm`` (3,) mm, with each eye's calibration offsets marginalised as ``merge_statistic``
+    does (``MERGE_BIAS_DEG`` and ``MERGE_FIXATION_DEG``); ``sigma_rad`` the angular noise. The
+    motion test's static model: a static point seen from a moving head through a biased eye
+    calibration is not a moving point."""
+    return _min_bias_chi2([(line, 0, (0, 0)) for line in _eye_lines(samples)], np.asarray(start_mm, float),
+                          sigma_rad)
+
+
 def _eye_lines(s: BinocularSamples) -> list:
     """The lines of each eye with any: [(eye 0 left / 1 right, origins (n, 3), directions (n, 3),
     b1, b2), ...]."""

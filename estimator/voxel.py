@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errormodel import ErrorModel, model_covariance
+from .errormodel import ErrorModel, far_side, model_covariance
 from .grid import DensityGrid, _quadratic_fit_local
 from .likelihood import (
     MAX_TAN2,
@@ -451,11 +451,11 @@ class VoxelEstimator:
             C, minfo = model_covariance(point, ViewLines(o, d, "world", si), self._sigma, model, self._buf.weight[si])
             if C is None:
                 return cov
-            bias = minfo.pop("bias_cov")
-            self._model = (L, C - bias, bias, minfo)
-        n0, noise, bias, minfo = self._model
+            bias, linear = minfo.pop("bias_cov"), minfo.pop("linear_cov")
+            self._model = (L, linear - bias, bias, minfo, o.mean(axis=0))
+        n0, noise, bias, minfo, origin = self._model
         info["error_model"] = minfo
-        return noise * (n0 / L) + bias
+        return far_side(noise * (n0 / L) + bias, point, origin, model.far_side_k)[0]
 
     def _result(self, point, cov) -> GazeEstimate:
         g = self.grid
