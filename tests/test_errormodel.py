@@ -173,7 +173,7 @@ def test_far_targets_estimated_too_near_are_held_by_the_far_side():
 
     rng = np.random.default_rng(11)
     t = np.arange(240) / 60.0
-    heads = np.column_stack([40 * np.sin(0.7 * t), 20 * np.sin(1.3 * t + 1), 30 * np.sin(0.4 * t)])   # a sway of +-40 mm
+    heads = np.column_stack([40 * np.sin(0.7 * t), 20 * np.sin(1.3 * t + 1), 30 * np.sin(0.4 * t)])   # +-40 mm
     lo, ro = heads - [32.0, 0, 0], heads + [32.0, 0, 0]
     inside = {"far": [], "linear": []}
     for _ in range(150):
