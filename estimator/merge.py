@@ -27,6 +27,11 @@ rejects anything this far off)."""
 MERGE_BIAS_DEG = 0.5
 """The merge test's prior on each eye's fixed angular offset (standard deviation per axis,
 degrees): an eye calibration's bias, the same in every fixation."""
+MERGE_POSE_DEG = 0.2
+"""... and on an offset of each fixation shared by both eyes (sd per axis, degrees): the head
+pose's error over a fixation turns both eyes' lines alike (on simulated walking sessions the
+eyes' per-fixation offsets varied by 0.1-0.3 deg between fixations, vertically correlated up to
+0.9 between the eyes)."""
 MERGE_FIXATION_DEG = 0.1
 """... and on each eye's offset in one fixation beyond it (the calibration's error differs with
 where the eye looks, which the head changes between revisits)."""
@@ -154,27 +159,33 @@ def _eye_lines(s: BinocularSamples) -> list:
 
 def _bias_chi2(X, chunks, sigma: float) -> float:
     """chi2 of line chunks, ``(eye lines, point k, fixation key)`` each, at their points ``X``
-    (3K,) mm, with per eye a shared offset (sd ``MERGE_BIAS_DEG`` per axis) and one per fixation
-    (``MERGE_FIXATION_DEG``) marginalised: per axis the residuals' covariance is
-    ``sigma^2 I + f_i^2 (block ones) + f_s^2 (ones)`` (``sigma`` in radians), inverted in closed
-    form (Woodbury)."""
+    (3K,) mm, with offsets marginalised: per eye one shared by all fixations (sd
+    ``MERGE_BIAS_DEG`` per axis), per eye and fixation one (``MERGE_FIXATION_DEG``), and per
+    fixation one shared by both eyes (``MERGE_POSE_DEG``: the head pose's error over a fixation,
+    which turns both lines alike). Per axis the residuals' covariance is ``sigma^2 I + U D U^T``
+    (``U`` the lines' membership of the offsets' groups, ``D`` their variances; ``sigma`` in
+    radians), inverted by Woodbury on the groups' sums."""
     P = np.asarray(X, float).reshape(-1, 3)
-    fs2, fi2, s2 = np.deg2rad(MERGE_BIAS_DEG) ** 2, np.deg2rad(MERGE_FIXATION_DEG) ** 2, sigma**2
+    s2 = sigma**2
+    groups: dict = {}
+    stats = []                                            # per chunk: (its groups, n, sum r (2,))
     total = 0.0
-    for eye in (0, 1):
-        sums = {}
-        for (e, o, d, b1, b2), k, key in chunks:
-            if e == eye:
-                r = gnomonic_residuals(P[k], o, d, b1, b2)[0]
-                q, sm, n = sums.get(key, (0.0, np.zeros(2), 0))
-                sums[key] = (q + float(np.sum(r * r)), sm + r.sum(axis=0), n + len(r))
-        u, w = np.zeros(2), 0.0
-        for q, sm, n in sums.values():
-            total += q / s2 - fi2 * float(sm @ sm) / (s2 * (s2 + n * fi2))
-            u += sm / (s2 + n * fi2)
-            w += n / (s2 + n * fi2)
-        total -= fs2 * float(u @ u) / (1.0 + fs2 * w)
-    return total
+    for (e, o, d, b1, b2), k, key in chunks:
+        r = gnomonic_residuals(P[k], o, d, b1, b2)[0]
+        total += float(np.sum(r * r)) / s2
+        member = [groups.setdefault(g, len(groups)) for g in (("eye", e), ("eye-fix", e, key), ("fix", key))]
+        stats.append((member, len(r), r.sum(axis=0)))
+    var = np.array([np.deg2rad({"eye": MERGE_BIAS_DEG, "eye-fix": MERGE_FIXATION_DEG, "fix": MERGE_POSE_DEG}[g[0]])
+                    ** 2 for g in groups])
+    R = len(groups)
+    UtU, Utr = np.zeros((R, R)), np.zeros((R, 2))
+    for member, n, sm in stats:
+        UtU[np.ix_(member, member)] += n
+        Utr[member] += sm
+    keep = var > 0
+    A = s2 * np.diag(1.0 / var[keep]) + UtU[np.ix_(keep, keep)]
+    b = Utr[keep]
+    return total - float(np.sum(b * np.linalg.solve(A, b))) / s2
 
 
 def _min_bias_chi2(chunks, x0, sigma: float) -> float:

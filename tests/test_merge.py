@@ -136,3 +136,22 @@ def test_live_ids_partition_the_fixations_as_process_merges_the_same_lines():
     groups = merge_fixations(fixations, samples, "voxel", SIGMA_DEG, DEFAULT_ERROR_MODEL)
     offline = {f: i for i, g in enumerate(groups) for f in g.fixations}
     assert [offline[k] for k in range(3)] == live
+
+
+def test_a_revisit_whose_lines_the_head_pose_turned_both_alike_still_merges(monkeypatch):
+    """A head pose 0.8 deg off in pitch over one fixation turns both eyes' lines alike: the
+    per-fixation offset shared by the eyes (``MERGE_POSE_DEG``) explains it; without it (0) the
+    per-eye offsets of 0.1 deg cannot, and the revisit is a new target."""
+    import estimator.merge as merge
+
+    rng = np.random.default_rng(4)
+    a1 = _fixation(A, 0.0, rng, n=120)
+    a2 = _fixation(A, 3.0, rng, n=120)
+    pitch = np.deg2rad(0.8)
+    R = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+    a2 = BinocularSamples.from_arrays(a2.t_s, a2.left_origin_mm, a2.left_direction @ R.T, a2.right_origin_mm,
+                                      a2.right_direction @ R.T)
+    args = (([a1], estimate(a1).position_mm), ([a2], estimate(a2).position_mm), SIGMA_DEG)
+    assert merge_statistic(*args) < MERGE_LR_THRESHOLD
+    monkeypatch.setattr(merge, "MERGE_POSE_DEG", 0.0)
+    assert merge_statistic(*args) > MERGE_LR_THRESHOLD

@@ -75,7 +75,8 @@ def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixa
     radii = e.ellipsoid(0.95).radii_mm if e.covariance_mm2 is not None else np.full(3, np.nan)
     t = samples.t_s[idx]
     crb = _crb(samples.select(idx), e.position_mm, sigma_deg) if e.ok else None
-    status = target_status(e.status.value, pos, radii, samples.select(idx))
+    far = float(e.info.get("error_model", {}).get("far_side_factor", 1.0))
+    status = target_status(e.status.value, pos, radii, samples.select(idx), far)
     return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2,
                   axes95_mm=np.asarray(radii, float), status=status, n_samples=len(idx),
                   t_start=float(t.min()), t_end=float(t.max()),
@@ -89,12 +90,14 @@ the lines fix a direction but not a depth (a still head beyond a few metres), an
 no answer to "where did the person look"."""
 
 
-def target_status(status: str, position_mm, axes95_mm, samples: BinocularSamples) -> str:
+def target_status(status: str, position_mm, axes95_mm, samples: BinocularSamples, far_side: float = 1.0) -> str:
     """The status a target is published with: the estimator's, unless its point is nearer the
     eyes than anyone fixates (``too-near``; also for a moving target's point) or a static
-    target's 95 % ellipsoid's longest semi-axis exceeds its distance from the eyes
-    (``unresolved``). A moving target stays ``moving`` (never ``ok``): its path's covariances
-    (target_paths.csv, with the eyes' bias floor) say how well its depth is known."""
+    target's 95 % ellipsoid's longest semi-axis, before the error model's far-side stretch
+    (``far_side``, ``estimator.errormodel.far_side``: the semi-axes are divided by it), exceeds
+    its distance from the eyes (``unresolved``: the far end of its depth interval is unbounded).
+    A moving target stays ``moving`` (never ``ok``): its path's covariances (target_paths.csv,
+    with the eyes' bias floor) say how well its depth is known."""
     if status not in ("ok", "moving") or not np.all(np.isfinite(position_mm)):
         return status
     lines = samples.lines()
@@ -102,7 +105,7 @@ def target_status(status: str, position_mm, axes95_mm, samples: BinocularSamples
                                      lines.directions)))
     if dist < NEAR_POINT_MM:
         return Status.TOO_NEAR.value
-    if status == "ok" and np.all(np.isfinite(axes95_mm)) and float(np.max(axes95_mm)) > dist:
+    if status == "ok" and np.all(np.isfinite(axes95_mm)) and float(np.max(axes95_mm)) / far_side > dist:
         return UNRESOLVED
     return status
 
