@@ -136,3 +136,37 @@ def test_revisits_through_a_biased_calibration_merge_and_two_targets_do_not():
     res = find_targets(s, np.repeat(np.arange(len(parts)), [len(p) for p in parts]), "ml", 1.0)
     assert [t.fixations for t in res.targets] == [(0, 2, 4, 5), (1, 3)]
     assert not any(t.moving for t in res.targets)
+
+
+def test_a_pursuit_cut_by_a_blink_is_one_moving_target_and_a_jump_is_two():
+    """Two moving fixations of one sweep with 0.2 s between them (a blink) are joined into one
+    moving target whose path spans both; a second piece that starts 10 deg off where the first
+    ended is a target of its own."""
+    from estimator.motion import MOVING, smooth_trajectory
+    from wearable_gaze.pipeline.fixations import join_pursuits
+    from wearable_gaze.pipeline.types import Fixation
+
+    rng = np.random.default_rng(2)
+    t = np.arange(0.0, 5.0, 1 / 60)
+    head = np.column_stack([60 * np.sin(0.9 * t), np.zeros_like(t), np.zeros_like(t)])
+
+    def path(tt, jump):
+        x = -500.0 + 200.0 * tt + np.where(tt > 2.5, jump, 0.0)
+        return np.column_stack([x, 0 * tt, 2000.0 + 0 * tt])
+
+    for jump, groups_expected in ((0.0, 1), (400.0, 2)):
+        arrays = []
+        for dx in (-32.0, 32.0):
+            o = head + [dx, 0, 0]
+            d = path(t, jump) - o
+            arrays += [o, perturb_directions(d / np.linalg.norm(d, axis=1, keepdims=True), np.deg2rad(1.0), rng)]
+        s = BinocularSamples.from_arrays(t, *arrays)
+        first, second = np.flatnonzero(t < 2.4), np.flatnonzero(t >= 2.6)
+        fixations = [Fixation(k, idx, None, MOVING, smooth_trajectory(s.select(idx), 1.0))
+                     for k, idx in enumerate((first, second))]
+        groups = join_pursuits(fixations, s, 1.0)
+        assert len(groups) == groups_expected, jump
+        if groups_expected == 1:
+            g = groups[0]
+            assert g.fixations == [0, 1] and len(g.samples) == len(first) + len(second)
+            assert g.trajectory.t_s[0] < 0.1 and g.trajectory.t_s[-1] > 4.9

@@ -63,7 +63,7 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
         if progress:
             progress(k + 1, n_seg + 1)
     groups = merge_fixations(fixations, samples, method, sigma_deg, error_model)
-    groups += [_Group(f.samples, [f.index], None, f.trajectory) for f in fixations if f.motion == MOVING]
+    groups += join_pursuits(fixations, samples, sigma_deg, error_model)
     groups.sort(key=lambda g: g.fixations[0])
     targets = [moving_target(i, samples, g, method) if g.trajectory is not None else
                estimate_target(i, samples, g.samples, g.fixations, g.estimate, method, sigma_deg)
@@ -89,6 +89,47 @@ def _fixation(samples: BinocularSamples, k: int, idx: np.ndarray, motion: str, m
                            strict=True):
             running[name].append(v)
     return Fixation(k, idx, e)
+
+
+PURSUIT_GAP_S = 0.5
+"""Two moving fixations in a row with at most this gap between them (a blink or a catch-up
+saccade the segmenter cut the pursuit at) ..."""
+PURSUIT_JOIN_DEG = 5.0
+"""... whose paths meet across the gap within this angle as seen from the eyes are one moving
+target, its path fitted over both fixations' lines."""
+
+
+def join_pursuits(fixations: list, samples: BinocularSamples, sigma_deg: float,
+                  error_model: ErrorModel | None = None) -> list:
+    """The moving fixations as groups (``_Group`` with the path), consecutive ones of one pursuit
+    joined (``PURSUIT_GAP_S``, ``PURSUIT_JOIN_DEG``) and their path fitted again over all their
+    lines: the depth of a short piece, which vergence fixes poorly, is then averaged with the
+    rest of the pursuit."""
+    groups: list = []
+    for f in fixations:
+        if f.motion != MOVING:
+            continue
+        g = groups[-1] if groups else None
+        if g is not None and g.fixations[-1] == f.index - 1 and _continues(g.trajectory, f.trajectory, samples,
+                                                                          f.samples[0]):
+            g.samples = np.sort(np.concatenate([g.samples, f.samples]))
+            g.fixations.append(f.index)
+            g.trajectory = smooth_trajectory(samples.select(g.samples), sigma_deg, error_model=error_model)
+        else:
+            groups.append(_Group(f.samples, [f.index], None, f.trajectory))
+    return groups
+
+
+def _continues(before, after, samples: BinocularSamples, first: int) -> bool:
+    """Whether path ``after`` starts where ``before`` ended: a gap of at most ``PURSUIT_GAP_S``
+    and the two ends within ``PURSUIT_JOIN_DEG`` as seen from the eyes at ``after``'s first line."""
+    t0, t1 = float(before.t_s[-1]), float(after.t_s[0])
+    if t1 - t0 > PURSUIT_GAP_S:
+        return False
+    o = samples.left_origin_mm[first] if samples.left_valid[first] else samples.right_origin_mm[first]
+    u, v = before.positions_mm[-1] - o, after.positions_mm[0] - o
+    cos = float(u @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-9))
+    return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= PURSUIT_JOIN_DEG)
 
 
 def split_two_point_fixations(samples: BinocularSamples, labels: np.ndarray,
