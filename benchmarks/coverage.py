@@ -111,7 +111,8 @@ def aria_coverage(work: Path, model: str) -> None:
     if not (work / "aria_out" / "viewlines.csv").is_file():
         process_session(work / "aria", work / "aria_out", overlay=False, report=False)
     poses, cloud = Poses(*read_poses_csv(work / "aria_out" / "poses.csv")), aria.read_point_cloud(src)
-    em = None if model == "none" else session_error_model(True, work / "aria_out" / "eyes.json")   # as process's
+    em = None if model == "none" else session_error_model(True, work / "aria_out" / "eyes.json",
+                                                          tracked=False)   # as process's (device poses)
     gaze = work / "aria" / "device_gaze.csv"
     rows = {m: [] for m in ("ml", "voxel")}
     for seg in read_viewlines_csv(work / "aria_out" / "viewlines.csv"):

@@ -66,6 +66,9 @@ class ErrorModel:
             when significant).
         far_side_k: the depth sd is stretched to reach the far end of this many sds in inverse
             depth (``far_side``); 0 leaves the linearised covariance.
+        pose_offset_deg: std per axis of the head pose's error over one fixation, degrees, an
+            offset shared by both eyes' lines: the merge test's (``estimator.merge``); poses
+            tracked in the scene video have one, a device's SLAM hardly any.
     """
 
     bias_deg: float = DEFAULT_BIAS_DEG
@@ -74,9 +77,10 @@ class ErrorModel:
     overdispersion_p: float = 0.01
     correlations: bool = True
     far_side_k: float = FAR_SIDE_K
+    pose_offset_deg: float = 0.0
 
     def __post_init__(self):
-        if not (self.bias_deg >= 0 and self.pose_sigma_deg >= 0):
+        if not (self.bias_deg >= 0 and self.pose_sigma_deg >= 0 and self.pose_offset_deg >= 0):
             raise ValueError(f"bias_deg and pose_sigma_deg must be non-negative, got {self.bias_deg} "
                              f"and {self.pose_sigma_deg}")
         if not 0 <= self.bias_correlation <= 1:

@@ -28,8 +28,9 @@ MERGE_BIAS_DEG = 0.5
 """The merge test's prior on each eye's fixed angular offset (standard deviation per axis,
 degrees): an eye calibration's bias, the same in every fixation."""
 MERGE_POSE_DEG = 0.2
-"""... and on an offset of each fixation shared by both eyes (sd per axis, degrees): the head
-pose's error over a fixation turns both eyes' lines alike (on simulated walking sessions the
+"""... and on an offset of each fixation shared by both eyes (sd per axis, degrees) when the head
+poses are tracked in the scene video (``ErrorModel.pose_offset_deg``; a device's SLAM: 0): the
+head pose's error over a fixation turns both eyes' lines alike (on simulated walking sessions the
 eyes' per-fixation offsets varied by 0.1-0.3 deg between fixations, vertically correlated up to
 0.9 between the eyes)."""
 MERGE_FIXATION_DEG = 0.1
@@ -67,11 +68,16 @@ class TargetMerger:
             time order) when a fixation joins it; returns their ``GazeEstimate`` (the caller's
             estimator, method and error model: nothing of the application here).
         sigma_deg: the angular noise of a view line the merge test assumes, degrees.
+        pose_deg: the sd per axis of the head pose's error over one fixation, degrees (an offset
+            shared by both eyes' lines; ``MERGE_POSE_DEG`` for poses tracked in the scene video,
+            0 for a device's own SLAM poses).
     """
 
-    def __init__(self, estimate: Callable[[BinocularSamples], GazeEstimate], sigma_deg: float = 1.0):
+    def __init__(self, estimate: Callable[[BinocularSamples], GazeEstimate], sigma_deg: float = 1.0,
+                 pose_deg: float = 0.0):
         self.estimate = estimate
         self.sigma_deg = float(sigma_deg)
+        self.pose_deg = float(pose_deg)
         self.groups: list[MergeGroup] = []
 
     def __len__(self) -> int:
@@ -94,7 +100,8 @@ class TargetMerger:
             u, v = estimate.position_mm - origin, g.estimate.position_mm - origin
             if np.degrees(np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))) > MERGE_MAX_DEG:
                 continue
-            lr = merge_statistic((g.parts, g.estimate.position_mm), ([lines], estimate.position_mm), self.sigma_deg)
+            lr = merge_statistic((g.parts, g.estimate.position_mm), ([lines], estimate.position_mm), self.sigma_deg,
+                                 self.pose_deg)
             if lr < MERGE_LR_THRESHOLD:
                 scored.append((lr, len(scored), k))
         for _, _, k in sorted(scored):
@@ -109,14 +116,15 @@ class TargetMerger:
         return len(self.groups) - 1
 
 
-def merge_statistic(a, b, sigma_deg: float) -> float:
+def merge_statistic(a, b, sigma_deg: float, pose_deg: float = 0.0) -> float:
     """The likelihood-ratio statistic of one point against two (3 more parameters) for two sets
     of fixations (``a``, ``b``: (a list of each fixation's view lines as ``BinocularSamples``,
     world frame; a start point (3,) mm)), on the angular noise model (``sigma_deg``) with two
     offsets of each eye's lines marginalised out (``_bias_chi2``): one shared by all the
     fixations (prior sd ``MERGE_BIAS_DEG`` per axis: an eye calibration's bias) and one of each
-    fixation (``MERGE_FIXATION_DEG``: the calibration's error differs where the eye looks),
-    each chi2 minimised from the start points. The statistic is divided by the over-dispersion
+    fixation (``MERGE_FIXATION_DEG``: the calibration's error differs where the eye looks), and
+    one of each fixation shared by both eyes (sd ``pose_deg``: the head pose's error), each chi2
+    minimised from the start points. The statistic is divided by the over-dispersion
     of the two-point fit (its chi2 per degree of freedom, at least 1): the lines of a walking head
     scatter more than ``sigma_deg`` says (head-pose error, eye movements the calibration maps
     imperfectly), which would otherwise split revisits (the motion test does the same).
@@ -130,8 +138,8 @@ def merge_statistic(a, b, sigma_deg: float) -> float:
     sigma = np.deg2rad(sigma_deg)
     chunks = [(line, k, (k, j)) for k, (parts, _) in enumerate((a, b)) for j, part in enumerate(parts)
               for line in _eye_lines(part)]
-    apart = _min_bias_chi2(chunks, np.concatenate([a[1], b[1]]), sigma)
-    together = _min_bias_chi2([(line, 0, f) for line, _, f in chunks], np.asarray(a[1], float), sigma)
+    apart = _min_bias_chi2(chunks, np.concatenate([a[1], b[1]]), sigma, pose_deg)
+    together = _min_bias_chi2([(line, 0, f) for line, _, f in chunks], np.asarray(a[1], float), sigma, pose_deg)
     dof = max(2 * sum(len(c[0][1]) for c in chunks) - 6, 1)
     return (together - apart) / max(1.0, apart / dof)
 
@@ -157,14 +165,15 @@ def _eye_lines(s: BinocularSamples) -> list:
     return out
 
 
-def _bias_chi2(X, chunks, sigma: float) -> float:
+def _bias_chi2(X, chunks, sigma: float, pose_deg: float = 0.0) -> float:
     """chi2 of line chunks, ``(eye lines, point k, fixation key)`` each, at their points ``X``
     (3K,) mm, with offsets marginalised: per eye one shared by all fixations (sd
     ``MERGE_BIAS_DEG`` per axis), per eye and fixation one (``MERGE_FIXATION_DEG``), and per
-    fixation one shared by both eyes (``MERGE_POSE_DEG``: the head pose's error over a fixation,
-    which turns both lines alike). Per axis the residuals' covariance is ``sigma^2 I + U D U^T``
-    (``U`` the lines' membership of the offsets' groups, ``D`` their variances; ``sigma`` in
-    radians), inverted by Woodbury on the groups' sums."""
+    fixation one shared by both eyes (sd ``pose_deg``: the head pose's error over a fixation,
+    which turns both lines alike; ``MERGE_POSE_DEG`` for poses tracked in the scene video). Per
+    axis the residuals' covariance is ``sigma^2 I + U D U^T`` (``U`` the lines' membership of
+    the offsets' groups, ``D`` their variances; ``sigma`` in radians), inverted by Woodbury on
+    the groups' sums."""
     P = np.asarray(X, float).reshape(-1, 3)
     s2 = sigma**2
     groups: dict = {}
@@ -175,7 +184,7 @@ def _bias_chi2(X, chunks, sigma: float) -> float:
         total += float(np.sum(r * r)) / s2
         member = [groups.setdefault(g, len(groups)) for g in (("eye", e), ("eye-fix", e, key), ("fix", key))]
         stats.append((member, len(r), r.sum(axis=0)))
-    var = np.array([np.deg2rad({"eye": MERGE_BIAS_DEG, "eye-fix": MERGE_FIXATION_DEG, "fix": MERGE_POSE_DEG}[g[0]])
+    var = np.array([np.deg2rad({"eye": MERGE_BIAS_DEG, "eye-fix": MERGE_FIXATION_DEG, "fix": pose_deg}[g[0]])
                     ** 2 for g in groups])
     R = len(groups)
     UtU, Utr = np.zeros((R, R)), np.zeros((R, 2))
@@ -188,10 +197,10 @@ def _bias_chi2(X, chunks, sigma: float) -> float:
     return total - float(np.sum(b * np.linalg.solve(A, b))) / s2
 
 
-def _min_bias_chi2(chunks, x0, sigma: float) -> float:
+def _min_bias_chi2(chunks, x0, sigma: float, pose_deg: float = 0.0) -> float:
     """The least ``_bias_chi2`` over the points, from ``x0`` (3K,) mm (searched in units of
     100 mm); ``sigma`` in radians."""
     x0 = np.asarray(x0, float)
-    fit = minimize(lambda z: _bias_chi2(100.0 * z, chunks, sigma), x0 / 100.0, method="BFGS",
+    fit = minimize(lambda z: _bias_chi2(100.0 * z, chunks, sigma, pose_deg), x0 / 100.0, method="BFGS",
                    options={"gtol": 1e-4})
     return float(fit.fun)

@@ -10,6 +10,7 @@ from helpers import walkabout_samples
 
 from estimator import run_estimator
 from estimator.errormodel import ErrorModel, bias_from_calibration
+from estimator.merge import MERGE_POSE_DEG
 from wearable_gaze.cli import main
 from wearable_gaze.formats.viewlines import write_viewlines_csv
 from wearable_gaze.pipeline.estimate import radius95_mm, running_estimate
@@ -59,7 +60,8 @@ def test_process_takes_the_bias_from_the_eye_calibration(tmp_path):
     eyes = tmp_path / "eyes.json"
     eyes.write_text(json.dumps({"eyes": [{"report": {"loo_rms_deg": 0.3}}, {"report": {"loo_rms_deg": 0.9}}]}))
     calibrated = session_error_model(False, eyes)
-    assert calibrated == ErrorModel(bias_deg=bias_from_calibration([0.3, 0.9]))
+    assert calibrated == ErrorModel(bias_deg=bias_from_calibration([0.3, 0.9]), pose_offset_deg=MERGE_POSE_DEG)
     assert calibrated.bias_deg > ErrorModel().bias_deg
-    assert session_error_model(True, eyes) == ErrorModel()
-    assert session_error_model(False, tmp_path / "absent.json") == ErrorModel()
+    assert session_error_model(True, eyes, tracked=False) == ErrorModel()          # a device's SLAM poses
+    assert session_error_model(True, eyes) == ErrorModel(pose_offset_deg=MERGE_POSE_DEG)
+    assert session_error_model(False, tmp_path / "absent.json") == ErrorModel(pose_offset_deg=MERGE_POSE_DEG)

@@ -2,11 +2,13 @@
 the test on the pooled lines, the groups it keeps, and ``process`` and the live session giving
 the same fixations the same partition into targets."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from estimator import BinocularSamples, estimate, perturb_directions
-from estimator.merge import MERGE_LR_THRESHOLD, TargetMerger, merge_statistic
+from estimator.merge import MERGE_LR_THRESHOLD, MERGE_POSE_DEG, TargetMerger, merge_statistic
 from estimator.result import Status, failed
 from estimator.segments import same_target
 from tests.test_live_parts import _eyes, _pose, _record
@@ -133,17 +135,17 @@ def test_live_ids_partition_the_fixations_as_process_merges_the_same_lines():
     samples = BinocularSamples.concatenate([lines for lines, _ in fed])
     bounds = np.cumsum([0] + [len(lines) for lines, _ in fed])
     fixations = [Fixation(k, np.arange(bounds[k], bounds[k + 1]), e) for k, (_, e) in enumerate(fed)]
-    groups = merge_fixations(fixations, samples, "voxel", SIGMA_DEG, DEFAULT_ERROR_MODEL)
+    live_model = dataclasses.replace(DEFAULT_ERROR_MODEL, pose_offset_deg=MERGE_POSE_DEG)   # live tracks its poses
+    groups = merge_fixations(fixations, samples, "voxel", SIGMA_DEG, live_model)
     offline = {f: i for i, g in enumerate(groups) for f in g.fixations}
     assert [offline[k] for k in range(3)] == live
 
 
-def test_a_revisit_whose_lines_the_head_pose_turned_both_alike_still_merges(monkeypatch):
+def test_a_revisit_whose_lines_the_head_pose_turned_both_alike_still_merges():
     """A head pose 0.8 deg off in pitch over one fixation turns both eyes' lines alike: the
-    per-fixation offset shared by the eyes (``MERGE_POSE_DEG``) explains it; without it (0) the
-    per-eye offsets of 0.1 deg cannot, and the revisit is a new target."""
-    import estimator.merge as merge
-
+    per-fixation offset shared by the eyes (``MERGE_POSE_DEG``, for tracked poses) explains it;
+    without it (0: a device's SLAM poses) the per-eye offsets of 0.1 deg cannot, and the revisit
+    is a new target."""
     rng = np.random.default_rng(4)
     a1 = _fixation(A, 0.0, rng, n=120)
     a2 = _fixation(A, 3.0, rng, n=120)
@@ -152,6 +154,5 @@ def test_a_revisit_whose_lines_the_head_pose_turned_both_alike_still_merges(monk
     a2 = BinocularSamples.from_arrays(a2.t_s, a2.left_origin_mm, a2.left_direction @ R.T, a2.right_origin_mm,
                                       a2.right_direction @ R.T)
     args = (([a1], estimate(a1).position_mm), ([a2], estimate(a2).position_mm), SIGMA_DEG)
-    assert merge_statistic(*args) < MERGE_LR_THRESHOLD
-    monkeypatch.setattr(merge, "MERGE_POSE_DEG", 0.0)
-    assert merge_statistic(*args) > MERGE_LR_THRESHOLD
+    assert merge_statistic(*args, pose_deg=MERGE_POSE_DEG) < MERGE_LR_THRESHOLD
+    assert merge_statistic(*args, pose_deg=0.0) > MERGE_LR_THRESHOLD

@@ -194,7 +194,8 @@ def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sig
     ``method`` with ``sigma_deg``) have covariances that follow ``error_model``. Returns the
     groups in order of first fixation, each with its sorted view-line indices (N,) and parts."""
     options = model_options(method, error_model)
-    merger = TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg)
+    merger = TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg,
+                          error_model.pose_offset_deg if error_model is not None else 0.0)
     by_index = {}
     for f in fixations:
         if f.usable:

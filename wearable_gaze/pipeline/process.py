@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from estimator.errormodel import ErrorModel, bias_from_calibration
+from estimator.merge import MERGE_POSE_DEG
 from estimator.segments import SegmentConfig
 
 from ..errors import UserError
@@ -241,7 +242,8 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
         if f.device_gaze is not None:
             device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
         vals.set("targets", result.targets)
-    error_model = session_error_model(f.eye_rays is not None, eyes_path)
+    error_model = session_error_model(f.eye_rays is not None, eyes_path,
+                                      tracked=f.eye_rays is None or f.pose_source not in ("device", "still_head"))
     params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__,
               "error_model": dataclasses.asdict(error_model)}
     if steps.run("targets", [raw_vl], params, do_targets):
@@ -254,20 +256,23 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
         _report_step(f, out, steps, vals, eyes_path, cfg)
 
 
-def session_error_model(imported: bool, eyes_path: Path) -> ErrorModel:
-    """The error model of the targets' covariances (``estimator.errormodel``): an ``imported``
-    session's device calibrated the eyes (``ErrorModel()``: the default bias); a calibrated
-    session's bias is ``bias_from_calibration`` of each eye's leave-one-out RMS error in
-    ``eyes_path``'s report (eyes.json; the default bias when it has none)."""
+def session_error_model(imported: bool, eyes_path: Path, tracked: bool = True) -> ErrorModel:
+    """The error model of the targets' covariances and merges (``estimator.errormodel``): an
+    ``imported`` session's device calibrated the eyes (the default bias); a calibrated session's
+    bias is ``bias_from_calibration`` of each eye's leave-one-out RMS error in ``eyes_path``'s
+    report (eyes.json; the default bias when it has none). Head poses ``tracked`` in the scene
+    video add the merge test's per-fixation pose offset (``estimator.merge.MERGE_POSE_DEG``); a
+    device's own poses (SLAM) or a still head do not."""
+    pose = MERGE_POSE_DEG if tracked else 0.0
     if imported:
-        return ErrorModel()
+        return ErrorModel(pose_offset_deg=pose)
     try:
         eyes = json.loads(eyes_path.read_text(encoding="utf-8"))["eyes"]
         loo = [e.get("report", {}).get("loo_rms_deg") for e in eyes]
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         log.warning("%s: no leave-one-out errors (%s); the default eye bias", eyes_path, exc)
         loo = []
-    return ErrorModel(bias_deg=bias_from_calibration(loo))
+    return ErrorModel(bias_deg=bias_from_calibration(loo), pose_offset_deg=pose)
 
 
 def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path, poses_path: Path,
