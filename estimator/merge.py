@@ -124,10 +124,7 @@ def merge_statistic(a, b, sigma_deg: float, pose_deg: float = 0.0) -> float:
     fixations (prior sd ``MERGE_BIAS_DEG`` per axis: an eye calibration's bias) and one of each
     fixation (``MERGE_FIXATION_DEG``: the calibration's error differs where the eye looks), and
     one of each fixation shared by both eyes (sd ``pose_deg``: the head pose's error), each chi2
-    minimised from the start points. The statistic is divided by the over-dispersion
-    of the two-point fit (its chi2 per degree of freedom, at least 1): the lines of a walking head
-    scatter more than ``sigma_deg`` says (head-pose error, eye movements the calibration maps
-    imperfectly), which would otherwise split revisits (the motion test does the same).
+    minimised from the start points.
 
     It uses the lines themselves, not the estimates' covariances, which cannot reject when one
     fixation fixes its point poorly (a still head at 10 Hz: a depth range of metres; merging
@@ -140,8 +137,7 @@ def merge_statistic(a, b, sigma_deg: float, pose_deg: float = 0.0) -> float:
               for line in _eye_lines(part)]
     apart = _min_bias_chi2(chunks, np.concatenate([a[1], b[1]]), sigma, pose_deg)
     together = _min_bias_chi2([(line, 0, f) for line, _, f in chunks], np.asarray(a[1], float), sigma, pose_deg)
-    dof = max(2 * sum(len(c[0][1]) for c in chunks) - 6, 1)
-    return (together - apart) / max(1.0, apart / dof)
+    return together - apart
 
 
 def offset_chi2(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:

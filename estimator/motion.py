@@ -56,10 +56,6 @@ MIN_SWEEP_DEG = 4.0
 times the eye calibration's error (biases of up to 1.3 deg per eye in benchmarks/
 moving_targets.py), which a walking head turns into apparent motion of a static point (at 2 deg,
 4 % of static fixations there were called moving; at 3 deg, 1-2 %)."""
-MIN_DEPARTURE_DEG = MIN_SWEEP_DEG / 2
-"""... and leave the static point by at least this angle as seen from the eyes at its own time
-(``departure_deg``): a static point seen from a walking head through a biased eye calibration
-slides along the line of sight, which can span ``MIN_SWEEP_DEG`` from the eyes' mean origin."""
 MIN_DEPTH_RATIO = 1.5
 """Two points must be ``MIN_SWEEP_DEG`` apart as seen from the eyes, or their distances from
 the eyes differ by this ratio (a switch between a near and a far object along one line)."""
@@ -369,9 +365,7 @@ def classify_lines(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: flo
     bic = {k: v / dispersion + params[k] * math.log(n_obs) for k, v in chi2.items()}
     eye = L.o.mean(axis=0)
     bic_kind = dict(bic)
-    kp = np.linspace(knots[0], knots[1], len(Xp))
-    if (sweep_deg(np.vstack([Xp, Xc]), eye) < MIN_SWEEP_DEG or knots[1] - knots[0] < MIN_MOVING_S
-            or max(departure_deg(L, kp, Xp, Xs[0]), departure_deg(L, knots, Xc, Xs[0])) < MIN_DEPARTURE_DEG):
+    if sweep_deg(np.vstack([Xp, Xc]), eye) < MIN_SWEEP_DEG or knots[1] - knots[0] < MIN_MOVING_S:
         del bic_kind[MOVING], bic_kind[PATH]                    # no motion that matters
     depths = np.linalg.norm(pts - eye, axis=1)
     if not (sweep_deg(pts, eye) >= MIN_SWEEP_DEG or abs(math.log(depths[0] / depths[1])) >= math.log(MIN_DEPTH_RATIO)):
@@ -381,18 +375,6 @@ def classify_lines(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: flo
     speed = float(np.linalg.norm(Xc[1] - Xc[0]) / (knots[1] - knots[0]))
     log.debug("motion test on %d lines: %s (bic %s, dispersion %.2f)", len(L), kind, bic, dispersion)
     return MotionTest(kind, bic, chi2, dispersion, split, pts, speed, len(L))
-
-
-def departure_deg(L: _Lines, t_s, points_mm, static_mm) -> float:
-    """The largest angle, degrees, between a path's points (M, 3) at times ``t_s`` (M,) and the
-    static point (3,), each seen from the eyes' mean origin at that time: how far the eyes had to
-    turn away from the static point. A walking head's view of a static point through a biased eye
-    calibration slides along the line of sight (a depth that changes as the head nears it), which
-    this does not count; a pursuit sweeps across it."""
-    o = np.column_stack([np.interp(t_s, L.t, L.o[:, j]) for j in range(3)])
-    u, v = np.asarray(points_mm, float) - o, np.asarray(static_mm, float) - o
-    c = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-9)
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))).max())
 
 
 def _path_bias_floor(L: _Lines, knots, X, Hi, model: ErrorModel) -> np.ndarray:
