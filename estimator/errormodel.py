@@ -81,8 +81,8 @@ class ErrorModel:
 
     def __post_init__(self):
         if not (self.bias_deg >= 0 and self.pose_sigma_deg >= 0 and self.pose_offset_deg >= 0):
-            raise ValueError(f"bias_deg and pose_sigma_deg must be non-negative, got {self.bias_deg} "
-                             f"and {self.pose_sigma_deg}")
+            raise ValueError(f"bias_deg, pose_sigma_deg and pose_offset_deg must be non-negative, got "
+                             f"{self.bias_deg}, {self.pose_sigma_deg} and {self.pose_offset_deg}")
         if not 0 <= self.bias_correlation <= 1:
             raise ValueError(f"bias_correlation must be in [0, 1], got {self.bias_correlation}")
         if not 0 <= self.overdispersion_p < 1:

@@ -76,6 +76,13 @@ def rotation_about_axis(axis, angle_rad: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle_rad) * K + (1 - np.cos(angle_rad)) * (K @ K)
 
 
+def angle_deg(a, b):
+    """The angle between vectors ``a`` and ``b`` (..., 3), degrees (any lengths; ``atan2`` of the
+    cross and dot products, accurate near 0 and 180)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), (a * b).sum(-1)))
+
+
 def tangent_basis(directions) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (N, 3) each, orthogonal to each unit direction (N, 3) and to each other.
 

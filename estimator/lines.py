@@ -154,6 +154,10 @@ class BinocularSamples:
                                self.left_origin_mm[i] if lv else None, self.left_direction[i] if lv else None,
                                self.right_origin_mm[i] if rv else None, self.right_direction[i] if rv else None)
 
+    def origin_mm(self, i: int) -> np.ndarray:
+        """(3,) an eye's origin at sample ``i``: the left's when it is valid, else the right's."""
+        return self.left_origin_mm[i] if self.left_valid[i] else self.right_origin_mm[i]
+
     def lines(self) -> ViewLines:
         """All valid lines, left then right per sample, with ``sample_index`` set."""
         idx = np.arange(len(self))

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize
 
-from .frames import tangent_basis
+from .frames import angle_deg, tangent_basis
 from .likelihood import gnomonic_residuals
 from .lines import BinocularSamples
 from .result import GazeEstimate
@@ -94,11 +94,10 @@ class TargetMerger:
         fixation's index) is kept in the group's ``members``."""
         if not estimate.ok:
             raise ValueError(f"a fixation without a usable estimate cannot be merged ({estimate.status.value})")
-        origin = lines.left_origin_mm[0] if lines.left_valid[0] else lines.right_origin_mm[0]
+        origin = lines.origin_mm(0)
         scored = []
         for k, g in enumerate(self.groups):
-            u, v = estimate.position_mm - origin, g.estimate.position_mm - origin
-            if np.degrees(np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))) > MERGE_MAX_DEG:
+            if angle_deg(estimate.position_mm - origin, g.estimate.position_mm - origin) > MERGE_MAX_DEG:
                 continue
             lr = merge_statistic((g.parts, g.estimate.position_mm), ([lines], estimate.position_mm), self.sigma_deg,
                                  self.pose_deg)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .frames import angle_deg
 from .lines import BinocularSamples
 
 log = logging.getLogger(__name__)
@@ -70,10 +71,6 @@ def cyclopean_directions(samples: BinocularSamples) -> np.ndarray:
     return out
 
 
-def _angle_deg(a, b):
-    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), (a * b).sum(-1)))
-
-
 def segment_fixations(samples: BinocularSamples, config: SegmentConfig = SegmentConfig()) -> np.ndarray:
     """Fixation labels (N,) int: 0, 1, 2... in time order, -1 for saccades, blinks and short
     or broken-off stretches.
@@ -95,7 +92,7 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     for k in range(w, m - w + 1):
         a = np.median(dv[k - w:k], axis=0)
         b = np.median(dv[k:k + w], axis=0)
-        score[k] = _angle_deg(a / np.linalg.norm(a), b / np.linalg.norm(b))
+        score[k] = angle_deg(a, b)
     # saccades: local maxima of the score above the threshold (one per jump)
     cuts = []
     k = 0
@@ -167,7 +164,7 @@ class OnlineSegmenter:
             return False
         b = np.array(self.buf)
         before, after = np.median(b[:w], axis=0), np.median(b[w:], axis=0)
-        jumped = _angle_deg(before / np.linalg.norm(before), after / np.linalg.norm(after)) > self.config.jump_deg
+        jumped = angle_deg(before, after) > self.config.jump_deg
         ended = jumped and not self.in_saccade
         self.in_saccade = jumped
         return ended

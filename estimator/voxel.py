@@ -454,8 +454,9 @@ class VoxelEstimator:
             bias, linear = minfo.pop("bias_cov"), minfo.pop("linear_cov")
             self._model = (L, linear - bias, bias, minfo, o.mean(axis=0))
         n0, noise, bias, minfo, origin = self._model
-        info["error_model"] = minfo
-        return far_side(noise * (n0 / L) + bias, point, origin, model.far_side_k)[0]
+        C, f = far_side(noise * (n0 / L) + bias, point, origin, model.far_side_k)
+        info["error_model"] = {**minfo, "far_side_factor": round(f, 3)}
+        return C
 
     def _result(self, point, cov) -> GazeEstimate:
         g = self.grid

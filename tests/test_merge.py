@@ -2,7 +2,6 @@
 the test on the pooled lines, the groups it keeps, and ``process`` and the live session giving
 the same fixations the same partition into targets."""
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -135,8 +134,7 @@ def test_live_ids_partition_the_fixations_as_process_merges_the_same_lines():
     samples = BinocularSamples.concatenate([lines for lines, _ in fed])
     bounds = np.cumsum([0] + [len(lines) for lines, _ in fed])
     fixations = [Fixation(k, np.arange(bounds[k], bounds[k + 1]), e) for k, (_, e) in enumerate(fed)]
-    live_model = dataclasses.replace(DEFAULT_ERROR_MODEL, pose_offset_deg=MERGE_POSE_DEG)   # live tracks its poses
-    groups = merge_fixations(fixations, samples, "voxel", SIGMA_DEG, live_model)
+    groups = merge_fixations(fixations, samples, "voxel", SIGMA_DEG, DEFAULT_ERROR_MODEL)
     offline = {f: i for i, g in enumerate(groups) for f in g.fixations}
     assert [offline[k] for k in range(3)] == live
 

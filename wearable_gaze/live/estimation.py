@@ -18,15 +18,13 @@ from estimator import (
     GazeEstimate,
     ViewLines,
     make_estimator,
-    run_estimator,
     view_lines_to_world,
 )
-from estimator.merge import MERGE_POSE_DEG, TargetMerger
 from estimator.motion import DEFAULT_KNOT_S, MIN_LINES, MOVING, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter
 
-from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, target_status
+from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, target_merger, target_status
 from ..pipeline.types import Target
 
 log = logging.getLogger(__name__)
@@ -103,9 +101,7 @@ class TargetIds:
     """
 
     def __init__(self, method: str = "voxel", sigma_deg: float = SIGMA_DEG):
-        options = model_options(method, DEFAULT_ERROR_MODEL)
-        self.merger = TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg,
-                                   MERGE_POSE_DEG)        # poses tracked in the scene video
+        self.merger = target_merger(method, sigma_deg, DEFAULT_ERROR_MODEL)     # poses tracked in the scene video
         self.group_ids: list[int] = []     # the id of each of the merger's groups
         self.n_ids = 0
 

@@ -21,6 +21,7 @@ from estimator import (
     run_estimator,
 )
 from estimator.errormodel import ErrorModel
+from estimator.merge import MERGE_POSE_DEG, TargetMerger
 
 from ..errors import UserError
 from ..formats.atomic import atomic_path
@@ -28,10 +29,21 @@ from ..formats.viewlines import read_viewlines_csv
 from .segmentation import NO_FIXATION, measured_rate_hz, read_in_time_order, segment_config, segment_view_lines
 from .types import Target
 
-DEFAULT_ERROR_MODEL = ErrorModel()
-"""The error model of ``estimate`` (and of ``process`` on an imported session): the defaults."""
+DEFAULT_ERROR_MODEL = ErrorModel(pose_offset_deg=MERGE_POSE_DEG)
+"""The error model of ``estimate`` and of the live session: the defaults, with the merge test's
+pose offset of head poses tracked in the scene video (as ``process`` gives a tracked session)."""
 MODEL_METHODS = ("ml", "voxel")
 """The estimators whose covariance follows an ``ErrorModel`` (``estimator.errormodel``)."""
+
+
+def target_merger(method: str, sigma_deg: float, error_model: ErrorModel | None) -> TargetMerger:
+    """The merge test's groups (``estimator.merge.TargetMerger``) as ``process`` and the live
+    session run it: a joined group's pooled lines estimated by ``method`` with ``sigma_deg``, its
+    covariance following ``error_model`` (``model_options``), the pose offset
+    ``error_model.pose_offset_deg`` (0 without one)."""
+    options = model_options(method, error_model)
+    return TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg,
+                        error_model.pose_offset_deg if error_model is not None else 0.0)
 
 
 def model_options(method: str, error_model: ErrorModel | None) -> dict:

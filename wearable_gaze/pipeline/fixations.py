@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator import BinocularSamples, GazeEstimate, run_estimator
+from estimator import BinocularSamples, GazeEstimate
 from estimator.errormodel import ErrorModel
-from estimator.merge import TargetMerger
+from estimator.frames import angle_deg
 from estimator.motion import MOVING, STATIC, TWO_POINTS, Trajectory, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
 
@@ -25,7 +25,7 @@ from ..formats.targets import (
     write_targets,
 )
 from ..formats.viewlines import write_viewlines_csv
-from .estimate import estimate_target, model_options, radius95_mm, running_estimate, target_status
+from .estimate import estimate_target, radius95_mm, running_estimate, target_merger, target_status
 from .types import Fixation, Target, TargetsResult
 
 log = logging.getLogger(__name__)
@@ -126,10 +126,8 @@ def _continues(before, after, samples: BinocularSamples, first: int) -> bool:
     t0, t1 = float(before.t_s[-1]), float(after.t_s[0])
     if t1 - t0 > PURSUIT_GAP_S:
         return False
-    o = samples.left_origin_mm[first] if samples.left_valid[first] else samples.right_origin_mm[first]
-    u, v = before.positions_mm[-1] - o, after.positions_mm[0] - o
-    cos = float(u @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-9))
-    return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= PURSUIT_JOIN_DEG)
+    o = samples.origin_mm(first)
+    return bool(angle_deg(before.positions_mm[-1] - o, after.positions_mm[0] - o) <= PURSUIT_JOIN_DEG)
 
 
 def split_two_point_fixations(samples: BinocularSamples, labels: np.ndarray,
@@ -193,9 +191,7 @@ def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sig
     starts a group; fixations without a usable estimate are left out; merged estimates (from
     ``method`` with ``sigma_deg``) have covariances that follow ``error_model``. Returns the
     groups in order of first fixation, each with its sorted view-line indices (N,) and parts."""
-    options = model_options(method, error_model)
-    merger = TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg,
-                          error_model.pose_offset_deg if error_model is not None else 0.0)
+    merger = target_merger(method, sigma_deg, error_model)
     by_index = {}
     for f in fixations:
         if f.usable:
