@@ -10,7 +10,7 @@ import pytest
 from calibration.camera import BoardView, CameraCalibration, calibrate_camera, detect_board, parse_board
 from calibration.eyes import CalibrationError, calibrate_eye, estimate_centre, fit_raw_map, target_readings, wall_pose
 from estimator.frames import rotation_about_axis
-from tracking.timeline import interpolate_poses
+from tracking.timeline import extrapolate_pose, interpolate_poses
 from wearable_gaze.cli import main
 from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.eyes import load_eyes
@@ -290,6 +290,22 @@ def test_interpolate_poses_slerps_and_refuses_gaps():
     assert np.allclose(Tq[0, :3, 3], [100, 0, 0])
     Tq, ok = interpolate_poses(t, T, [1.5], max_gap_s=5.0)
     assert ok[0] and np.allclose(Tq[0, :3, :3], rotation_about_axis([0, 1, 0], np.deg2rad(20 + 80 * 0.5 / 4)))
+
+
+def test_extrapolate_pose_carries_the_turn_and_the_walk_on_at_their_rate():
+    from scipy.spatial.transform import Rotation
+    R0 = Rotation.from_euler("xyz", [20, -35, 10], degrees=True)          # not about the turn's axis
+    step = Rotation.from_rotvec(np.deg2rad(3.0) * np.array([0.3, 0.9, -0.3]) / np.linalg.norm([0.3, 0.9, -0.3]))
+    Ta, Tb = np.eye(4), np.eye(4)
+    Ta[:3, :3], Tb[:3, :3] = R0.as_matrix(), (step * R0).as_matrix()      # a world-frame turn of 3 deg in 30 ms
+    Ta[:3, 3], Tb[:3, 3] = [0.0, 0.0, 0.0], [6.0, -1.5, 3.0]
+    T = extrapolate_pose(1.00, Ta, 1.03, Tb, 1.045)                       # half a step on
+    half = Rotation.from_rotvec(0.5 * step.as_rotvec())
+    assert np.allclose(T[:3, :3], (half * step * R0).as_matrix(), atol=1e-12)
+    assert np.allclose(T[:3, 3], [9.0, -2.25, 4.5]) and np.allclose(T[3], [0, 0, 0, 1])
+    assert np.allclose(extrapolate_pose(1.00, Ta, 1.03, Tb, 1.03), Tb)
+    with pytest.raises(ValueError, match="t_b must come after t_a"):
+        extrapolate_pose(1.03, Ta, 1.03, Tb, 1.05)
 
 
 def test_calibration_cli_errors_are_one_line(tmp_path, capsys):

@@ -54,7 +54,7 @@ def _tracker(poses, hold_s=0.05):
                        hold_s=hold_s), poses
 
 
-def test_head_pose_between_frames_is_slerped_and_held_after_the_last_for_hold_s_only():
+def test_head_pose_between_frames_is_slerped_and_continued_after_the_last_for_hold_s_only():
     head, _ = _tracker(None)
     assert head.pose_at(0.0) is None and head.last_t is None
     assert head.track(0.0, _pose(0.0, 0.0)) and head.track(0.1, _pose(10.0, 100.0))
@@ -62,7 +62,9 @@ def test_head_pose_between_frames_is_slerped_and_held_after_the_last_for_hold_s_
     T = head.pose_at(0.025)
     assert Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True)[1] == pytest.approx(2.5)
     assert T[:3, 3] == pytest.approx([25.0, 0.0, 0.0])
-    assert np.array_equal(head.pose_at(0.14), _pose(10.0, 100.0))       # held: 40 ms after the last frame
+    T = head.pose_at(0.14)                                              # 40 ms after the last frame:
+    assert Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True)[1] == pytest.approx(14.0)  # the turn
+    assert T[:3, 3] == pytest.approx([140.0, 0.0, 0.0])                # and the walk carried on
     assert head.pose_at(0.16) is None                                   # 60 ms: too old
     assert head.pose_at(-0.01) is None                                  # before the first frame
     assert not head.track(0.2, None) and head.markers_in_view == 0     # no pose: nothing kept
@@ -74,6 +76,7 @@ def test_head_pose_is_not_interpolated_across_a_gap():
     head.track(0.0, _pose())
     head.track(0.3, _pose(20.0))
     assert head.pose_at(0.15) is None
+    assert np.array_equal(head.pose_at(0.33), _pose(20.0))             # nor continued from across it: held
     head.track(0.35, _pose(30.0))
     assert head.pose_at(0.32) is not None
 
@@ -148,6 +151,21 @@ def _walk(eyes, fixations, rate=60.0, rng=None):
             out.append((t, _record(eyes, k, t, T, X, noise=noise), T))
             t, k = t + 1 / rate, k + 1
     return out
+
+
+def test_the_segmenters_depth_is_the_far_end_of_the_running_estimates_interval():
+    """1/depth less 2 sd of it: 1000 mm ahead with a 100 mm sd along the line is 1250 mm; no
+    estimate, or a far end past infinity (sd 600 mm), is infinity (no correction)."""
+    from types import SimpleNamespace
+    est = GazeEstimation(_eyes(), "voxel")
+    origin = np.array([10.0, 20.0, 30.0])
+    assert est._segment_depth(origin) == np.inf
+    u = np.array([0.6, 0.0, 0.8])
+    across = np.array([0.8, 0.0, -0.6])
+    for sd, want in ((100.0, 1250.0), (600.0, np.inf)):
+        cov = sd ** 2 * np.outer(u, u) + 50.0 ** 2 * (np.outer(across, across) + np.outer([0, 1, 0], [0, 1, 0]))
+        est.last = (SimpleNamespace(position_mm=origin + 1000.0 * u, covariance_mm2=cov), 1.0)
+        assert est._segment_depth(origin) == pytest.approx(want)
 
 
 def test_estimation_finds_each_fixation_and_gives_a_target_seen_again_its_id():
@@ -412,7 +430,8 @@ def test_the_loop_estimates_with_the_pose_at_each_samples_time_publishes_and_rec
     assert [c for _, c, _ in est.seen] == [1, 3, 4]         # 0: before any frame (no pose), 2: both eyes invalid,
     assert st.no_pose == 2 and st.samples == 6              # 5: 0.1 s after the last frame (no pose)
     assert est.seen[0][2][0, 3] == pytest.approx(70.0)      # 0.57 s waited for the next frame: interpolated
-    assert est.seen[1][2][0, 3] == 100.0 and est.seen[2][2][0, 3] == 100.0    # 0.6 s, and 0.62 s held
+    assert est.seen[1][2][0, 3] == pytest.approx(100.0)     # 0.6 s: the frame's own
+    assert est.seen[2][2][0, 3] == pytest.approx(120.0)     # 0.62 s: the walk of the last two frames carried on
     msgs = [json.loads(x) for x in pub.lines]
     assert [m["t"] for m in msgs if m["type"] == "estimate"] == [0.57, 0.6, 0.62]
     assert [m["target"] for m in msgs if m["type"] == "target"] == [0, 1]   # in the order the fixations ended,

@@ -1,4 +1,5 @@
-"""Poses over time: interpolation to other timestamps (eye samples), never extrapolation."""
+"""Poses over time: interpolation to other timestamps (eye samples); a short constant-velocity
+continuation past the newest pose for a live session (``extrapolate_pose``)."""
 
 from __future__ import annotations
 
@@ -69,6 +70,24 @@ def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
     log.debug("poses at %d of %d query times (%d source poses, gaps over %g s left open)", int(ok.sum()), len(tq),
               len(ts), max_gap_s)
     return out, ok
+
+
+def extrapolate_pose(t_a: float, T_a, t_b: float, T_b, t: float) -> np.ndarray:
+    """``T_world_from_cam`` (4, 4) at ``t`` >= ``t_b`` continued from two poses at ``t_a`` < ``t_b``
+    (s) at their constant velocity: the rotation from ``T_a`` to ``T_b`` carried on at the same
+    rate (about the same axis), the translation linearly. For a live session, where a sample
+    can be newer than the newest tracked frame (docs/live.md). Keep ``t - t_b`` short: a change
+    of velocity since ``t_b`` is not seen.
+    """
+    T_a, T_b = check_array(T_a, "T_a", (4, 4)), check_array(T_b, "T_b", (4, 4))
+    if not t_b > t_a:
+        raise ValueError(f"t_b must come after t_a, got {t_a} and {t_b}")
+    f = (t - t_b) / (t_b - t_a)
+    step = Rotation.from_matrix(T_b[:3, :3] @ T_a[:3, :3].T).as_rotvec()       # world-frame rotation a -> b
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(f * step).as_matrix() @ T_b[:3, :3]
+    out[:3, 3] = T_b[:3, 3] + f * (T_b[:3, 3] - T_a[:3, 3])
+    return out
 
 
 def smooth_poses(t, T, window_s: float, causal: bool = False):

@@ -1,6 +1,6 @@
 """Head tracking in the live session (docs/live.md, The loop): the head pose of each tracked
 scene frame (markers detected, pose computed: ``tracking``), and the pose at any eye sample's
-time, SLERP between the frames around it or the last frame's pose held for a moment."""
+time, SLERP between the frames around it or the last two frames' motion continued for a moment."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
-from tracking.timeline import interpolate_poses
+from tracking.timeline import extrapolate_pose, interpolate_poses
 
 log = logging.getLogger(__name__)
 
@@ -25,8 +25,9 @@ class HeadTracker:
     Args:
         detect: grey image (H, W) uint8 -> marker detections (``MarkerDetector.detect``).
         estimate: detections -> a ``tracking.pose.PoseResult`` (``MarkerPoseEstimator.estimate``).
-        hold_s: a sample up to this much newer than the last frame takes that frame's pose, s
-            (the head turns a fraction of a degree in 50 ms; the sample need not wait).
+        hold_s: a sample up to this much newer than the last frame need not wait for the next:
+            its pose continues the last two frames' motion (``tracking.timeline.extrapolate_pose``;
+            the last frame's own pose when there is no frame before it within ``MAX_GAP_S``), s.
         history: how many frames' poses are kept.
     """
 
@@ -64,13 +65,18 @@ class HeadTracker:
 
     def pose_at(self, t_s: float) -> np.ndarray | None:
         """``T_world_from_cam`` (4, 4) at session time ``t_s``: SLERP between the two frames
-        around it (``tracking.timeline.interpolate_poses``), or the last frame's pose held for up
-        to ``hold_s``; None when there is no pose that near."""
+        around it (``tracking.timeline.interpolate_poses``), or up to ``hold_s`` past the last
+        frame the last two frames' motion continued (docs/live.md: under load, a held pose
+        was off by about twice as much); None when there is no pose that near."""
         if not self.poses:
             return None
         t_last, T_last = self.poses[-1]
         if t_s >= t_last:
-            return T_last if t_s - t_last <= self.hold_s else None
+            if t_s - t_last > self.hold_s:
+                return None
+            if len(self.poses) > 1 and 0 < t_last - self.poses[-2][0] <= MAX_GAP_S and t_s > t_last:
+                return extrapolate_pose(*self.poses[-2], t_last, T_last, t_s)
+            return T_last
         for k in range(len(self.poses) - 2, -1, -1):
             ta, Ta = self.poses[k]
             if ta <= t_s:
