@@ -140,12 +140,22 @@ class OnlineSegmenter:
 
     def __init__(self, config: SegmentConfig = SegmentConfig()):
         self.config = config
-        self.buf: deque = deque(maxlen=2 * config.window)
+        self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None)
         self.in_saccade = False
         self.last_t: float | None = None
 
-    def update(self, t_s: float, direction) -> bool:
+    def update(self, t_s: float, direction, origin=None, depth_mm: float = np.inf) -> bool:
         """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) (world frame).
+
+        ``origin`` (3,) (world, mm; the eyes' midpoint) and ``depth_mm`` (the fixated point's
+        distance from it, when known) take the head's translation out of the test: each
+        buffered sample's gaze is taken to the point ``depth_mm`` along it, and the directions
+        compared are to those points from the newest origin. A still target's point stays put
+        however the head moves, where its direction turns by the parallax (1 deg per 17 mm
+        sideways at 1 m), which eats into the margin below ``jump_deg``. A saccade moves the
+        point by its amplitude. The caller gives a depth no nearer than the point can be
+        (``live.estimation``: the far end of its interval): too near a depth over-corrects, too
+        far one under-corrects, down to no correction (the default, infinity).
 
         Returns:
             True when this sample ends the current fixation. Afterwards ``in_saccade`` tells
@@ -154,20 +164,31 @@ class OnlineSegmenter:
         w = self.config.window
         gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
         self.last_t = t_s
+        item = (np.asarray(direction, float), None if origin is None else np.asarray(origin, float))
         if gap:
             self.buf.clear()
-            self.buf.append(np.asarray(direction, float))
+            self.buf.append(item)
             self.in_saccade = False
             return True
-        self.buf.append(np.asarray(direction, float))
+        self.buf.append(item)
         if len(self.buf) < 2 * w:
             return False
-        b = np.array(self.buf)
+        b = self._directions(depth_mm)
         before, after = np.median(b[:w], axis=0), np.median(b[w:], axis=0)
         jumped = angle_deg(before, after) > self.config.jump_deg
         ended = jumped and not self.in_saccade
         self.in_saccade = jumped
         return ended
+
+    def _directions(self, depth_mm: float) -> np.ndarray:
+        """(2 window, 3) the buffered directions, or with a finite depth and every origin known the
+        directions from the newest origin to the points ``depth_mm`` along them."""
+        d = np.array([x[0] for x in self.buf])
+        if not np.isfinite(depth_mm) or any(x[1] is None for x in self.buf):
+            return d
+        o = np.array([x[1] for x in self.buf])
+        p = o + depth_mm * d / np.linalg.norm(d, axis=1, keepdims=True) - o[-1]
+        return p / np.linalg.norm(p, axis=1, keepdims=True)
 
 
 def same_target(p1, cov1, p2, cov2, origin=None, floor_deg: float = 0.5, threshold: float = 11.34) -> bool:

@@ -83,3 +83,25 @@ def test_online_segmenter_ends_a_fixation_once_per_saccade_and_at_a_gap():
     assert sum(ends) == 1 and ends.index(True) == 11
     assert all(sacc[11:16]) and not any(sacc[16:])              # until the before-window's median has moved
     assert seg.update(22 / 60 + 0.6, b) and not seg.in_saccade   # a gap: the fixation ends, the next starts
+
+
+def test_online_segmenter_takes_the_heads_walk_out_at_the_given_depth_and_still_sees_a_saccade():
+    """A head walking sideways at 300 mm/s past a target 600 mm away turns its direction by
+    3.8 deg between the windows' middles (0.13 s): without a depth the test calls that a
+    saccade; with the target's depth, or a farther one (under-correcting), it does not, and a
+    4 deg saccade up to a point at the same depth is still seen, once."""
+    t = np.arange(120) / 60.0
+    origin = np.column_stack([300.0 * t, np.zeros_like(t), np.zeros_like(t)])
+    target = np.where((t < 1.0)[:, None], [[60.0, 0.0, 600.0]], [[60.0, -600 * np.tan(np.deg2rad(4.0)), 600.0]])
+    d = target - origin
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+
+    def ends(depth, upto):
+        seg = OnlineSegmenter()
+        return [i for i in range(upto) if seg.update(t[i], d[i], origin[i], depth)]
+
+    assert ends(np.inf, 60)                                  # the walk alone: a false saccade
+    assert ends(600.0, 60) == [] and ends(900.0, 60) == []
+    assert len(ends(600.0, 120)) == 1 and len(ends(900.0, 120)) == 1
+    seg = OnlineSegmenter()                                  # no origin: no correction, whatever the depth
+    assert any(seg.update(t[i], d[i], None, 600.0) for i in range(60))
