@@ -10,7 +10,7 @@ import pytest
 from calibration.camera import BoardView, CameraCalibration, calibrate_camera, detect_board, parse_board
 from calibration.eyes import CalibrationError, calibrate_eye, estimate_centre, fit_raw_map, target_readings, wall_pose
 from estimator.frames import rotation_about_axis
-from tracking.timeline import extrapolate_pose, interpolate_poses
+from tracking.timeline import extrapolate_pose, interpolate_poses, pose_spikes
 from wearable_gaze.cli import main
 from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.eyes import load_eyes
@@ -306,6 +306,33 @@ def test_extrapolate_pose_carries_the_turn_and_the_walk_on_at_their_rate():
     assert np.allclose(extrapolate_pose(1.00, Ta, 1.03, Tb, 1.03), Tb)
     with pytest.raises(ValueError, match="t_b must come after t_a"):
         extrapolate_pose(1.03, Ta, 1.03, Tb, 1.05)
+
+
+def test_pose_spikes_are_the_poses_that_jump_off_a_smooth_head_and_back():
+    """A walking, turning head at 15 poses a second (every other frame at 30 fps) with 2 mm and
+    0.1 deg of tracking noise, speeding up to 1.5 m/s and 120 deg/s: no spike. A pose 300 mm
+    off, one turned 8 deg, and one 300 mm off just after a gap (compared with the two after it,
+    continued back) are found, and not their neighbours."""
+    from scipy.spatial.transform import Rotation
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 6, 1 / 15)
+    x = 250.0 * t ** 2 / 2 / 6 * 6                    # 250 mm/s^2: 1.5 m/s at the end
+    yaw = 10.0 * t ** 2                               # 120 deg/s at the end
+    T = np.tile(np.eye(4), (len(t), 1, 1))
+    for i in range(len(t)):
+        T[i, :3, :3] = (Rotation.from_rotvec(np.deg2rad(0.1) * rng.normal(size=3))
+                        * Rotation.from_euler("y", yaw[i], degrees=True)).as_matrix()
+        T[i, :3, 3] = [x[i], 0.0, 1000.0] + rng.normal(0, 2.0, 3)
+    spike, off_mm, off_deg = pose_spikes(t, T)
+    assert not spike.any() and np.nanmax(off_mm) < 25 and np.nanmax(off_deg) < 1.0
+    T[20, :3, 3] += [0.0, 300.0, 0.0]
+    T[50, :3, :3] = Rotation.from_euler("x", 8.0, degrees=True).as_matrix() @ T[50, :3, :3]
+    T[70:73] = np.nan                                 # a gap of 0.27 s: pose 73 is next to it
+    T[73, :3, 3] += [300.0, 0.0, 0.0]
+    spike, off_mm, off_deg = pose_spikes(t, T)
+    assert list(np.flatnonzero(spike)) == [20, 50, 73]
+    assert off_mm[20] == pytest.approx(300.0, abs=10) and off_deg[50] == pytest.approx(8.0, abs=0.5)
+    assert off_mm[73] == pytest.approx(300.0, abs=15) and np.isnan(off_mm[70])
 
 
 def test_calibration_cli_errors_are_one_line(tmp_path, capsys):

@@ -128,3 +128,41 @@ def test_tracking_one_frame_in_two_keeps_the_tracked_poses_and_interpolates_the_
     cap = cv2.VideoCapture(str(tmp_path / "ov.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 30
     cap.release()
+
+
+class _FrameSource:
+    """A cv2.VideoCapture stand-in: ``n`` black frames."""
+
+    def __init__(self, n):
+        self.n, self.i = n, 0
+
+    def read(self):
+        if self.i >= self.n:
+            return False, None
+        self.i += 1
+        return True, np.zeros((8, 8, 3), np.uint8)
+
+    def grab(self):
+        return self.read()[0]
+
+
+def test_a_tracked_pose_that_jumps_off_the_heads_path_and_back_is_rejected(tmp_path):
+    """A head walking at 0.6 m/s, tracked one frame in two at 30 fps; one tracked pose is 400 mm
+    off (a single marker's wrong solution): it is rejected, with the reason, and the frames
+    around it have no pose rather than one SLERPed toward it; its tracked neighbours are kept."""
+    from tracking.pose import OK, PoseResult
+    poses = [_T(t=(20.0 * i, 0.0, 0.0)) for i in range(30)]
+    poses[12] = _T(t=(240.0, 400.0, 0.0))
+    calls = iter(range(30))
+
+    def locate(grey):
+        i = 2 * next(calls)
+        return PoseResult(poses[i], OK, markers=[1], n_points=4, reproj_rms_px=0.1), []
+    res = track_cmd.track_poses(_FrameSource(30), 30.0, 30, locate, every=2)
+    status = list(res.columns["status"])
+    assert status[12].startswith("rejected: a spike, 400 mm")
+    assert np.isnan(res.T_world_from_cam[11:14]).all() and status[11] == status[13] != "interpolated"
+    assert all(status[k] == "ok" for k in range(0, 30, 2) if k != 12)
+    assert all(status[k] == "interpolated" for k in range(1, 29, 2) if k not in (11, 13))
+    assert np.allclose(res.T_world_from_cam[10, :3, 3], [200.0, 0.0, 0.0])
+    assert np.allclose(res.T_world_from_cam[14, :3, 3], [280.0, 0.0, 0.0])

@@ -90,6 +90,75 @@ def extrapolate_pose(t_a: float, T_a, t_b: float, T_b, t: float) -> np.ndarray:
     return out
 
 
+SPIKE_MM = 50.0
+"""A tracked pose farther than this from the line between its neighbours' poses is a spike (mm):
+a head accelerating at 10 m/s^2 leaves that line by 6 mm over two frames at 30 fps (1/15 s)."""
+SPIKE_DEG = 5.0
+"""... or turned farther than this from their SLERP (degrees; 3000 deg/s^2: 1.7 deg)."""
+
+
+def pose_spikes(t, T, max_gap_s: float = 0.2, spike_mm: float = SPIKE_MM, spike_deg: float = SPIKE_DEG):
+    """Which poses jump away from both neighbours and back: a marker pose fixed on one or two
+    markers (a single marker's two IPPE solutions, a wrong corner) can land hundreds of mm off
+    while the head moves smoothly.
+
+    Each valid pose is compared with its two nearest valid neighbours' interpolation at its time
+    (``interpolate_poses``; neighbours at most ``max_gap_s`` apart), or beside a gap (or at
+    either end) with the two valid poses on its other side continued to its time
+    (``extrapolate_pose``; within ``max_gap_s`` of it). It is a spike when it is
+    off that by over ``spike_mm`` or ``spike_deg`` and by more than either neighbour is off its
+    own neighbours (so that one bad pose does not also condemn the good ones beside it); a
+    neighbour that could not be compared leaves it undecided: kept.
+
+    Args:
+        t: (N,) times, s, increasing.
+        T: (N, 4, 4) ``T_world_from_cam``, NaN where no pose.
+
+    Returns:
+        (N,) bool, True for a spike (never for a NaN pose or the first or last valid one), and
+        (N,) each pose's distance from the interpolation, mm, and (N,) its angle from it,
+        degrees (NaN where not compared).
+    """
+    t, T = _times_and_poses(t, T, "t", "T")
+    good = np.flatnonzero(np.all(np.isfinite(T.reshape(len(T), -1)), axis=1))
+    off_mm, off_deg = np.full(len(t), np.nan), np.full(len(t), np.nan)
+    for j, k in enumerate(good):
+        Ti = _neighbours_pose(t, T, good, j, max_gap_s)
+        if Ti is None:
+            continue
+        off_mm[k] = np.linalg.norm(T[k, :3, 3] - Ti[:3, 3])
+        off_deg[k] = np.degrees(Rotation.from_matrix(T[k, :3, :3] @ Ti[:3, :3].T).magnitude())
+    score = np.fmax(off_mm / spike_mm, off_deg / spike_deg)
+    spike = np.zeros(len(t), bool)
+    for j, k in enumerate(good):
+        if not score[k] > 1:
+            continue
+        near = [score[good[i]] for i in (j - 1, j + 1) if 0 <= i < len(good)]
+        spike[k] = all(x < score[k] for x in near)                   # a neighbour not compared objects
+    return spike, off_mm, off_deg
+
+
+def _neighbours_pose(t, T, good, j: int, max_gap_s: float):
+    """The pose at ``t[good[j]]`` its valid neighbours (indices ``good``) give: SLERP between the
+    two around it when at most ``max_gap_s`` apart; else the two on one side, continued, when
+    that side's nearer one is within half ``max_gap_s`` and the farther within ``max_gap_s``;
+    else None."""
+    k = good[j]
+    before, after = good[max(j - 2, 0):j], good[j + 1:j + 3]
+    if len(before) and len(after) and t[after[0]] - t[before[-1]] <= max_gap_s:
+        return interpolate_poses(t[[before[-1], after[0]]], T[[before[-1], after[0]]], [t[k]], max_gap_s=max_gap_s)[0][0]
+    if len(after) == 2 and t[after[0]] - t[k] <= max_gap_s / 2 and t[after[1]] - t[k] <= max_gap_s:
+        return _extrapolate_back(t[after[1]], T[after[1]], t[after[0]], T[after[0]], t[k])
+    if len(before) == 2 and t[k] - t[before[1]] <= max_gap_s / 2 and t[k] - t[before[0]] <= max_gap_s:
+        return extrapolate_pose(t[before[0]], T[before[0]], t[before[1]], T[before[1]], t[k])
+    return None
+
+
+def _extrapolate_back(t_far: float, T_far, t_near: float, T_near, t: float) -> np.ndarray:
+    """``extrapolate_pose`` backwards in time: the pose at ``t`` < ``t_near`` < ``t_far``."""
+    return extrapolate_pose(-t_far, T_far, -t_near, T_near, -t)
+
+
 def smooth_poses(t, T, window_s: float, causal: bool = False):
     """Moving-average smoothing of poses (N, 4, 4) at times t (N,): translations averaged,
     rotations averaged as sign-aligned quaternions, over ``window_s`` seconds.

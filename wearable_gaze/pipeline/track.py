@@ -19,7 +19,7 @@ from tracking.homography import PlanarTracker
 from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
-from tracking.timeline import interpolate_poses, smooth_poses
+from tracking.timeline import SPIKE_DEG, SPIKE_MM, interpolate_poses, pose_spikes, smooth_poses
 
 from ..errors import UserError
 from ..formats.atomic import atomic_path
@@ -186,11 +186,21 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
 
 
 def _fill_poses(rows: dict, every: int, fps: float, smooth_s: float):
-    """(T_world_from_cam (N, 4, 4), status (N,)): the frames passed over SLERPed between tracked
-    neighbours at most ``every`` + 0.5 frames apart, then smoothed over ``smooth_s`` if > 0."""
+    """(T_world_from_cam (N, 4, 4), status (N,)): a tracked pose that jumps away from both its
+    tracked neighbours and back is rejected (``tracking.timeline.pose_spikes``: a pose on one or
+    two small markers can land hundreds of mm off); the frames passed over are SLERPed between
+    tracked neighbours at most ``every`` + 0.5 frames apart; then all are smoothed over
+    ``smooth_s`` if > 0."""
     T_all = np.array(rows["T"])
     status = list(rows["status"])
     t_all = np.array(rows["t"])
+    spike, off_mm, off_deg = pose_spikes(t_all, T_all, max_gap_s=(2 * every + 1) / fps)
+    for k in np.flatnonzero(spike):
+        T_all[k] = np.nan
+        status[k] = f"rejected: a spike, {off_mm[k]:.0f} mm and {off_deg[k]:.1f} deg off its neighbours"
+    if spike.any():
+        log.info("%d tracked poses rejected as spikes (off their neighbours by over %g mm or %g deg)",
+                 int(spike.sum()), SPIKE_MM, SPIKE_DEG)
     if every > 1:
         fill = np.array([st == "interpolated" for st in status])
         T_i, ok_i = interpolate_poses(t_all[~fill], T_all[~fill], t_all[fill], max_gap_s=(every + 0.5) / fps)
