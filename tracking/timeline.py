@@ -146,7 +146,8 @@ def _neighbours_pose(t, T, good, j: int, max_gap_s: float):
     k = good[j]
     before, after = good[max(j - 2, 0):j], good[j + 1:j + 3]
     if len(before) and len(after) and t[after[0]] - t[before[-1]] <= max_gap_s:
-        return interpolate_poses(t[[before[-1], after[0]]], T[[before[-1], after[0]]], [t[k]], max_gap_s=max_gap_s)[0][0]
+        ab = [before[-1], after[0]]
+        return interpolate_poses(t[ab], T[ab], [t[k]], max_gap_s=max_gap_s)[0][0]
     if len(after) == 2 and t[after[0]] - t[k] <= max_gap_s / 2 and t[after[1]] - t[k] <= max_gap_s:
         return _extrapolate_back(t[after[1]], T[after[1]], t[after[0]], T[after[0]], t[k])
     if len(before) == 2 and t[k] - t[before[1]] <= max_gap_s / 2 and t[k] - t[before[0]] <= max_gap_s:
