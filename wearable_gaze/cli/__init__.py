@@ -25,8 +25,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for add in (estimate.add_estimate, paper.add_reproduce, calibrate.add_calibrate_camera,
                 calibrate.add_calibrate_eyes, calibrate.add_viewlines, fixations.add_fixations, track.add_track,
-                track.add_markers, sim.add_simulate, importer.add_import, importer.add_export, process.add_process,
-                person.add_learn_bias, live.add_live, sim.add_emulate, process.add_demo):
+                track.add_markers, track.add_map, sim.add_simulate, importer.add_import, importer.add_export,
+                process.add_process, person.add_learn_bias, live.add_live, sim.add_emulate, process.add_demo):
         add(sub)
     return p
 

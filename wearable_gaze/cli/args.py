@@ -60,6 +60,13 @@ def positive_int(text):
     return v
 
 
+def non_negative_int(text):
+    v = whole_number(text)
+    if not 0 <= v <= 10**9:
+        raise argparse.ArgumentTypeError(f"must be a whole number from 0, got {ascii(text)}")
+    return v
+
+
 def seed(text):
     v = whole_number(text)
     if not 0 <= v < 2**63:

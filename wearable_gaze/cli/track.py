@@ -1,7 +1,8 @@
-"""``wearable-gaze track`` and ``markers``."""
+"""``wearable-gaze track``, ``markers`` and ``map``."""
 
 from __future__ import annotations
 
+from ..errors import UserError
 from . import args as A
 
 
@@ -55,3 +56,35 @@ def add_markers(sub) -> None:
     mk.add_argument("--page", choices=("a4", "letter", "a3"), default="a4", help="paper size (default a4)")
     mk.add_argument("--dpi", type=A.positive_int, default=300, metavar="N", help="raster resolution (default 300)")
     mk.set_defaults(func=cmd_markers)
+
+
+def cmd_map(args) -> int:
+    from ..pipeline.mapping import build_map_files, format_map_report, parse_sizes  # noqa: PLC0415
+    from ..progress import progress_bar  # noqa: PLC0415
+
+    if args.size_mm is None and not args.sizes:
+        raise UserError("map: give the printed marker side, --size-mm MM (or --sizes ID=MM,...)")
+    with progress_bar("detecting markers", 1) as cb:
+        built = build_map_files(args.inputs, args.camera, args.out, args.dict, args.size_mm, parse_sizes(args.sizes),
+                                args.origin_marker, args.max_frames, cb)
+    for line in format_map_report(built):
+        print(line)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def add_map(sub) -> None:
+    """Declare the command and its arguments."""
+    mp = sub.add_parser("map", help="a marker map from a survey video or photos of the room's markers")
+    mp.add_argument("inputs", nargs="+", metavar="VIDEO_OR_IMAGES", help="survey videos, images or folders of images")
+    mp.add_argument("--camera", required=True, metavar="camera.json|.yml",
+                    help="the camera's calibration (ours, or an OpenCV YAML/XML file)")
+    mp.add_argument("-o", "--out", required=True, metavar="map.json", help="marker map to write")
+    mp.add_argument("--dict", default="DICT_4X4_50", metavar="DICT", help="cv2.aruco dictionary (default DICT_4X4_50)")
+    mp.add_argument("--size-mm", type=A.positive_float, metavar="MM", help="the printed markers' black square side")
+    mp.add_argument("--sizes", metavar="ID=MM,...", help="per-marker sides, over --size-mm")
+    mp.add_argument("--origin-marker", type=A.non_negative_int, metavar="ID",
+                    help="the marker whose frame is the world (default: the one seen most)")
+    mp.add_argument("--max-frames", type=A.positive_int, default=300, metavar="N",
+                    help="frames used from each video, evenly spaced (default 300)")
+    mp.set_defaults(func=cmd_map)

@@ -26,14 +26,16 @@ TEMPLATE_HELP = ("Measure each marker's four corners (top-left, top-right, botto
 log = logging.getLogger(__name__)
 
 
-def marker_map_dict(dictionary: str, marker_size_mm: float, poses: dict, labels: dict | None = None) -> dict:
+def marker_map_dict(dictionary: str, marker_size_mm: float, poses: dict, labels: dict | None = None,
+                    extra: dict | None = None) -> dict:
     """The marker map JSON object: per id (ascending) its ``T_world_from_marker`` (4, 4), mm,
-    rounded to 1e-9, and its label when ``labels`` has one."""
-    labels = labels or {}
+    rounded to 1e-9, its label when ``labels`` has one, and the fields ``extra[id]`` gives (a
+    built map's ``n_views``, ``rms_px``, ``covariance``, ``flags``; docs/formats.md)."""
+    labels, extra = labels or {}, extra or {}
     return {"format": FORMAT, "version": 1, "dictionary": dictionary,
             "marker_size_mm": float(marker_size_mm),
             "markers": [{"id": int(i), "T_world_from_marker": np.round(np.asarray(T, float), 9).tolist(),
-                         **({"label": labels[i]} if i in labels else {})}
+                         **({"label": labels[i]} if i in labels else {}), **extra.get(i, {})}
                         for i, T in sorted(poses.items())]}
 
 

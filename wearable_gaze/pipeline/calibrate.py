@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 
 # --- calibrate-camera --------------------------------------------------------------------------
 
-def _input_files(inputs) -> list:
+def input_files(inputs) -> list:
     """The image and video files of the inputs (folders: their images, sorted)."""
     files = []
     for p in inputs:
@@ -70,13 +70,14 @@ def _input_files(inputs) -> list:
     return files
 
 
-def _read_frames(files, max_video_frames: int):
-    """(name, grey image) for image files, and every k-th frame of video files."""
+def read_frames(files, max_video_frames: int, what: str = "the board"):
+    """(name, grey image) for image files, and evenly spaced frames (at most
+    ``max_video_frames``) of video files; ``what`` the images show, for messages."""
     for f in files:
         if f.suffix.lower() in IMAGE_EXT:
-            yield f.name, read_grey_image(f, fix="pass PNG, JPEG, BMP or TIFF images of the board")
+            yield f.name, read_grey_image(f, fix=f"pass PNG, JPEG, BMP or TIFF images of {what}")
             continue
-        refused = f"{f}: neither an image nor a video OpenCV can open; pass images or a video of the board"
+        refused = f"{f}: neither an image nor a video OpenCV can open; pass images or a video of {what}"
         for i, grey in sampled_grey_frames(f, max_video_frames, refused):
             yield f"{f.name}#{i}", grey
 
@@ -146,9 +147,9 @@ def calibrate_camera_files(inputs, board, out, model: str = "pinhole", max_views
     coverage, calibrate, write the camera JSON and an undistortion preview PNG beside it.
     Returns the calibration and the written paths."""
     spec = board_spec(board)
-    files = _input_files(inputs)
+    files = input_files(inputs)
     out, preview = _camera_outputs(out, files)
-    result = calibrate_camera_views(_read_frames(files, 4 * max_views), spec, model, max_views, progress)
+    result = calibrate_camera_views(read_frames(files, 4 * max_views), spec, model, max_views, progress)
     _write_camera_result(out, preview, result)
     return result.calibration, [out, preview]
 

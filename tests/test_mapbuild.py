@@ -1,0 +1,162 @@
+"""Building a marker map from views of the markers (issue 16, ``wearable-gaze map``): on OpenCV's
+real ChArUco tutorial photos against the board's geometry, and on synthetic views (a marker
+moved halfway through the survey is flagged)."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from tracking.mapbuild import build_marker_map
+from tracking.markermap import square_corners
+from tracking.pnp import transform_from_rvec_tvec
+from wearable_gaze.cli import main
+from wearable_gaze.formats.markermap import load_marker_map
+
+CHARUCO = "opencv_aruco_charuco_tutorial"
+
+
+def _similarity_errors(A, B) -> tuple[np.ndarray, float]:
+    """Per point, the distance from ``B`` (N, 3) of ``A`` (N, 3) after the best similarity
+    (Umeyama), and its scale."""
+    ma, mb = A.mean(0), B.mean(0)
+    Ac, Bc = A - ma, B - mb
+    U, S, Vt = np.linalg.svd(Bc.T @ Ac / len(A))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = np.trace(np.diag(S) @ D) / (Ac ** 2).sum(1).mean()
+    return np.linalg.norm(s * A @ R.T + mb - s * R @ ma - B, axis=1), float(s)
+
+
+def _board_corners() -> dict:
+    board = cv2.aruco.CharucoBoard((5, 7), 40.0, 20.0, cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250))
+    return {int(i): np.asarray(o, float).reshape(4, 3) for i, o in zip(board.getIds().ravel(), board.getObjPoints(),
+                                                                       strict=True)}
+
+
+def test_map_rebuilds_the_charuco_boards_17_markers_from_four_real_photos(real_data, tmp_path, capsys):
+    """OpenCV's tutorial photos img_00..03 (640x480, the published ChArUco calibration): every one
+    of the board's 17 markers, corners within 1 mm (median) of the board's geometry after the best
+    similarity (a print's scale differs from nominal by a few per cent)."""
+    d = real_data / CHARUCO
+    out = tmp_path / "map.json"
+    code = main(["map", *[str(d / f"img_0{k}.jpg") for k in range(4)], "--camera",
+                 str(d / "tutorial_camera_charuco.yml"), "--dict", "DICT_6X6_250", "--size-mm", "20",
+                 "--origin-marker", "0", "-o", str(out)])
+    assert code == 0
+    assert "17 markers from 4 views" in capsys.readouterr().out
+    mm = load_marker_map(out)                                     # a map `track` and `process` take
+    truth = _board_corners()
+    assert sorted(mm.poses) == sorted(truth) == list(range(17))
+    err, scale = _similarity_errors(np.concatenate([mm.corners(i) for i in range(17)]),
+                                    np.concatenate([truth[i] for i in range(17)]))
+    assert np.median(err) <= 1.0 and err.max() < 2.0, (np.median(err), err.max())
+    assert 0.95 < scale < 1.05
+    entries = json.loads(out.read_text())["markers"]
+    assert all(e["n_views"] == 4 and e["rms_px"] < 0.5 and e["flags"] == [] for e in entries)
+    assert np.allclose(entries[0]["covariance"], 0.0)            # the origin fixes the world
+    sd = [np.sqrt(np.diag(e["covariance"])[3:]) for e in entries[1:]]
+    assert all(0.01 < s.max() < 3.0 for s in sd)                 # mm: uncertain, but not wildly
+
+
+def _room():
+    """8 markers of 150 mm on two walls meeting at a corner (world: x right, y down, z ahead)."""
+    T = {}
+    for k in range(4):                                            # the far wall, z = 3000, facing -z
+        T[k] = np.eye(4)
+        T[k][:3, 3] = [-900.0 + 600.0 * k, -200.0 * (k % 2), 3000.0]
+    for k in range(4):                                            # the right wall, x = 1500, facing -x
+        R = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+        T[4 + k] = np.eye(4)
+        T[4 + k][:3, :3] = R
+        T[4 + k][:3, 3] = [1500.0, -150.0 * (k % 2), 2700.0 - 400.0 * k]
+    return T
+
+
+def _views(markers, n=40, moved=None, seed=0):
+    """Corners (px) of ``markers`` (id -> T_world_from_marker) seen from a camera walking and
+    turning in front of them (K: 800 px focal, 1280x720), 0.2 px noise; ``moved``: (id, (3,) mm)
+    shifts that marker for the second half of the views."""
+    rng = np.random.default_rng(seed)
+    K = np.array([[800.0, 0, 640], [0, 800.0, 360], [0, 0, 1]])
+    views = []
+    for v in range(n):
+        yaw = np.deg2rad(-15 + 60 * v / n)
+        Rwc = cv2.Rodrigues(np.array([0.0, yaw, 0.0]))[0]
+        c = np.array([-600.0 + 1200.0 * v / n, 0.0, 600.0 * v / n])
+        view = {}
+        for i, T in markers.items():
+            T = T.copy()
+            if moved is not None and moved[0] == i and v >= n // 2:
+                T[:3, 3] += moved[1]
+            X = square_corners(150.0) @ T[:3, :3].T + T[:3, 3]
+            Xc = (X - c) @ Rwc
+            if np.all(Xc[:, 2] > 100):
+                x = Xc[:, :2] / Xc[:, 2:3] * 800.0 + [640, 360]
+                if np.all((x > 0) & (x < [1280, 720])) and (T[:3, 2] @ (c - T[:3, 3]) < 0):
+                    view[i] = x + rng.normal(0, 0.2, x.shape)
+        views.append(view)
+    return views, K
+
+
+def test_a_synthetic_survey_gives_the_map_and_flags_a_moved_marker():
+    truth = _room()
+    views, K = _views(truth)
+    assert all(sum(i in v for v in views) >= 5 for i in truth)
+    built = build_marker_map(views, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=0)
+    assert sorted(built.marker_map.poses) == sorted(truth) and built.rms_px < 0.4 and not built.unposed
+    A = np.concatenate([built.marker_map.corners(i) for i in sorted(truth)])
+    T0 = truth[0]                                                 # the world is marker 0's frame
+    B = np.concatenate([(square_corners(150.0) @ truth[i][:3, :3].T + truth[i][:3, 3] - T0[:3, 3]) @ T0[:3, :3]
+                        for i in sorted(truth)])
+    err, scale = _similarity_errors(A, B)                         # the map's shape and scale
+    assert np.median(err) < 1.0 and err.max() < 3.0 and abs(scale - 1) < 1e-3, (np.median(err), err.max(), scale)
+    # in the origin marker's frame: its own small turn (a 150 mm marker 3 m off) swings the far ones
+    assert np.linalg.norm(A - B, axis=1).max() < 10.0
+    assert all(not inf.flags for inf in built.info.values())
+    views, K = _views(truth, moved=(5, np.array([0.0, 0.0, 80.0])))   # 80 mm along the wall, halfway
+    built = build_marker_map(views, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=0)
+    flagged = {i: inf.flags for i, inf in built.info.items() if inf.flags}
+    assert list(flagged) == [5] and flagged[5][0].startswith("moved by 8")        # 80 mm (to 1 mm)
+    assert built.rms_px < 0.25                                    # the move does not drag the others
+    after = truth[5][:3, 3] + [0.0, 0.0, 80.0] - truth[0][:3, 3]
+    assert np.linalg.norm(built.marker_map.poses[5][:3, 3] - after) < 10.0     # where it went
+
+
+def test_build_marker_map_refuses_what_it_cannot_build():
+    views, K = _views(_room(), n=10)
+    with pytest.raises(ValueError, match="origin marker 42"):
+        build_marker_map(views, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=42)
+    with pytest.raises(ValueError, match="no printed size"):
+        build_marker_map(views, K, np.zeros(5), "DICT_4X4_50", {0: 150.0}, origin=0)
+    with pytest.raises(ValueError, match="no marker was detected"):
+        build_marker_map([{}, {}], K, np.zeros(5), "DICT_4X4_50", 150.0)
+    T = transform_from_rvec_tvec(np.zeros(3), np.array([0.0, 0.0, 1000.0]))
+    one = {0: (square_corners(150.0) @ T[:3, :3].T + T[:3, 3])[:, :2] / 1000.0 * 800.0 + [640, 360]}
+    built = build_marker_map([one], K, np.zeros(5), "DICT_4X4_50", 150.0)
+    assert built.info[0].flags == ["seen in 1 view(s)"]
+
+
+def test_map_bad_inputs_are_one_line(real_data, tmp_path, capsys):
+    d = real_data / CHARUCO
+    img, cam = str(d / "img_00.jpg"), str(d / "tutorial_camera_charuco.yml")
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((100, 120), np.uint8))
+    out = str(tmp_path / "m.json")
+    cases = [
+        (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "-o", out], "--size-mm"),
+        (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "--sizes", "3:20", "-o", out], "ID=MM"),
+        (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "--size-mm", "20", "--sizes", "3=30", "-o", out],
+         "different sizes"),
+        (["map", img, "--camera", cam, "--dict", "DICT_9X9_1", "--size-mm", "20", "-o", out], "--dict"),
+        (["map", str(small), "--camera", cam, "--dict", "DICT_6X6_250", "--size-mm", "20", "-o", out], "120x100"),
+        (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "--size-mm", "20", "--origin-marker", "99", "-o",
+          out], "origin marker 99"),
+        (["map", str(tmp_path / "none.jpg"), "--camera", cam, "--size-mm", "20", "-o", out], "no such file"),
+    ]
+    for argv, needle in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], (argv, err)
+    assert not (tmp_path / "m.json").exists()

@@ -1,0 +1,109 @@
+"""``wearable-gaze map``: a marker map built from a survey video or photos of the room's markers
+(issue 16; docs/tracking.md, "Building a map"). Reads the inputs and the camera, detects the
+markers, calls ``tracking.mapbuild.build_marker_map`` and writes the map with each marker's
+views, residual, covariance and flags."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from calibration.camera import aruco_dictionary
+from tracking.mapbuild import BuiltMap, build_marker_map
+from tracking.markers import MarkerDetector, split_repeated
+
+from ..errors import UserError
+from ..formats.camera import load_camera
+from ..formats.markermap import marker_map_dict, write_marker_map
+from .calibrate import input_files, read_frames
+
+log = logging.getLogger(__name__)
+
+
+def parse_sizes(text: str | None) -> dict:
+    """``ID=MM,ID=MM,...`` -> {id: mm} (empty for None).
+
+    Raises:
+        UserError: a malformed entry or a size that is not a positive number of millimetres.
+    """
+    out = {}
+    for part in (text or "").split(","):
+        if not part.strip():
+            continue
+        try:
+            k, v = part.split("=")
+            out[int(k)] = float(v)
+        except ValueError:
+            raise UserError(f"--sizes: {part.strip()!r} is not ID=MM; write e.g. --sizes 0=150,7=80") from None
+        if not out[int(k)] > 0:
+            raise UserError(f"--sizes: marker {k} has size {v}; sizes are positive millimetres")
+    return out
+
+
+def build_map_files(inputs, camera_path, out, dictionary: str, size_mm: float | None = None, sizes=None,
+                    origin: int | None = None, max_frames: int = 300, progress=None) -> BuiltMap:
+    """Build and write the marker map of ``inputs`` (images, folders of images, videos: at most
+    ``max_frames`` evenly spaced frames of each) seen by the camera of ``camera_path`` (our JSON
+    or an OpenCV YAML/XML calibration), markers of ``dictionary`` printed ``size_mm`` wide or
+    as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``.
+
+    Raises:
+        UserError: unreadable inputs, an unknown dictionary, images of another size than the
+            camera's, no marker seen, a seen id without a size, the origin never seen.
+    """
+    try:
+        aruco_dictionary(dictionary)
+    except ValueError as exc:
+        raise UserError(f"--dict: {exc}") from None
+    cam = load_camera(Path(camera_path))
+    detector = MarkerDetector(dictionary)
+    files = input_files(inputs)
+    views, names, repeated = [], [], {}
+    for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
+        if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
+            raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
+                            f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
+        unique, rep, _ = split_repeated(detector.detect(grey))
+        for i in rep:
+            repeated[i] = repeated.get(i, 0) + 1
+        views.append(unique)
+        names.append(name)
+        if progress:
+            progress(k + 1, max(k + 1, len(files)))
+    seen = sorted({i for v in views for i in v})
+    size = {i: size_mm for i in seen if size_mm is not None}
+    size.update({i: s for i, s in (sizes or {}).items() if i in seen})
+    if len(set(size.values())) > 1:     # the map format holds one size (tracking.markermap.MarkerMap)
+        raise UserError(f"map: the markers seen have {len(set(size.values()))} different sizes; a marker map holds "
+                        "one size so far: map each size's markers separately")
+    try:
+        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin)
+    except ValueError as exc:
+        raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
+    for i, n in repeated.items():
+        if i in built.info:
+            built.info[i].flags.append(f"id detected twice in {n} view(s) (a duplicate print?)")
+    write_marker_map(out, marker_map_dict(dictionary, built.marker_map.marker_size_mm, built.marker_map.poses,
+                                          extra={i: _extra(inf) for i, inf in built.info.items()}))
+    log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
+    return built
+
+
+def _extra(info) -> dict:
+    """The JSON fields of one built marker (``MarkerInfo``)."""
+    return {"n_views": int(info.n_views), "rms_px": round(float(info.rms_px), 4),
+            "covariance": np.round(info.covariance, 12).tolist(), "flags": list(info.flags)}
+
+
+def format_map_report(built: BuiltMap) -> list[str]:
+    """Lines for the terminal: the map, then each flagged marker."""
+    lines = [f"{len(built.marker_map.poses)} markers from {len(built.cameras)} views "
+             f"({len(built.unposed)} without a marker of the map), reprojection RMS {built.rms_px:.2f} px"]
+    for i, inf in sorted(built.info.items()):
+        sd = np.sqrt(np.clip(np.diag(inf.covariance)[3:], 0, None))
+        if inf.flags:
+            lines.append(f"  marker {i}: {'; '.join(inf.flags)} (views {inf.n_views}, RMS {inf.rms_px:.2f} px, "
+                         f"position sd {np.max(sd):.1f} mm)")
+    return lines
