@@ -68,6 +68,9 @@ DEFAULTS = {
         "follow": 0.7,
         "walk_to_mm": [0.0, 0.0, 2000.0],
         "speed_mm_s": 400.0,
+        "survey_inset_mm": 1300.0,
+        "survey_loop_s": 60.0,
+        "survey_walls_mm": None,
     },
     "calibration": {
         "eye": True,
@@ -108,6 +111,15 @@ NAMED = {
         "eyes": {"fixation_s": [1000.0, 1000.0]},
         "targets": {"points_mm": [[-600.0, 0.0, 2000.0]], "random_count": 0, "moving": [0]},
         "head": {"motion": "fixed"},
+    },
+    "survey": {
+        "name": "survey",
+        "duration_s": 60.0,
+        "eyes": {"fixation_s": [1000.0, 1000.0]},
+        "room": {"markers_per_wall": 6},
+        "targets": {"points_mm": [[0.0, 0.0, 1000.0]], "random_count": 0},
+        "head": {"motion": "survey", "sway_deg": 3.0, "sway_mm": 50.0, "survey_loop_s": 60.0},
+        "calibration": {"camera_views": 8},
     },
     "calibration-only": {
         "name": "calibration-only",
@@ -161,6 +173,8 @@ def check_scenario(s: dict, source="scenario") -> None:
         raise bad(["calibration", "camera_board", "marker_mm"], "a ChArUco marker must be smaller than its square")
     if s["head"]["motion"] in ("sway", "walk") and not s["head"]["follow"] > 0:
         raise bad(["head", "follow"], "expected a fraction in (0, 1] for sway and walk motion")
+    if s["head"]["motion"] == "survey":
+        _check_survey(s["head"], bad)
     if not any(s["head"]["forward"]):
         raise bad(["head", "forward"], "the heading must be a non-zero vector")
     if s["session"]:
@@ -168,6 +182,26 @@ def check_scenario(s: dict, source="scenario") -> None:
         if s["duration_s"] < need:
             raise bad(["duration_s"], f"{s['duration_s']:g} s is too short for a session: give at least "
                       f"{need:.3g} s (--duration)")
+
+
+def _check_survey(head: dict, bad) -> None:
+    """The survey's loop fits inside its walls and keeps its sway away from them."""
+    x0, z0, x1, z1 = head["survey_walls_mm"]
+    inset = head["survey_inset_mm"]
+    if not (x1 - x0 > 2 * inset + 100 and z1 - z0 > 2 * inset + 100):
+        most = (min(x1 - x0, z1 - z0) - 100) / 2
+        raise bad(["head", "survey_inset_mm"], f"a loop {inset:g} mm from walls {x1 - x0:g} x {z1 - z0:g} mm apart "
+                  f"does not fit: give at most {most:g} (or a larger room.size_mm)")
+    if not inset >= head["sway_mm"] + 300:
+        raise bad(["head", "survey_inset_mm"], f"{inset:g} mm from the walls leaves too little room for "
+                  f"head.sway_mm {head['sway_mm']:g}: give at least sway_mm + 300")
+
+
+def survey_walls(room: dict) -> list:
+    """[left x, back z, right x, front z] of a room's walls, world mm (as ``world.lab_room`` puts them)."""
+    width, _, depth = (float(v) for v in room["size_mm"])
+    back = float(room["back_mm"])
+    return [-width / 2, -back, width / 2, depth - back]
 
 
 def resolve(scenario, duration_s=None, resolution=None, source="scenario") -> dict:
@@ -198,6 +232,8 @@ def resolve(scenario, duration_s=None, resolution=None, source="scenario") -> di
         s["duration_s"] = float(duration_s)
     if resolution is not None:
         s["camera"]["resolution"] = list(resolution)
+    if s["head"]["motion"] == "survey" and s["head"]["survey_walls_mm"] is None:
+        s["head"]["survey_walls_mm"] = survey_walls(s["room"])
     if isinstance(scenario, str):
         source = f"scenario {scenario}"
     if duration_s is not None or resolution is not None:
