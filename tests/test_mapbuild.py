@@ -160,3 +160,45 @@ def test_map_bad_inputs_are_one_line(real_data, tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and needle in err[0], (argv, err)
     assert not (tmp_path / "m.json").exists()
+
+
+def test_process_builds_the_map_from_the_sessions_own_video_when_it_has_none(tmp_path):
+    """A lab-walkabout session without its marker map: ``process`` says so and names
+    ``--build-map``; with it, the map is built from the scene video (the markers the walk sees,
+    matching the true map's after the best similarity), the session is tracked with it, and the
+    fixated targets are found where the truth, moved into the built map's world, puts them."""
+    from wearable_gaze.pipeline.demo import match_targets
+    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.sim.simulate import simulate_scenario
+
+    root = tmp_path / "s"
+    walls = [{"distance_mm": 1000.0, "grid": [3, 3], "tilt_deg": 12.0}, {"distance_mm": 2000.0, "grid": [3, 3],
+                                                                          "tilt_deg": 6.0}]
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 8.0, "targets": {"random_count": 2},
+                       "calibration": {"camera_views": 0, "walls": walls, "dwell_s": 1.0}}, root, seed=3,
+                      resolution=(960, 540))
+    true_map = load_marker_map(root / "markers.json")
+    man = json.loads((root / "session.json").read_text())
+    del man["files"]["marker_map"]
+    (root / "session.json").write_text(json.dumps(man))
+    (root / "markers.json").unlink()
+    cal = {"camera": root / "truth" / "camera.json", "report": False}        # the eyes calibrated from the session
+    res = process_session(root, tmp_path / "out", **cal)
+    assert any("no marker map" in p and "--build-map" in p for p in res.problems) and not res.found
+    res = process_session(root, tmp_path / "out", **cal, build_map=(true_map.marker_size_mm, true_map.dictionary))
+    assert res.found and not res.problems, res.problems
+    built = load_marker_map(tmp_path / "out" / "built_map.json")
+    common = sorted(set(built.poses) & set(true_map.poses))
+    assert len(common) == len(built.poses) >= 4
+    err, scale = _similarity_errors(np.concatenate([built.corners(i) for i in common]),
+                                    np.concatenate([true_map.corners(i) for i in common]))
+    assert np.median(err) < 5.0 and abs(scale - 1) < 0.01, (np.median(err), scale)
+    o = next(i for i in common if np.allclose(built.poses[i], np.eye(4)))     # the built world's origin marker
+    T = true_map.poses[o] @ np.linalg.inv(built.poses[o])                      # built world -> true world
+    truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
+    found = [{"target": t.index, **dict(zip(("x_mm", "y_mm", "z_mm"), (T @ [*t.position_mm, 1.0])[:3], strict=True))}
+             for t in res.found]
+    pairs = match_targets(found, [t for t in truth if sum(b - a for a, b in t["fixations_s"]) >= 1.0])
+    assert pairs and all(f is not None for _, f in pairs)
+    for tt, f in pairs:
+        assert np.linalg.norm(np.subtract([f["x_mm"], f["y_mm"], f["z_mm"]], tt["position_mm"])) < 300.0

@@ -5,7 +5,8 @@ the markers' poses in a world fixed by one of them, from their detected corners 
 Each view's markers are posed alone (IPPE for a square); views and markers are chained from the
 origin marker outward (a view posed by the markers already placed, then its new markers placed
 by it); then all view and marker poses are adjusted together (bundle adjustment on the corners'
-reprojection, a robust Huber loss, scipy's sparse least squares). The scale is the printed
+reprojection, a robust Huber loss, Levenberg-Marquardt with the views eliminated:
+``tracking.bundle``). The scale is the printed
 markers' sides, so the map is in millimetres. Then per marker: its pose covariance, how many views
 saw it, its reprojection RMS, and whether it moved during the survey (its views before and after
 the middle fit poses farther apart than their uncertainty allows).
@@ -22,9 +23,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
+from .bundle import bundle_adjust
 from .markermap import MarkerMap, square_corners
 from .pnp import transform_from_rvec_tvec
 
@@ -35,8 +36,8 @@ MIN_VIEWS = 3
 MOVED_MM = 10.0
 """A marker whose views before and after the survey's middle fit positions farther apart than
 this (mm), and than 5 sd of the difference, is flagged as moved."""
-MAX_NFEV = 1000
-"""The bundle adjustment's evaluation budget (it warns when it runs out)."""
+MAX_ITER = 100
+"""The bundle adjustment's step budget (it warns when it runs out)."""
 MAX_MOVED = 5
 """At most this many moved markers are split in two and adjusted again (each costs one more
 adjustment); more are still flagged, by the last adjustment's test."""
@@ -241,61 +242,47 @@ def _residuals(x, prob: dict) -> np.ndarray:
 @dataclass
 class _Adjusted:
     """The bundle adjustment's outcome: poses, residuals (pixels, 8 per observation ``pairs``),
-    and the (loss-weighted) Jacobian with its column layout."""
+    and the markers' information with the views marginalised (``tracking.bundle``)."""
 
     markers: dict
     cams: dict
     residuals: np.ndarray
-    jac: object
+    information: np.ndarray
     pairs: list
-    n_cams: int
     marker_keys: list
+    converged: bool
 
 
 def _adjust(obs, size, origin, markers, cams, focal) -> _Adjusted:
     """Bundle adjustment of every posed view and placed marker but the origin (Huber loss,
-    ``HUBER_PX``)."""
+    ``HUBER_PX``; ``tracking.bundle``)."""
     cam_keys = sorted(cams)
     marker_keys = sorted(i for i in markers if i != origin)
     pairs = [(k, i) for k in cam_keys for i in obs[k] if i in markers]
-    x0 = np.concatenate([_pack(cams[k]) for k in cam_keys] + [_pack(markers[i]) for i in marker_keys])
-    mcol = {i: 6 * (len(cam_keys) + j) for j, i in enumerate(marker_keys)}
-    A = lil_matrix((8 * len(pairs), len(x0)), dtype=int)
-    for r, (k, i) in enumerate(pairs):
-        c = 6 * cam_keys.index(k)
-        A[8 * r:8 * r + 8, c:c + 6] = 1
-        if i != origin:
-            A[8 * r:8 * r + 8, mcol[i]:mcol[i] + 6] = 1
     prob = {"n_cams": len(cam_keys), "focal": focal,
             "cam": np.array([cam_keys.index(k) for k, _ in pairs]),
             "marker": np.array([marker_keys.index(i) if i != origin else -1 for _, i in pairs]),
             "local": np.array([square_corners(size[i]) for _, i in pairs]),
             "seen": np.array([obs[k][i] for k, i in pairs])}
-    fit = least_squares(_residuals, x0, jac_sparsity=A, loss="huber", f_scale=HUBER_PX, x_scale="jac",
-                        method="trf", args=(prob,), max_nfev=MAX_NFEV,
-                        tr_options={"atol": 1e-10, "btol": 1e-10})   # LSMR solved tightly: 32 steps, not 600
-    if fit.status == 0:
-        log.warning("the map's bundle adjustment stopped after %d evaluations before converging", fit.nfev)
-    cams, adjusted = _unpack(fit.x, cam_keys, marker_keys)
+
+    def fun(v, o):
+        return _residuals(np.concatenate([v.ravel(), o.ravel()]), prob).reshape(-1, 8)
+    fit = bundle_adjust(fun, np.array([_pack(cams[k]) for k in cam_keys]),
+                        np.array([_pack(markers[i]) for i in marker_keys]).reshape(-1, 6), prob["cam"], prob["marker"],
+                        HUBER_PX, MAX_ITER)
+    if not fit.converged:
+        log.warning("the map's bundle adjustment stopped after %d steps before converging", fit.iterations)
+    cams, adjusted = _unpack(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
     adjusted[origin] = np.eye(4)
-    return _Adjusted(adjusted, cams, fit.fun, fit.jac, pairs, len(cam_keys), marker_keys)
+    return _Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys, fit.converged)
 
 
 def _marker_covariances(adj: _Adjusted) -> dict:
-    """{marker id: (6, 6)} the markers' parameter covariance, ``s^2 (J^T J)^-1`` with the
-    views marginalised (Schur complement over their 6x6 blocks), ``s^2`` the residuals' mean
-    square per degree of freedom, pixels^2."""
-    J = adj.jac.tocsr()
-    H = (J.T @ J).tocsr()
-    nc = 6 * adj.n_cams
-    Hcc, Hcm, Hmm = H[:nc, :nc], H[:nc, nc:], H[nc:, nc:].toarray()
-    inv_cc = [np.linalg.pinv(Hcc[6 * v:6 * v + 6, 6 * v:6 * v + 6].toarray()) for v in range(adj.n_cams)]
-    S = Hmm.copy()
-    Hcm = Hcm.toarray() if Hcm.shape[1] else np.zeros((nc, 0))
-    for v in range(adj.n_cams):
-        B = Hcm[6 * v:6 * v + 6]
-        S -= B.T @ inv_cc[v] @ B
-    dof = max(len(adj.residuals) - H.shape[0], 1)
+    """{marker id: (6, 6)} the markers' parameter covariance: the inverse of their information
+    (the views marginalised) times the residuals' mean square per degree of freedom, pixels^2."""
+    n_par = 6 * len(adj.marker_keys) + 6 * len(adj.cams)
+    dof = max(len(adj.residuals) - n_par, 1)
+    S = adj.information
     C = np.linalg.pinv(S) * float(np.sum(adj.residuals ** 2)) / dof if S.size else S
     return {i: C[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j, i in enumerate(adj.marker_keys)}
 
@@ -326,6 +313,8 @@ def _adjust_moving(obs, size, origin, markers, cams, focal) -> tuple[_Adjusted, 
     for i in [j for j in moved if -1 - j in adj.markers]:
         moved[i] = float(np.linalg.norm(adj.markers[-1 - i][:3, 3] - adj.markers[i][:3, 3]))   # as adjusted
         adj.markers[i] = adj.markers.pop(-1 - i)
+        if moved[i] <= MOVED_MM:          # a first adjustment's doubt the last one does not bear out
+            del moved[i]
         adj.pairs = [(k, i if j == -1 - i else j) for k, j in adj.pairs]
     return adj, moved
 
@@ -383,14 +372,15 @@ def _fit_marker(obs, side, i, T0, cams, keys):
     """A marker's pose fitted to its corners in views ``keys`` (views fixed), from ``T0``:
     (T_world_from_marker, its position's covariance (3, 3), mm^2, the sum of squared
     residuals, normalised)."""
+    R = np.array([cams[k][:3, :3] for k in keys])
+    t = np.array([cams[k][:3, 3] for k in keys])
+    seen = np.array([obs[k][i] for k in keys])
+    local = square_corners(side)
+
     def res(x):
         T = transform_from_rvec_tvec(x[:3], x[3:])
-        Xw = square_corners(side) @ T[:3, :3].T + T[:3, 3]
-        out = []
-        for k in keys:
-            Xc = Xw @ cams[k][:3, :3].T + cams[k][:3, 3]
-            out.append((Xc[:, :2] / Xc[:, 2:3] - obs[k][i]).ravel())
-        return np.concatenate(out)
+        Xc = np.einsum("kij,cj->kci", R, local @ T[:3, :3].T + T[:3, 3]) + t[:, None]
+        return (Xc[..., :2] / Xc[..., 2:3] - seen).ravel()
     fit = least_squares(res, _pack(T0), method="lm")
     J = fit.jac
     s2 = float(np.sum(fit.fun ** 2)) / max(len(fit.fun) - 6, 1)

@@ -39,6 +39,7 @@ from ..formats.walls import read_walls
 from .calibrate import calibrate_camera_files, calibrate_eyes, head_lines_to_world, read_eye_recordings, view_lines
 from .device import POSE_NOTES, device_comparison, device_poses, still_head_poses
 from .fixations import find_targets, write_targets_step
+from .mapping import build_map_files
 from .report import OverlayInputs, write_report
 from .segmentation import segment_view_lines
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
@@ -46,6 +47,9 @@ from .track import frame_times, track_video
 from .types import Poses, Target
 
 log = logging.getLogger(__name__)
+
+BUILT_MAP = "built_map.json"
+"""The map ``--build-map`` builds from the session's video, in the output folder."""
 
 @dataclass(frozen=True)
 class _Settings:
@@ -56,6 +60,7 @@ class _Settings:
     track_every: int
     segment_config: SegmentConfig
     person: Path | None = None
+    build_map: tuple | None = None      # (marker side mm, dictionary) to build a map from the video
 
 
 @dataclass(frozen=True)
@@ -113,7 +118,8 @@ class _Values:
 
 def process_session(session, out=None, method: str = "voxel", camera=None, eyes=None, force: bool = False,
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
-                    segment_config: SegmentConfig | None = None, progress_factory=None, person=None) -> ProcessResult:
+                    segment_config: SegmentConfig | None = None, progress_factory=None, person=None,
+                    build_map: tuple | None = None) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -128,6 +134,9 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         segment_config: fixation segmentation settings (default ``SegmentConfig()``).
         progress_factory: name -> context manager yielding a progress(done, total) callback.
         person: a person.json (``learn-bias``) whose per-eye correction the view lines get.
+        build_map: (marker side, mm; dictionary name): a session without a marker map gets one
+            built from its own scene video (``pipeline.mapping``, written as built_map.json)
+            before tracking; a session with one keeps it.
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
@@ -159,7 +168,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     f = _SessionFiles.of(s)
     if segment_config is None:          # the window follows the eye rate: 8 samples at 60 Hz, 2 at 10 Hz
         segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
-    cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person)
+    cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person,
+                    None if build_map is None else (float(build_map[0]), str(build_map[1])))
     if correction is not None:
         res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
     cam_path = Path(camera) if camera else out / "camera.json"
@@ -290,9 +300,20 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
         cam, mm = vals["camera"], vals["marker_map"]
         poses = track_video(f.video, cam, mm, frame_times(f.video, f.stamps), cfg.track_every, cb)
         write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
-    if f.markers is None:
+    if f.markers is None and cfg.build_map is not None and f.video is not None:
+        built = poses_path.parent / BUILT_MAP
+
+        def build_and_track(cb):
+            build_map_files([f.video], cam_path, built, cfg.build_map[1], cfg.build_map[0])
+            vals.set("marker_map", load_marker_map(built))
+            do_tracking(cb)
+        if steps.run("tracking", [f.video, cam_path, f.stamps], {"every": cfg.track_every, "build_map": cfg.build_map},
+                     build_and_track) and built.is_file():
+            vals.set("marker_map", load_marker_map(built))
+    elif f.markers is None:
         fix = ("re-import it with --markers markers.json" if f.eye_rays is not None else
-               "track it with 'wearable-gaze track --reference' and pass the poses")
+               "track it with 'wearable-gaze track --reference' and pass the poses, or build a map from "
+               "its video with --build-map MM")
         steps.fail("tracking", f"the session has no marker map (markers.json); {fix}")
     else:
         steps.run("tracking", [f.video, cam_path, f.markers, f.stamps], {"every": cfg.track_every}, do_tracking)

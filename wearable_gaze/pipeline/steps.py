@@ -23,7 +23,7 @@ STEPS = ("camera", "eyes", "tracking", "viewlines", "targets", "report")
 OUTPUTS = {
     "camera": ("camera.json", "camera_undistorted.png"),
     "eyes": ("eyes.json",),
-    "tracking": ("poses.csv",),
+    "tracking": ("poses.csv", "built_map.json"),
     "viewlines": (".viewlines_unsegmented.csv", ".viewlines_counts.json"),
     "targets": ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy",
                 "device_comparison.csv", "target_paths.csv"),
@@ -33,7 +33,7 @@ OUTPUTS = {
 NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines": ("eyes", "tracking"),
          "targets": ("viewlines",), "report": ("targets",)}
 # written or not: not needed to skip a step
-OPTIONAL = ("overlay.webp", "overlay_error.txt", "device_comparison.csv", "target_paths.csv")
+OPTIONAL = ("overlay.webp", "overlay_error.txt", "device_comparison.csv", "target_paths.csv", "built_map.json")
 OTHER_FILES = ("summary.json", ".steps.json")
 GOOD = ("done", "cached", "external", "device")   # usable: outputs, a file given instead, or the device's own
 

@@ -1,0 +1,138 @@
+"""Bundle adjustment for maps of few objects seen in many views (``tracking.mapbuild``): each
+observation's residuals depend on one view's 6 parameters and one object's 6 (or none: an object
+that fixes the world). Levenberg-Marquardt on the Huber-weighted normal equations with the views
+eliminated by the Schur complement, so each step solves a dense system of the objects alone
+(6 x 23 unknowns for a 24-marker room however many views). The Jacobian is numerical, per
+parameter for all views (or objects) at once: 12 residual evaluations a step.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class BundleResult:
+    """Attributes:
+        views: (V, 6) adjusted view parameters. objects: (M, 6) adjusted object parameters.
+        residuals: (N, R) at the solution (the residual function's units).
+        information: (6M, 6M) the objects' information with the views marginalised (the Schur
+            complement of the Huber-weighted ``J^T J``, undamped): its inverse times the residuals'
+            mean square per degree of freedom is their covariance.
+        iterations: steps taken. converged: the cost stopped falling before ``max_iter``.
+    """
+
+    views: np.ndarray
+    objects: np.ndarray
+    residuals: np.ndarray
+    information: np.ndarray
+    iterations: int
+    converged: bool
+
+
+def _huber_weights(r, k: float) -> np.ndarray:
+    a = np.abs(r)
+    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
+
+
+def _huber_cost(r, k: float) -> float:
+    a = np.abs(r)
+    return float(np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)))
+
+
+def _jacobians(fun, views, objs, r0, eps: float = 1e-6):
+    """(N, R, 6) d residuals / d its view's parameters and (N, R, 6) / its object's (zeros for a
+    fixed object), forward differences, each parameter moved in every view (object) at once."""
+    Jv = np.empty(r0.shape + (6,))
+    Jo = np.zeros(r0.shape + (6,))
+    for j in range(6):
+        v = views.copy()
+        v[:, j] += eps
+        Jv[..., j] = (fun(v, objs) - r0) / eps
+        if len(objs):
+            o = objs.copy()
+            o[:, j] += eps
+            Jo[..., j] = (fun(views, o) - r0) / eps
+    return Jv, Jo
+
+
+def _normal_equations(Jv, Jo, r, w, view_of, obj_of, V: int, M: int):
+    """The weighted normal equations' blocks: Hvv (V, 6, 6), Hvo (V, M, 6, 6), Hoo (6M, 6M),
+    gv (V, 6), go (6M,)."""
+    WJv, WJo = Jv * w[..., None], Jo * w[..., None]
+    Hvv = np.zeros((V, 6, 6))
+    np.add.at(Hvv, view_of, np.einsum("nri,nrj->nij", WJv, Jv))
+    gv = np.zeros((V, 6))
+    np.add.at(gv, view_of, np.einsum("nri,nr->ni", WJv, r))
+    Hvo = np.zeros((V, M, 6, 6))
+    Hoo = np.zeros((M, 6, 6))
+    go = np.zeros((M, 6))
+    m = obj_of >= 0
+    np.add.at(Hvo, (view_of[m], obj_of[m]), np.einsum("nri,nrj->nij", WJv[m], Jo[m]))
+    np.add.at(Hoo, obj_of[m], np.einsum("nri,nrj->nij", WJo[m], Jo[m]))
+    np.add.at(go, obj_of[m], np.einsum("nri,nr->ni", WJo[m], r[m]))
+    H = np.zeros((6 * M, 6 * M))
+    for k in range(M):
+        H[6 * k:6 * k + 6, 6 * k:6 * k + 6] = Hoo[k]
+    return Hvv, Hvo, H, gv, go.ravel()
+
+
+def _schur_step(Hvv, Hvo, Hoo, gv, go, lam: float):
+    """The damped step (dv (V, 6), do (M, 6)) and the undamped Schur complement (6M, 6M)."""
+    V, M = Hvo.shape[:2]
+    D = lam * np.eye(6)
+    inv = np.linalg.inv(Hvv + D[None] * np.maximum(np.einsum("vii->vi", Hvv), 1e-12)[:, :, None])   # Marquardt
+    B = Hvo.transpose(0, 2, 1, 3).reshape(V, 6, 6 * M)                 # (V, 6, 6M)
+    S = Hoo - np.einsum("vai,vab,vbj->ij", B, inv, B)
+    diag = np.maximum(np.diag(Hoo), 1e-12)
+    rhs = go - np.einsum("vai,vab,vb->i", B, inv, gv)
+    do = np.linalg.solve(S + lam * np.diag(diag), -rhs) if M else np.zeros(0)
+    dv = -np.einsum("vab,vb->va", inv, gv + np.einsum("vai,i->va", B, do))
+    return dv, do.reshape(M, 6)
+
+
+def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int = 100) -> BundleResult:
+    """Minimise the Huber cost of ``fun(views (V, 6), objects (M, 6)) -> (N, R)`` residuals, where
+    observation n depends on view ``view_of[n]`` and object ``obj_of[n]`` (-1: a fixed one).
+
+    Stops when a step lowers the cost by less than 1e-10 of it, or after ``max_iter`` steps."""
+    views, objs = np.array(views, float), np.array(objs, float).reshape(-1, 6)
+    V, M = len(views), len(objs)
+    r = fun(views, objs)
+    cost, lam, converged, it = _huber_cost(r, huber), 1e-3, False, 0
+    while it < max_iter:
+        it += 1
+        w = _huber_weights(r, huber)
+        Jv, Jo = _jacobians(fun, views, objs, r)
+        blocks = _normal_equations(Jv, Jo, r, w, view_of, obj_of, V, M)
+        while True:
+            dv, do = _schur_step(*blocks, lam)
+            nv, no = views + dv, objs + do
+            nr = fun(nv, no)
+            ncost = _huber_cost(nr, huber) if np.all(np.isfinite(nr)) else np.inf
+            if ncost <= cost:
+                break
+            lam *= 10.0
+            if lam > 1e8:
+                break
+        if not ncost <= cost:
+            converged = True                     # no step lowers the cost: at the minimum
+            break
+        small = cost - ncost <= 1e-10 * cost
+        views, objs, r, cost, lam = nv, no, nr, ncost, max(lam / 10.0, 1e-9)
+        if small:
+            converged = True
+            break
+    w = _huber_weights(r, huber)
+    Jv, Jo = _jacobians(fun, views, objs, r)
+    Hvv, Hvo, Hoo, gv, go = _normal_equations(Jv, Jo, r, w, view_of, obj_of, V, M)
+    inv = np.linalg.pinv(Hvv)
+    B = Hvo.transpose(0, 2, 1, 3).reshape(V, 6, 6 * M)
+    S = Hoo - np.einsum("vai,vab,vbj->ij", B, inv, B)
+    log.debug("bundle adjustment: %d steps, cost %.4g, converged %s", it, cost, converged)
+    return BundleResult(views, objs, r, S, it, converged)
