@@ -79,7 +79,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str, size_mm: float | 
         raise UserError(f"map: the markers seen have {len(set(size.values()))} different sizes; a marker map holds "
                         "one size so far: map each size's markers separately")
     try:
-        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin)
+        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
     for i, n in repeated.items():
