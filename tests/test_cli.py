@@ -200,7 +200,7 @@ def test_files_the_program_writes_pass_their_schemas(sim_session, tmp_path, caps
     load_json(s / "markers.json", "marker-map")
     load_json(s / "calibration" / "camera" / "board.json", "board")
     load_json(s / "calibration" / "eye" / "walls.json", "walls")
-    for name in ("paper-table1", "lab-walkabout", "moving-target", "calibration-only"):
+    for name in ("paper-table1", "lab-walkabout", "moving-target", "calibration-only", "survey"):
         validate(resolve(name), "scenario", name)
     assert main(["calibrate-eyes", str(s), "--camera", str(s / "truth" / "camera.json"), "-o",
                  str(tmp_path / "eyes.json")]) == 0

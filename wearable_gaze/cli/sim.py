@@ -50,7 +50,7 @@ def add_simulate(sub) -> None:
     """Declare the command and its arguments."""
     sm = sub.add_parser("simulate", help="write a synthetic session (video, eye data, calibration, truth)")
     sm.add_argument("--scenario", default="lab-walkabout", metavar="NAME|FILE.json",
-                    help="paper-table1, lab-walkabout, moving-target, calibration-only, or a scenario "
+                    help="paper-table1, lab-walkabout, moving-target, calibration-only, survey, or a scenario "
                          "JSON file (docs/scenarios.md); default lab-walkabout")
     sm.add_argument("-o", "--out", required=True, metavar="SESSION_DIR", help="new session folder")
     sm.add_argument("--seed", type=A.seed, default=0, metavar="S", help="random seed (default: 0)")
