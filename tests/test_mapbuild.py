@@ -46,6 +46,8 @@ def test_map_rebuilds_the_charuco_boards_17_markers_from_four_real_photos(real_d
                  "--origin-marker", "0", "-o", str(out)])
     assert code == 0
     assert "17 markers from 4 views" in capsys.readouterr().out
+    plot = cv2.imread(str(tmp_path / "map_top_view.png"))                  # the top view beside it
+    assert plot is not None and plot.shape[0] > 300 and plot.shape[1] > 300
     mm = load_marker_map(out)                                     # a map `track` and `process` take
     truth = _board_corners()
     assert sorted(mm.poses) == sorted(truth) == list(range(17))

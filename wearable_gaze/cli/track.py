@@ -59,7 +59,7 @@ def add_markers(sub) -> None:
 
 
 def cmd_map(args) -> int:
-    from ..pipeline.mapping import build_map_files, format_map_report, parse_sizes  # noqa: PLC0415
+    from ..pipeline.mapping import build_map_files, format_map_report, map_plot_path, parse_sizes  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
     if args.size_mm is None and not args.sizes:
@@ -69,7 +69,7 @@ def cmd_map(args) -> int:
                                 args.origin_marker, args.max_frames, cb)
     for line in format_map_report(built):
         print(line)
-    print(f"wrote {args.out}")
+    print(f"wrote {args.out} and its top view {map_plot_path(args.out)}")
     return 0
 
 

@@ -44,7 +44,8 @@ def parse_sizes(text: str | None) -> dict:
 
 def build_map_files(inputs, camera_path, out, dictionary: str, size_mm: float | None = None, sizes=None,
                     origin: int | None = None, max_frames: int = 300, progress=None) -> BuiltMap:
-    """Build and write the marker map of ``inputs`` (images, folders of images, videos: at most
+    """Build and write the marker map of ``inputs`` (and its top view beside it, ``map_plot_path``)
+    (images, folders of images, videos: at most
     ``max_frames`` evenly spaced frames of each) seen by the camera of ``camera_path`` (our JSON
     or an OpenCV YAML/XML calibration), markers of ``dictionary`` printed ``size_mm`` wide or
     as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``.
@@ -87,8 +88,44 @@ def build_map_files(inputs, camera_path, out, dictionary: str, size_mm: float | 
             built.info[i].flags.append(f"id detected twice in {n} view(s) (a duplicate print?)")
     write_marker_map(out, marker_map_dict(dictionary, built.marker_map.marker_size_mm, built.marker_map.poses,
                                           extra={i: _extra(inf) for i, inf in built.info.items()}))
+    write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
+
+
+def map_plot_path(out) -> Path:
+    """Where ``build_map_files`` puts the map's top view: beside the map, ``NAME_top_view.png``."""
+    out = Path(out)
+    return out.with_name(out.stem + "_top_view.png")
+
+
+def write_map_plot(built: BuiltMap, path: Path) -> None:
+    """A top view (world x, z; the origin marker's frame) of the built map: each marker as its
+    side seen from above with its id (red: flagged), and the survey's camera path (the posed
+    views' positions, in order)."""
+    from .report import _plt, _save  # noqa: PLC0415  (matplotlib only when plotting)
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    c = np.array([T[:3, 3] for _, T in sorted(built.cameras.items())])
+    if len(c):
+        ax.plot(c[:, 0], c[:, 2], "-", color="#999999", lw=0.8, label="survey path (posed views)")
+        ax.plot(c[:1, 0], c[:1, 2], "o", color="#999999", ms=4)
+    half = built.marker_map.marker_size_mm / 2
+    for i, T in sorted(built.marker_map.poses.items()):
+        ends = T[:3, 3] + np.outer([-half, half], T[:3, 0])
+        bad = bool(built.info[i].flags)
+        ax.plot(ends[:, 0], ends[:, 2], "-", color="#d62728" if bad else "#1f77b4", lw=3)
+        ax.annotate(str(i), (T[0, 3], T[2, 3]), textcoords="offset points", xytext=(3, 3), fontsize=7,
+                    color="#d62728" if bad else "black")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, mm (the origin marker's frame)")
+    ax.set_ylabel("z, mm")
+    ax.legend(loc="best", fontsize=8)
+    flagged = sum(bool(inf.flags) for inf in built.info.values())
+    ax.set_title(f"marker map, top view: {len(built.marker_map.poses)} markers ({flagged} flagged, red), "
+                 f"RMS {built.rms_px:.2f} px", fontsize=9)
+    _save(fig, path)
 
 
 def _extra(info) -> dict:
