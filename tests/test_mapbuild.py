@@ -58,6 +58,18 @@ def test_map_rebuilds_the_charuco_boards_17_markers_from_four_real_photos(real_d
     entries = json.loads(out.read_text())["markers"]
     assert all(e["n_views"] == 4 and e["rms_px"] < 0.5 and e["flags"] == [] for e in entries)
     assert np.allclose(entries[0]["covariance"], 0.0)            # the origin fixes the world
+    # built from two photos, then extended with the other two: the same world, all 17 markers
+    half, full = tmp_path / "half.json", tmp_path / "extended.json"
+    common = ["--camera", str(d / "tutorial_camera_charuco.yml"), "--origin-marker", "0"]
+    assert main(["map", str(d / "img_00.jpg"), str(d / "img_01.jpg"), *common, "--dict", "DICT_6X6_250",
+                 "--size-mm", "20", "-o", str(half)]) == 0
+    assert main(["map", str(d / "img_02.jpg"), str(d / "img_03.jpg"), *common, "--extend", str(half), "-o",
+                 str(full)]) == 0
+    ext = load_marker_map(full)
+    assert np.array_equal(ext.poses[0], load_marker_map(half).poses[0]) and sorted(ext.poses) == list(range(17))
+    e2, _ = _similarity_errors(np.concatenate([ext.corners(i) for i in range(17)]),
+                               np.concatenate([truth[i] for i in range(17)]))
+    assert np.median(e2) <= 1.0, np.median(e2)
     sd = [np.sqrt(np.diag(e["covariance"])[3:]) for e in entries[1:]]
     assert all(0.01 < s.max() < 3.0 for s in sd)                 # mm: uncertain, but not wildly
 
@@ -204,3 +216,30 @@ def test_process_builds_the_map_from_the_sessions_own_video_when_it_has_none(tmp
     assert pairs and all(f is not None for _, f in pairs)
     for tt, f in pairs:
         assert np.linalg.norm(np.subtract([f["x_mm"], f["y_mm"], f["z_mm"]], tt["position_mm"])) < 300.0
+
+
+def test_a_map_extended_with_more_views_keeps_its_world_and_adds_the_new_markers(tmp_path, capsys):
+    """A map of the far wall from the first views, then extended with the last views (which also
+    see the right wall): the earlier map's origin stays exactly where it was, the new markers are
+    added in its world, a marker the new views do not see is kept as it was, and all corners
+    match the truth in that world. Through the command too (``map --extend``)."""
+    truth = _room()
+    views, K = _views(truth)
+    first, last = views[:12], views[12:]
+    a = build_marker_map(first, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=1)
+    prior = dict(a.marker_map.poses)
+    prior[99] = np.eye(4)                          # a marker of the earlier map the new views never see
+    prior[99][:3, 3] = [5000.0, 0.0, 0.0]
+    b = build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0, prior=prior)
+    got = b.marker_map.poses
+    o = max((i for i in a.marker_map.poses), key=lambda i: sum(i in v for v in last))
+    assert np.array_equal(got[o], prior[o])                                     # its world kept
+    assert np.array_equal(got[99], prior[99]) and b.info[99].n_views == 0
+    assert set(got) == set(truth) | {99}
+    # in the earlier map's world, as its pose of marker o places it (the transform o fixes)
+    T = truth[o] @ np.linalg.inv(prior[o])
+    err = [np.linalg.norm(square_corners(150.0) @ truth[i][:3, :3].T + truth[i][:3, 3]
+                          - (b.marker_map.corners(i) @ T[:3, :3].T + T[:3, 3]), axis=1).max() for i in sorted(truth)]
+    assert max(err) < 10.0, err
+    with pytest.raises(ValueError, match="not in the earlier map"):
+        build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=7, prior={1: prior[1]})

@@ -79,7 +79,7 @@ class BuiltMap:
 
 
 def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None = None,
-                     model: str = "pinhole") -> BuiltMap:
+                     model: str = "pinhole", prior: dict | None = None) -> BuiltMap:
     """The marker map of ``views``.
 
     Args:
@@ -90,9 +90,14 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
         dictionary: the markers' ``cv2.aruco`` dictionary name (kept in the map).
         sizes: the printed side, mm: one number, or {id: side} with every id seen.
         origin: the marker whose frame is the world (default: the one seen in most views).
+        prior: an earlier map's {id: T_world_from_marker} to extend or refine: its markers start
+            where it put them, its world is kept (``origin``, by default the one of its markers
+            seen most, stays where it was), new markers are added, and markers these views do
+            not see are kept as they were (``n_views`` 0).
 
     Raises:
-        ValueError: no marker seen, the origin never seen, a seen id without a size.
+        ValueError: no marker seen, the origin never seen (or not in ``prior``), a seen id
+            without a size.
     """
     obs = _normalised(views, K, dist, model)
     ids = sorted({i for v in obs for i in v})
@@ -103,13 +108,23 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     if missing:
         raise ValueError(f"no printed size for marker(s) {missing}: give one for every id seen")
     counts = {i: sum(i in v for v in obs) for i in ids}
-    origin = max(ids, key=lambda i: (counts[i], -i)) if origin is None else int(origin)
-    if origin not in counts:
-        raise ValueError(f"the origin marker {origin} is in no view (seen: {ids})")
-    markers, cams = _chain(obs, size, origin)
+    prior = {int(i): np.asarray(T, float) for i, T in (prior or {}).items()}
+    choices = [i for i in ids if i in prior] if prior else ids
+    if not choices:
+        raise ValueError(f"none of the earlier map's markers is in a view (seen: {ids})")
+    origin = max(choices, key=lambda i: (counts[i], -i)) if origin is None else int(origin)
+    if origin not in counts or (prior and origin not in prior):
+        raise ValueError(f"the origin marker {origin} is in no view (seen: {ids})" if origin not in counts else
+                         f"the origin marker {origin} is not in the earlier map")
+    start = {i: T for i, T in prior.items() if i in counts} if prior else {origin: np.eye(4)}
+    markers, cams = _chain(obs, size, origin, start)
     _refine_initial(obs, size, origin, markers, cams)
-    adj, moved = _adjust_moving(obs, size, origin, markers, cams, float(K[0, 0]))
+    adj, moved = _adjust_moving(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin])
     info = _marker_info(obs, size, origin, adj, moved)
+    for i, T in prior.items():                       # not seen now: kept as the earlier map had it
+        if i not in adj.markers:
+            adj.markers[i] = T
+            info[i] = MarkerInfo(0, float("nan"), np.zeros((6, 6)))
     unposed = [k for k in range(len(obs)) if k not in adj.cams]
     rms = float(np.sqrt(np.mean(adj.residuals ** 2))) if len(adj.residuals) else float("nan")
     log.info("map of %d markers from %d views (%d unposed), RMS %.2f px", len(adj.markers), len(adj.cams),
@@ -195,11 +210,12 @@ def _pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
     return T
 
 
-def _chain(obs: list, size: dict, origin: int) -> tuple[dict, dict]:
+def _chain(obs: list, size: dict, origin: int, start: dict) -> tuple[dict, dict]:
     """Initial poses: markers ``T_world_from_marker`` and views ``T_cam_from_world``, chained from
-    the origin marker: repeatedly, the unposed view that sees the most placed markers is posed by
-    them, and the markers it alone sees so far are placed by it."""
-    markers = {origin: np.eye(4)}
+    the markers of ``start`` (the origin's alone, or an earlier map's): repeatedly, the unposed view
+    that sees the most placed markers is posed by them, and the markers it alone sees so far are
+    placed by it."""
+    markers = dict(start)
     cams: dict = {}
     while True:
         todo = [(sum(i in markers for i in v), k) for k, v in enumerate(obs) if k not in cams]
@@ -232,13 +248,15 @@ def _pack(T) -> np.ndarray:
 def _residuals(x, prob: dict) -> np.ndarray:
     """(8 per observation) corner reprojection errors, pixels (normalised times the focal length),
     all observations at once: ``prob`` holds each observation's view row, marker row (-1: the
-    origin), marker-frame corners (n, 4, 3) and observed corners (n, 4, 2)."""
+    origin, whose pose is ``prob["origin"]``), marker-frame corners (n, 4, 3) and observed
+    corners (n, 4, 2)."""
     p = x.reshape(-1, 6)
     n_c = prob["n_cams"]
     Rc, tc = Rotation.from_rotvec(p[:n_c, :3]).as_matrix(), p[:n_c, 3:]
-    Rm = np.concatenate([Rotation.from_rotvec(p[n_c:, :3]).as_matrix(), np.eye(3)[None]]) if len(p) > n_c else \
-        np.eye(3)[None]
-    tm = np.concatenate([p[n_c:, 3:], np.zeros((1, 3))])
+    To = prob["origin"]
+    Rm = np.concatenate([Rotation.from_rotvec(p[n_c:, :3]).as_matrix(), To[None, :3, :3]]) if len(p) > n_c else \
+        To[None, :3, :3]
+    tm = np.concatenate([p[n_c:, 3:], To[None, :3, 3]])
     m, c = prob["marker"], prob["cam"]
     Xw = np.einsum("nij,nkj->nki", Rm[m], prob["local"]) + tm[m][:, None]
     Xc = np.einsum("nij,nkj->nki", Rc[c], Xw) + tc[c][:, None]
@@ -259,9 +277,9 @@ class _Adjusted:
     converged: bool
 
 
-def _adjust(obs, size, origin, markers, cams, focal) -> _Adjusted:
-    """Bundle adjustment of every posed view and placed marker but the origin (Huber loss,
-    ``HUBER_PX``; ``tracking.bundle``)."""
+def _adjust(obs, size, origin, markers, cams, focal, T_origin) -> _Adjusted:
+    """Bundle adjustment of every posed view and placed marker but the origin, which stays at
+    ``T_origin`` (Huber loss, ``HUBER_PX``; ``tracking.bundle``)."""
     cam_keys = sorted(cams)
     marker_keys = sorted(i for i in markers if i != origin)
     pairs = [(k, i) for k in cam_keys for i in obs[k] if i in markers]
@@ -269,7 +287,7 @@ def _adjust(obs, size, origin, markers, cams, focal) -> _Adjusted:
             "cam": np.array([cam_keys.index(k) for k, _ in pairs]),
             "marker": np.array([marker_keys.index(i) if i != origin else -1 for _, i in pairs]),
             "local": np.array([square_corners(size[i]) for _, i in pairs]),
-            "seen": np.array([obs[k][i] for k, i in pairs])}
+            "seen": np.array([obs[k][i] for k, i in pairs]), "origin": T_origin}
 
     def fun(v, o):
         return _residuals(np.concatenate([v.ravel(), o.ravel()]), prob).reshape(-1, 8)
@@ -279,7 +297,7 @@ def _adjust(obs, size, origin, markers, cams, focal) -> _Adjusted:
     if not fit.converged:
         log.warning("the map's bundle adjustment stopped after %d steps before converging", fit.iterations)
     cams, adjusted = _unpack(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
-    adjusted[origin] = np.eye(4)
+    adjusted[origin] = T_origin
     return _Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys, fit.converged)
 
 
@@ -293,7 +311,7 @@ def _marker_covariances(adj: _Adjusted) -> dict:
     return {i: C[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j, i in enumerate(adj.marker_keys)}
 
 
-def _adjust_moving(obs, size, origin, markers, cams, focal) -> tuple[_Adjusted, dict]:
+def _adjust_moving(obs, size, origin, markers, cams, focal, T_origin) -> tuple[_Adjusted, dict]:
     """``_adjust``, and then while a marker (not the origin) moved during the survey (``_moved``),
     the one that moved most surely becomes two for another adjustment: its views after the move
     see a second marker (id ``-1 - i``) where it went, so that its move does not drag the
@@ -302,7 +320,7 @@ def _adjust_moving(obs, size, origin, markers, cams, focal) -> tuple[_Adjusted, 
     mm moved}."""
     obs, size, markers, moved = list(obs), dict(size), dict(markers), {}
     for _ in range(MAX_MOVED + 1):
-        adj = _adjust(obs, size, origin, markers, cams, focal)
+        adj = _adjust(obs, size, origin, markers, cams, focal, T_origin)
         found = {i: v for i, v in _moved(obs, size, adj.markers, adj.cams).items() if i >= 0 and i != origin}
         if len(moved) == MAX_MOVED:
             moved.update({i: v[0] for i, v in found.items() if i not in moved})    # flagged, not split

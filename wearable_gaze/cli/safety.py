@@ -20,7 +20,7 @@ OUTPUTS = {
     "reproduce": [("out", True, ())],
     "track": [("out", False, ("video", "camera", "markers", "reference", "timestamps")),
               ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],
-    "map": [("out", False, ("inputs", "camera"))],
+    "map": [("out", False, ("inputs", "camera", "extend"))],
     "simulate": [("out", True, ("scenario",))],
     "process": [("out", True, ("session", "camera", "eyes", "person"))],
     "learn-bias": [("out", False, ("session", "validation", "processed", "eyes"))],

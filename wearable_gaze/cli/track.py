@@ -62,11 +62,11 @@ def cmd_map(args) -> int:
     from ..pipeline.mapping import build_map_files, format_map_report, map_plot_path, parse_sizes  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
-    if args.size_mm is None and not args.sizes:
+    if args.size_mm is None and not args.sizes and args.extend is None:
         raise UserError("map: give the printed marker side, --size-mm MM (or --sizes ID=MM,...)")
     with progress_bar("detecting markers", 1) as cb:
         built = build_map_files(args.inputs, args.camera, args.out, args.dict, args.size_mm, parse_sizes(args.sizes),
-                                args.origin_marker, args.max_frames, cb)
+                                args.origin_marker, args.max_frames, cb, args.extend)
     for line in format_map_report(built):
         print(line)
     print(f"wrote {args.out} and its top view {map_plot_path(args.out)}")
@@ -80,8 +80,12 @@ def add_map(sub) -> None:
     mp.add_argument("--camera", required=True, metavar="camera.json|.yml",
                     help="the camera's calibration (ours, or an OpenCV YAML/XML file)")
     mp.add_argument("-o", "--out", required=True, metavar="map.json", help="marker map to write")
-    mp.add_argument("--dict", default="DICT_4X4_50", metavar="DICT", help="cv2.aruco dictionary (default DICT_4X4_50)")
-    mp.add_argument("--size-mm", type=A.positive_float, metavar="MM", help="the printed markers' black square side")
+    mp.add_argument("--dict", default=None, metavar="DICT",
+                    help="cv2.aruco dictionary (default: the --extend map's, else DICT_4X4_50)")
+    mp.add_argument("--extend", metavar="map.json",
+                    help="an earlier map to extend or refine: its world and markers are kept, new ones added")
+    mp.add_argument("--size-mm", type=A.positive_float, metavar="MM",
+                    help="the printed markers' black square side (default: the --extend map's)")
     mp.add_argument("--sizes", metavar="ID=MM,...", help="per-marker sides, over --size-mm")
     mp.add_argument("--origin-marker", type=A.non_negative_int, metavar="ID",
                     help="the marker whose frame is the world (default: the one seen most)")

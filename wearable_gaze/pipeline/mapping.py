@@ -16,10 +16,12 @@ from tracking.markers import MarkerDetector, split_repeated
 
 from ..errors import UserError
 from ..formats.camera import load_camera
-from ..formats.markermap import marker_map_dict, write_marker_map
+from ..formats.markermap import load_marker_map, marker_map_dict, write_marker_map
 from .calibrate import input_files, read_frames
 
 log = logging.getLogger(__name__)
+
+DEFAULT_DICT = "DICT_4X4_50"
 
 
 def parse_sizes(text: str | None) -> dict:
@@ -42,18 +44,28 @@ def parse_sizes(text: str | None) -> dict:
     return out
 
 
-def build_map_files(inputs, camera_path, out, dictionary: str, size_mm: float | None = None, sizes=None,
-                    origin: int | None = None, max_frames: int = 300, progress=None) -> BuiltMap:
+def build_map_files(inputs, camera_path, out, dictionary: str | None = None, size_mm: float | None = None,
+                    sizes=None, origin: int | None = None, max_frames: int = 300, progress=None,
+                    extend=None) -> BuiltMap:
     """Build and write the marker map of ``inputs`` (and its top view beside it, ``map_plot_path``)
     (images, folders of images, videos: at most
     ``max_frames`` evenly spaced frames of each) seen by the camera of ``camera_path`` (our JSON
     or an OpenCV YAML/XML calibration), markers of ``dictionary`` printed ``size_mm`` wide or
-    as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``.
+    as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``. ``extend``: an
+    earlier map to extend or refine (its world, markers, dictionary and size, unless given).
 
     Raises:
         UserError: unreadable inputs, an unknown dictionary, images of another size than the
             camera's, no marker seen, a seen id without a size, the origin never seen.
     """
+    prior = None
+    if extend is not None:
+        prior = load_marker_map(Path(extend))
+        if dictionary not in (None, prior.dictionary):
+            raise UserError(f"--dict {dictionary}: the map to extend, {extend}, is of {prior.dictionary}")
+        dictionary = prior.dictionary
+        size_mm = prior.marker_size_mm if size_mm is None else size_mm
+    dictionary = dictionary or DEFAULT_DICT
     try:
         aruco_dictionary(dictionary)
     except ValueError as exc:
@@ -80,7 +92,8 @@ def build_map_files(inputs, camera_path, out, dictionary: str, size_mm: float | 
         raise UserError(f"map: the markers seen have {len(set(size.values()))} different sizes; a marker map holds "
                         "one size so far: map each size's markers separately")
     try:
-        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model)
+        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model,
+                                 None if prior is None else prior.poses)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
     for i, n in repeated.items():
