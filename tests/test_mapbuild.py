@@ -88,7 +88,7 @@ def _room():
     return T
 
 
-def _views(markers, n=40, moved=None, seed=0):
+def _views(markers, n=40, moved=None, seed=0, sides=None):
     """Corners (px) of ``markers`` (id -> T_world_from_marker) seen from a camera walking and
     turning in front of them (K: 800 px focal, 1280x720), 0.2 px noise; ``moved``: (id, (3,) mm)
     shifts that marker for the second half of the views."""
@@ -104,7 +104,7 @@ def _views(markers, n=40, moved=None, seed=0):
             T = T.copy()
             if moved is not None and moved[0] == i and v >= n // 2:
                 T[:3, 3] += moved[1]
-            X = square_corners(150.0) @ T[:3, :3].T + T[:3, 3]
+            X = square_corners((sides or {}).get(i, 150.0)) @ T[:3, :3].T + T[:3, 3]
             Xc = (X - c) @ Rwc
             if np.all(Xc[:, 2] > 100):
                 x = Xc[:, :2] / Xc[:, 2:3] * 800.0 + [640, 360]
@@ -161,8 +161,8 @@ def test_map_bad_inputs_are_one_line(real_data, tmp_path, capsys):
     cases = [
         (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "-o", out], "--size-mm"),
         (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "--sizes", "3:20", "-o", out], "ID=MM"),
-        (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "--size-mm", "20", "--sizes", "3=30", "-o", out],
-         "different sizes"),
+        (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "--size-mm", "20", "--sizes", "3=-30", "-o", out],
+         "positive millimetres"),
         (["map", img, "--camera", cam, "--dict", "DICT_9X9_1", "--size-mm", "20", "-o", out], "--dict"),
         (["map", str(small), "--camera", cam, "--dict", "DICT_6X6_250", "--size-mm", "20", "-o", out], "120x100"),
         (["map", img, "--camera", cam, "--dict", "DICT_6X6_250", "--size-mm", "20", "--origin-marker", "99", "-o",
@@ -243,3 +243,23 @@ def test_a_map_extended_with_more_views_keeps_its_world_and_adds_the_new_markers
     assert max(err) < 10.0, err
     with pytest.raises(ValueError, match="not in the earlier map"):
         build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=7, prior={1: prior[1]})
+
+
+def test_markers_of_two_sizes_make_one_map(tmp_path):
+    """Marker 6 printed at 300 mm among 150 mm ones: with its size given, it is placed as well as
+    the others; the map file carries its size and reads back with it."""
+    from wearable_gaze.formats.markermap import marker_map_dict, write_marker_map
+
+    truth = _room()
+    views, K = _views(truth, sides={6: 300.0})
+    built = build_marker_map(views, K, np.zeros(5), "DICT_4X4_50", {**{i: 150.0 for i in range(8)}, 6: 300.0},
+                             origin=0)
+    mm = built.marker_map
+    assert mm.marker_size_mm == 150.0 and mm.sizes == {6: 300.0} and built.rms_px < 0.3
+    want = np.concatenate([square_corners(300.0 if i == 6 else 150.0) @ truth[i][:3, :3].T + truth[i][:3, 3]
+                           for i in sorted(truth)])
+    err, scale = _similarity_errors(np.concatenate([mm.corners(i) for i in sorted(truth)]), want)
+    assert np.median(err) < 1.0 and err.max() < 3.0 and abs(scale - 1) < 1e-3, (np.median(err), err.max(), scale)
+    write_marker_map(tmp_path / "m.json", marker_map_dict(mm.dictionary, mm.marker_size_mm, mm.poses, sizes=mm.sizes))
+    back = load_marker_map(tmp_path / "m.json")
+    assert back.sizes == {6: 300.0} and np.allclose(back.corners(6), mm.corners(6))

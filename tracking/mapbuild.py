@@ -129,7 +129,8 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     rms = float(np.sqrt(np.mean(adj.residuals ** 2))) if len(adj.residuals) else float("nan")
     log.info("map of %d markers from %d views (%d unposed), RMS %.2f px", len(adj.markers), len(adj.cams),
              len(unposed), rms)
-    mm = MarkerMap(dictionary, float(np.median(list(size.values()))), dict(adj.markers), {})
+    common = float(max(set(size.values()), key=list(size.values()).count))            # the commonest size
+    mm = MarkerMap(dictionary, common, dict(adj.markers), {}, {i: v for i, v in size.items() if v != common})
     return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms)
 
 

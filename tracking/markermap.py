@@ -8,7 +8,7 @@ top-right, bottom-right, bottom-left) are ``(-s/2, -s/2), (s/2, -s/2), (s/2, s/2
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,20 +27,26 @@ def square_corners(side_mm: float) -> np.ndarray:
 class MarkerMap:
     """Attributes:
         dictionary: ``cv2.aruco`` dictionary name.
-        marker_size_mm: side of the black square.
+        marker_size_mm: side of the black square (of every marker ``sizes`` does not name).
         poses: id -> (4, 4) ``T_world_from_marker``.
         labels: id -> label.
+        sizes: id -> side, mm, of the markers printed at another size.
     """
 
     dictionary: str
     marker_size_mm: float
     poses: dict
     labels: dict
+    sizes: dict = field(default_factory=dict)
+
+    def size_of(self, marker_id: int) -> float:
+        """The printed side of a marker, mm."""
+        return float(self.sizes.get(int(marker_id), self.marker_size_mm))
 
     def corners(self, marker_id: int) -> np.ndarray:
         """(4, 3) world corners of a marker, mm, cv2.aruco order."""
         T = self.poses[int(marker_id)]
-        return square_corners(self.marker_size_mm) @ T[:3, :3].T + T[:3, 3]
+        return square_corners(self.size_of(marker_id)) @ T[:3, :3].T + T[:3, 3]
 
 
 def pose_from_corners(C: np.ndarray, size: float, i: int) -> np.ndarray:

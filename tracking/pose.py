@@ -199,7 +199,7 @@ class MarkerPoseEstimator:
         # IPPE_SQUARE wants the corners (-s, s), (s, s), (s, -s), (-s, -s): a y-up marker frame,
         # ours turned half a turn about x (y down, z into the wall)
         flip = np.diag([1.0, -1.0, -1.0, 1.0])
-        obj_m = square_corners(self.map.marker_size_mm) @ flip[:3, :3]
+        obj_m = square_corners(self.map.size_of(marker_id)) @ flip[:3, :3]
         n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj_m, x, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
         if n == 0:
             return PoseResult(None, REJECTED, "IPPE found no pose", [marker_id], 4)

@@ -27,14 +27,17 @@ log = logging.getLogger(__name__)
 
 
 def marker_map_dict(dictionary: str, marker_size_mm: float, poses: dict, labels: dict | None = None,
-                    extra: dict | None = None) -> dict:
+                    extra: dict | None = None, sizes: dict | None = None) -> dict:
     """The marker map JSON object: per id (ascending) its ``T_world_from_marker`` (4, 4), mm,
-    rounded to 1e-9, its label when ``labels`` has one, and the fields ``extra[id]`` gives (a
-    built map's ``n_views``, ``rms_px``, ``covariance``, ``flags``; docs/formats.md)."""
+    rounded to 1e-9, its ``size_mm`` when ``sizes`` gives it another than ``marker_size_mm``, its
+    label when ``labels`` has one, and the fields ``extra[id]`` gives (a built map's
+    ``n_views``, ``rms_px``, ``covariance``, ``flags``; docs/formats.md)."""
     labels, extra = labels or {}, extra or {}
+    other = {i: float(v) for i, v in (sizes or {}).items() if float(v) != float(marker_size_mm)}
     return {"format": FORMAT, "version": 1, "dictionary": dictionary,
             "marker_size_mm": float(marker_size_mm),
             "markers": [{"id": int(i), "T_world_from_marker": np.round(np.asarray(T, float), 9).tolist(),
+                         **({"size_mm": other[i]} if i in other else {}),
                          **({"label": labels[i]} if i in labels else {}), **extra.get(i, {})}
                         for i, T in sorted(poses.items())]}
 
@@ -87,7 +90,7 @@ def marker_map_from_dict(d: dict) -> MarkerMap:
     if not isinstance(markers, list) or not markers:
         raise MarkerMapError("'markers' must be a non-empty list")
     n_ids = dic.bytesList.shape[0]
-    poses, labels = {}, {}
+    poses, labels, sizes = {}, {}, {}
     for k, m in enumerate(markers):
         if not isinstance(m, dict) or "id" not in m:
             raise MarkerMapError(f"markers[{k}]: needs an 'id'")
@@ -96,10 +99,16 @@ def marker_map_from_dict(d: dict) -> MarkerMap:
             raise MarkerMapError(f"markers[{k}]: id {i!r} is not in {name} (0-{n_ids - 1})")
         if i in poses:
             raise MarkerMapError(f"marker {i} appears twice; each id may be placed once")
-        poses[i] = _marker_pose(m, float(size), i)
+        own = m.get("size_mm", size)
+        if not isinstance(own, (int, float)) or not 5 <= own <= 100000:
+            raise MarkerMapError(f"marker {i}: 'size_mm' must be the printed side in millimetres (5 or more), "
+                                 f"got {own!r}")
+        if own != size:
+            sizes[i] = float(own)
+        poses[i] = _marker_pose(m, float(own), i)
         if "label" in m:
             labels[i] = str(m["label"])
-    return MarkerMap(str(name), float(size), poses, labels)
+    return MarkerMap(str(name), float(size), poses, labels, sizes)
 
 
 def _marker_pose(m: dict, size: float, i: int) -> np.ndarray:

@@ -56,7 +56,8 @@ class Recorder:
         shutil.copy(camera_path, self.root / FILES["camera"])
         shutil.copy(eyes_path, self.root / FILES["eyes"])
         write_marker_map(self.root / FILES["marker_map"], marker_map_dict(
-            marker_map.dictionary, marker_map.marker_size_mm, marker_map.poses, marker_map.labels))
+            marker_map.dictionary, marker_map.marker_size_mm, marker_map.poses, marker_map.labels,
+            sizes=marker_map.sizes))
         self.video = open_video_writer(self.root / FILES["scene_video"], "MJPG", fps, size, is_color=False, refused=(
             f"--record {self.root}: OpenCV cannot write an MJPG video there; check that the folder is writable and "
             "that OpenCV has its FFMPEG backend"))

@@ -65,6 +65,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
             raise UserError(f"--dict {dictionary}: the map to extend, {extend}, is of {prior.dictionary}")
         dictionary = prior.dictionary
         size_mm = prior.marker_size_mm if size_mm is None else size_mm
+        sizes = {**prior.sizes, **(sizes or {})}
     dictionary = dictionary or DEFAULT_DICT
     try:
         aruco_dictionary(dictionary)
@@ -88,19 +89,20 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     seen = sorted({i for v in views for i in v})
     size = {i: size_mm for i in seen if size_mm is not None}
     size.update({i: s for i, s in (sizes or {}).items() if i in seen})
-    if len(set(size.values())) > 1:     # the map format holds one size (tracking.markermap.MarkerMap)
-        raise UserError(f"map: the markers seen have {len(set(size.values()))} different sizes; a marker map holds "
-                        "one size so far: map each size's markers separately")
     try:
         built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model,
                                  None if prior is None else prior.poses)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
+    for i in (prior.poses if prior is not None else ()):          # kept from the earlier map: its size too
+        if i not in seen and prior.size_of(i) != built.marker_map.marker_size_mm:
+            built.marker_map.sizes[i] = prior.size_of(i)
     for i, n in repeated.items():
         if i in built.info:
             built.info[i].flags.append(f"id detected twice in {n} view(s) (a duplicate print?)")
     write_marker_map(out, marker_map_dict(dictionary, built.marker_map.marker_size_mm, built.marker_map.poses,
-                                          extra={i: _extra(inf) for i, inf in built.info.items()}))
+                                          extra={i: _extra(inf) for i, inf in built.info.items()},
+                                          sizes=built.marker_map.sizes))
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
