@@ -75,9 +75,10 @@ def rendered_marker_scene(rng, dictionary="DICT_4X4_50", side_mm=120.0, n_marker
         (grey image (H, W) uint8, {id: (4, 2) projected true corners, px}).
     """
     from estimator.frames import rotation_about_axis
+    from tracking.markermap import marker_corners_world
     from wearable_gaze.sim.camera import Camera
     from wearable_gaze.sim.noise import finish
-    from wearable_gaze.sim.planes import marker_corners_world, marker_plane
+    from wearable_gaze.sim.planes import marker_plane
     from wearable_gaze.sim.render import render
 
     cam = Camera.wide_scene_camera()

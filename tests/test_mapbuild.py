@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tracking.mapbuild import build_marker_map
-from tracking.markermap import square_corners
+from tracking.markermap import marker_corners_world
 from tracking.pnp import transform_from_rvec_tvec
 from wearable_gaze.cli import main
 from wearable_gaze.formats.markermap import load_marker_map
@@ -104,7 +104,7 @@ def _views(markers, n=40, moved=None, seed=0, sides=None):
             T = T.copy()
             if moved is not None and moved[0] == i and v >= n // 2:
                 T[:3, 3] += moved[1]
-            X = square_corners((sides or {}).get(i, 150.0)) @ T[:3, :3].T + T[:3, 3]
+            X = marker_corners_world((sides or {}).get(i, 150.0), T)
             Xc = (X - c) @ Rwc
             if np.all(Xc[:, 2] > 100):
                 x = Xc[:, :2] / Xc[:, 2:3] * 800.0 + [640, 360]
@@ -122,8 +122,7 @@ def test_a_synthetic_survey_gives_the_map_and_flags_a_moved_marker():
     assert sorted(built.marker_map.poses) == sorted(truth) and built.rms_px < 0.4 and not built.unposed
     A = np.concatenate([built.marker_map.corners(i) for i in sorted(truth)])
     T0 = truth[0]                                                 # the world is marker 0's frame
-    B = np.concatenate([(square_corners(150.0) @ truth[i][:3, :3].T + truth[i][:3, 3] - T0[:3, 3]) @ T0[:3, :3]
-                        for i in sorted(truth)])
+    B = np.concatenate([marker_corners_world(150.0, np.linalg.inv(T0) @ truth[i]) for i in sorted(truth)])
     err, scale = _similarity_errors(A, B)                         # the map's shape and scale
     assert np.median(err) < 1.0 and err.max() < 3.0 and abs(scale - 1) < 1e-3, (np.median(err), err.max(), scale)
     # in the origin marker's frame: its own small turn (a 150 mm marker 3 m off) swings the far ones
@@ -147,7 +146,7 @@ def test_build_marker_map_refuses_what_it_cannot_build():
     with pytest.raises(ValueError, match="no marker was detected"):
         build_marker_map([{}, {}], K, np.zeros(5), "DICT_4X4_50", 150.0)
     T = transform_from_rvec_tvec(np.zeros(3), np.array([0.0, 0.0, 1000.0]))
-    one = {0: (square_corners(150.0) @ T[:3, :3].T + T[:3, 3])[:, :2] / 1000.0 * 800.0 + [640, 360]}
+    one = {0: marker_corners_world(150.0, T)[:, :2] / 1000.0 * 800.0 + [640, 360]}
     built = build_marker_map([one], K, np.zeros(5), "DICT_4X4_50", 150.0)
     assert built.info[0].flags == ["seen in 1 view(s)"]
 
@@ -238,8 +237,8 @@ def test_a_map_extended_with_more_views_keeps_its_world_and_adds_the_new_markers
     assert set(got) == set(truth) | {99}
     # in the earlier map's world, as its pose of marker o places it (the transform o fixes)
     T = truth[o] @ np.linalg.inv(prior[o])
-    err = [np.linalg.norm(square_corners(150.0) @ truth[i][:3, :3].T + truth[i][:3, 3]
-                          - (b.marker_map.corners(i) @ T[:3, :3].T + T[:3, 3]), axis=1).max() for i in sorted(truth)]
+    err = [np.linalg.norm(marker_corners_world(150.0, truth[i]) - marker_corners_world(150.0, T @ got[i]), axis=1).max()
+           for i in sorted(truth)]
     assert max(err) < 10.0, err
     with pytest.raises(ValueError, match="not in the earlier map"):
         build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=7, prior={1: prior[1]})
@@ -256,8 +255,7 @@ def test_markers_of_two_sizes_make_one_map(tmp_path):
                              origin=0)
     mm = built.marker_map
     assert mm.marker_size_mm == 150.0 and mm.sizes == {6: 300.0} and built.rms_px < 0.3
-    want = np.concatenate([square_corners(300.0 if i == 6 else 150.0) @ truth[i][:3, :3].T + truth[i][:3, 3]
-                           for i in sorted(truth)])
+    want = np.concatenate([marker_corners_world(300.0 if i == 6 else 150.0, truth[i]) for i in sorted(truth)])
     err, scale = _similarity_errors(np.concatenate([mm.corners(i) for i in sorted(truth)]), want)
     assert np.median(err) < 1.0 and err.max() < 3.0 and abs(scale - 1) < 1e-3, (np.median(err), err.max(), scale)
     write_marker_map(tmp_path / "m.json", marker_map_dict(mm.dictionary, mm.marker_size_mm, mm.poses, sizes=mm.sizes))

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from calibration.camera import aruco_dictionary
 from estimator.frames import tangent_basis
+from tracking.markermap import marker_corners_world
 from wearable_gaze.cli import main
 from wearable_gaze.formats.eye_samples import read_eye_csv
 from wearable_gaze.formats.poses import read_poses_csv
@@ -21,7 +22,6 @@ from wearable_gaze.formats.session import load_session
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.sim.eyes import EyeModel, EyeSensor, plan_gaze
 from wearable_gaze.sim.motion import make_motion
-from wearable_gaze.sim.planes import marker_corners_world
 from wearable_gaze.sim.scenario import DEFAULTS, NAMED, resolve
 from wearable_gaze.sim.simulate import simulate, simulate_scenario
 

@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 from calibration.camera import undistort_points
 
 from .bundle import bundle_adjust
-from .markermap import MarkerMap, square_corners
+from .markermap import MarkerMap, marker_corners_world, square_corners
 from .pnp import transform_from_rvec_tvec
 
 log = logging.getLogger(__name__)
@@ -155,7 +155,7 @@ def _ippe_both(corners_norm, side: float) -> list:
 def _reproj(T_world_from_marker, side: float, cams: dict, seen: dict) -> float:
     """Sum of squared corner reprojection errors (normalised) of a marker placed at
     ``T_world_from_marker`` in the views ``seen`` {view: corners} posed by ``cams``."""
-    X = square_corners(side) @ T_world_from_marker[:3, :3].T + T_world_from_marker[:3, 3]
+    X = marker_corners_world(side, T_world_from_marker)
     total = 0.0
     for k, c in seen.items():
         Xc = X @ cams[k][:3, :3].T + cams[k][:3, 3]
@@ -201,7 +201,7 @@ def _pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
     best = min(known, key=lambda i: _ippe(view[i], size[i])[1])
     T = _ippe(view[best], size[best])[0] @ np.linalg.inv(markers[best])
     if len(known) > 1:
-        obj = np.concatenate([square_corners(size[i]) @ markers[i][:3, :3].T + markers[i][:3, 3] for i in known])
+        obj = np.concatenate([marker_corners_world(size[i], markers[i]) for i in known])
         img = np.concatenate([view[i] for i in known])
         rvec, _ = cv2.Rodrigues(T[:3, :3])
         ok, rvec, tvec = cv2.solvePnP(obj, img, np.eye(3), None, rvec, T[:3, 3].copy(), useExtrinsicGuess=True,

@@ -23,6 +23,13 @@ def square_corners(side_mm: float) -> np.ndarray:
     return np.array([[-s, -s, 0], [s, -s, 0], [s, s, 0], [-s, s, 0.0]])
 
 
+def marker_corners_world(side_mm: float, T_world_from_marker) -> np.ndarray:
+    """(4, 3) world corners, mm, of a marker of side ``side_mm`` placed at ``T_world_from_marker``
+    (4, 4), cv2.aruco order: top-left, top-right, bottom-right, bottom-left."""
+    T = np.asarray(T_world_from_marker, float)
+    return square_corners(side_mm) @ T[:3, :3].T + T[:3, 3]
+
+
 @dataclass
 class MarkerMap:
     """Attributes:
@@ -45,8 +52,7 @@ class MarkerMap:
 
     def corners(self, marker_id: int) -> np.ndarray:
         """(4, 3) world corners of a marker, mm, cv2.aruco order."""
-        T = self.poses[int(marker_id)]
-        return square_corners(self.size_of(marker_id)) @ T[:3, :3].T + T[:3, 3]
+        return marker_corners_world(self.size_of(marker_id), self.poses[int(marker_id)])
 
 
 def pose_from_corners(C: np.ndarray, size: float, i: int) -> np.ndarray:

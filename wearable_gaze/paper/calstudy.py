@@ -21,10 +21,10 @@ import numpy as np
 
 from calibration.camera import undistort_points
 from calibration.eyes import calibrate_eye, estimate_centre, wall_pose
+from tracking.markermap import marker_corners_world
 
 from ..sim.camera import Camera
 from ..sim.eyes import EyeModel
-from ..sim.planes import marker_corners_world
 from ..sim.world import CalibrationWall
 
 VARIANTS = ("no correction", "undistortion only", "tilt correction only", "both")

@@ -119,9 +119,3 @@ def marker_plane(dictionary: str, marker_id: int, side_mm: float, T_world_from_m
                  supersample=MARKER_SUPERSAMPLE, box_prefilter=MARKER_SUPERSAMPLE == 1)
 
 
-def marker_corners_world(side_mm: float, T_world_from_marker) -> np.ndarray:
-    """(4, 3) world corners of a marker's black square in ``cv2.aruco`` order: top-left,
-    top-right, bottom-right, bottom-left."""
-    s = side_mm / 2
-    c = np.array([[-s, -s, 0, 1], [s, -s, 0, 1], [s, s, 0, 1], [-s, s, 0, 1.0]])
-    return (np.asarray(T_world_from_marker, float) @ c.T).T[:, :3]

@@ -14,8 +14,9 @@ import cv2
 import numpy as np
 
 from calibration.camera import aruco_dictionary
+from tracking.markermap import marker_corners_world
 
-from .planes import Plane, marker_corners_world, marker_plane
+from .planes import Plane, marker_plane
 from .textures import chessboard_texture, noise_texture, poster_texture, target_texture
 
 MM_PER_TEXEL_WALL = 4.0
