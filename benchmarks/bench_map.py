@@ -27,21 +27,10 @@ from pathlib import Path
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import numpy as np
 
+from tracking.mapbuild import similarity_errors
 from wearable_gaze.formats.markermap import load_marker_map
 from wearable_gaze.pipeline.mapping import build_map_files
 from wearable_gaze.sim.simulate import simulate_scenario
-
-
-def similarity_errors(A, B) -> tuple[np.ndarray, float]:
-    """Per point, the distance from ``B`` (N, 3) of ``A`` (N, 3) after the best similarity
-    (Umeyama), and its scale."""
-    ma, mb = A.mean(0), B.mean(0)
-    Ac, Bc = A - ma, B - mb
-    U, S, Vt = np.linalg.svd(Bc.T @ Ac / len(A))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    s = np.trace(np.diag(S) @ D) / (Ac ** 2).sum(1).mean()
-    return np.linalg.norm(s * A @ R.T + mb - s * R @ ma - B, axis=1), float(s)
 
 
 def survey_map(work: Path, seed: int, seconds: float, frames: int):

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tracking.mapbuild import build_marker_map
+from tracking.mapbuild import build_marker_map, similarity_errors
 from tracking.markermap import marker_corners_world
 from tracking.pnp import transform_from_rvec_tvec
 from wearable_gaze.cli import main
@@ -17,16 +17,19 @@ from wearable_gaze.formats.markermap import load_marker_map
 CHARUCO = "opencv_aruco_charuco_tutorial"
 
 
-def _similarity_errors(A, B) -> tuple[np.ndarray, float]:
-    """Per point, the distance from ``B`` (N, 3) of ``A`` (N, 3) after the best similarity
-    (Umeyama), and its scale."""
-    ma, mb = A.mean(0), B.mean(0)
-    Ac, Bc = A - ma, B - mb
-    U, S, Vt = np.linalg.svd(Bc.T @ Ac / len(A))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    s = np.trace(np.diag(S) @ D) / (Ac ** 2).sum(1).mean()
-    return np.linalg.norm(s * A @ R.T + mb - s * R @ ma - B, axis=1), float(s)
+def test_similarity_errors_undo_a_known_similarity_and_no_more():
+    """Points moved by a known scale, turn and shift come back exactly; one point moved 4 mm more
+    stands out by about that (the least-squares fit spreads a little of it over the others)."""
+    rng = np.random.default_rng(5)
+    B = rng.uniform(-1000, 1000, (30, 3))
+    R = cv2.Rodrigues(np.array([0.3, -1.1, 0.4]))[0]
+    off = np.zeros_like(B)
+    off[7] = [0.0, 4.0, 0.0]                                      # one point 4 mm off
+    err, scale = similarity_errors((1.0 / 1.02) * B @ R + [50.0, -20.0, 900.0], B)   # B = 1.02 R (A - t)
+    assert scale == pytest.approx(1.02, rel=1e-12) and err.max() < 1e-9
+    err, scale = similarity_errors((1.0 / 1.02) * (B + off) @ R + [50.0, -20.0, 900.0], B)
+    assert scale == pytest.approx(1.02, rel=1e-3)
+    assert err[7] == pytest.approx(4.0, abs=0.5) and np.delete(err, 7).max() < 0.5
 
 
 def _board_corners() -> dict:
@@ -51,7 +54,7 @@ def test_map_rebuilds_the_charuco_boards_17_markers_from_four_real_photos(real_d
     mm = load_marker_map(out)                                     # a map `track` and `process` take
     truth = _board_corners()
     assert sorted(mm.poses) == sorted(truth) == list(range(17))
-    err, scale = _similarity_errors(np.concatenate([mm.corners(i) for i in range(17)]),
+    err, scale = similarity_errors(np.concatenate([mm.corners(i) for i in range(17)]),
                                     np.concatenate([truth[i] for i in range(17)]))
     assert np.median(err) <= 1.0 and err.max() < 2.0, (np.median(err), err.max())
     assert 0.95 < scale < 1.05
@@ -67,7 +70,7 @@ def test_map_rebuilds_the_charuco_boards_17_markers_from_four_real_photos(real_d
                  str(full)]) == 0
     ext = load_marker_map(full)
     assert np.array_equal(ext.poses[0], load_marker_map(half).poses[0]) and sorted(ext.poses) == list(range(17))
-    e2, _ = _similarity_errors(np.concatenate([ext.corners(i) for i in range(17)]),
+    e2, _ = similarity_errors(np.concatenate([ext.corners(i) for i in range(17)]),
                                np.concatenate([truth[i] for i in range(17)]))
     assert np.median(e2) <= 1.0, np.median(e2)
     sd = [np.sqrt(np.diag(e["covariance"])[3:]) for e in entries[1:]]
@@ -123,7 +126,7 @@ def test_a_synthetic_survey_gives_the_map_and_flags_a_moved_marker():
     A = np.concatenate([built.marker_map.corners(i) for i in sorted(truth)])
     T0 = truth[0]                                                 # the world is marker 0's frame
     B = np.concatenate([marker_corners_world(150.0, np.linalg.inv(T0) @ truth[i]) for i in sorted(truth)])
-    err, scale = _similarity_errors(A, B)                         # the map's shape and scale
+    err, scale = similarity_errors(A, B)                         # the map's shape and scale
     assert np.median(err) < 1.0 and err.max() < 3.0 and abs(scale - 1) < 1e-3, (np.median(err), err.max(), scale)
     # in the origin marker's frame: its own small turn (a 150 mm marker 3 m off) swings the far ones
     assert np.linalg.norm(A - B, axis=1).max() < 10.0
@@ -203,7 +206,7 @@ def test_process_builds_the_map_from_the_sessions_own_video_when_it_has_none(tmp
     built = load_marker_map(tmp_path / "out" / "built_map.json")
     common = sorted(set(built.poses) & set(true_map.poses))
     assert len(common) == len(built.poses) >= 4
-    err, scale = _similarity_errors(np.concatenate([built.corners(i) for i in common]),
+    err, scale = similarity_errors(np.concatenate([built.corners(i) for i in common]),
                                     np.concatenate([true_map.corners(i) for i in common]))
     assert np.median(err) < 5.0 and abs(scale - 1) < 0.01, (np.median(err), scale)
     o = next(i for i in common if np.allclose(built.poses[i], np.eye(4)))     # the built world's origin marker
@@ -256,7 +259,7 @@ def test_markers_of_two_sizes_make_one_map(tmp_path):
     mm = built.marker_map
     assert mm.marker_size_mm == 150.0 and mm.sizes == {6: 300.0} and built.rms_px < 0.3
     want = np.concatenate([marker_corners_world(300.0 if i == 6 else 150.0, truth[i]) for i in sorted(truth)])
-    err, scale = _similarity_errors(np.concatenate([mm.corners(i) for i in sorted(truth)]), want)
+    err, scale = similarity_errors(np.concatenate([mm.corners(i) for i in sorted(truth)]), want)
     assert np.median(err) < 1.0 and err.max() < 3.0 and abs(scale - 1) < 1e-3, (np.median(err), err.max(), scale)
     write_marker_map(tmp_path / "m.json", marker_map_dict(mm.dictionary, mm.marker_size_mm, mm.poses, sizes=mm.sizes))
     back = load_marker_map(tmp_path / "m.json")

@@ -134,6 +134,21 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms)
 
 
+def similarity_errors(A, B) -> tuple[np.ndarray, float]:
+    """How far points ``A`` (N, 3) (a built map's corners) lie from ``B`` (N, 3) (the same points
+    measured, or true) after the best similarity transform of ``A`` onto ``B`` (Umeyama): per
+    point the distance, mm, and the transform's scale (a print's scale differs from nominal by a
+    few per cent)."""
+    A, B = np.asarray(A, float), np.asarray(B, float)
+    ma, mb = A.mean(0), B.mean(0)
+    Ac, Bc = A - ma, B - mb
+    U, S, Vt = np.linalg.svd(Bc.T @ Ac / len(A))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = np.trace(np.diag(S) @ D) / (Ac ** 2).sum(1).mean()
+    return np.linalg.norm(s * Ac @ R.T - Bc, axis=1), float(s)
+
+
 def _normalised(views, K, dist, model: str = "pinhole") -> list:
     """Each view's corners as normalised image coordinates (undistorted to convergence,
     ``calibration.camera.undistort_points``: OpenCV's default 5 iterations left the simulated
