@@ -82,13 +82,19 @@ def _normal_equations(Jv, Jo, r, w, view_of, obj_of, V: int, M: int):
     return Hvv, Hvo, H, gv, go.ravel()
 
 
-def _schur_step(Hvv, Hvo, Hoo, gv, go, lam: float):
-    """The damped step (dv (V, 6), do (M, 6)) and the undamped Schur complement (6M, 6M)."""
+def _schur(inv_vv, Hvo, Hoo):
+    """The objects' system with the views eliminated: (S (6M, 6M) = Hoo - sum_v B_v^T inv_vv B_v,
+    B (V, 6, 6M) the view-object blocks side by side)."""
     V, M = Hvo.shape[:2]
-    D = lam * np.eye(6)
-    inv = np.linalg.inv(Hvv + D[None] * np.maximum(np.einsum("vii->vi", Hvv), 1e-12)[:, :, None])   # Marquardt
-    B = Hvo.transpose(0, 2, 1, 3).reshape(V, 6, 6 * M)                 # (V, 6, 6M)
-    S = Hoo - np.einsum("vai,vab,vbj->ij", B, inv, B)
+    B = Hvo.transpose(0, 2, 1, 3).reshape(V, 6, 6 * M)
+    return Hoo - np.einsum("vai,vab,vbj->ij", B, inv_vv, B), B
+
+
+def _schur_step(Hvv, Hvo, Hoo, gv, go, lam: float):
+    """The damped step (dv (V, 6), do (M, 6)): Marquardt's damping of each diagonal."""
+    M = Hvo.shape[1]
+    inv = np.linalg.inv(Hvv + lam * np.eye(6)[None] * np.maximum(np.einsum("vii->vi", Hvv), 1e-12)[:, :, None])
+    S, B = _schur(inv, Hvo, Hoo)
     diag = np.maximum(np.diag(Hoo), 1e-12)
     rhs = go - np.einsum("vai,vab,vb->i", B, inv, gv)
     do = np.linalg.solve(S + lam * np.diag(diag), -rhs) if M else np.zeros(0)
@@ -130,9 +136,7 @@ def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int
             break
     w = _huber_weights(r, huber)
     Jv, Jo = _jacobians(fun, views, objs, r)
-    Hvv, Hvo, Hoo, gv, go = _normal_equations(Jv, Jo, r, w, view_of, obj_of, V, M)
-    inv = np.linalg.pinv(Hvv)
-    B = Hvo.transpose(0, 2, 1, 3).reshape(V, 6, 6 * M)
-    S = Hoo - np.einsum("vai,vab,vbj->ij", B, inv, B)
+    Hvv, Hvo, Hoo, _, _ = _normal_equations(Jv, Jo, r, w, view_of, obj_of, V, M)
+    S, _ = _schur(np.linalg.pinv(Hvv), Hvo, Hoo)
     log.debug("bundle adjustment: %d steps, cost %.4g, converged %s", it, cost, converged)
     return BundleResult(views, objs, r, S, it, converged)

@@ -160,24 +160,29 @@ def _normalised(views, K, dist, model: str = "pinhole") -> list:
     return out
 
 
-def _ippe_both(corners_norm, side: float) -> list:
-    """Both of IPPE's T_cam_from_marker (4, 4) for one marker seen alone (one when it gives one)."""
-    n, rvecs, tvecs, _ = cv2.solvePnPGeneric(square_corners(side), corners_norm, np.eye(3), None,
-                                             flags=cv2.SOLVEPNP_IPPE)
-    return [transform_from_rvec_tvec(rvecs[k], tvecs[k]) for k in range(n)]
+def _ippe(corners_norm, side: float) -> list:
+    """IPPE's solutions for one marker seen alone: [(reprojection RMS in normalised units,
+    T_cam_from_marker (4, 4)), ...], the best first (planar IPPE: our corners, y down, are not in
+    IPPE_SQUARE's order)."""
+    n, rvecs, tvecs, errs = cv2.solvePnPGeneric(square_corners(side), corners_norm, np.eye(3), None,
+                                                flags=cv2.SOLVEPNP_IPPE)
+    return sorted(((float(e), transform_from_rvec_tvec(rvecs[k], tvecs[k])) for k, e in
+                   zip(range(n), np.ravel(errs), strict=True)), key=lambda c: c[0])
+
+
+def _image(R, t, X) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``X`` (4, 3) or (n, 4, 3), world, in views ``R`` (n, 3, 3), ``t`` (n, 3) (their
+    ``T_cam_from_world``): (n, 4, 2) normalised image coordinates and (n, 4) depths."""
+    Xc = X @ np.swapaxes(R, 1, 2) + t[:, None]
+    return Xc[..., :2] / Xc[..., 2:3], Xc[..., 2]
 
 
 def _reproj(T_world_from_marker, side: float, cams: dict, seen: dict) -> float:
     """Sum of squared corner reprojection errors (normalised) of a marker placed at
     ``T_world_from_marker`` in the views ``seen`` {view: corners} posed by ``cams``."""
-    X = marker_corners_world(side, T_world_from_marker)
-    total = 0.0
-    for k, c in seen.items():
-        Xc = X @ cams[k][:3, :3].T + cams[k][:3, 3]
-        if np.any(Xc[:, 2] <= 0):
-            return np.inf
-        total += float(np.sum((Xc[:, :2] / Xc[:, 2:3] - c) ** 2))
-    return total
+    T = np.array([cams[k] for k in seen])
+    uv, z = _image(T[:, :3, :3], T[:, :3, 3], marker_corners_world(side, T_world_from_marker))
+    return float(np.sum((uv - np.array(list(seen.values()))) ** 2)) if np.all(z > 0) else np.inf
 
 
 def _refine_initial(obs: list, size: dict, origin: int, markers: dict, cams: dict, rounds: int = 2) -> None:
@@ -191,20 +196,10 @@ def _refine_initial(obs: list, size: dict, origin: int, markers: dict, cams: dic
             if i == origin:
                 continue
             seen = {k: obs[k][i] for k in cams if i in obs[k]}
-            cands = [np.linalg.inv(cams[k]) @ T for k, c in seen.items() for T in _ippe_both(c, size[i])]
+            cands = [np.linalg.inv(cams[k]) @ T for k, c in seen.items() for _, T in _ippe(c, size[i])]
             markers[i] = min(cands + [markers[i]], key=lambda T: _reproj(T, size[i], cams, seen))
         for k in cams:
             cams[k] = _pose_view(obs[k], size, markers)
-
-
-def _ippe(corners_norm, side: float) -> tuple[np.ndarray, float]:
-    """(T_cam_from_marker (4, 4), the solution's reprojection RMS in normalised units) of one
-    marker seen alone: of IPPE's two solutions, the one that reprojects best (planar IPPE: our
-    corners, y down, are not in IPPE_SQUARE's order)."""
-    obj = square_corners(side)
-    n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, corners_norm, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
-    k = int(np.argmin(np.ravel(errs))) if n > 1 else 0
-    return transform_from_rvec_tvec(rvecs[k], tvecs[k]), float(np.ravel(errs)[k])
 
 
 def _pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
@@ -213,8 +208,8 @@ def _pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
     known = [i for i in view if i in markers]
     if not known:
         return None
-    best = min(known, key=lambda i: _ippe(view[i], size[i])[1])
-    T = _ippe(view[best], size[best])[0] @ np.linalg.inv(markers[best])
+    best = min((_ippe(view[i], size[i])[0] + (i,) for i in known), key=lambda c: c[0])     # (rms, T, id)
+    T = best[1] @ np.linalg.inv(markers[best[2]])
     if len(known) > 1:
         obj = np.concatenate([marker_corners_world(size[i], markers[i]) for i in known])
         img = np.concatenate([view[i] for i in known])
@@ -243,7 +238,7 @@ def _chain(obs: list, size: dict, origin: int, start: dict) -> tuple[dict, dict]
         cams[k] = T
         for i, c in obs[k].items():
             if i not in markers:
-                markers[i] = np.linalg.inv(T) @ _ippe(c, size[i])[0]
+                markers[i] = np.linalg.inv(T) @ _ippe(c, size[i])[0][1]
 
 
 def _unpack(x, cam_keys, marker_keys) -> tuple[dict, dict]:
@@ -274,9 +269,8 @@ def _residuals(x, prob: dict) -> np.ndarray:
         To[None, :3, :3]
     tm = np.concatenate([p[n_c:, 3:], To[None, :3, 3]])
     m, c = prob["marker"], prob["cam"]
-    Xw = np.einsum("nij,nkj->nki", Rm[m], prob["local"]) + tm[m][:, None]
-    Xc = np.einsum("nij,nkj->nki", Rc[c], Xw) + tc[c][:, None]
-    return prob["focal"] * (Xc[..., :2] / Xc[..., 2:3] - prob["seen"]).ravel()
+    Xw = prob["local"] @ np.swapaxes(Rm[m], 1, 2) + tm[m][:, None]
+    return prob["focal"] * (_image(Rc[c], tc[c], Xw)[0] - prob["seen"]).ravel()
 
 
 @dataclass
@@ -290,7 +284,6 @@ class _Adjusted:
     information: np.ndarray
     pairs: list
     marker_keys: list
-    converged: bool
 
 
 def _adjust(obs, size, origin, markers, cams, focal, T_origin) -> _Adjusted:
@@ -314,7 +307,7 @@ def _adjust(obs, size, origin, markers, cams, focal, T_origin) -> _Adjusted:
         log.warning("the map's bundle adjustment stopped after %d steps before converging", fit.iterations)
     cams, adjusted = _unpack(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
     adjusted[origin] = T_origin
-    return _Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys, fit.converged)
+    return _Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys)
 
 
 def _marker_covariances(adj: _Adjusted) -> dict:
@@ -415,12 +408,9 @@ def _fit_marker(obs, side, i, T0, cams, keys):
     R = np.array([cams[k][:3, :3] for k in keys])
     t = np.array([cams[k][:3, 3] for k in keys])
     seen = np.array([obs[k][i] for k in keys])
-    local = square_corners(side)
 
     def res(x):
-        T = transform_from_rvec_tvec(x[:3], x[3:])
-        Xc = np.einsum("kij,cj->kci", R, local @ T[:3, :3].T + T[:3, 3]) + t[:, None]
-        return (Xc[..., :2] / Xc[..., 2:3] - seen).ravel()
+        return (_image(R, t, marker_corners_world(side, transform_from_rvec_tvec(x[:3], x[3:])))[0] - seen).ravel()
     fit = least_squares(res, _pack(T0), method="lm")
     J = fit.jac
     s2 = float(np.sum(fit.fun ** 2)) / max(len(fit.fun) - 6, 1)
