@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tracking.mapbuild import build_marker_map, similarity_errors
-from tracking.markermap import marker_corners_world
+from tracking.markermap import MarkerMap, marker_corners_world
 from tracking.pnp import transform_from_rvec_tvec
 from wearable_gaze.cli import main
 from wearable_gaze.formats.markermap import load_marker_map
@@ -232,11 +232,13 @@ def test_a_map_extended_with_more_views_keeps_its_world_and_adds_the_new_markers
     prior = dict(a.marker_map.poses)
     prior[99] = np.eye(4)                          # a marker of the earlier map the new views never see
     prior[99][:3, 3] = [5000.0, 0.0, 0.0]
-    b = build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0, prior=prior)
+    b = build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0,
+                         prior=MarkerMap("DICT_4X4_50", 150.0, prior, {}, {99: 300.0}))
     got = b.marker_map.poses
     o = max((i for i in a.marker_map.poses), key=lambda i: sum(i in v for v in last))
     assert np.array_equal(got[o], prior[o])                                     # its world kept
     assert np.array_equal(got[99], prior[99]) and b.info[99].n_views == 0
+    assert b.marker_map.size_of(99) == 300.0                                    # and its size
     assert set(got) == set(truth) | {99}
     # in the earlier map's world, as its pose of marker o places it (the transform o fixes)
     T = truth[o] @ np.linalg.inv(prior[o])
@@ -244,7 +246,8 @@ def test_a_map_extended_with_more_views_keeps_its_world_and_adds_the_new_markers
            for i in sorted(truth)]
     assert max(err) < 10.0, err
     with pytest.raises(ValueError, match="not in the earlier map"):
-        build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=7, prior={1: prior[1]})
+        build_marker_map(last, K, np.zeros(5), "DICT_4X4_50", 150.0, origin=7,
+                         prior=MarkerMap("DICT_4X4_50", 150.0, {1: prior[1]}, {}))
 
 
 def test_markers_of_two_sizes_make_one_map(tmp_path):

@@ -79,7 +79,7 @@ class BuiltMap:
 
 
 def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None = None,
-                     model: str = "pinhole", prior: dict | None = None) -> BuiltMap:
+                     model: str = "pinhole", prior: MarkerMap | None = None) -> BuiltMap:
     """The marker map of ``views``.
 
     Args:
@@ -90,10 +90,10 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
         dictionary: the markers' ``cv2.aruco`` dictionary name (kept in the map).
         sizes: the printed side, mm: one number, or {id: side} with every id seen.
         origin: the marker whose frame is the world (default: the one seen in most views).
-        prior: an earlier map's {id: T_world_from_marker} to extend or refine: its markers start
-            where it put them, its world is kept (``origin``, by default the one of its markers
-            seen most, stays where it was), new markers are added, and markers these views do
-            not see are kept as they were (``n_views`` 0).
+        prior: an earlier ``MarkerMap`` to extend or refine: its markers start where it put them,
+            its world is kept (``origin``, by default the one of its markers seen most, stays
+            where it was), new markers are added, and markers these views do not see are kept
+            as they were, with their sizes (``n_views`` 0).
 
     Raises:
         ValueError: no marker seen, the origin never seen (or not in ``prior``), a seen id
@@ -108,7 +108,7 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     if missing:
         raise ValueError(f"no printed size for marker(s) {missing}: give one for every id seen")
     counts = {i: sum(i in v for v in obs) for i in ids}
-    prior = {int(i): np.asarray(T, float) for i, T in (prior or {}).items()}
+    prior_map, prior = prior, {int(i): np.asarray(T, float) for i, T in (prior.poses if prior else {}).items()}
     choices = [i for i in ids if i in prior] if prior else ids
     if not choices:
         raise ValueError(f"none of the earlier map's markers is in a view (seen: {ids})")
@@ -130,7 +130,8 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     log.info("map of %d markers from %d views (%d unposed), RMS %.2f px", len(adj.markers), len(adj.cams),
              len(unposed), rms)
     common = float(max(set(size.values()), key=list(size.values()).count))            # the commonest size
-    mm = MarkerMap(dictionary, common, dict(adj.markers), {}, {i: v for i, v in size.items() if v != common})
+    sides = {**{i: prior_map.size_of(i) for i in prior}, **size} if prior else size
+    mm = MarkerMap(dictionary, common, dict(adj.markers), {}, {i: v for i, v in sides.items() if v != common})
     return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms)
 
 

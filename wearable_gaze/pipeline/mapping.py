@@ -16,6 +16,7 @@ from tracking.markers import MarkerDetector, split_repeated
 
 from ..errors import UserError
 from ..formats.camera import load_camera
+from ..formats.images import IMAGE_EXT
 from ..formats.markermap import load_marker_map, marker_map_dict, write_marker_map
 from .calibrate import input_files, read_frames
 
@@ -74,6 +75,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     cam = load_camera(Path(camera_path))
     detector = MarkerDetector(dictionary)
     files = input_files(inputs)
+    total = sum(1 if f.suffix.lower() in IMAGE_EXT else max_frames for f in files)     # a video: about max_frames
     views, names, repeated = [], [], {}
     for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
         if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
@@ -85,18 +87,14 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
         views.append(unique)
         names.append(name)
         if progress:
-            progress(k + 1, max(k + 1, len(files)))
+            progress(k + 1, max(k + 1, total))
     seen = sorted({i for v in views for i in v})
     size = {i: size_mm for i in seen if size_mm is not None}
     size.update({i: s for i, s in (sizes or {}).items() if i in seen})
     try:
-        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model,
-                                 None if prior is None else prior.poses)
+        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model, prior)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
-    for i in (prior.poses if prior is not None else ()):          # kept from the earlier map: its size too
-        if i not in seen and prior.size_of(i) != built.marker_map.marker_size_mm:
-            built.marker_map.sizes[i] = prior.size_of(i)
     for i, n in repeated.items():
         if i in built.info:
             built.info[i].flags.append(f"id detected twice in {n} view(s) (a duplicate print?)")
