@@ -103,7 +103,7 @@ class _Values:
         self._load = {"camera": lambda: load_camera(cam_path), "eyes": lambda: load_eyes(eyes_path),
                       "eye_samples": lambda: read_eye_csv(f.eye_samples)[0],
                       "eye_rays": lambda: read_eye_rays(f.eye_rays),
-                      "marker_map": lambda: load_marker_map(f.markers),
+                      "marker_map": lambda: load_marker_map(f.markers or out / BUILT_MAP),   # given, or built
                       "poses": lambda: Poses(*read_poses_csv(out / "poses.csv")),
                       "targets": lambda: [Target.from_row(r) for r in read_targets(out / "targets.json")]}
 
@@ -301,15 +301,11 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
         poses = track_video(f.video, cam, mm, frame_times(f.video, f.stamps), cfg.track_every, cb)
         write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
     if f.markers is None and cfg.build_map is not None and f.video is not None:
-        built = poses_path.parent / BUILT_MAP
-
-        def build_and_track(cb):
-            build_map_files([f.video], cam_path, built, cfg.build_map[1], cfg.build_map[0])
-            vals.set("marker_map", load_marker_map(built))
+        def build_and_track(cb):                   # vals["marker_map"] then reads the map built here
+            build_map_files([f.video], cam_path, poses_path.parent / BUILT_MAP, cfg.build_map[1], cfg.build_map[0])
             do_tracking(cb)
-        if steps.run("tracking", [f.video, cam_path, f.stamps], {"every": cfg.track_every, "build_map": cfg.build_map},
-                     build_and_track) and built.is_file():
-            vals.set("marker_map", load_marker_map(built))
+        steps.run("tracking", [f.video, cam_path, f.stamps], {"every": cfg.track_every, "build_map": cfg.build_map},
+                  build_and_track)
     elif f.markers is None:
         fix = ("re-import it with --markers markers.json" if f.eye_rays is not None else
                "track it with 'wearable-gaze track --reference' and pass the poses, or build a map from "
