@@ -67,6 +67,18 @@ def non_negative_int(text):
     return v
 
 
+def marker_dictionary(text):
+    """A ``cv2.aruco`` predefined dictionary name (checked here, at the command line, so that a
+    step that may not need it does not run first)."""
+    from calibration.camera import aruco_dictionary  # noqa: PLC0415  (OpenCV only when this option is given)
+
+    try:
+        aruco_dictionary(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def seed(text):
     v = whole_number(text)
     if not 0 <= v < 2**63:

@@ -44,7 +44,7 @@ def add_process(sub) -> None:
     pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
     pr.add_argument("--build-map", type=A.positive_float, metavar="MM",
                     help="no marker map: build one from the session's video, markers of this side (mm)")
-    pr.add_argument("--map-dict", default="DICT_4X4_50", metavar="DICT",
+    pr.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",
                     help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
     pr.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",
                     help="track one scene frame in N and interpolate the rest (default 2)")

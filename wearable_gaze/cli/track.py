@@ -80,7 +80,7 @@ def add_map(sub) -> None:
     mp.add_argument("--camera", required=True, metavar="camera.json|.yml",
                     help="the camera's calibration (ours, or an OpenCV YAML/XML file)")
     mp.add_argument("-o", "--out", required=True, metavar="map.json", help="marker map to write")
-    mp.add_argument("--dict", default=None, metavar="DICT",
+    mp.add_argument("--dict", type=A.marker_dictionary, default=None, metavar="DICT",
                     help="cv2.aruco dictionary (default: the --extend map's, else DICT_4X4_50)")
     mp.add_argument("--extend", metavar="map.json",
                     help="an earlier map to extend or refine: its world and markers are kept, new ones added")
