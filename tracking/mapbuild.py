@@ -135,19 +135,30 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms)
 
 
-def similarity_errors(A, B) -> tuple[np.ndarray, float]:
-    """How far points ``A`` (N, 3) (a built map's corners) lie from ``B`` (N, 3) (the same points
-    measured, or true) after the best similarity transform of ``A`` onto ``B`` (Umeyama): per
-    point the distance, mm, and the transform's scale (a print's scale differs from nominal by a
-    few per cent)."""
+def similarity_transform(A, B) -> np.ndarray:
+    """The similarity (4, 4) (scale times rotation, translation) that best maps points ``A``
+    (N, 3) onto ``B`` (N, 3) in least squares (Umeyama 1991): ``B ~ T[:3, :3] @ A + T[:3, 3]``;
+    its scale is the cube root of the upper block's determinant."""
     A, B = np.asarray(A, float), np.asarray(B, float)
     ma, mb = A.mean(0), B.mean(0)
     Ac, Bc = A - ma, B - mb
     U, S, Vt = np.linalg.svd(Bc.T @ Ac / len(A))
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
     s = np.trace(np.diag(S) @ D) / (Ac ** 2).sum(1).mean()
-    return np.linalg.norm(s * Ac @ R.T - Bc, axis=1), float(s)
+    T = np.eye(4)
+    T[:3, :3] = s * (U @ D @ Vt)
+    T[:3, 3] = mb - T[:3, :3] @ ma
+    return T
+
+
+def similarity_errors(A, B) -> tuple[np.ndarray, float]:
+    """How far points ``A`` (N, 3) (a built map's corners) lie from ``B`` (N, 3) (the same points
+    measured, or true) after the best similarity transform of ``A`` onto ``B``
+    (``similarity_transform``): per point the distance, mm, and the transform's scale (a print's
+    scale differs from nominal by a few per cent)."""
+    T = similarity_transform(A, B)
+    A, B = np.asarray(A, float), np.asarray(B, float)
+    return np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1), float(np.cbrt(np.linalg.det(T[:3, :3])))
 
 
 def _normalised(views, K, dist, model: str = "pinhole") -> list:

@@ -17,7 +17,8 @@ def cmd_process(args) -> int:
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=lambda name: progress_bar(name, 1), person=args.person,
-                          build_map=None if args.build_map is None else (args.build_map, args.map_dict))
+                          build_map=None if args.build_map is None else (args.build_map, args.map_dict),
+                          sfm_map=args.map)
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
@@ -46,6 +47,9 @@ def add_process(sub) -> None:
                     help="no marker map: build one from the session's video, markers of this side (mm)")
     pr.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",
                     help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
+    pr.add_argument("--map", metavar="SFM_FOLDER",
+                    help="localise the scene video in this markerless map (map --markerless) instead of tracking "
+                         "the session's markers")
     pr.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",
                     help="track one scene frame in N and interpolate the rest (default 2)")
     pr.set_defaults(func=cmd_process)

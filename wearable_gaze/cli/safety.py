@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..errors import UserError, check_output
 
-# Per command: (output option, is a folder, the options naming its inputs). main() refuses an
+# Per command: (output option, is a folder (or args -> whether it is), the options naming its inputs). main() refuses an
 # output that is an input, a folder where a file is wanted (or the reverse), a parent that is a
 # file or an unwritable folder, before the command runs.
 OUTPUTS = {
@@ -20,7 +20,7 @@ OUTPUTS = {
     "reproduce": [("out", True, ())],
     "track": [("out", False, ("video", "camera", "markers", "reference", "timestamps")),
               ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],
-    "map": [("out", False, ("inputs", "camera", "extend"))],
+    "map": [("out", lambda a: a.markerless, ("inputs", "camera", "extend", "markers"))],
     "simulate": [("out", True, ("scenario",))],
     "process": [("out", True, ("session", "camera", "eyes", "person"))],
     "learn-bias": [("out", False, ("session", "validation", "processed", "eyes"))],
@@ -55,7 +55,7 @@ def check_outputs(args) -> None:
             v = getattr(args, a, None)
             inputs += [] if v is None else [v] if isinstance(v, str) else list(v)
         opt = "--out" if attr == "out" and args.command in ("reproduce", "demo") else OPTION[attr]
-        check_output(out, inputs, opt, folder=folder)
+        check_output(out, inputs, opt, folder=folder(args) if callable(folder) else folder)
 
 
 OS_FIX = {errno.EACCES: "the place is not writable: choose another or change its permissions",

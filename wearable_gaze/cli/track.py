@@ -13,7 +13,7 @@ def cmd_track(args) -> int:
     with progress_bar("tracking", 1) as cb:
         counts = track_video_files(args.video, args.camera, args.out, markers=args.markers, reference=args.reference,
                                    reference_size_mm=args.reference_size_mm, overlay=args.overlay,
-                                   timestamps=args.timestamps, progress=cb, smooth_s=args.smooth)
+                                   timestamps=args.timestamps, progress=cb, smooth_s=args.smooth, sfm=args.map)
     print(f"wrote {args.out}: {counts['posed']} of {counts['frames']} frames with a pose"
           + (f"; overlay {args.overlay}" if args.overlay else ""))
     return 0
@@ -34,6 +34,7 @@ def add_track(sub) -> None:
     tk.add_argument("--camera", required=True, metavar="camera.json", help="scene-camera calibration")
     src = tk.add_mutually_exclusive_group(required=True)
     src.add_argument("--markers", metavar="map.json", help="marker map (docs/formats.md)")
+    src.add_argument("--map", metavar="SFM_FOLDER", help="a markerless map of the room (map --markerless)")
     src.add_argument("--reference", metavar="IMAGE", help="image of a flat textured surface in the room")
     tk.add_argument("--reference-size-mm", type=A.positive_float, nargs=2, metavar=("W", "H"),
                     help="the reference surface's width and height in mm")
@@ -62,14 +63,35 @@ def cmd_map(args) -> int:
     from ..pipeline.mapping import build_map_files, format_map_report, map_plot_path, parse_sizes  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
+    if args.markerless:
+        return _cmd_markerless(args)
+    if args.markers is not None:
+        raise UserError("map: --markers is for --markerless (the marker map that places the markerless map)")
     if args.size_mm is None and not args.sizes and args.extend is None:
         raise UserError("map: give the printed marker side, --size-mm MM (or --sizes ID=MM,...)")
     with progress_bar("detecting markers", 1) as cb:
         built = build_map_files(args.inputs, args.camera, args.out, args.dict, args.size_mm, parse_sizes(args.sizes),
-                                args.origin_marker, args.max_frames, cb, args.extend)
+                                args.origin_marker, args.max_frames or 300, cb, args.extend)
     for line in format_map_report(built):
         print(line)
     print(f"wrote {args.out} and its top view {map_plot_path(args.out)}")
+    return 0
+
+
+def _cmd_markerless(args) -> int:
+    from ..pipeline.sfm import build_sfm_files, format_sfm_report  # noqa: PLC0415
+    from ..progress import progress_bar  # noqa: PLC0415
+
+    if args.extend is not None or args.sizes:
+        raise UserError("map --markerless: --extend and --sizes are for marker maps; a markerless map is fixed by "
+                        "--origin-marker ID --size-mm MM or by --markers MAP.json")
+    with progress_bar("features, matching and reconstruction", 1) as cb:
+        build = build_sfm_files(args.inputs, args.camera, args.out, args.max_frames or 150, args.dict or "DICT_4X4_50",
+                                args.size_mm, args.origin_marker, args.markers, cb)
+    for line in format_sfm_report(build):
+        print(line)
+    print(f"wrote the markerless map {args.out}/ (sfm_map.json, features.npz, colmap/, sfm_top_view.png); "
+          f"track with --map {args.out}")
     return 0
 
 
@@ -79,7 +101,8 @@ def add_map(sub) -> None:
     mp.add_argument("inputs", nargs="+", metavar="VIDEO_OR_IMAGES", help="survey videos, images or folders of images")
     mp.add_argument("--camera", required=True, metavar="camera.json|.yml",
                     help="the camera's calibration (ours, or an OpenCV YAML/XML file)")
-    mp.add_argument("-o", "--out", required=True, metavar="map.json", help="marker map to write")
+    mp.add_argument("-o", "--out", required=True, metavar="map.json|FOLDER",
+                    help="marker map to write (with --markerless: a new folder)")
     mp.add_argument("--dict", type=A.marker_dictionary, default=None, metavar="DICT",
                     help="cv2.aruco dictionary (default: the --extend map's, else DICT_4X4_50)")
     mp.add_argument("--extend", metavar="map.json",
@@ -89,6 +112,12 @@ def add_map(sub) -> None:
     mp.add_argument("--sizes", metavar="ID=MM,...", help="per-marker sides, over --size-mm")
     mp.add_argument("--origin-marker", type=A.non_negative_int, metavar="ID",
                     help="the marker whose frame is the world (default: the one seen most)")
-    mp.add_argument("--max-frames", type=A.positive_int, default=300, metavar="N",
-                    help="frames used from each video, evenly spaced (default 300)")
+    mp.add_argument("--max-frames", type=A.positive_int, default=None, metavar="N",
+                    help="frames used from each video, evenly spaced (default 300; 150 with --markerless)")
+    mp.add_argument("--markerless", action="store_true",
+                    help="reconstruct the textured room itself (pycolmap structure from motion) into the folder -o; "
+                         "scaled by --origin-marker ID --size-mm MM or placed by --markers MAP.json")
+    mp.add_argument("--markers", metavar="map.json",
+                    help="with --markerless: the room's marker map, whose world the markerless map is fitted to "
+                         "(by all its markers seen, or by --origin-marker alone)")
     mp.set_defaults(func=cmd_map)

@@ -22,7 +22,8 @@ from .atomic import write_text
 
 log = logging.getLogger(__name__)
 
-SCHEMA_NAMES = ("session", "camera", "eyes", "marker-map", "board", "walls", "scenario", "validation", "person")
+SCHEMA_NAMES = ("session", "camera", "eyes", "marker-map", "board", "walls", "scenario", "validation", "person",
+                "sfm-map")
 
 
 @cache

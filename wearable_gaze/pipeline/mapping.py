@@ -75,7 +75,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     cam = load_camera(Path(camera_path))
     detector = MarkerDetector(dictionary)
     files = input_files(inputs)
-    total = sum(1 if f.suffix.lower() in IMAGE_EXT else max_frames for f in files)     # a video: about max_frames
+    total = frames_total(files, max_frames)
     views, names, repeated = [], [], {}
     for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
         if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
@@ -104,6 +104,12 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
+
+
+def frames_total(files, max_frames: int) -> int:
+    """About how many frames ``read_frames`` yields of ``files``: an image one, a video
+    ``max_frames`` (fewer when it is shorter), for a progress bar's total."""
+    return sum(1 if f.suffix.lower() in IMAGE_EXT else max_frames for f in files)
 
 
 def map_plot_path(out) -> Path:

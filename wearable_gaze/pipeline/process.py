@@ -33,6 +33,9 @@ from ..formats.markermap import load_marker_map
 from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv, write_poses_csv
 from ..formats.session import load_session
+from ..formats.sfmmap import FEATURES as SFM_FEATURES
+from ..formats.sfmmap import MAP_JSON as SFM_JSON
+from ..formats.sfmmap import load_sfm_map
 from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
@@ -61,6 +64,7 @@ class _Settings:
     segment_config: SegmentConfig
     person: Path | None = None
     build_map: tuple | None = None      # (marker side mm, dictionary) to build a map from the video
+    sfm_map: Path | None = None         # a markerless map folder to localise the video's frames in
 
 
 @dataclass(frozen=True)
@@ -119,7 +123,7 @@ class _Values:
 def process_session(session, out=None, method: str = "voxel", camera=None, eyes=None, force: bool = False,
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
                     segment_config: SegmentConfig | None = None, progress_factory=None, person=None,
-                    build_map: tuple | None = None) -> ProcessResult:
+                    build_map: tuple | None = None, sfm_map=None) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -137,6 +141,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         build_map: (marker side, mm; dictionary name): a session without a marker map gets one
             built from its own scene video (``pipeline.mapping``, written as built_map.json)
             before tracking; a session with one keeps it.
+        sfm_map: a markerless map folder (``map --markerless``): the scene video's frames are
+            localised in it (``tracking.localise``) instead of tracked by the session's markers.
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
@@ -146,6 +152,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         UserError: the session itself cannot be read.
     """
     s = load_session(session)
+    if sfm_map is not None:
+        load_sfm_map(sfm_map)                                   # checked before any step
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
     out = Path(out) if out is not None else s.root / "processed"
@@ -169,7 +177,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     if segment_config is None:          # the window follows the eye rate: 8 samples at 60 Hz, 2 at 10 Hz
         segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person,
-                    None if build_map is None else (float(build_map[0]), str(build_map[1])))
+                    None if build_map is None else (float(build_map[0]), str(build_map[1])),
+                    None if sfm_map is None else Path(sfm_map))
     if correction is not None:
         res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
     cam_path = Path(camera) if camera else out / "camera.json"
@@ -300,7 +309,14 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
         cam, mm = vals["camera"], vals["marker_map"]
         poses = track_video(f.video, cam, mm, frame_times(f.video, f.stamps), cfg.track_every, cb)
         write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
-    if f.markers is None and cfg.build_map is not None and f.video is not None:
+    if cfg.sfm_map is not None and f.video is not None:
+        def localise(cb):
+            poses = track_video(f.video, vals["camera"], load_sfm_map(cfg.sfm_map)[0], frame_times(f.video, f.stamps),
+                                cfg.track_every, cb)
+            write_poses_csv(poses_path, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
+        steps.run("tracking", [f.video, cam_path, cfg.sfm_map / SFM_JSON, cfg.sfm_map / SFM_FEATURES, f.stamps],
+                  {"every": cfg.track_every, "map": "markerless"}, localise)
+    elif f.markers is None and cfg.build_map is not None and f.video is not None:
         def build_and_track(cb):                   # vals["marker_map"] then reads the map built here
             build_map_files([f.video], cam_path, poses_path.parent / BUILT_MAP, cfg.build_map[1], cfg.build_map[0])
             do_tracking(cb)

@@ -1,5 +1,5 @@
 """Head poses from a scene video: the tracking step over typed values (``track_poses``, and
-``track_video`` for a video in a room with a marker map; ``process`` calls it) and ``wearable-gaze
+``track_video`` for a video in a room with a marker map or a markerless map; ``process`` calls it) and ``wearable-gaze
 track``'s file-level wrapper (``track_video_files``: reads, calls the step, writes poses.csv and the
 overlay)."""
 
@@ -16,6 +16,7 @@ import numpy as np
 from calibration.camera import CameraCalibration
 from calibration.images import to_grey
 from tracking.homography import PlanarTracker
+from tracking.localise import FeatureLocaliser, FeatureMap
 from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
@@ -27,6 +28,7 @@ from ..formats.camera import load_camera
 from ..formats.images import read_grey_image
 from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
+from ..formats.sfmmap import load_sfm_map
 from ..formats.video import open_video, open_video_writer, read_frame_times
 from .types import Poses
 
@@ -46,11 +48,12 @@ def frame_times(video: Path, timestamps=None) -> dict | None:
 
 
 def track_video_files(video, camera_path, out, markers=None, reference=None, reference_size_mm=None, overlay=None,
-                timestamps=None, progress=None, smooth_s: float = 0.0, every: int = 1) -> dict:
+                timestamps=None, progress=None, smooth_s: float = 0.0, every: int = 1, sfm=None) -> dict:
     """Head pose for every frame of a scene video, written as poses.csv (docs/formats.md).
 
-    Either ``markers`` (a marker map JSON) or ``reference`` (an image of a flat surface) with
-    ``reference_size_mm`` (width, height). Frame times: ``frame_times``. ``smooth_s``,
+    One of ``markers`` (a marker map JSON), ``sfm`` (a markerless map folder, ``map
+    --markerless``) or ``reference`` (an image of a flat surface) with ``reference_size_mm``
+    (width, height). Frame times: ``frame_times``. ``smooth_s``,
     ``every``: see ``track_poses``; with ``overlay`` every frame is tracked. Returns counts.
 
     ``out`` and ``overlay`` are written under temporary names and renamed once both are
@@ -58,8 +61,8 @@ def track_video_files(video, camera_path, out, markers=None, reference=None, ref
     under either name untouched.
     """
     video = Path(video)
-    if (markers is None) == (reference is None):
-        raise UserError("give either --markers MAP.json or --reference IMAGE --reference-size-mm W H")
+    if sum(x is not None for x in (markers, reference, sfm)) != 1:
+        raise UserError("give one of --markers MAP.json, --map SFM_FOLDER or --reference IMAGE --reference-size-mm W H")
     camera = load_camera(camera_path)
     with contextlib.ExitStack() as stack:
         cap, fps, n_total = open_video(video, camera.image_size)
@@ -67,6 +70,8 @@ def track_video_files(video, camera_path, out, markers=None, reference=None, ref
         times = frame_times(video, timestamps)
         if markers is not None:
             locate = marker_locator(load_marker_map(markers), camera)
+        elif sfm is not None:
+            locate = room_locator(load_sfm_map(sfm)[0], camera)
         else:
             locate = _reference_locator(reference, reference_size_mm, camera)
         draw = None
@@ -81,12 +86,13 @@ def track_video_files(video, camera_path, out, markers=None, reference=None, ref
     return {"frames": len(poses.t), "posed": poses.n_posed}
 
 
-def track_video(video: Path, camera: CameraCalibration, marker_map: MarkerMap, times=None, every: int = 1,
+def track_video(video: Path, camera: CameraCalibration, room: MarkerMap | FeatureMap, times=None, every: int = 1,
                 progress=None) -> Poses:
-    """``track_poses`` of a video made by ``camera`` in a room with ``marker_map``."""
+    """``track_poses`` of a video made by ``camera`` in a room with a marker map or a markerless
+    map (``room_locator``)."""
     cap, fps, n_total = open_video(Path(video), camera.image_size)
     try:
-        return track_poses(cap, fps, n_total, marker_locator(marker_map, camera), times, every, progress=progress,
+        return track_poses(cap, fps, n_total, room_locator(room, camera), times, every, progress=progress,
                            name=video)
     finally:
         cap.release()
@@ -115,6 +121,19 @@ def track_poses(cap, fps: float, n_total: int, locate, times=None, every: int = 
     return Poses(np.array(rows["t"], float), np.array(rows["frame"], int), T_all,
                  {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
                   "reproj_rms_px": np.array(rows["reproj_rms_px"]), "status": status})
+
+
+def room_locator(room: MarkerMap | FeatureMap, camera: CameraCalibration):
+    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay), from the room's
+    markers (a ``MarkerMap``) or from features matched to a markerless map (a ``FeatureMap``;
+    no detections)."""
+    if isinstance(room, MarkerMap):
+        return marker_locator(room, camera)
+    localiser = FeatureLocaliser(room, camera)
+
+    def locate(grey):
+        return localiser.estimate(grey), []
+    return locate
 
 
 def marker_locator(marker_map: MarkerMap, camera: CameraCalibration):

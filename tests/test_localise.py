@@ -1,0 +1,191 @@
+"""Head pose without markers (issue 16): the features, the matching and the pose of
+``tracking.localise`` on synthetic ground truth, then a markerless map built by ``map
+--markerless`` from a short rendered survey and frames of it localised against the simulator's
+truth (benchmarks/bench_sfm.py measures the full-length survey and a walkabout)."""
+
+import contextlib
+import csv
+import io
+import json
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calibration.camera import CameraCalibration
+from estimator.frames import invert
+from tracking.localise import FeatureLocaliser, FeatureMap, image_features, root_sift, triangulate
+from tracking.pose import rotation_angle_deg
+from wearable_gaze.cli import main
+from wearable_gaze.formats.camera import load_camera
+from wearable_gaze.formats.sfmmap import load_sfm_map
+from wearable_gaze.pipeline.track import track_video
+from wearable_gaze.sim.simulate import simulate_scenario
+
+K = np.array([[640.0, 0, 639.5], [0, 640.0, 359.5], [0, 0, 1]])
+CAM = CameraCalibration(K, np.zeros(5), (1280, 720))
+
+
+def _pose(rng) -> np.ndarray:
+    """A random T_cam_from_world looking at points around the origin from about 2 m."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rng.normal(0, 0.2, 3)).as_matrix()
+    T[:3, 3] = rng.normal(0, 100, 3) + [0, 0, 2000]
+    return T
+
+
+def test_triangulate_finds_a_point_from_its_exact_views():
+    rng = np.random.default_rng(0)
+    X = np.array([120.0, -40.0, 300.0])
+    Ts = np.array([_pose(rng) for _ in range(5)])
+    x = np.array([(T[:3, :3] @ X + T[:3, 3])[:2] / (T[:3, :3] @ X + T[:3, 3])[2] for T in Ts])
+    np.testing.assert_allclose(triangulate(Ts, x), X, atol=1e-6)
+    with pytest.raises(ValueError, match="views"):
+        triangulate(Ts[:1], x[:1])
+
+
+def test_root_sift_is_unit_length_and_features_are_in_full_size_pixels():
+    d = root_sift(np.random.default_rng(1).uniform(0, 200, (7, 128)))
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1, rtol=1e-5)
+    # a blob drawn at a known place is found there, in the frame's own pixels, at half size too
+    img = np.full((360, 640), 200, np.uint8)
+    cv2.circle(img, (400, 100), 12, 30, -1, cv2.LINE_AA)
+    xy, desc = image_features(img)
+    assert len(xy) >= 1 and desc.shape == (len(xy), 128)
+    assert np.min(np.linalg.norm(xy - [400, 100], axis=1)) < 1.5
+    with pytest.raises(ValueError, match="uint8"):
+        image_features(img.astype(float))
+
+
+def _synthetic_map(rng, n=400):
+    pts = rng.uniform([-1500, -800, 1500], [1500, 800, 3500], (n, 3))
+    desc = root_sift(rng.uniform(0, 1, (n, 128)) ** 4)
+    return pts, desc
+
+
+def test_matches_keep_a_point_seen_twice_and_drop_ambiguous_descriptors():
+    rng = np.random.default_rng(2)
+    pts, desc = _synthetic_map(rng)
+    # each point twice (two views of it, nearly equal descriptors): the ratio test must compare
+    # with the nearest descriptor of ANOTHER point, or every match would fail it
+    twice = np.vstack([desc, root_sift(desc**2 * (1 + 0.01 * rng.uniform(size=desc.shape)))])
+    fmap = FeatureMap(pts, twice, np.r_[np.arange(len(pts)), np.arange(len(pts))])
+    loc = FeatureLocaliser(fmap, CAM)
+    q, p = loc.matches(desc[:50])
+    assert len(q) >= 45 and np.all(p == q)
+    # a query halfway between two points' descriptors is ambiguous: not matched
+    mid = root_sift(((desc[0] ** 2 + desc[1] ** 2) / 2)[None])
+    assert len(loc.matches(mid)[0]) == 0
+    with pytest.raises(ValueError, match="point_of"):
+        FeatureMap(pts, desc, np.full(len(desc), len(pts)))
+
+
+def test_pose_from_matches_with_outliers_is_the_true_one_with_a_covariance():
+    rng = np.random.default_rng(3)
+    pts, desc = _synthetic_map(rng)
+    loc = FeatureLocaliser(FeatureMap(pts, desc, np.arange(len(pts))), CAM)
+    T_cw = _pose(rng)
+    x = (pts @ T_cw[:3, :3].T + T_cw[:3, 3])
+    px = x[:, :2] / x[:, 2:] * 640 + [639.5, 359.5] + rng.normal(0, 0.5, (len(pts), 2))
+    px[:60] = rng.uniform([0, 0], [1280, 720], (60, 2))                 # 15 % wrong matches
+    res = loc.pose(px, pts)
+    assert res.ok and res.n_points >= 330
+    T_wc = invert(T_cw)
+    assert rotation_angle_deg(res.T_world_from_cam[:3, :3], T_wc[:3, :3]) < 0.05
+    err = np.linalg.norm(res.T_world_from_cam[:3, 3] - T_wc[:3, 3])
+    sd = np.sqrt(np.trace(res.covariance[3:, 3:]))
+    assert err < 5 and 0 < sd < 10 and err < 5 * sd
+    few = loc.pose(px[100:120], pts[100:120])
+    assert not few.ok and "need 30" in few.reason
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    """A 6 s rendered survey of the lab room and a markerless map of it (30 frames), placed in
+    the room's world by its marker map."""
+    root = tmp_path_factory.mktemp("survey")
+    sess = root / "survey"
+    simulate_scenario({"base": "survey", "duration_s": 6.0}, sess, seed=4)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(["map", "--markerless", str(sess / "scene.mp4"), "--camera", str(sess / "truth" / "camera.json"),
+                     "--markers", str(sess / "markers.json"), "--max-frames", "30", "-o", str(root / "sfm")])
+    assert code == 0
+    return sess, root / "sfm", printed.getvalue()
+
+
+def _truth(sess) -> dict:
+    out = {}
+    with open(sess / "truth" / "head_poses.csv", newline="") as fh:
+        for r in csv.DictReader(fh):
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_quat([float(r[k]) for k in ("qx", "qy", "qz", "qw")]).as_matrix()
+            T[:3, 3] = [float(r[k]) for k in ("tx", "ty", "tz")]
+            out[int(r["frame"])] = T
+    return out
+
+
+def test_a_markerless_map_of_a_rendered_survey_localises_its_frames_within_a_few_mm(survey):
+    sess, sfm, out = survey
+    assert "points from" in out and "world and scale from markers" in out
+    fmap, meta = load_sfm_map(sfm)
+    assert meta["views"]["registered"] >= 27 and meta["points"] > 500
+    assert meta["scaled_by"]["kind"] == "marker_map" and meta["scaled_by"]["residual_mm"] < 5, meta["scaled_by"]
+    assert (sfm / "colmap" / "points3D.bin").is_file() and (sfm / "sfm_top_view.png").is_file()
+    assert not (sfm / "images").exists() and not (sfm / "database.db").exists()
+    # the survey's views in the world, against the truth (the map's scale and world from markers)
+    truth = _truth(sess)
+    for view in meta["survey"][::5]:
+        T, Tt = np.array(view["T_world_from_cam"]), truth[int(view["name"].split("#")[1])]
+        assert rotation_angle_deg(T[:3, :3], Tt[:3, :3]) < 0.3
+        assert np.linalg.norm(T[:3, 3] - Tt[:3, 3]) < 10
+    # frames between the survey's, localised (what track --map and process --map do)
+    poses = track_video(sess / "scene.mp4", load_camera(sess / "truth" / "camera.json"), fmap, every=7)
+    ok = np.asarray(poses.columns["status"]) == "ok"
+    assert ok[poses.frame % 7 == 0].mean() > 0.9                 # the frames localised (the rest interpolated)
+    rot = [rotation_angle_deg(T[:3, :3], truth[k][:3, :3]) for T, k in zip(poses.T_world_from_cam[ok],
+                                                                            poses.frame[ok], strict=True)]
+    pos = [np.linalg.norm(T[:3, 3] - truth[k][:3, 3]) for T, k in zip(poses.T_world_from_cam[ok], poses.frame[ok],
+                                                                      strict=True)]
+    assert np.median(rot) < 0.2 and np.median(pos) < 8, (np.median(rot), np.median(pos))
+
+
+def test_track_with_a_markerless_map_writes_poses(survey, tmp_path, capsys):
+    sess, sfm, _ = survey
+    out = tmp_path / "poses.csv"
+    assert main(["track", str(sess / "scene.mp4"), "--camera", str(sess / "truth" / "camera.json"),
+                 "--map", str(sfm), "-o", str(out)]) == 0
+    assert "frames with a pose" in capsys.readouterr().out
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 180 and sum(r["status"] == "ok" for r in rows) > 150
+
+
+def test_markerless_bad_inputs_are_one_line(survey, tmp_path, capsys):
+    sess, sfm, _ = survey
+    cam = str(sess / "truth" / "camera.json")
+    cases = [
+        (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "-o", str(tmp_path / "a")],
+         "--origin-marker ID --size-mm MM"),
+        (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "--markers", str(sess / "markers.json"),
+          "-o", str(sfm)], "already exists and is not empty"),
+        (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "--origin-marker", "99", "--size-mm",
+          "150", "--max-frames", "5", "-o", str(tmp_path / "b")], "marker 99"),
+        (["track", str(sess / "scene.mp4"), "--camera", cam, "--map", str(tmp_path), "-o", str(tmp_path / "p.csv")],
+         "not a markerless map folder"),
+        (["process", str(sess), "--map", str(tmp_path), "-o", str(tmp_path / "out")], "not a markerless map folder"),
+    ]
+    for argv, needle in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert needle in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "b").exists() and not (tmp_path / "out" / "poses.csv").exists()
+    # a features file that does not belong to its JSON is refused, not used
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    meta = json.loads((sfm / "sfm_map.json").read_text())
+    (bad / "sfm_map.json").write_text(json.dumps({**meta, "points": meta["points"] + 1}))
+    (bad / "features.npz").write_bytes((sfm / "features.npz").read_bytes())
+    assert main(["track", str(sess / "scene.mp4"), "--camera", cam, "--map", str(bad), "-o",
+                 str(tmp_path / "p.csv")]) == 2
+    assert "different maps" in capsys.readouterr().err

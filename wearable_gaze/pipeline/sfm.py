@@ -1,0 +1,279 @@
+"""``wearable-gaze map --markerless``: a map of a textured room from a survey video, without
+markers (issue 16; docs/tracking.md, "A map without markers").
+
+Evenly spaced frames of the video get the features ``tracking.localise`` uses for every frame
+(SIFT at half size, RootSIFT); pycolmap matches them (every pair, geometrically verified) and
+reconstructs the views and 3D points (incremental mapping with bundle adjustment, the camera's
+intrinsics held fixed). The reconstruction's arbitrary scale and frame are then fixed by markers
+seen in the frames: one marker of known side (the world is its frame), or the markers of a map
+(the world is that map's, fitted by all of them or by the one ``origin`` names). The result
+(``formats.sfmmap``) carries each 3D point with the descriptors of the views that saw it, for
+``track --map`` and ``process --map`` to localise frames against.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calibration.camera import CameraCalibration, aruco_dictionary
+from tracking.localise import FEATURE_SCALE, MAX_FEATURES, FeatureMap, colmap_descriptors, image_features, triangulate
+from tracking.mapbuild import similarity_transform
+from tracking.markermap import MarkerMap, square_corners
+from tracking.markers import MarkerDetector, unique_by_id
+
+from ..errors import UserError
+from ..formats.atomic import atomic_folder
+from ..formats.camera import load_camera
+from ..formats.markermap import load_marker_map
+from ..formats.sfmmap import write_sfm_map
+from .calibrate import input_files, read_frames
+
+log = logging.getLogger(__name__)
+
+MIN_MARKER_VIEWS = 3
+"""A marker is used for the scale only when seen in at least this many reconstructed views."""
+DESCRIPTORS_PER_POINT = 4
+"""Each 3D point keeps the descriptors of at most this many of its views, spread along its track
+(the survey sees a point from up to dozens of nearly equal views; all of them would triple the
+matching time a frame for no more matches)."""
+
+
+@dataclass
+class SfmBuild:
+    """What ``build_sfm_files`` made: the map, views selected and registered, the reprojection RMS
+    (px), how the world was fixed (``scaled_by``: kind, markers, their corners' residual after the
+    fit, mm), the survey's camera poses {frame name ('VIDEO#FRAME' or the image's): T_world_from_cam}."""
+
+    feature_map: FeatureMap
+    selected: int
+    registered: int
+    rms_px: float
+    scaled_by: dict
+    cameras: dict
+
+
+def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, dictionary: str = "DICT_4X4_50",
+                    size_mm: float | None = None, origin: int | None = None, markers=None,
+                    progress=None) -> SfmBuild:
+    """Reconstruct the room of ``inputs`` (videos, images, folders of images; at most
+    ``max_frames`` evenly spaced frames of each video) seen by the camera of ``camera_path``, and
+    write the map folder ``out_dir`` (docs/formats.md, "Markerless map"; built beside it and
+    renamed when complete). The world: marker ``origin``'s frame, its printed side ``size_mm``
+    (markers of ``dictionary``); or with ``markers`` (a marker map), that map's world, fitted
+    to all its markers seen or to ``origin`` alone. ``progress(done, total)``: over the frames,
+    then over the views registered.
+
+    Raises:
+        UserError: unreadable inputs, images of another size than the camera's, no way to fix the
+            scale, a reconstruction that fails, too few views of the markers that fix the world.
+    """
+    cam = load_camera(Path(camera_path))
+    marker_map = load_marker_map(Path(markers)) if markers is not None else None
+    if marker_map is None and (origin is None or size_mm is None):
+        raise UserError("map --markerless: fix the scale and the world with --origin-marker ID --size-mm MM (a "
+                        "marker in view) or --markers MAP.json (the room's marker map)")
+    dictionary = marker_map.dictionary if marker_map is not None else dictionary
+    try:
+        aruco_dictionary(dictionary)
+    except ValueError as exc:
+        raise UserError(f"--dict: {exc}") from None
+    with atomic_folder(out_dir) as tmp:
+        frames = _frames(inputs, cam, MarkerDetector(dictionary), max_frames, tmp / "images", progress)
+        rec = _reconstruct(tmp, cam, frames, progress)
+        T_world_from_sfm, scaled_by = _world(rec, frames, cam, marker_map, origin, size_mm)
+        fmap = _feature_map(rec, frames, T_world_from_sfm)
+        cameras = {frames["names"][k]: T for k, T in _cameras(rec, T_world_from_sfm).items()}
+        (tmp / "colmap").mkdir()
+        rec.write(str(tmp / "colmap"))
+        rms = float(rec.compute_mean_reprojection_error())
+        build = SfmBuild(fmap, len(frames["names"]), len(cameras), rms, scaled_by, cameras)
+        write_sfm_map(tmp, fmap, _meta(build, cam, T_world_from_sfm))
+        write_sfm_plot(build, tmp / "sfm_top_view.png")
+        shutil.rmtree(tmp / "images")
+        (tmp / "database.db").unlink()
+    return build
+
+
+def _frames(inputs, cam: CameraCalibration, detector: MarkerDetector, max_frames: int, folder: Path, progress) -> dict:
+    """The selected frames: names, features (positions px, descriptors), markers {id: corners
+    px}; each written to ``folder`` as NNNNN.jpg for pycolmap (which reads their sizes)."""
+    from .mapping import frames_total  # noqa: PLC0415
+
+    folder.mkdir()
+    files = input_files(inputs)
+    total = frames_total(files, max_frames)
+    out = {"names": [], "features": [], "markers": []}
+    for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room")):
+        if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
+            raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
+                            f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
+        cv2.imwrite(str(folder / f"{k:05d}.jpg"), grey, [cv2.IMWRITE_JPEG_QUALITY, 75])
+        out["names"].append(name)
+        out["features"].append(image_features(grey))
+        out["markers"].append(unique_by_id(detector.detect(grey)))
+        if progress:
+            progress(k + 1, max(k + 1, total))
+    if len(out["names"]) < 3:
+        raise UserError(f"{len(out['names'])} frame(s) in the inputs; a markerless map needs a survey video (or "
+                        "photos) with many views of the room")
+    return out
+
+
+def _reconstruct(tmp: Path, cam: CameraCalibration, frames: dict, progress):
+    """pycolmap's largest reconstruction of the frames, in its own frame and scale. The
+    keypoints are undistorted onto a pinhole camera of the calibration's K (COLMAP's pixel
+    centres are at +0.5)."""
+    import pycolmap  # noqa: PLC0415
+
+    if not log.isEnabledFor(logging.DEBUG):                # COLMAP's own log lines: with -vv only
+        pycolmap.logging.minloglevel = 2                   # glog's ERROR
+    db_path, images = tmp / "database.db", tmp / "images"
+    K = cam.camera_matrix
+    opts = pycolmap.ImageReaderOptions()
+    opts.camera_model = "PINHOLE"
+    opts.camera_params = ",".join(f"{v:.10g}" for v in (K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5))
+    pycolmap.Database.open(str(db_path)).close()
+    pycolmap.import_images(str(db_path), str(images), pycolmap.CameraMode.SINGLE, options=opts)
+    with contextlib.closing(pycolmap.Database.open(str(db_path))) as db:
+        for im in db.read_all_images():
+            xy, desc = frames["features"][int(Path(im.name).stem)]
+            uv = cam.undistort_points(xy) * K[[0, 1], [0, 1]] + K[:2, 2] + 0.5 if len(xy) else np.zeros((0, 2))
+            db.write_keypoints(im.image_id, uv.astype(np.float32))
+            db.write_descriptors(im.image_id, pycolmap.FeatureDescriptors(pycolmap.FeatureExtractorType.SIFT,
+                                                                          colmap_descriptors(desc)))
+    mo = pycolmap.FeatureMatchingOptions()
+    mo.num_threads, mo.use_gpu = 1, False
+    pycolmap.match_exhaustive(str(db_path), matching_options=mo, device=pycolmap.Device.cpu)
+    po = pycolmap.IncrementalPipelineOptions()
+    po.num_threads, po.extract_colors, po.random_seed = 1, False, 0
+    po.ba_refine_focal_length = po.ba_refine_principal_point = po.ba_refine_extra_params = False
+    n, done = len(frames["names"]), [0]
+
+    def registered():
+        done[0] += 1
+        if progress:
+            progress(min(done[0], n), n)
+    (tmp / "sparse").mkdir()
+    recs = pycolmap.incremental_mapping(str(db_path), str(images), str(tmp / "sparse"), options=po,
+                                        next_image_callback=registered)
+    shutil.rmtree(tmp / "sparse")
+    if not recs:
+        raise UserError(f"no reconstruction from the {n} frames: the room's surfaces may lack texture, or the "
+                        "views overlap too little; survey slowly, facing textured walls, with more --max-frames")
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    log.info("reconstruction: %d of %d views, %d points", rec.num_reg_images(), n, rec.num_points3D())
+    return rec
+
+
+def _T_cam_from_sfm(image) -> np.ndarray:
+    T = np.eye(4)
+    T[:3] = image.cam_from_world().matrix()
+    return T
+
+
+def _world(rec, frames: dict, cam: CameraCalibration, marker_map: MarkerMap | None, origin, size_mm
+           ) -> tuple[np.ndarray, dict]:
+    """``T_world_from_sfm`` (a similarity) and how it was found, from the markers' corners
+    triangulated in the reconstruction and their places in the world."""
+    views: dict[int, list] = {}
+    for im in rec.images.values():
+        k = int(Path(im.name).stem)
+        for i, c in frames["markers"][k].items():
+            views.setdefault(i, []).append((_T_cam_from_sfm(im), cam.undistort_points(c)))
+    if marker_map is not None:
+        ids = [origin] if origin is not None else sorted(set(views) & set(marker_map.poses))
+        world = {i: marker_map.corners(i) for i in ids if i in marker_map.poses}
+        kind = "marker_map"
+    else:
+        ids, world, kind = [origin], {origin: square_corners(size_mm)}, "marker"
+    used = [i for i in ids if i in world and len(views.get(i, ())) >= MIN_MARKER_VIEWS]
+    if not used:
+        which = f"marker {origin}" if origin is not None else "no marker of the map"
+        raise UserError(f"{which} is in at least {MIN_MARKER_VIEWS} reconstructed views, so the map's scale and "
+                        "world cannot be fixed; survey past the marker, or name one seen (--origin-marker)")
+    A = np.vstack([[triangulate([v[0] for v in views[i]], [v[1][j] for v in views[i]]) for j in range(4)]
+                   for i in used])
+    B = np.vstack([world[i] for i in used])
+    T = similarity_transform(A, B)
+    res = np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1)
+    return T, {"kind": kind, "markers": [int(i) for i in used], "views": {str(i): len(views[i]) for i in used},
+               "residual_mm": round(float(np.sqrt(np.mean(res**2))), 3),
+               **({"size_mm": float(size_mm)} if kind == "marker" else {})}
+
+
+def _feature_map(rec, frames: dict, T_world_from_sfm) -> FeatureMap:
+    """The 3D points (world, mm) with the descriptors of up to ``DESCRIPTORS_PER_POINT`` views of each."""
+    pts, desc, owner = [], [], []
+    for p, (pid, point) in enumerate(sorted(rec.points3D.items())):
+        del pid
+        pts.append(point.xyz)
+        els = sorted(point.track.elements, key=lambda e: e.image_id)
+        for j in np.unique(np.linspace(0, len(els) - 1, DESCRIPTORS_PER_POINT).round().astype(int)):
+            k = int(Path(rec.images[els[j].image_id].name).stem)
+            desc.append(frames["features"][k][1][els[j].point2D_idx])
+            owner.append(p)
+    P = np.asarray(pts, float) @ T_world_from_sfm[:3, :3].T + T_world_from_sfm[:3, 3]
+    return FeatureMap(P, np.asarray(desc, np.float32), np.asarray(owner, np.int64))
+
+
+def _cameras(rec, T_world_from_sfm) -> dict:
+    """{frame number: T_world_from_cam (4, 4) with a rigid rotation, mm} of the registered views."""
+    s = float(np.cbrt(np.linalg.det(T_world_from_sfm[:3, :3])))
+    out = {}
+    for im in rec.images.values():
+        T = T_world_from_sfm @ np.linalg.inv(_T_cam_from_sfm(im))
+        T[:3, :3] /= s
+        out[int(Path(im.name).stem)] = T
+    return dict(sorted(out.items()))
+
+
+def _meta(build: SfmBuild, cam: CameraCalibration, T_world_from_sfm) -> dict:
+    """The JSON fields of the map (formats.sfmmap) besides format and version."""
+    kind = build.scaled_by["kind"]
+    world = (f"marker {build.scaled_by['markers'][0]}'s frame" if kind == "marker" else
+             f"the marker map's world (fitted to markers {build.scaled_by['markers']})")
+    return {"world": world, "T_world_from_sfm": np.round(T_world_from_sfm, 9).tolist(), "scaled_by": build.scaled_by,
+            "camera": {"camera_matrix": cam.camera_matrix.tolist(), "image_size": list(cam.image_size)},
+            "features": {"type": "rootsift", "scale": FEATURE_SCALE, "max_features": MAX_FEATURES},
+            "views": {"selected": build.selected, "registered": build.registered},
+            "points": len(build.feature_map.points_world), "reprojection_rms_px": round(build.rms_px, 4),
+            "survey": [{"name": name, "T_world_from_cam": np.round(T, 6).tolist()}
+                       for name, T in build.cameras.items()]}
+
+
+def write_sfm_plot(build: SfmBuild, path: Path) -> None:
+    """A top view (world x, z) of the map's points and the survey's camera path."""
+    from .report import _plt, _save  # noqa: PLC0415  (matplotlib only when plotting)
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    P = build.feature_map.points_world
+    ax.plot(P[:, 0], P[:, 2], ",", color="#1f77b4", alpha=0.5, label=f"{len(P)} points")
+    c = np.array([T[:3, 3] for T in build.cameras.values()])
+    ax.plot(c[:, 0], c[:, 2], "-", color="#d62728", lw=0.8, label="survey path (registered views)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, mm (world)")
+    ax.set_ylabel("z, mm")
+    ax.legend(loc="best", fontsize=8, markerscale=10)
+    ax.set_title(f"markerless map, top view: {build.registered} of {build.selected} views, "
+                 f"RMS {build.rms_px:.2f} px, scale fixed by markers {build.scaled_by['markers']}", fontsize=9)
+    _save(fig, path)
+
+
+def format_sfm_report(build: SfmBuild) -> list[str]:
+    """Lines for the terminal."""
+    s = build.scaled_by
+    lines = [f"{len(build.feature_map.points_world)} points from {build.registered} of {build.selected} views, "
+             f"reprojection RMS {build.rms_px:.2f} px",
+             f"world and scale from markers {s['markers']} ({s['kind']}): corners fit to {s['residual_mm']:.1f} mm RMS"]
+    if build.registered < 0.8 * build.selected:
+        lines.append(f"  only {build.registered} of {build.selected} views were placed: frames of the session far "
+                     "from the survey's may not localise")
+    return lines
