@@ -67,7 +67,7 @@ def test_a_still_head_uses_only_vergence_and_the_report_says_so(simulated, tmp_p
     assert not (tmp_path / "out" / "device_comparison.csv").exists()
     # the head frame is the world: every target is within reach of the head frame's origin
     for t in res.targets:
-        assert np.linalg.norm([t["x_mm"], t["y_mm"], t["z_mm"]]) < 6000
+        assert np.linalg.norm(t["position_mm"]) < 6000
 
 
 def test_eye_rays_round_trip_and_refuse_bad_rows(tmp_path):

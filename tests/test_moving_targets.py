@@ -62,7 +62,7 @@ def test_the_moving_target_is_reported_as_a_path_near_the_true_one(moving):
     assert rms < float(np.sqrt(np.mean(sd**2))) < 2000.0
     # the point row is the path's middle knot, not a fixed point at one end
     mid = np.argmin(np.abs(t - 0.5 * (t[0] + t[-1])))
-    np.testing.assert_allclose([row["x_mm"], row["y_mm"], row["z_mm"]], pos[mid], atol=0.1)
+    np.testing.assert_allclose(row["position_mm"], pos[mid], atol=0.1)
     tg = Target.from_row(row)
     assert tg.moving and not tg.ok
 
