@@ -20,7 +20,7 @@ from ..formats.fixations_table import write_fixations_csv
 from ..formats.gaze_export import GAZE_COLUMNS, NOMINAL_DEPTH_MM, write_gaze_csv
 from ..formats.ply import PlyMesh, write_ply
 from ..formats.tables import read_table
-from ..formats.targets import read_estimates, read_target_labels
+from ..formats.targets import read_estimates, read_target_labels, read_target_paths
 from .types import Poses, Target, TargetsResult
 
 log = logging.getLogger(__name__)
@@ -71,7 +71,7 @@ def export_files(out: Path, head: BinocularSamples, poses: Poses, targets: list,
     cols = gaze_columns(head, poses, vl["t"], vl["segment"].astype(int), tlabels, read_estimates(out / "estimates.csv"),
                         camera, clock_offset_s)
     write_gaze_csv(out / "gaze.csv", cols)
-    write_ply(out / "targets.ply", targets_mesh(targets, poses))
+    write_ply(out / "targets.ply", targets_mesh(targets, poses, read_target_paths(out / "target_paths.csv")))
 
 
 def gaze_columns(head: BinocularSamples, poses: Poses, vl_t, fixation: np.ndarray, target: np.ndarray,
@@ -191,11 +191,13 @@ def _midpoint(verts: list, cache: dict, i: int, j: int) -> int:
     return cache[key]
 
 
-def targets_mesh(targets: list[Target], poses: Poses) -> PlyMesh:
+def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None) -> PlyMesh:
     """targets.ply's mesh: per target with a point, a lone vertex at the point and, with a
     covariance, its 95 % ellipsoid (``estimator.result.covariance_ellipsoid``: the unit
     icosphere scaled by the semi-axes along the covariance's eigenvectors), in the target's
-    colour; then the head path, the scene camera's positions at its posed frames, as edges."""
+    colour; then each moving target's path (``paths``: target_paths.csv's, {index: (t, (K, 3)
+    positions, covariances)}) as edges in its colour; then the head path, the scene camera's
+    positions at its posed frames, as edges."""
     sphere, faces = icosphere()
     V, C, F, E, notes = [], [], [], [], []
     n = 0
@@ -215,6 +217,12 @@ def targets_mesh(targets: list[Target], poses: Poses) -> PlyMesh:
             text += f", its 95 % ellipsoid vertices {n}-{n + len(sphere) - 1}"
             n += len(sphere)
         notes.append(text)
+    for index, (_, pos, _) in sorted((paths or {}).items()):
+        V.append(np.asarray(pos, float))
+        C.append(np.repeat(COLOURS[index % len(COLOURS)][None], len(pos), 0))
+        E.append(np.column_stack([np.arange(n, n + len(pos) - 1), np.arange(n + 1, n + len(pos))]))
+        notes.append(f"target {index}'s path (a moving target): vertices {n}-{n + len(pos) - 1}, the edges")
+        n += len(pos)
     posed = np.flatnonzero(np.all(np.isfinite(poses.T_world_from_cam[:, :3, 3]), axis=1))
     if len(posed):
         V.append(poses.T_world_from_cam[posed, :3, 3])

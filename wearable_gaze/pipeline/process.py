@@ -191,7 +191,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
             _recording_steps(f, out, steps, res, vals, cam_path, eyes_path, cfg, correction)
         else:
             res.problems.append("session: a calibration-only session has no recording to process")
-            for name in ("tracking", "viewlines", "targets", "report"):
+            for name in ("tracking", "viewlines", "targets", "export", "report"):
                 steps.status[name] = "no_recording"
     except BaseException:
         steps.finish(aborted=True)
@@ -288,7 +288,8 @@ def _export_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, cam_p
         head = vals["eye_rays"] if f.eye_rays is not None else head_view_lines(vals["eye_samples"], vals["eyes"])
         head = correct_head_lines(head, correction) if correction is not None else head
         export_files(out, head, vals["poses"], vals["targets"], vals["camera"] if cam_ok else None, f.clock_offset_s)
-    inputs = [out / n for n in ("viewlines.csv", "target_labels.npy", "estimates.csv", "targets.json", "poses.csv")]
+    inputs = [out / n for n in ("viewlines.csv", "target_labels.npy", "estimates.csv", "targets.json",
+                                "target_paths.csv", "poses.csv")]
     params = {"camera": cam_ok, "clock_offset_s": f.clock_offset_s,
               "person": None if correction is None else correction.tolist()}
     steps.run("export", inputs + eye_inputs + ([cam_path] if cam_ok else []), params, do_export)
