@@ -229,3 +229,48 @@ def test_one_target_record_for_targets_json_estimate_json_and_the_live_messages(
         assert cols["x_mm"][j] == pytest.approx(r["position_mm"][0], abs=0.051)
         assert cols["cov_zz_mm2"][j] == pytest.approx(r["covariance_mm2"][2][2], rel=1e-5)
         assert cols["fixations"][j] == ";".join(map(str, r["fixations"]))
+
+
+def test_the_export_formats_round_trip_through_their_one_reader(tmp_path, monkeypatch):
+    """gaze.csv (written in chunks), fixations.csv (also with no fixation) and targets.ply read
+    back what was written, to their number formats; a damaged file is one line."""
+    from wearable_gaze.errors import UserError
+    from wearable_gaze.formats import gaze_export
+    from wearable_gaze.formats.fixations_table import read_fixations_csv, write_fixations_csv
+    from wearable_gaze.formats.ply import PlyMesh, write_ply
+
+    rng = np.random.default_rng(0)
+    n = 25
+    cols = {k: (rng.integers(-1, 5, n) if d == "int64" else rng.normal(0, 100, n))
+            for k, d in gaze_export.GAZE_COLUMNS.items()}
+    cols["est_x_mm"][::3] = np.nan
+    monkeypatch.setattr(gaze_export, "CHUNK_ROWS", 7)                       # 4 chunks
+    gaze_export.write_gaze_csv(tmp_path / "gaze.csv", cols)
+    back = gaze_export.read_gaze_csv(tmp_path / "gaze.csv")
+    for k, d in gaze_export.GAZE_COLUMNS.items():
+        if d == "int64":
+            assert back[k].dtype == np.int64 and np.array_equal(back[k], cols[k]), k
+        else:
+            step = float("1e-" + gaze_export.GAZE_FORMATS[k][1:-1]) if k in gaze_export.GAZE_FORMATS else 0.0
+            np.testing.assert_allclose(back[k], cols[k], atol=step, equal_nan=True, err_msg=k)
+    assert len(pd.read_csv(tmp_path / "gaze.csv")) == n
+    rows = [{"fixation_id": 0, "start_s": 0.5, "end_s": 1.25, "n_samples": 40, "target_id": 2, "motion": "static",
+             "status": "ok", "position_mm": [1.0, 2.0, 1500.0], "covariance_mm2": np.diag([4.0, 9.0, 400.0])},
+            {"fixation_id": 1, "start_s": 2.0, "end_s": 2.5, "n_samples": 12, "target_id": -1, "motion": "static",
+             "status": "insufficient-data", "position_mm": None, "covariance_mm2": None}]
+    write_fixations_csv(tmp_path / "fixations.csv", rows)
+    f = read_fixations_csv(tmp_path / "fixations.csv")
+    assert list(f["target_id"]) == [2, -1] and list(f["status"]) == ["ok", "insufficient-data"]
+    assert f["duration_s"][0] == 0.75 and f["cov_zz_mm2"][0] == 400.0 and np.isnan(f["x_mm"][1])
+    write_fixations_csv(tmp_path / "none.csv", [])
+    assert all(len(v) == 0 for v in read_fixations_csv(tmp_path / "none.csv").values())
+    mesh = PlyMesh(rng.normal(0, 1000, (5, 3)), rng.integers(0, 256, (5, 3)), np.array([[0, 1, 2]]),
+                   np.array([[3, 4]]), ["a comment"])
+    write_ply(tmp_path / "m.ply", mesh)
+    got = read_ply(tmp_path / "m.ply")
+    np.testing.assert_allclose(got.vertices_mm, mesh.vertices_mm, atol=5e-4)
+    assert np.array_equal(got.colours, mesh.colours) and got.comments == ["a comment"]
+    assert np.array_equal(got.faces, mesh.faces) and np.array_equal(got.edges, mesh.edges)
+    (tmp_path / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2 3 0 0 0\n")
+    with pytest.raises(UserError, match=r"bad.ply: not a targets.ply"):
+        read_ply(tmp_path / "bad.ply")

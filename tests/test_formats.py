@@ -234,7 +234,7 @@ def test_targets_reader_says_what_is_wrong(tmp_path):
     with pytest.raises(UserError, match="not a targets.json"):
         read_targets(tmp_path / "targets.json")
     (tmp_path / "targets.json").write_text('{"version": 2, "method": "ml", "targets": [{"target": 0}]}')
-    with pytest.raises(UserError, match=r"not a targets.json: .*field 'targets\[0\]' .*missing key"):
+    with pytest.raises(UserError, match=r"targets.json: field 'targets\[0\]' of the targets file .*missing key"):
         read_targets(tmp_path / "targets.json")
 
 

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .tables import read_table, write_table
+from .tables import TableWriter, read_table
 
 NOMINAL_DEPTH_MM = 1000.0
 """The depth at which a sample's 2D gaze is projected when there is no 3D estimate."""
@@ -54,6 +54,10 @@ GAZE_FORMATS = ({"t_s": ".6f", "device_t_s": ".6f", "gaze_x_px": ".2f", "gaze_y_
 _EMPTY_OK = tuple(k for k, d in GAZE_COLUMNS.items() if d == "float64" and k not in ("t_s", "device_t_s"))
 
 
+CHUNK_ROWS = 20000
+"""gaze.csv is written this many rows at a time (a long session's text never all in memory)."""
+
+
 def write_gaze_csv(path, columns: dict) -> None:
     """Write gaze.csv, atomically: ``columns`` maps each name of ``GAZE_COLUMNS`` to its (N,)
     values (NaN: an empty cell; the int64 columns hold whole numbers)."""
@@ -61,7 +65,10 @@ def write_gaze_csv(path, columns: dict) -> None:
     for name, dtype in GAZE_COLUMNS.items():
         v = np.asarray(columns[name])
         out[name] = v.astype(np.int64) if dtype == "int64" else v.astype(float)
-    write_table(path, out, GAZE_FORMATS)
+    n = len(out["sample"])
+    with TableWriter(path, list(GAZE_COLUMNS), GAZE_FORMATS) as w:
+        for i in range(0, n, CHUNK_ROWS):
+            w.write({k: v[i:i + CHUNK_ROWS] for k, v in out.items()})
 
 
 def read_gaze_csv(path) -> dict:

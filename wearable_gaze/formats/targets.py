@@ -173,10 +173,7 @@ def read_targets(path) -> list[dict]:
         raise UserError(f"{path}: no such file; run the targets step of 'wearable-gaze process' again") from None
     except (ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: not a targets.json ({type(exc).__name__}: {exc}); {fix}") from None
-    try:
-        validate(obj, "targets", path)
-    except UserError as exc:
-        raise UserError(f"not a targets.json: {exc}") from None
+    validate(obj, "targets", path)                  # one line: the file, the field, what was expected, the fix
     return obj["targets"]
 
 
