@@ -71,9 +71,8 @@ def walkabout_errors(work: Path, seed: int, built_path: Path) -> tuple[list, lis
     out = []
     for sess, M in ((root, np.eye(4)), (other, T)):
         res = process_session(sess, sess / "processed", report=False)
-        found = [{"target": t.index, **dict(zip(("x_mm", "y_mm", "z_mm"), (M @ [*t.position_mm, 1.0])[:3],
-                                                strict=True))} for t in res.found]
-        out.append([float(np.linalg.norm(np.subtract([f["x_mm"], f["y_mm"], f["z_mm"]], tt["position_mm"])))
+        found = [{"target": t.index, "position_mm": (M @ [*t.position_mm, 1.0])[:3].tolist()} for t in res.found]
+        out.append([float(np.linalg.norm(np.subtract(f["position_mm"], tt["position_mm"])))
                     if f is not None else float("nan") for tt, f in match_targets(found, truth)])
     return out[0], out[1]
 

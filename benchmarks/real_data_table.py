@@ -117,7 +117,7 @@ def neon_rows(tmp: Path):
     print("\nPupil Neon demo (head still, kappa from the 2D gaze ray at 1 m; no 3D gaze from the device):")
     for t in res.targets:
         print(f"  target {t['target']}: {t['t_start']:.1f}-{t['t_end']:.1f} s, "
-              f"{np.linalg.norm([t['x_mm'], t['y_mm'], t['z_mm']]):.0f} mm from the scene camera")
+              f"{np.linalg.norm(t['position_mm']):.0f} mm from the scene camera")
 
 
 def main():

@@ -30,3 +30,25 @@ def real_data():
 def real_data_module():
     """The same, for module-scoped fixtures."""
     return real_data_root()
+
+
+PROCESS_SCENARIO = {"base": "lab-walkabout", "duration_s": 12.0,
+                    "room": {"size_mm": [4500.0, 2700.0, 5500.0], "markers_per_wall": 5},
+                    "targets": {"random_count": 3, "random_depth_mm": [700.0, 3000.0]},
+                    "calibration": {"camera_views": 10}}
+
+
+@pytest.fixture(scope="session")
+def processed(tmp_path_factory):
+    """A simulated 12 s session (``PROCESS_SCENARIO``, seed 321) processed once for the whole
+    run (about a minute), shared by tests/test_process.py and tests/test_exports.py:
+    (session folder, output folder, ``ProcessResult``). A test that processes it again into the
+    same folder (test_process's re-run test) leaves it in the state of its last run."""
+    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
+    from wearable_gaze.sim.simulate import simulate_scenario  # noqa: PLC0415
+
+    base = tmp_path_factory.mktemp("proc")
+    root = base / "session"
+    simulate_scenario(PROCESS_SCENARIO, root, seed=321)
+    res = process_session(root, base / "out")
+    return root, base / "out", res

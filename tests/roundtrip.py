@@ -31,7 +31,7 @@ def target_errors(session: Path, targets: list[dict]) -> np.ndarray:
     errs = []
     for tt, f in match_targets(targets, fixated):
         errs.append(np.inf if f is None else
-                    float(np.linalg.norm(np.array([f["x_mm"], f["y_mm"], f["z_mm"]]) - tt["position_mm"])))
+                    float(np.linalg.norm(np.array(f["position_mm"]) - tt["position_mm"])))
     return np.array(errs)
 
 

@@ -28,6 +28,7 @@ from wearable_gaze.formats.camera import calibration_dict, camera_dict, load_cam
 from wearable_gaze.formats.eye_samples import EYE_HEADER, EyeSamples, eye_csv_line, read_eye_csv, write_eye_csv
 from wearable_gaze.formats.eyes import eyes_dict, load_eyes, write_eyes
 from wearable_gaze.formats.images import read_grey_image, write_image
+from wearable_gaze.formats.jsonio import load_json
 from wearable_gaze.formats.markermap import (
     load_marker_map,
     marker_map_dict,
@@ -36,6 +37,7 @@ from wearable_gaze.formats.markermap import (
 )
 from wearable_gaze.formats.poses import read_poses_csv, write_poses_csv
 from wearable_gaze.formats.session import write_manifest
+from wearable_gaze.formats.tables import read_table
 from wearable_gaze.formats.targets import (
     ESTIMATE_COLUMNS,
     read_estimates,
@@ -181,16 +183,32 @@ def test_walls_image_outside_its_folder_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["targets", "targets_ml"])
-def test_targets_written_back_as_the_old_code_wrote_them(tmp_path, name):
-    """targets.json and targets.csv from the rows of targets.json, and from the same rows through
-    ``Target`` (the pipeline's value): the old bytes, NaN (no estimate) included."""
+def test_version_1_targets_are_read_into_records_and_written_as_version_2(tmp_path, name):
+    """A targets.json of version 1 (flat rows, NaN for none) reads into the records of version 2,
+    every value kept; written back (directly, and through ``Target``) it is version 2, valid
+    against its schema, and reads back to the same records; targets.csv holds them flattened."""
+    old = json.loads((OLD / f"{name}.json").read_text())
     rows = read_targets(OLD / f"{name}.json")
-    method = json.loads((OLD / f"{name}.json").read_text())["method"]
+    assert len(rows) == len(old["targets"]) >= 1
+    for r, o in zip(rows, old["targets"], strict=True):
+        for got, keys in ((r["position_mm"], ("x_mm", "y_mm", "z_mm")),
+                          (r["ellipsoid95_radii_mm"], ("axis1_mm", "axis2_mm", "axis3_mm"))):
+            want = [o[k] for k in keys]
+            assert got == want if np.all(np.isfinite(want)) else got is None
+        assert r["fixations"] == [int(f) for f in o["fixations"].split(";")] and r["covariance_mm2"] is None
+        assert (r["crb_mm"] is None) == (not np.isfinite(o["crb_mm"]))
     for k, some in enumerate((rows, [Target.from_row(r).row() for r in rows])):
         out = tmp_path / str(k)
-        write_targets(out, some, method)
-        assert (out / "targets.json").read_bytes() == (OLD / f"{name}.json").read_bytes()
-        assert (out / "targets.csv").read_bytes() == (OLD / f"{name}.csv").read_bytes()
+        write_targets(out, some, old["method"])
+        obj = load_json(out / "targets.json", "targets")
+        assert obj["version"] == 2 and obj["method"] == old["method"] and read_targets(out / "targets.json") == rows
+        csv_old = read_table(OLD / f"{name}.csv", ["x_mm", "y_mm", "z_mm"], ("fixations", "status"),
+                             empty_ok=("x_mm", "y_mm", "z_mm", "crb_mm", "axis3_mm"))
+        csv_new = read_table(out / "targets.csv", ["x_mm", "y_mm", "z_mm"], ("fixations", "status"),
+                             empty_ok=("x_mm", "y_mm", "z_mm", "crb_mm", "ellipsoid95_r3_mm"))
+        for c in ("x_mm", "y_mm", "z_mm", "crb_mm", "fixations", "status"):
+            np.testing.assert_array_equal(csv_new[c], csv_old[c])
+        np.testing.assert_array_equal(csv_new["ellipsoid95_r3_mm"], csv_old["axis3_mm"])
 
 
 def test_estimates_and_target_labels_written_back_as_the_old_code_wrote_them(tmp_path):
@@ -214,6 +232,9 @@ def test_targets_reader_says_what_is_wrong(tmp_path):
         read_targets(tmp_path / "targets.json")
     (tmp_path / "targets.json").write_text('{"version": 1}')
     with pytest.raises(UserError, match="not a targets.json"):
+        read_targets(tmp_path / "targets.json")
+    (tmp_path / "targets.json").write_text('{"version": 2, "method": "ml", "targets": [{"target": 0}]}')
+    with pytest.raises(UserError, match=r"targets.json: field 'targets\[0\]' of the targets file .*missing key"):
         read_targets(tmp_path / "targets.json")
 
 

@@ -16,6 +16,8 @@ from wearable_gaze.errors import UserError
 from wearable_gaze.formats.devices import detect_format
 from wearable_gaze.formats.devices.common import SessionImport, read_simulated_recording
 from wearable_gaze.formats.eye_rays import EyeRaysWriter, read_eye_rays
+from wearable_gaze.formats.gaze_export import read_gaze_csv
+from wearable_gaze.formats.outputs import check_output
 from wearable_gaze.pipeline.process import process_session
 
 
@@ -55,6 +57,13 @@ def test_device_rays_and_poses_find_the_targets_as_well_as_the_native_session(si
     assert "Beside the device's own 3D gaze" in page and "Head poses: the device's own" in page
     # what the import noted and dropped is said where the results are read
     assert "Import (test): kappa offset by cyclopean-ray" in page and "dropped 3 (status 16)" in page
+    # the exports (issue 17): every file in its documented format; gaze.csv on the device's clock too,
+    # and without a scene-camera calibration no 2D gaze
+    for p in (tmp_path / "out").iterdir():
+        check_output(p)
+    gaze = read_gaze_csv(tmp_path / "out" / "gaze.csv")
+    np.testing.assert_allclose(gaze["device_t_s"] - gaze["t_s"], 12.5, atol=2e-6)
+    assert np.all(np.isnan(gaze["gaze_x_px"])) and not gaze["in_image"].any() and gaze["pose_ok"].mean() > 0.9
 
 
 def test_a_still_head_uses_only_vergence_and_the_report_says_so(simulated, tmp_path):
@@ -67,7 +76,7 @@ def test_a_still_head_uses_only_vergence_and_the_report_says_so(simulated, tmp_p
     assert not (tmp_path / "out" / "device_comparison.csv").exists()
     # the head frame is the world: every target is within reach of the head frame's origin
     for t in res.targets:
-        assert np.linalg.norm([t["x_mm"], t["y_mm"], t["z_mm"]]) < 6000
+        assert np.linalg.norm(t["position_mm"]) < 6000
 
 
 def test_eye_rays_round_trip_and_refuse_bad_rows(tmp_path):

@@ -161,7 +161,7 @@ def test_real_sample_through_process_finds_fixations_where_neon_found_them(sampl
     for t in res.targets:
         covered = np.clip(np.minimum(spans[:, 1], t["t_end"]) - np.maximum(spans[:, 0], t["t_start"]), 0, None).sum()
         assert covered >= 0.8 * (t["t_end"] - t["t_start"]), (t["t_start"], t["t_end"], covered)
-        assert 300 < np.linalg.norm([t["x_mm"], t["y_mm"], t["z_mm"]]) < 5000 and t["z_mm"] > 0
+        assert 300 < np.linalg.norm(t["position_mm"]) < 5000 and t["position_mm"][2] > 0
     page = (tmp_path / "out" / "report.html").read_text()
     assert "kappa offset by cyclopean-ray" in page and "taken as still" in page
 

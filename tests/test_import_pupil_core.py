@@ -95,7 +95,7 @@ def test_tufts_through_import_and_process_shows_its_rays_measure_no_depth(real_d
     assert manifest["source"]["pose_source"] == "still_head"
     res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)
     labels_mm = 1000 * np.genfromtxt(real_data / TUFTS, delimiter=",", skip_header=1)[:, -1]
-    dist = [np.linalg.norm([t["x_mm"], t["y_mm"], t["z_mm"]]) for t in res.targets if t["status"] == "ok"]
+    dist = [np.linalg.norm(t["position_mm"]) for t in res.targets if t["status"] == "ok"]
     # the kept rows' lines meet within ~0.2 m of the world camera (research: median 0.019 m), while
     # every label is a target 1.18-6.92 m away: the table's eye rays do not measure depth, and most
     # fixations are monocular (a still head's parallel lines: 'degenerate') or meet nearer than

@@ -43,7 +43,7 @@ def test_g2_process_finds_one_target_per_published_interval(g2_processed, real_d
         s = rays.select((rays.t_s >= a) & (rays.t_s <= b))
         o = np.nanmean(np.vstack([s.left_origin_mm, s.right_origin_mm]), axis=0)
         d = np.nanmedian(np.vstack([s.left_direction, s.right_direction]), axis=0)
-        p = np.array([t["x_mm"], t["y_mm"], t["z_mm"]]) - o
+        p = np.array(t["position_mm"]) - o
         angle = np.degrees(np.arccos(np.clip(p @ d / np.linalg.norm(p) / np.linalg.norm(d), -1, 1)))
         assert angle < 2.86 and t["status"] == "ok", (a, b, angle)
         assert 400 < np.linalg.norm(p) < 1200            # arm's length, vergence's band (test_import_tobii.py)

@@ -17,6 +17,7 @@ from estimator.frames import invert
 from tracking.markermap import MarkerMap
 from wearable_gaze.errors import UserError
 from wearable_gaze.formats.eye_samples import read_eye_csv
+from wearable_gaze.formats.jsonio import validate
 from wearable_gaze.formats.markermap import load_marker_map
 from wearable_gaze.formats.serial_protocol import EyeRecord
 from wearable_gaze.formats.session import load_session
@@ -247,11 +248,17 @@ def test_messages_have_the_version_1_format_to_the_byte():
     t = Target(index=2, position_mm=np.array([10.0, 20.04, 3000.0]), covariance_mm2=np.eye(3),
                axes95_mm=np.array([1.01, 2.06, 30.0]), status="ok", n_samples=90, t_start=4.00001, t_end=5.55555,
                fixations=(7,), method="voxel", crb_mm=float("nan"))
+    # the fields of version 1's first release, then those of the target record (issue 17) added at the end
     assert Publisher.encode(target_message(t)) == (
         b'{"version":1,"type":"target","target":2,"fixation":7,"t_start":4.0,"t_end":5.5556,'
-        b'"position_mm":[10.0,20.0,3000.0],"ellipsoid95_radii_mm":[1.0,2.1,30.0],"n_samples":90,"method":"voxel"}\n')
+        b'"position_mm":[10.0,20.0,3000.0],"ellipsoid95_radii_mm":[1.0,2.1,30.0],"n_samples":90,"method":"voxel",'
+        b'"status":"ok","covariance_mm2":[[1.0,0.0,0.0],[0.0,1.0,0.0],[0.0,0.0,1.0]],"crb_mm":null,"fixations":[7]}\n')
     no_cov = Target(2, t.position_mm, None, np.full(3, np.nan), "ok", 90, 4.0, 5.0, (7,), "voxel", float("nan"))
     assert target_message(no_cov)["ellipsoid95_radii_mm"] is None
+    # the message is the target's record (targets.json's fields) with version, type and fixation
+    assert {k: v for k, v in target_message(t).items() if k not in ("version", "type", "fixation")} == t.row(True)
+    for m in (target_message(t), target_message(no_cov), estimate_message(e, 1.0)):
+        validate(json.loads(Publisher.encode(m)), "live-message", "message")
 
 
 # --- the recorder ----------------------------------------------------------------------------

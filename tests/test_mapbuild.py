@@ -217,12 +217,11 @@ def test_process_builds_the_map_from_the_sessions_own_video_when_it_has_none(tmp
     o = next(i for i in common if np.allclose(built.poses[i], np.eye(4)))     # the built world's origin marker
     T = true_map.poses[o] @ np.linalg.inv(built.poses[o])                      # built world -> true world
     truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
-    found = [{"target": t.index, **dict(zip(("x_mm", "y_mm", "z_mm"), (T @ [*t.position_mm, 1.0])[:3], strict=True))}
-             for t in res.found]
+    found = [{"target": t.index, "position_mm": (T @ [*t.position_mm, 1.0])[:3].tolist()} for t in res.found]
     pairs = match_targets(found, [t for t in truth if sum(b - a for a, b in t["fixations_s"]) >= 1.0])
     assert pairs and all(f is not None for _, f in pairs)
     for tt, f in pairs:
-        assert np.linalg.norm(np.subtract([f["x_mm"], f["y_mm"], f["z_mm"]], tt["position_mm"])) < 300.0
+        assert np.linalg.norm(np.subtract(f["position_mm"], tt["position_mm"])) < 300.0
 
 
 def test_a_map_extended_with_more_views_keeps_its_world_and_adds_the_new_markers(tmp_path, capsys):

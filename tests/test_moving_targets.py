@@ -10,6 +10,9 @@ import pytest
 
 from estimator import BinocularSamples
 from estimator.likelihood import perturb_directions
+from wearable_gaze.formats.fixations_table import read_fixations_csv
+from wearable_gaze.formats.gaze_export import read_gaze_csv
+from wearable_gaze.formats.ply import read_ply
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.formats.targets import read_target_paths, read_targets, write_target_paths
 from wearable_gaze.formats.truth import read_truth_targets
@@ -62,7 +65,7 @@ def test_the_moving_target_is_reported_as_a_path_near_the_true_one(moving):
     assert rms < float(np.sqrt(np.mean(sd**2))) < 2000.0
     # the point row is the path's middle knot, not a fixed point at one end
     mid = np.argmin(np.abs(t - 0.5 * (t[0] + t[-1])))
-    np.testing.assert_allclose([row["x_mm"], row["y_mm"], row["z_mm"]], pos[mid], atol=0.1)
+    np.testing.assert_allclose(row["position_mm"], pos[mid], atol=0.1)
     tg = Target.from_row(row)
     assert tg.moving and not tg.ok
 
@@ -74,6 +77,27 @@ def test_targets_csv_says_which_target_moves(moving):
     rows = read_targets(out / "targets.json")
     assert [bool(v) for v in cols["moving"]] == [bool(r.get("moving")) for r in rows]
     assert list(cols["status"]) == [r["status"] for r in rows]
+
+
+def test_the_exports_say_which_fixation_moves_and_draw_its_path(moving):
+    """fixations.csv marks the pursuit's fixations moving (with the path's middle point), gaze.csv
+    gives their samples no running estimate, targets.ply draws the path as edges (issue 17)."""
+    _, out, _ = moving
+    rows = read_targets(out / "targets.json")
+    mover = next(r for r in rows if r.get("moving"))
+    fx = read_fixations_csv(out / "fixations.csv")
+    moving_fx = fx["fixation_id"][fx["motion"] == "moving"]
+    assert set(moving_fx) == set(mover["fixations"]) and set(fx["status"][fx["motion"] == "moving"]) == {"moving"}
+    assert np.all(fx["target_id"][fx["motion"] == "moving"] == mover["target"])
+    gaze = read_gaze_csv(out / "gaze.csv")
+    in_pursuit = np.isin(gaze["fixation_id"], moving_fx)
+    assert in_pursuit.sum() > 100 and np.all(np.isnan(gaze["est_x_mm"][in_pursuit]))
+    assert np.all(gaze["target_id"][in_pursuit] == mover["target"])
+    ply = read_ply(out / "targets.ply")
+    _, pos, _ = read_target_paths(out / "target_paths.csv")[mover["target"]]
+    first = next(i for i in range(len(ply.vertices_mm)) if np.allclose(ply.vertices_mm[i:i + len(pos)], pos, atol=1e-3))
+    chain = {(first + k, first + k + 1) for k in range(len(pos) - 1)}
+    assert chain <= {tuple(e) for e in ply.edges.tolist()}
 
 
 def test_target_paths_round_trip_and_an_empty_file(tmp_path):

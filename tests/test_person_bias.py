@@ -49,7 +49,7 @@ def _rms_error_mm(res, root):
     fixated = [t for t in truth if sum(b - a for a, b in t["fixations_s"]) >= 1.0]
     pairs = match_targets(res.targets, fixated)
     assert len(pairs) == len(fixated) and all(f is not None for _, f in pairs)
-    err = [np.linalg.norm(np.array([f["x_mm"], f["y_mm"], f["z_mm"]]) - tt["position_mm"]) for tt, f in pairs]
+    err = [np.linalg.norm(np.array(f["position_mm"]) - tt["position_mm"]) for tt, f in pairs]
     return float(np.sqrt(np.mean(np.square(err))))
 
 

@@ -18,7 +18,8 @@ from wearable_gaze.pipeline.steps import STEPS
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}
-RESULTS = ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy", "report.html")
+RESULTS = ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy", "fixations.csv",
+           "gaze.csv", "targets.ply", "report.html")
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +61,7 @@ def test_a_failed_step_never_leaves_the_previous_targets_as_the_result(processed
         assert not (out / name).exists(), f"{name} of the earlier run survived"
     summary = _summary(out)
     assert summary["targets"] == [] and summary["failed_steps"] == ["viewlines"]
-    assert summary["steps_not_done"] == ["targets", "report"] and "report" not in summary
+    assert summary["steps_not_done"] == ["targets", "export", "report"] and "report" not in summary
     assert any(p.startswith("viewlines:") for p in summary["problems"])
     # what does not depend on the failed step is kept, and not redone
     assert {"camera", "eyes", "tracking"} <= set(summary["steps_skipped"])
@@ -85,7 +86,7 @@ def test_a_failed_camera_calibration_invalidates_every_later_step_and_exits_2(pr
     assert cap.out.startswith("0 fixated target(s)") and "camera:" in cap.err
     summary = _summary(out)
     assert summary["failed_steps"] == ["camera"] and summary["targets"] == []
-    assert summary["steps_not_done"] == ["eyes", "tracking", "viewlines", "targets", "report"]
+    assert summary["steps_not_done"] == ["eyes", "tracking", "viewlines", "targets", "export", "report"]
     for name in ("camera.json", "eyes.json", "poses.csv") + RESULTS:
         assert not (out / name).exists(), name
     assert not json.loads((out / ".steps.json").read_text())               # nothing cached is valid
@@ -179,13 +180,14 @@ def test_a_calibration_given_as_a_file_is_checked_once_and_never_removed(process
     assert cam.read_bytes() == before and (out / "eyes.json").is_file()          # neither touched
     assert "eyes:" in cap.err and "nope.json" in cap.err and not (out / "targets.json").exists()
     summary = _summary(out)
-    assert summary["failed_steps"] == ["eyes"] and summary["steps_not_done"] == ["viewlines", "targets", "report"]
+    assert summary["failed_steps"] == ["eyes"]
+    assert summary["steps_not_done"] == ["viewlines", "targets", "export", "report"]
     bad = s / "bad_camera.json"
     bad.write_text(json.dumps({"format": "wearable-gaze-camera", "version": 1}))
     assert main(["process", str(s), "--no-overlay", "--camera", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("wearable-gaze process: camera:") and "bad_camera.json" in err[0]
-    assert _summary(out)["steps_not_done"] == ["eyes", "tracking", "viewlines", "targets", "report"]
+    assert _summary(out)["steps_not_done"] == ["eyes", "tracking", "viewlines", "targets", "export", "report"]
     assert cam.read_bytes() == before
 
 

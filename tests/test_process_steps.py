@@ -14,7 +14,7 @@ import wearable_gaze.pipeline.process as process_mod
 import wearable_gaze.pipeline.track as track_mod
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.pipeline.steps import STEPS
-from wearable_gaze.pipeline.types import TARGET_COLUMNS, Target
+from wearable_gaze.pipeline.types import TARGET_KEYS, Target
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}
@@ -68,13 +68,15 @@ def test_each_input_is_read_once_and_handed_to_the_steps(small_session, tmp_path
 
 
 def test_a_target_is_its_row_of_targets_json():
-    row = {"target": 2, "x_mm": 77.52124581513759, "y_mm": -97.3, "z_mm": 1045.1, "axis1_mm": 2.07, "axis2_mm": 2.08,
-           "axis3_mm": 32.0, "n_samples": 326, "t_start": 0.05, "t_end": 15.2, "fixations": "0;4", "method": "voxel",
-           "status": "ok", "crb_mm": 11.43}
+    row = {"target": 2, "t_start": 0.05, "t_end": 15.2, "position_mm": [77.52124581513759, -97.3, 1045.1],
+           "ellipsoid95_radii_mm": [2.07, 2.08, 32.0], "n_samples": 326, "method": "voxel", "status": "ok",
+           "covariance_mm2": [[1.0, 0.1, 0.0], [0.1, 1.0, 0.0], [0.0, 0.0, 120.0]], "crb_mm": 11.43,
+           "fixations": [0, 4]}
     t = Target.from_row(row)
-    assert t.index == 2 and t.fixations == (0, 4) and t.ok and t.covariance_mm2 is None
+    assert t.index == 2 and t.fixations == (0, 4) and t.ok
     np.testing.assert_array_equal(t.position_mm, [77.52124581513759, -97.3, 1045.1])
-    assert t.row() == row and list(t.row()) == list(TARGET_COLUMNS)
+    np.testing.assert_array_equal(t.covariance_mm2, row["covariance_mm2"])
+    assert t.row() == row and list(t.row()) == list(TARGET_KEYS)
     assert json.dumps(t.row()) == json.dumps(row)                  # plain Python values: the same JSON text
-    nan = Target.from_row(row | {"x_mm": float("nan"), "status": "no_estimate"})
-    assert not nan.ok
+    nan = Target.from_row(row | {"position_mm": None, "covariance_mm2": None, "status": "no_estimate"})
+    assert not nan.ok and nan.row()["position_mm"] is None and nan.covariance_mm2 is None

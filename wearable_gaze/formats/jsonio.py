@@ -1,11 +1,12 @@
 """Reading and writing the project's JSON files: one mechanism for every format.
 
-Each format has a JSON Schema in ``wearable_gaze/formats/schemas/NAME.schema.json`` (session, camera,
-eyes, marker-map, board, walls, scenario, validation, person). ``load_json(path, name)`` reads the file, checks it
-against its schema and then runs the format's numeric checks that a schema cannot express
-(matrix consistency, principal point inside the image, ...). Any problem is a ``UserError``
-whose message is one line: the file, the JSON path of the bad field, what was expected and how
-to fix it. ``write_json`` writes every JSON file the same way (indent 1, atomically).
+Each format has a JSON Schema in ``wearable_gaze/formats/schemas/NAME.schema.json`` (``SCHEMA_NAMES``:
+the inputs session, camera, eyes, marker-map, board, walls, scenario, validation, person; the outputs
+targets, summary, viewlines-counts, steps-state; the printed estimate-line and live-message).
+``load_json(path, name)`` reads the file, checks it against its schema and then runs the format's
+numeric checks that a schema cannot express (matrix consistency, principal point inside the image, ...).
+Any problem is a ``UserError`` whose message is one line: the file, the JSON path of the bad field,
+what was expected and how to fix it. ``write_json`` writes every JSON file the same way (indent 1, atomically).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from .atomic import write_text
 log = logging.getLogger(__name__)
 
 SCHEMA_NAMES = ("session", "camera", "eyes", "marker-map", "board", "walls", "scenario", "validation", "person",
-                "sfm-map")
+                "targets", "summary", "viewlines-counts", "steps-state", "live-message", "estimate-line", "sfm-map")
 
 
 @cache
@@ -38,10 +39,13 @@ def schema(name: str) -> dict:
 @cache
 def _validator(name: str):
     from jsonschema import Draft202012Validator  # noqa: PLC0415
+    from referencing import Registry, Resource  # noqa: PLC0415  (jsonschema's own dependency)
 
     s = schema(name)
     Draft202012Validator.check_schema(s)
-    return Draft202012Validator(s)
+    # a schema refers to another by its file name ("targets.schema.json#/$defs/target")
+    registry = Registry().with_resources((schema(n)["$id"], Resource.from_contents(schema(n))) for n in SCHEMA_NAMES)
+    return Draft202012Validator(s, registry=registry)
 
 
 def short(value, limit: int = 60) -> str:

@@ -2,22 +2,26 @@
 ``targets.csv`` (docs/processing.md, docs/formats.md "Targets"), the target of every view line,
 ``target_labels.npy``, and the fixations' running estimates, ``estimates.csv``.
 
-targets.json and targets.csv hold the same rows, one per target, keyed by ``TARGET_COLUMNS``: ``target`` (index),
-``x_mm, y_mm, z_mm`` (world frame, mm), ``axis1_mm..axis3_mm`` (95 % ellipsoid semi-axes, mm),
-``n_samples``, ``t_start, t_end`` (s), ``fixations`` (``;``-separated indices), ``method``,
-``status``, ``crb_mm``. A value that does not exist (no usable estimate) is NaN in the JSON and an
-empty cell in the CSV. targets.json adds ``version`` and ``method``; targets.csv rounds to 0.1 mm
-and 1 ms, for spreadsheets. A moving target (smooth pursuit) has ``"moving": true`` in its
-targets.json row, status ``moving`` and as its point the path's position at its middle time;
-targets.csv then has a last column ``moving`` (1 or 0) for every row. A session without a moving
-target writes neither (the files of earlier versions, byte for byte); a row without the key is a
-static target.
+Every target is one record (``target_record``, the one function that makes it; docs/formats.md,
+"The target record"): ``targets.json`` holds the records as they are, ``wearable-gaze estimate
+--json --targets`` prints them (adding ``covariance_model``) and the live session's ``target``
+messages carry them (adding ``version``, ``type``, ``fixation``, rounded). Keys, in this order:
+``target`` (index), ``t_start``, ``t_end`` (s), ``position_mm`` ([x, y, z], world frame, mm, or
+null: no usable estimate), ``ellipsoid95_radii_mm`` (the 95 % ellipsoid's semi-axes, increasing,
+mm, or null: no covariance), ``n_samples``, ``method``, ``status``, ``covariance_mm2`` (3x3, mm^2,
+or null), ``crb_mm`` (or null), ``fixations`` (list of fixation indices) and, on a moving target
+only, ``moving: true``. targets.json is ``{"version": 2, "method": ..., "targets": [records]}``
+(schema ``targets``); ``read_targets`` also reads version 1 files (flat rows, NaN for none) into
+records. targets.csv holds the same records flattened (``TARGET_CSV_COLUMNS``: ``position_mm``
+-> ``x_mm, y_mm, z_mm``; ``covariance_mm2`` -> ``cov_xx_mm2 .. cov_zz_mm2``, its six unique
+terms; ``ellipsoid95_radii_mm`` -> ``ellipsoid95_r1_mm .. r3_mm``; ``fixations`` ``;``-joined;
+``moving`` 1/0), an empty cell for null, rounded to 0.1 mm and 1 ms for spreadsheets.
 
 ``target_paths.csv`` holds the moving targets' paths, one row per knot: ``target``, ``t`` (s),
 ``x, y, z`` (world frame, mm) and the covariance terms ``cxx, cxy, cxz, cyy, cyz, czz`` (mm^2);
 a header alone when no target moves. ``write_target_paths`` and ``read_target_paths``.
 
-One writer, ``write_targets`` (both files), and one reader, ``read_targets`` (the rows of
+One writer, ``write_targets`` (both files), and one reader, ``read_targets`` (the records of
 targets.json, exact). ``target_labels.npy`` has ``write_target_labels`` and
 ``read_target_labels``. ``estimates.csv`` has one row per usable estimate while a fixation's view
 lines were fed in, as a live session would: ``t`` (s, the last line fed), ``segment`` (the
@@ -26,7 +30,7 @@ an estimate; ``write_estimates`` and ``read_estimates``. ``device_comparison.csv
 session) sets each target beside the device's own 3D gaze: ``target``, ``n_samples``,
 ``ours_distance_mm`` (our estimate's distance from the head, median over the target's samples),
 ``device_depth_mm`` (the device's gaze depth, median over the same samples), ``ours_x_mm..z``;
-``write_device_comparison`` and ``read_device_comparison``. The rows are plain dicts here;
+``write_device_comparison`` and ``read_device_comparison``. The records are plain dicts here;
 ``pipeline.types.Target`` converts (``Target.row`` / ``Target.from_row``).
 """
 
@@ -40,13 +44,21 @@ import numpy as np
 
 from ..errors import UserError
 from .atomic import atomic_path
-from .jsonio import write_json
+from .jsonio import validate, write_json
 from .tables import read_table, write_table
 
-TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "n_samples", "t_start",
-                  "t_end", "fixations", "method", "status", "crb_mm")
-TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "axis1_mm", "axis2_mm", "axis3_mm", "crb_mm")} | {
-    "t_start": ".3f", "t_end": ".3f"}
+TARGET_KEYS = ("target", "t_start", "t_end", "position_mm", "ellipsoid95_radii_mm", "n_samples", "method", "status",
+               "covariance_mm2", "crb_mm", "fixations")
+"""The keys of a target record (``target_record``), in order; a moving target's adds ``moving``."""
+COV_TERMS = ("xx", "xy", "xz", "yy", "yz", "zz")
+TARGET_CSV_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", *(f"cov_{k}_mm2" for k in COV_TERMS), "ellipsoid95_r1_mm",
+                      "ellipsoid95_r2_mm", "ellipsoid95_r3_mm", "n_samples", "t_start", "t_end", "fixations", "method",
+                      "status", "crb_mm", "moving")
+"""The columns of targets.csv: a record flattened (``target_csv_columns``)."""
+TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "ellipsoid95_r1_mm", "ellipsoid95_r2_mm",
+                                     "ellipsoid95_r3_mm", "crb_mm")} | {
+    f"cov_{k}_mm2": ".6g" for k in COV_TERMS} | {"t_start": ".3f", "t_end": ".3f"}
+TARGETS_VERSION = 2
 MOVING_COLUMN = "moving"
 PATH_COLUMNS = ("target", "t", "x", "y", "z", "cxx", "cxy", "cxz", "cyy", "cyz", "czz")
 PATH_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f"} | {k: ".6g" for k in PATH_COLUMNS[5:]}
@@ -57,33 +69,112 @@ ESTIMATE_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm
 log = logging.getLogger(__name__)
 
 
-def write_targets(out, rows: list[dict], method: str) -> None:
-    """Write ``rows`` (keys ``TARGET_COLUMNS``, and ``moving`` on a moving target's row; plain
-    Python values) as ``out``/targets.csv and ``out``/targets.json (with ``method``, the
-    estimator), each atomically."""
+def _finite_list(value, shape, decimals: int | None):
+    """``value`` as nested lists of floats (``shape``), rounded to ``decimals``; None when it is
+    None or holds a value that is not finite (no such value)."""
+    if value is None:
+        return None
+    a = np.asarray(value, float).reshape(shape)
+    if not np.all(np.isfinite(a)):
+        return None
+    return (np.round(a, decimals) if decimals is not None else a).tolist()
+
+
+def _finite(value, decimals: int | None = None):
+    v = float(value)
+    return None if not np.isfinite(v) else (round(v, decimals) if decimals is not None else v)
+
+
+def target_record(index: int, t_start: float, t_end: float, position_mm, radii95_mm, n_samples: int, method: str,
+                  status: str, covariance_mm2=None, crb_mm: float = float("nan"), fixations=(), moving: bool = False,
+                  rounded: bool = False) -> dict:
+    """The record of one target (keys ``TARGET_KEYS``, plain JSON values): the one function that
+    makes the rows of targets.json, the objects of ``estimate --json --targets`` and the body of
+    the live ``target`` message, so that they cannot drift apart.
+
+    Args:
+        index: the target's number.
+        t_start, t_end: its first and last sample's time, s.
+        position_mm: (3,) world frame, mm; NaN where there is no usable estimate (then null).
+        radii95_mm: (3,) the 95 % ellipsoid's semi-axes, increasing, mm (null when NaN).
+        covariance_mm2: (3, 3) mm^2, or None.
+        crb_mm: the Cramér-Rao bound's root trace, mm (null when NaN).
+        fixations: the fixation indices merged into it.
+        moving: a moving target: the record gets ``moving: true`` (a static one has no such key).
+        rounded: round to 0.1 mm and 0.1 ms (a 6-digit covariance), as the live messages are sent.
+    """
+    mm, s = (1, 4) if rounded else (None, None)
+    cov = _finite_list(covariance_mm2, (3, 3), None)
+    if cov is not None and rounded:
+        cov = [[float(f"{v:.6g}") for v in row] for row in cov]
+    rec = {"target": int(index), "t_start": _finite(t_start, s), "t_end": _finite(t_end, s),
+           "position_mm": _finite_list(position_mm, (3,), mm),
+           "ellipsoid95_radii_mm": _finite_list(radii95_mm, (3,), mm),
+           "n_samples": int(n_samples), "method": str(method), "status": str(status), "covariance_mm2": cov,
+           "crb_mm": _finite(crb_mm, mm), "fixations": [int(f) for f in fixations]}
+    if moving:
+        rec[MOVING_COLUMN] = True
+    return rec
+
+
+def target_csv_columns(records: list[dict]) -> dict:
+    """The columns of targets.csv (``TARGET_CSV_COLUMNS``, (N,) each) of ``records``: arrays
+    flattened, null as NaN (an empty cell), ``fixations`` joined with ``;``, ``moving`` 1/0."""
+    def vec(key, n):
+        return np.array([r[key] if r[key] is not None else [np.nan] * n for r in records], float).reshape(-1, n)
+
+    pos, radii = vec("position_mm", 3), vec("ellipsoid95_radii_mm", 3)
+    cov = np.array([r["covariance_mm2"] if r["covariance_mm2"] is not None else np.full((3, 3), np.nan)
+                    for r in records], float).reshape(-1, 3, 3)
+    cols = {"target": np.array([r["target"] for r in records], int)}
+    cols |= {f"{k}_mm": pos[:, j] for j, k in enumerate("xyz")}
+    cols |= {f"cov_{k}_mm2": cov[:, "xyz".index(k[0]), "xyz".index(k[1])] for k in COV_TERMS}
+    cols |= {f"ellipsoid95_r{j + 1}_mm": radii[:, j] for j in range(3)}
+    cols |= {"n_samples": np.array([r["n_samples"] for r in records], int)}
+    cols |= {k: np.array([np.nan if r[k] is None else r[k] for r in records], float) for k in ("t_start", "t_end")}
+    cols |= {"fixations": np.array([";".join(str(f) for f in r["fixations"]) for r in records], object)}
+    cols |= {k: np.array([r[k] for r in records], object) for k in ("method", "status")}
+    cols |= {"crb_mm": np.array([np.nan if r["crb_mm"] is None else r["crb_mm"] for r in records], float),
+             "moving": np.array([int(bool(r.get(MOVING_COLUMN))) for r in records], int)}
+    return cols
+
+
+def write_targets(out, records: list[dict], method: str) -> None:
+    """Write ``records`` (``target_record``) as ``out``/targets.csv and ``out``/targets.json
+    (with ``method``, the estimator), each atomically."""
     out = Path(out)
-    columns = {k: np.array([r[k] for r in rows]) for k in TARGET_COLUMNS}
-    if any(r.get(MOVING_COLUMN) for r in rows):
-        columns[MOVING_COLUMN] = np.array([int(bool(r.get(MOVING_COLUMN))) for r in rows])
-    write_table(out / "targets.csv", columns, TARGET_FORMATS)
-    write_json(out / "targets.json", {"version": 1, "method": method, "targets": rows})
+    write_table(out / "targets.csv", target_csv_columns(records), TARGET_FORMATS)
+    write_json(out / "targets.json", {"version": TARGETS_VERSION, "method": method, "targets": records})
+
+
+def _record_of_v1(row: dict) -> dict:
+    """A version-1 row of targets.json (flat keys, NaN for none) as a record."""
+    return target_record(row["target"], row["t_start"], row["t_end"], [row["x_mm"], row["y_mm"], row["z_mm"]],
+                         [row["axis1_mm"], row["axis2_mm"], row["axis3_mm"]], row["n_samples"], row["method"],
+                         row["status"], None, row["crb_mm"],
+                         [int(f) for f in str(row["fixations"]).split(";") if f], bool(row.get(MOVING_COLUMN)))
 
 
 def read_targets(path) -> list[dict]:
-    """The rows of a targets.json written by ``write_targets``, in file order.
+    """The records of a targets.json written by ``write_targets`` (version 2, checked against
+    the ``targets`` schema), in file order; a version-1 file's rows converted to records (no
+    covariance: version 1 kept only the semi-axes).
 
     Raises:
         UserError: a missing file, or one that is not a targets.json.
     """
     path = Path(path)
+    fix = "run the targets step of 'wearable-gaze process' again (--force)"
     try:
-        rows = json.loads(path.read_text(encoding="utf-8"))["targets"]     # NaN: a value that does not exist
+        obj = json.loads(path.read_text(encoding="utf-8"))         # version 1 holds NaN
+        if obj.get("version") == 1:
+            return [_record_of_v1(r) for r in obj["targets"]]
     except FileNotFoundError:
         raise UserError(f"{path}: no such file; run the targets step of 'wearable-gaze process' again") from None
-    except (ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not a targets.json ({type(exc).__name__}: {exc}); run the targets step of "
-                        "'wearable-gaze process' again (--force)") from None
-    return rows
+    except (ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not a targets.json ({type(exc).__name__}: {exc}); {fix}") from None
+    validate(obj, "targets", path)                  # one line: the file, the field, what was expected, the fix
+    return obj["targets"]
 
 
 def write_target_paths(path, paths: dict) -> None:

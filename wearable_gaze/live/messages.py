@@ -29,17 +29,16 @@ def estimate_message(e: LiveEstimate, latency_ms: float) -> dict:
 
 def target_message(t: Target) -> dict:
     """A ``target`` message for a finished fixation's target (``GazeEstimation.end_fixation``):
-    its id is ``t.index``, its fixation ``t.fixations[0]``. A moving target (``t.moving``) adds
-    ``"moving": true`` and its path: ``path`` [[t, x, y, z], ...] (s, mm) at the path's knots and
-    ``path_radii95_mm`` [[r1, r2, r3], ...], each knot's 95 % ellipsoid semi-axes (increasing)."""
-    msg = {"version": MESSAGE_VERSION, "type": "target", "target": t.index, "fixation": t.fixations[0],
-           "t_start": round(t.t_start, 4), "t_end": round(t.t_end, 4),
-           "position_mm": [round(v, 1) for v in t.position_mm],
-           "ellipsoid95_radii_mm": None if t.covariance_mm2 is None else [round(float(v), 1) for v in t.axes95_mm],
-           "n_samples": t.n_samples, "method": t.method}
+    the target's record (``Target.row``, rounded: the same fields as targets.json, one function
+    makes both) after ``version``, ``type`` and ``fixation`` (``t.fixations[0]``). A moving target
+    (``t.moving``) has ``"moving": true`` and its path: ``path`` [[t, x, y, z], ...] (s, mm) at the
+    path's knots and ``path_radii95_mm`` [[r1, r2, r3], ...], each knot's 95 % ellipsoid semi-axes
+    (increasing)."""
+    rec = t.row(rounded=True)
+    msg = {"version": MESSAGE_VERSION, "type": "target", "target": rec.pop("target"), "fixation": t.fixations[0]}
+    msg |= rec
     if t.moving and t.trajectory is not None:
         tr = t.trajectory
-        msg["moving"] = True
         msg["path"] = [[round(float(tk), 4), *(round(float(v), 1) for v in x)]
                        for tk, x in zip(tr.t_s, tr.positions_mm, strict=True)]
         msg["path_radii95_mm"] = [[round(float(v), 1) for v in np.asarray(covariance_ellipsoid(x, c, 0.95).radii_mm)]

@@ -41,9 +41,9 @@ def match_positions(positions, truth: list, ids=None) -> list:
 
 
 def match_targets(found: list, truth: list) -> list:
-    """``match_positions`` for rows of targets.json (or live target messages in that shape:
-    ``target``, ``x_mm``, ``y_mm``, ``z_mm``): pairs (truth entry, row or None)."""
-    pairs = match_positions([[f["x_mm"], f["y_mm"], f["z_mm"]] for f in found], truth, [f["target"] for f in found])
+    """``match_positions`` for target records (targets.json, summary.json, live target messages:
+    ``target``, ``position_mm``, null for none): pairs (truth entry, record or None)."""
+    pairs = match_positions([f["position_mm"] or [np.nan] * 3 for f in found], truth, [f["target"] for f in found])
     return [(tt, None if k is None else found[k]) for tt, k in pairs]
 
 

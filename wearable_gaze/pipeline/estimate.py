@@ -239,9 +239,10 @@ def targets_of_segments(path, method: str, sigma_deg: float, error_model: ErrorM
     """The targets of a view-line CSV whose ``segment`` column holds fixation labels (integers,
     -1 for none; ``wearable-gaze fixations``): each fixation estimated and fixations of one target
     merged exactly as ``process`` does (``fixations.find_targets``), so on the same view lines
-    the positions are the same as process's targets.csv. Returns one dict per target (the keys of
-    targets.csv, ``fixations`` as the file's segment labels, ``covariance_mm2``), then the
-    skipped entry of the rows of segment -1 if any. ``error_model``: as in ``find_targets``."""
+    the positions are the same as process's targets.json. Returns one dict per target (the
+    target record of targets.json, ``formats.targets.target_record``, with ``fixations`` as the
+    file's segment labels, and ``covariance_model``), then the skipped entry of the rows of
+    segment -1 if any. ``error_model``: as in ``find_targets``."""
     from .fixations import find_targets  # noqa: PLC0415  (fixations imports this module)
 
     samples, keys = read_in_time_order(path)
@@ -255,9 +256,8 @@ def targets_of_segments(path, method: str, sigma_deg: float, error_model: ErrorM
     result = find_targets(samples, labels, method, sigma_deg, error_model=error_model)
     out = []
     for tg in result.targets:
-        row = tg.row()
+        row = tg.row()                          # the target record of targets.json and the live messages
         row["fixations"] = [order[f] for f in tg.fixations]
-        row["covariance_mm2"] = None if tg.covariance_mm2 is None else np.asarray(tg.covariance_mm2).tolist()
         row["covariance_model"] = "smoothed-path" if tg.moving else covariance_model(method, error_model)
         out.append(row)
     n_none = int((labels == NO_FIXATION).sum())
@@ -302,8 +302,9 @@ def _targets_table(results: list[dict]) -> str:
             f"{'samples':>8} {'time s':>12} fixations")
     rows = [head, "-" * len(head)]
     for r in results:
-        axes = " ".join(f"{r[k]:.1f}" for k in ("axis1_mm", "axis2_mm", "axis3_mm"))
-        rows.append(f"{r['target']:>6} {r['status']:>17} {r['x_mm']:>9.1f} {r['y_mm']:>9.1f} {r['z_mm']:>9.1f} "
+        axes = " ".join(f"{v:.1f}" for v in (r["ellipsoid95_radii_mm"] or [np.nan] * 3))
+        x, y, z = r["position_mm"] or [np.nan] * 3
+        rows.append(f"{r['target']:>6} {r['status']:>17} {x:>9.1f} {y:>9.1f} {z:>9.1f} "
                     f"{axes:>22} {r['n_samples']:>8} {r['t_start']:>5.1f}-{r['t_end']:<6.1f} "
                     + ";".join(str(f) for f in r["fixations"]))
     return "\n".join(rows)

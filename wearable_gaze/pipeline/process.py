@@ -39,8 +39,17 @@ from ..formats.sfmmap import load_sfm_map
 from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
-from .calibrate import calibrate_camera_files, calibrate_eyes, head_lines_to_world, read_eye_recordings, view_lines
+from .calibrate import (
+    calibrate_camera_files,
+    calibrate_eyes,
+    correct_head_lines,
+    head_lines_to_world,
+    head_view_lines,
+    read_eye_recordings,
+    view_lines,
+)
 from .device import POSE_NOTES, device_comparison, device_poses, still_head_poses
+from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
 from .report import OverlayInputs, write_report
@@ -85,6 +94,7 @@ class _SessionFiles:
     pose_source: str | None = None          # ... 'device', 'scene_video' or 'still_head'
     eye_rate_hz: float | None = None
     import_report: Path | None = None
+    clock_offset_s: float = 0.0             # ... the device's clock at session time 0, s
 
     @classmethod
     def of(cls, s) -> _SessionFiles:
@@ -94,7 +104,7 @@ class _SessionFiles:
                    s.path("scene_video"), s.path("marker_map"), s.path("scene_timestamps"), s.path("eye_samples"),
                    s.path("eye_rays"), s.path("head_poses"), s.path("device_gaze"),
                    s.manifest.get("source", {}).get("pose_source"), s.manifest.get("eye_rate_hz"),
-                   s.path("import_report"))
+                   s.path("import_report"), float(s.manifest.get("source", {}).get("clock_offset_s", 0.0)))
 
 
 class _Values:
@@ -190,7 +200,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
             _recording_steps(f, out, steps, res, vals, cam_path, eyes_path, cfg, correction)
         else:
             res.problems.append("session: a calibration-only session has no recording to process")
-            for name in ("tracking", "viewlines", "targets", "report"):
+            for name in ("tracking", "viewlines", "targets", "export", "report"):
                 steps.status[name] = "no_recording"
     except BaseException:
         steps.finish(aborted=True)
@@ -258,6 +268,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
         result = find_targets(samples, segment_view_lines(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb,
                               error_model)
         write_targets_step(out, result, cfg.method)
+        write_fixations_step(out, result)
         if f.device_gaze is not None:
             device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
         vals.set("targets", result.targets)
@@ -271,8 +282,26 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
             n = res.summary.get("viewlines", {}).get("written", "the")
             res.problems.append(f"targets: no target could be estimated from {n} view lines (no fixation of "
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
+    _export_step(f, out, steps, vals, cam_path, eye_inputs, correction)
     if cfg.report:
         _report_step(f, out, steps, vals, eyes_path, cfg)
+
+
+def _export_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, cam_path: Path, eye_inputs: list,
+                 correction=None) -> None:
+    """6. exports for other tools: gaze.csv (per eye sample) and targets.ply (``pipeline.export``);
+    the 2D gaze needs the scene camera's calibration."""
+    cam_ok = steps.status.get("camera") in GOOD and cam_path.is_file()
+
+    def do_export(cb):
+        head = vals["eye_rays"] if f.eye_rays is not None else head_view_lines(vals["eye_samples"], vals["eyes"])
+        head = correct_head_lines(head, correction) if correction is not None else head
+        export_files(out, head, vals["poses"], vals["targets"], vals["camera"] if cam_ok else None, f.clock_offset_s)
+    inputs = [out / n for n in ("viewlines.csv", "target_labels.npy", "estimates.csv", "targets.json",
+                                "target_paths.csv", "poses.csv")]
+    params = {"camera": cam_ok, "clock_offset_s": f.clock_offset_s,
+              "person": None if correction is None else correction.tolist()}
+    steps.run("export", inputs + eye_inputs + ([cam_path] if cam_ok else []), params, do_export)
 
 
 def session_error_model(imported: bool, eyes_path: Path, tracked: bool = True) -> ErrorModel:

@@ -18,7 +18,7 @@ from .report import REPORT_FILES
 
 log = logging.getLogger(__name__)
 
-STEPS = ("camera", "eyes", "tracking", "viewlines", "targets", "report")
+STEPS = ("camera", "eyes", "tracking", "viewlines", "targets", "export", "report")
 # the files each step writes into the output folder ...
 OUTPUTS = {
     "camera": ("camera.json", "camera_undistorted.png"),
@@ -26,12 +26,13 @@ OUTPUTS = {
     "tracking": ("poses.csv", "built_map.json"),
     "viewlines": (".viewlines_unsegmented.csv", ".viewlines_counts.json"),
     "targets": ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy",
-                "device_comparison.csv", "target_paths.csv"),
+                "device_comparison.csv", "target_paths.csv", "fixations.csv"),
+    "export": ("gaze.csv", "targets.ply"),
     "report": REPORT_FILES,
 }
 # ... and the steps whose outputs it reads
 NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines": ("eyes", "tracking"),
-         "targets": ("viewlines",), "report": ("targets",)}
+         "targets": ("viewlines",), "export": ("targets",), "report": ("targets",)}
 # written or not: not needed to skip a step
 OPTIONAL = ("overlay.webp", "overlay_error.txt", "device_comparison.csv", "target_paths.csv", "built_map.json")
 OTHER_FILES = ("summary.json", ".steps.json")

@@ -1,10 +1,11 @@
 """Typed values the pipeline steps pass to each other (and ``live`` publishes): fixations,
 targets and step results. World frame of the marker map, mm and s throughout.
 
-A ``Target`` is what ``process`` writes as one row of targets.json / targets.csv
-(``Target.row`` / ``Target.from_row``: the row's keys are the file format's column names,
-``formats.targets.TARGET_COLUMNS``; formats/targets.py reads and writes the rows, and nothing
-else in the application indexes a target by string keys).
+A ``Target`` is what ``process`` writes as one record of targets.json / row of targets.csv,
+``estimate --json --targets`` prints and the live session publishes (``Target.row`` /
+``Target.from_row``: the record of ``formats.targets.target_record``, keys ``TARGET_KEYS``;
+formats/targets.py reads and writes the records, and nothing else in the application indexes a
+target by string keys).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
 from estimator.motion import STATIC, Trajectory
 
-from ..formats.targets import MOVING_COLUMN, TARGET_COLUMNS  # noqa: F401  (the file format's columns: a row's keys)
+from ..formats.targets import MOVING_COLUMN, TARGET_KEYS, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
 
 
 @dataclass
@@ -54,8 +55,8 @@ class Target:
     Attributes:
         index: the target's number (0, 1, ... in order of first fixation).
         position_mm: (3,) estimate, world frame, mm; NaN when there is no usable estimate.
-        covariance_mm2: (3, 3) covariance, mm^2, or None (no covariance, or read from a file,
-            which keeps only the ellipsoid's semi-axes).
+        covariance_mm2: (3, 3) covariance, mm^2, or None (no covariance, or read from a
+            version-1 targets.json, which kept only the ellipsoid's semi-axes).
         axes95_mm: (3,) semi-axes of the 95 % confidence ellipsoid, increasing, mm; NaN without
             a covariance.
         status: the estimator's status ('ok' or why not).
@@ -96,30 +97,32 @@ class Target:
         """A static target with a usable point estimate."""
         return self.status == "ok" and bool(np.all(np.isfinite(self.position_mm)))
 
-    def row(self) -> dict:
-        """The row of targets.json / targets.csv (keys ``TARGET_COLUMNS``, plain Python values),
-        with ``moving: True`` (``MOVING_COLUMN``) for a moving target (a static one's row has no
-        such key: ``formats.targets.write_targets`` fills it in when a session has moving targets)."""
-        x, y, z = (float(v) for v in self.position_mm)
-        a1, a2, a3 = (float(v) for v in self.axes95_mm)
-        return {"target": int(self.index), "x_mm": x, "y_mm": y, "z_mm": z, "axis1_mm": a1, "axis2_mm": a2,
-                "axis3_mm": a3, "n_samples": int(self.n_samples), "t_start": float(self.t_start),
-                "t_end": float(self.t_end), "fixations": ";".join(str(f) for f in self.fixations),
-                "method": self.method, "status": self.status, "crb_mm": float(self.crb_mm)} | (
-                    {MOVING_COLUMN: True} if self.moving else {})
+    def row(self, rounded: bool = False) -> dict:
+        """The target's record (``formats.targets.target_record``: a row of targets.json, plain
+        Python values, null for a value that does not exist), with ``moving: True`` for a moving
+        target; ``rounded`` as the live messages send it."""
+        return target_record(self.index, self.t_start, self.t_end, self.position_mm, self.axes95_mm, self.n_samples,
+                             self.method, self.status, self.covariance_mm2, self.crb_mm, self.fixations, self.moving,
+                             rounded)
 
     @classmethod
     def from_row(cls, row: dict) -> Target:
-        """A target from a row of targets.json (no covariance, no sample indices, no trajectory:
-        read_target_paths has the paths)."""
-        fix = str(row["fixations"])
-        return cls(index=int(row["target"]),
-                   position_mm=np.array([row["x_mm"], row["y_mm"], row["z_mm"]], float),
-                   covariance_mm2=None,
-                   axes95_mm=np.array([row["axis1_mm"], row["axis2_mm"], row["axis3_mm"]], float),
-                   status=str(row["status"]), n_samples=int(row["n_samples"]), t_start=float(row["t_start"]),
-                   t_end=float(row["t_end"]), fixations=tuple(int(f) for f in fix.split(";") if f),
-                   method=str(row["method"]), crb_mm=float(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)))
+        """A target from a record of targets.json (``read_targets``; no sample indices, no
+        trajectory: read_target_paths has the paths). A null is NaN (a covariance: None)."""
+        def vec(key):
+            return np.array(row[key], float) if row[key] is not None else np.full(3, np.nan)
+
+        cov = row["covariance_mm2"]
+        return cls(index=int(row["target"]), position_mm=vec("position_mm"),
+                   covariance_mm2=None if cov is None else np.array(cov, float),
+                   axes95_mm=vec("ellipsoid95_radii_mm"), status=str(row["status"]), n_samples=int(row["n_samples"]),
+                   t_start=_num(row["t_start"]), t_end=_num(row["t_end"]),
+                   fixations=tuple(int(f) for f in row["fixations"]), method=str(row["method"]),
+                   crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)))
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)
 
 
 @dataclass(frozen=True)
