@@ -186,7 +186,7 @@ def frame_marks(inp: OverlayInputs, found, targets: OverlayTargets, T_world_from
             for e in (0, 1):
                 if eye.valid[j, e]:
                     q = inp.eyes[e].image_points(eye.raw[j:j + 1, e])[0]
-                    px = project_in_view(inp.camera, [q[0], q[1], 1.0], r_max)[0] if np.all(np.isfinite(q)) else None
+                    px = project_in_view(inp.camera, 1000.0 * np.array([q[0], q[1], 1.0]), r_max)[0]   # a ray
                     if px is not None and np.all(np.isfinite(px)):
                         gaze.append((e, px))
     return FrameMarks(markers, marks, gaze, f"t = {t:.2f} s" + ("" if posed else ", no head pose"))

@@ -8,7 +8,7 @@
   const scene = JSON.parse(document.getElementById("view3d-data").textContent);
   const ctx = canvas.getContext("2d");
   const show = {markers: true, head: true, lines: true, ellipsoids: true, truth: true};
-  const home = {yaw: -0.5, pitch: 0.35, zoom: 1.0};
+  const home = {yaw: -0.35, pitch: 0.55, zoom: 1.0};   // from behind the head, above
   let view = Object.assign({}, home);
 
   // the centre and size of what is looked at: head path and targets (the room may be far larger)
