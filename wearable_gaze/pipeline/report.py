@@ -234,7 +234,7 @@ def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | Non
         if len(lines) > view3d.MAX_LINES:
             lines = lines[np.linspace(0, len(lines) - 1, view3d.MAX_LINES).round().astype(int)]
         targets.append(view3d.SceneTarget(
-            tg.index, colour(tg.index), tg.position_mm, d.ellipsoid(tg), lines,
+            tg.index, colour(tg.index), tg.position_mm, None if tg.index in d.paths else d.ellipsoid(tg), lines,
             d.paths[tg.index][1] if tg.index in d.paths else None,
             np.asarray(tt["position_mm"], float) if "position_mm" in tt else None,
             np.asarray(tt["path_mm"], float) if "path_mm" in tt else None))

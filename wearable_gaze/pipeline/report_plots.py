@@ -41,6 +41,15 @@ def _truth_point(d, tg):
     return np.asarray(tt["position_mm"], float) if "position_mm" in tt else None
 
 
+def _truth_path(d, tg):
+    tt = d.truth.get(tg.index, {})
+    return np.asarray(tt["path_mm"], float).reshape(-1, 3) if "path_mm" in tt else None
+
+
+def _empty(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9, color="#555555")
+
+
 def _plot_depth(d, out: Path, colour) -> tuple[str, str]:
     """Distance from the head against the view lines fed in, per fixation, in its target's
     colour (95 % band, clipped at 0); the true distance dashed."""
@@ -75,6 +84,8 @@ def _plot_depth(d, out: Path, colour) -> tuple[str, str]:
                  + ("; dashed: the truth)" if d.truth else ")"), fontsize=10)
     if len(d.est["t"]):
         ax.legend(fontsize=8, ncol=2)
+    else:
+        _empty(ax, "no running estimate (a moving target's fixation has none)")
     _save(fig, out / PLOTS[0])
     return (PLOTS[0], "Depth against the number of view lines fed in, each fixation in its target's colour")
 
@@ -122,6 +133,8 @@ def _plot_density(d, out: Path) -> tuple[str, str]:
         ax.set_xlabel("across the view lines (mm)", fontsize=8)
         ax.set_ylabel("along the view lines (mm)" if i == 0 else "", fontsize=8)
         ax.tick_params(labelsize=7)
+    if not static:
+        _empty(axes[0, 0], "no static target")
     _save(fig, out / PLOTS[1])
     return (PLOTS[1], "Log-likelihood of the gazed point (to -30) in the plane through each target along its view "
             "lines: narrow across them, long along them" + (" (white square: the truth)" if d.truth else ""))
@@ -146,11 +159,13 @@ def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
         elif np.all(np.isfinite(X)):
             ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {tg.index}")
             pts.append(X[None])
-        T = _truth_point(d, tg)
+        T, Tp = _truth_point(d, tg), _truth_path(d, tg)
         if T is not None:
             ax.plot([T[0]], [T[2]], [-T[1]], color=c, **TRUTH_STYLE)
+        if Tp is not None:
+            ax.plot(Tp[:, 0], Tp[:, 2], -Tp[:, 1], "--", color=c, lw=1)
     if d.truth:
-        ax.plot([], [], color="k", **TRUTH_STYLE, label="truth")
+        ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
     P = np.concatenate([p for p in pts if len(p)]) if any(len(p) for p in pts) else np.zeros((1, 3))
     ax.set_box_aspect(np.maximum(np.ptp(P[:, [0, 2, 1]], axis=0), 1.0))
     ax.set_xlabel("x (mm)", labelpad=8)
@@ -185,11 +200,13 @@ def _plot_top(d, out: Path, colour) -> tuple[str, str]:
             if E is not None:
                 ax.add_patch(_shadow(Ellipse, X, E.T @ E, c, 1.0))
             ax.plot(X[0], X[2], "o", color=c, label=f"target {tg.index} ({np.linalg.norm(X - d.centre) / 1000:.2f} m)")
-        T = _truth_point(d, tg)
+        T, Tp = _truth_point(d, tg), _truth_path(d, tg)
         if T is not None:
             ax.plot(T[0], T[2], color=c, **TRUTH_STYLE)
+        if Tp is not None:
+            ax.plot(Tp[:, 0], Tp[:, 2], "--", color=c, lw=1)
     if d.truth:
-        ax.plot([], [], color="k", **TRUTH_STYLE, label="truth")
+        ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("z (mm)")
