@@ -127,7 +127,8 @@
       stroke("#555555", 1.2, 0.9);
     }
     const o = scene.origin, ax = 300;
-    [["x", "#d62728", [ax, 0, 0]], ["y", "#2ca02c", [0, ax, 0]], ["z", "#1f77b4", [0, 0, ax]]].forEach(([n, c, e]) => {
+    // the axes in grey, not red, green, blue: those are the targets' colours
+    [["x", "#444444", [ax, 0, 0]], ["y", "#444444", [0, ax, 0]], ["z", "#444444", [0, 0, ax]]].forEach(([n, c, e]) => {
       segment(o, [o[0] + e[0], o[1] + e[1], o[2] + e[2]]);
       stroke(c, 2, 1);
       const v = toView([o[0] + e[0], o[1] + e[1], o[2] + e[2]]);

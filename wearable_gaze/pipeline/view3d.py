@@ -114,7 +114,7 @@ def html_block(scene_data: dict, has_truth: bool) -> str:
 <p>Drag to turn, wheel to zoom, double-click to reset. World frame of the marker map (mm; up is &minus;y).
 Grey squares: the map's markers; black: the head path; thin lines: view lines (every few), from the eye to the
 target's distance; dots and ellipses: each target's estimate and its 95 % ellipsoid (three principal sections);
-axes x (red), y (green), z (blue), 300 mm long, at the map's origin.{truth}</p>
+the axes x, y, z (dark grey), 300 mm long, at the map's origin.{truth}</p>
 <p class="legend">{legend}</p>
 <p>{boxes}</p>
 <canvas id="view3d" style="width:100%;height:560px;border:1px solid #ccc;touch-action:none"></canvas>
