@@ -184,3 +184,20 @@ def test_the_3d_views_data_survives_its_embedding():
     assert json.loads(m.group(1)) == scene                           # "</" escaped: the script is not cut short
     assert scene["targets"][0]["truth"] == [0, 0, 2900] and scene["head"] == [[0, 0, 0], [5, 5, 5]]
     assert "http" not in view3d.viewer_script()                       # nothing fetched: works offline
+
+
+def test_process_overlay_video_option_reaches_the_report_step(tmp_path, monkeypatch):
+    from wearable_gaze.cli import main
+    from wearable_gaze.pipeline import process
+    from wearable_gaze.pipeline.steps import ProcessResult
+
+    seen = []
+
+    def fake(*args, **kwargs):
+        seen.append(kwargs)
+        return ProcessResult(tmp_path)
+    monkeypatch.setattr(process, "process_session", fake)
+    (tmp_path / "s").mkdir()
+    main(["process", str(tmp_path / "s"), "--overlay-video"])
+    main(["process", str(tmp_path / "s")])
+    assert [k["overlay_video"] for k in seen] == [True, False]
