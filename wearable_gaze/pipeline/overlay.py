@@ -248,7 +248,8 @@ def write_overlays(out: Path, inp: OverlayInputs, targets: OverlayTargets, t_p, 
     ``PREVIEW_MAX_S``) and, with ``video``, the full-resolution video (``VIDEO_NAME``, every
     frame) in ``out``. ``t_p``, ``frame_p``, ``T_p``: poses.csv's times (N,) s, frame numbers
     (N,) and T_world_from_cam (N, 4, 4) (a frame without a row is written undrawn to the video).
-    Returns the names written (None: not written)."""
+    ``progress(done, total)``: called after each frame read. Returns the names written (None:
+    not written)."""
     from PIL import Image  # noqa: PLC0415  (Pillow comes with matplotlib)
 
     cap, fps, n_total = open_video(Path(inp.video), inp.camera.image_size)
