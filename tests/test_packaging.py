@@ -13,7 +13,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ["estimator", "calibration", "tracking", "wearable_gaze"]
-DATA_SUFFIXES = {".json"}
+DATA_SUFFIXES = {".json", ".js"}
 
 
 def _source_files():

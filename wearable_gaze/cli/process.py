@@ -18,7 +18,7 @@ def cmd_process(args) -> int:
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=lambda name: progress_bar(name, 1), person=args.person,
                           build_map=None if args.build_map is None else (args.build_map, args.map_dict),
-                          sfm_map=args.map)
+                          sfm_map=args.map, overlay_video=args.overlay_video)
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
@@ -43,6 +43,8 @@ def add_process(sub) -> None:
                     help="apply this person's per-eye gaze correction (from learn-bias) to the view lines")
     pr.add_argument("--force", action="store_true", help="redo every step")
     pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
+    pr.add_argument("--overlay-video", action="store_true",
+                    help="also write the overlay at full resolution, every frame: OUT/overlay.mp4 (mp4v)")
     pr.add_argument("--build-map", type=A.positive_float, metavar="MM",
                     help="no marker map: build one from the session's video, markers of this side (mm)")
     pr.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",

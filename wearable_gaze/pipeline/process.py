@@ -52,7 +52,7 @@ from .device import POSE_NOTES, device_comparison, device_poses, still_head_pose
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
-from .report import OverlayInputs, write_report
+from .report import OverlayInputs, load_truth, write_report
 from .segmentation import segment_view_lines
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
 from .track import frame_times, track_video
@@ -74,6 +74,7 @@ class _Settings:
     person: Path | None = None
     build_map: tuple | None = None      # (marker side mm, dictionary) to build a map from the video
     sfm_map: Path | None = None         # a markerless map folder to localise the video's frames in
+    overlay_video: bool = False         # the report also writes the full-resolution overlay.mp4
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,8 @@ class _SessionFiles:
     eye_rate_hz: float | None = None
     import_report: Path | None = None
     clock_offset_s: float = 0.0             # ... the device's clock at session time 0, s
+    truth_targets: Path | None = None       # a simulated session's truth, shown in the report
+    truth_head_poses: Path | None = None
 
     @classmethod
     def of(cls, s) -> _SessionFiles:
@@ -104,7 +107,8 @@ class _SessionFiles:
                    s.path("scene_video"), s.path("marker_map"), s.path("scene_timestamps"), s.path("eye_samples"),
                    s.path("eye_rays"), s.path("head_poses"), s.path("device_gaze"),
                    s.manifest.get("source", {}).get("pose_source"), s.manifest.get("eye_rate_hz"),
-                   s.path("import_report"), float(s.manifest.get("source", {}).get("clock_offset_s", 0.0)))
+                   s.path("import_report"), float(s.manifest.get("source", {}).get("clock_offset_s", 0.0)),
+                   s.path("truth_targets"), s.path("truth_head_poses"))
 
 
 class _Values:
@@ -133,7 +137,7 @@ class _Values:
 def process_session(session, out=None, method: str = "voxel", camera=None, eyes=None, force: bool = False,
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
                     segment_config: SegmentConfig | None = None, progress_factory=None, person=None,
-                    build_map: tuple | None = None, sfm_map=None) -> ProcessResult:
+                    build_map: tuple | None = None, sfm_map=None, overlay_video: bool = False) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -153,6 +157,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
             before tracking; a session with one keeps it.
         sfm_map: a markerless map folder (``map --markerless``): the scene video's frames are
             localised in it (``tracking.localise``) instead of tracked by the session's markers.
+        overlay_video: the report also writes overlay.mp4, the overlay at full resolution.
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
@@ -188,7 +193,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person,
                     None if build_map is None else (float(build_map[0]), str(build_map[1])),
-                    None if sfm_map is None else Path(sfm_map))
+                    None if sfm_map is None else Path(sfm_map), overlay_video)
     if correction is not None:
         res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
     cam_path = Path(camera) if camera else out / "camera.json"
@@ -361,18 +366,23 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
 
 
 def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_path: Path, cfg: _Settings) -> None:
+    has_map = f.markers is not None or (out / BUILT_MAP).is_file()
+
     def overlay_inputs() -> OverlayInputs:
         return OverlayInputs(vals["camera"], vals["eyes"] if eyes_path.is_file() else None, vals["eye_samples"],
-                             vals["marker_map"] if f.markers else None, f.video)
+                             vals["marker_map"] if has_map else None, f.video)
     cam_ok = steps.status.get("camera") in GOOD and f.eye_samples is not None   # the overlay draws raw eye samples
     inputs = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"] + ([f.video] if cfg.overlay and f.video
                                                                                  else [])
-    extra = [f.import_report] if f.import_report else []
+    extra = [p for p in (f.import_report, f.truth_targets, f.truth_head_poses, f.markers) if p]
 
     def do_report(cb):
         notes = _report_notes(f, cfg)
-        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes)
-    steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}, do_report)
+        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes,
+                     load_truth(f.truth_targets, f.truth_head_poses), vals["marker_map"] if has_map else None,
+                     cfg.overlay_video)
+    steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
+              | ({"overlay_video": True} if cfg.overlay_video else {}), do_report)
 
 
 def _report_notes(f: _SessionFiles, cfg: _Settings) -> list[str]:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..formats.atomic import write_text
+from .report import OPTIONAL_FILES as REPORT_OPTIONAL
 from .report import REPORT_FILES
 
 log = logging.getLogger(__name__)
@@ -34,7 +35,7 @@ OUTPUTS = {
 NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines": ("eyes", "tracking"),
          "targets": ("viewlines",), "export": ("targets",), "report": ("targets",)}
 # written or not: not needed to skip a step
-OPTIONAL = ("overlay.webp", "overlay_error.txt", "device_comparison.csv", "target_paths.csv", "built_map.json")
+OPTIONAL = (*REPORT_OPTIONAL, "device_comparison.csv", "target_paths.csv", "built_map.json")
 OTHER_FILES = ("summary.json", ".steps.json")
 GOOD = ("done", "cached", "external", "device")   # usable: outputs, a file given instead, or the device's own
 

@@ -1,0 +1,203 @@
+"""The report's overlay and 3D view (issue 17): each colour as the caption names it (OpenCV
+takes BGR), labels inside the frame, markers drawn only where detected, the full-resolution
+video and the preview written; the 3D view's data survives its embedding in the page. The
+report as a whole in a headless browser: tests/test_process.py."""
+
+import json
+import re
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+from calibration.camera import CameraCalibration
+from tracking.markermap import MarkerMap
+from tracking.markers import MarkerDetector
+from wearable_gaze.formats.eye_samples import EyeSamples
+from wearable_gaze.pipeline import overlay as ov
+from wearable_gaze.pipeline import view3d
+from wearable_gaze.pipeline.types import Target
+
+W, H = 640, 480
+CAMERA = CameraCalibration(np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]), np.zeros(5), (W, H))
+# what each colour name of the caption must look like, (R, G, B) -> bool
+LOOKS = {"orange": lambda r, g, b: (r > 200) & (g > 90) & (g < 190) & (b < 70),
+         "magenta": lambda r, g, b: (r > 200) & (g < 70) & (b > 200),
+         "green": lambda r, g, b: (g > 150) & (r < 70) & (b < 70),
+         "red": lambda r, g, b: (r > 180) & (g < 60) & (b < 60)}
+
+
+class _Eye:
+    """An eye calibration that maps any reading to one normalised image point."""
+
+    def __init__(self, q):
+        self.q = np.asarray(q, float)
+
+    def image_points(self, raw):
+        return np.tile(self.q, (len(raw), 1))
+
+
+def _inputs(marker_map=None, q_left=(0.1, -0.05), q_right=(-0.2, 0.1)):
+    eyes = EyeSamples(np.array([0.0]), np.array([0]), np.zeros((1, 2, 2)), np.array([[True, True]]))
+    return ov.OverlayInputs(CAMERA, [_Eye(q_left), _Eye(q_right)], eyes, marker_map, None)
+
+
+def _target(index=0, position=(0.0, 0.0, 1000.0)):
+    x, y, z = position
+    return Target.from_row({"target": index, "x_mm": x, "y_mm": y, "z_mm": z, "axis1_mm": 10.0, "axis2_mm": 10.0,
+                            "axis3_mm": 50.0, "n_samples": 10, "t_start": 0.0, "t_end": 1.0, "fixations": "0",
+                            "method": "voxel", "status": "ok", "crb_mm": 5.0})
+
+
+def _ring_colour(img, centre, radius):
+    """The mean (R, G, B) of the drawn pixels at ``radius`` +-1.5 px around ``centre``."""
+    yy, xx = np.mgrid[:img.shape[0], :img.shape[1]]
+    ring = np.abs(np.hypot(xx - centre[0], yy - centre[1]) - radius) < 1.5
+    ring &= img.sum(axis=2) > 200                                  # drawn, not the black background
+    assert ring.sum() > 20, "nothing drawn at the gaze point"
+    b, g, r = img[ring].mean(axis=0)
+    return r, g, b
+
+
+def test_each_eyes_gaze_circle_has_the_colour_the_caption_names():
+    marks = ov.frame_marks(_inputs(), [], ov.OverlayTargets([], np.zeros(0), np.zeros(0, int)), np.eye(4), 0.0, 2.0)
+    assert [e for e, _ in marks.gaze] == [0, 1]
+    px = {e: p for e, p in marks.gaze}
+    np.testing.assert_allclose(px[0], [320 + 50, 240 - 25], atol=1e-6)   # K (0.1, -0.05, 1)
+    img = ov.draw_marks(np.zeros((H, W, 3), np.uint8), marks)
+    text = ov.caption()
+    radius = 14 * W / 1280
+    for e, (what, name, _) in enumerate(ov.EYE_COLOURS):
+        assert f"{name} {what}" in text
+        rgb = _ring_colour(img, px[e], radius)
+        assert LOOKS[name](*rgb), (what, name, rgb)
+
+
+def _label_box(img, rgb_test, exclude):
+    """Bounding box (x0, y0, x1, y1) of the pixels passing ``rgb_test`` outside ``exclude``
+    ((x0, y0, x1, y1)), or None."""
+    b, g, r = (img[..., k].astype(int) for k in range(3))
+    hit = rgb_test(r, g, b)
+    x0, y0, x1, y1 = exclude
+    hit[max(y0, 0):y1, max(x0, 0):x1] = False
+    ys, xs = np.nonzero(hit)
+    return (xs.min(), ys.min(), xs.max(), ys.max()) if len(xs) else None
+
+
+@pytest.mark.parametrize("px", [(W - 3.0, 2.0), (2.0, H - 2.0), (W - 1.0, H - 1.0), (0.0, 0.0)])
+def test_a_target_label_at_the_border_is_drawn_whole_inside_the_frame(px):
+    marks = ov.FrameMarks(targets=[(7, np.array(px), 2345.0)])
+    img = ov.draw_marks(np.zeros((H, W, 3), np.uint8), marks)
+    s = W / 1280
+    text = "target 7: 2.35 m"
+    (tw, th), _ = cv2.getTextSize(text, ov.FONT, 0.9 * s, max(int(round(2 * s)), 1))
+    arm = int(round(40 * s)) // 2 + 2                                 # the cross, drawn at the point itself
+    box = _label_box(img, lambda r, g, b: (r > 150) & (g < 90) & (b < 90),
+                     (int(px[0]) - arm, int(px[1]) - arm, int(px[0]) + arm + 1, int(px[1]) + arm + 1))
+    assert box is not None, "the label was not drawn"
+    assert box[2] - box[0] + 1 >= 0.9 * tw and box[3] - box[1] + 1 >= 0.6 * th, (box, tw, th)
+
+
+def test_label_origin_keeps_the_box_inside(rng):
+    for _ in range(200):
+        w, h = rng.integers(200, 2000, 2)
+        tw, th = rng.integers(5, 180), rng.integers(5, 60)
+        anchor = rng.uniform(-50, [w + 50, h + 50])
+        x, y = ov.label_origin((tw, th), anchor, (w, h))
+        assert 0 <= x and x + tw <= w and 0 <= y - th and y <= h, (anchor, (x, y), (tw, th), (w, h))
+
+
+def _marker_frame(marker_id=3, side=120, at=(40, 40)):
+    """A white frame with one DICT_4X4_50 marker (white border included) at ``at``."""
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    img = np.full((H, W, 3), 255, np.uint8)
+    m = cv2.aruco.generateImageMarker(d, marker_id, side)
+    img[at[1] + 20:at[1] + 20 + side, at[0] + 20:at[0] + 20 + side] = m[..., None]
+    return img
+
+
+def test_markers_are_drawn_where_detected_not_projected_from_the_map():
+    T7 = np.eye(4)
+    T7[:3, 3] = [0, 0, 1000]                                         # in the map, right in front of the camera
+    mm = MarkerMap("DICT_4X4_50", 100.0, {3: np.eye(4), 7: T7}, {})
+    frame = _marker_frame()
+    found = MarkerDetector(mm.dictionary).detect(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
+    marks = ov.frame_marks(_inputs(mm), found, ov.OverlayTargets([], np.zeros(0), np.zeros(0, int)), np.eye(4), 9.0,
+                           2.0)
+    assert [(i, in_map) for i, _, in_map in marks.markers] == [(3, True)]
+    img = ov.draw_marks(frame, marks)
+    b, g, r = (img[..., k].astype(int) for k in range(3))
+    green = g - np.maximum(r, b) > 60                               # anti-aliased on white: greenish
+    ys, xs = np.nonzero(green)
+    assert len(xs) > 100
+    assert xs.max() < 40 + 20 + 120 + 10 and ys.max() < 40 + 20 + 120 + 10      # around marker 3 only
+    assert not green[180:300, 260:380].any()                                  # nothing where 7 would project
+
+
+def test_nothing_is_drawn_outside_the_calibrated_field():
+    fisheyeish = CameraCalibration(CAMERA.camera_matrix, np.array([-0.4, 0.15, 0, 0, -0.02]), (W, H))
+    r = ov.field_radius(fisheyeish)
+    far = np.array([[3.0 * r * 1000, 0.0, 1000.0], [0.0, 0.0, -1000.0], [10.0, 0.0, 50.0]])
+    assert np.all(np.isnan(ov.project_in_view(fisheyeish, far, r)))
+    assert np.all(np.isfinite(ov.project_in_view(fisheyeish, [[0.0, 0.0, 1000.0]], r)))
+
+
+def test_overlay_video_is_full_resolution_and_the_preview_small(tmp_path):
+    video = tmp_path / "scene.mp4"
+    n = 8
+    wr = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (W, H))
+    for _ in range(n):
+        wr.write(_marker_frame())
+    wr.release()
+    mm = MarkerMap("DICT_4X4_50", 100.0, {3: np.eye(4)}, {})
+    inp = _inputs(mm)
+    inp = ov.OverlayInputs(inp.camera, inp.eyes, inp.eye_samples, mm, video)
+    t = np.arange(n) / 30.0
+    targets = ov.OverlayTargets([_target(5, (100.0, 50.0, 1000.0))], t, np.full(n, 5))
+    names = ov.write_overlays(tmp_path, inp, targets, t, np.arange(n), np.repeat(np.eye(4)[None], n, axis=0),
+                              video=True)
+    assert names == (ov.PREVIEW_NAME, ov.VIDEO_NAME)
+    cap = cv2.VideoCapture(str(tmp_path / ov.VIDEO_NAME))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f)
+    assert len(frames) == n and frames[0].shape == (H, W, 3)
+    u, v = 320 + 50, 240 + 25                                          # the target (100, 50, 1000) mm
+    patch = frames[0][v - 3:v + 4, u - 3:u + 4].reshape(-1, 3).astype(int)
+    assert any(LOOKS["red"](r, g, b) for b, g, r in patch), "no red cross at the target"
+    with Image.open(tmp_path / ov.PREVIEW_NAME) as im:
+        assert im.size == (ov.PREVIEW_WIDTH, ov.PREVIEW_WIDTH * H // W)
+        assert im.n_frames == len(range(0, n, round(30.0 / ov.PREVIEW_FPS)))
+
+
+def test_the_3d_views_data_survives_its_embedding():
+    tg = view3d.SceneTarget(2, "#2ca02c", np.array([1.0, 2.0, 3000.0]), np.diag([10.0, 20.0, 300.0]),
+                            np.array([[[0, 0, 0], [1, 2, 3000]]], float), truth_mm=np.array([0.0, 0.0, 2900.0]))
+    scene = view3d.scene([tg], np.array([[0.0, 0, 0], [5, 5, 5], [np.nan, 0, 0]]),
+                         [np.zeros((4, 3))], other_truth=[("</script><b>x", [1, 2, 3])])
+    block = view3d.html_block(scene, has_truth=True)
+    m = re.search(r'<script type="application/json" id="view3d-data">(.*?)</script>', block, re.S)
+    assert json.loads(m.group(1)) == scene                           # "</" escaped: the script is not cut short
+    assert scene["targets"][0]["truth"] == [0, 0, 2900] and scene["head"] == [[0, 0, 0], [5, 5, 5]]
+    assert "http" not in view3d.viewer_script()                       # nothing fetched: works offline
+
+
+def test_process_overlay_video_option_reaches_the_report_step(tmp_path, monkeypatch):
+    from wearable_gaze.cli import main
+    from wearable_gaze.pipeline import process
+    from wearable_gaze.pipeline.steps import ProcessResult
+
+    seen = []
+
+    def fake(*args, **kwargs):
+        seen.append(kwargs)
+        return ProcessResult(tmp_path)
+    monkeypatch.setattr(process, "process_session", fake)
+    (tmp_path / "s").mkdir()
+    main(["process", str(tmp_path / "s"), "--overlay-video"])
+    main(["process", str(tmp_path / "s")])
+    assert [k["overlay_video"] for k in seen] == [True, False]

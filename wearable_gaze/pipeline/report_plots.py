@@ -1,0 +1,238 @@
+"""The report's plots (matplotlib, no display needed): the running estimates' depth, the
+likelihood around each target, a 3D and a top view; each target in its colour and number, the
+truth beside it when the session has one. ``d`` is the report's ``report.ReportData``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from estimator import angular_log_likelihood
+
+from ..formats.atomic import atomic_path
+
+PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png")
+COLOURS = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"]
+TRUTH_STYLE = {"marker": "s", "mfc": "none", "mew": 1.5, "ms": 8, "ls": "none"}
+
+
+def _plt():
+    import matplotlib  # noqa: PLC0415
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    return plt
+
+
+def _save(fig, path: Path):
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    _plt().close(fig)
+
+
+def write_plots(d, out: Path, colour, truth) -> list:
+    """Write ``PLOTS`` into ``out``; [(file name, caption)]. ``colour(index)``: a target's colour."""
+    return [_plot_depth(d, out, colour), _plot_density(d, out), _plot_3d(d, out, colour),
+            _plot_top(d, out, colour)]
+
+
+def _truth_point(d, tg):
+    tt = d.truth.get(tg.index, {})
+    return np.asarray(tt["position_mm"], float) if "position_mm" in tt else None
+
+
+def _truth_path(d, tg):
+    tt = d.truth.get(tg.index, {})
+    return np.asarray(tt["path_mm"], float).reshape(-1, 3) if "path_mm" in tt else None
+
+
+def _empty(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9, color="#555555")
+
+
+def _plot_depth(d, out: Path, colour) -> tuple[str, str]:
+    """Distance from the head against the view lines fed in, per fixation, in its target's
+    colour (95 % band, clipped at 0); the true distance dashed."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 4.2), layout="constrained")
+    target_of = {f: tg for tg in d.targets for f in tg.fixations}
+    top, labelled = 0.0, set()
+    for k in np.unique(d.est["segment"]).astype(int):
+        sel = d.est["segment"] == k
+        tg = target_of.get(k)
+        c = colour(tg.index) if tg is not None else "#888888"
+        mine = d.flabels == k
+        eye = d.orig[mine].mean(axis=0) if mine.any() else d.centre
+        P = np.column_stack([d.est["x"][sel], d.est["y"][sel], d.est["z"][sel]])
+        depth = np.linalg.norm(P - eye, axis=1) / 1000
+        n = np.searchsorted(np.sort(d.samples.t_s[mine]), d.est["t"][sel], side="right")
+        name = f"target {tg.index}" if tg is not None else f"fixation {k} (no target)"
+        ax.plot(n, depth, "-o", ms=2.5, color=c, label=None if name in labelled else name)
+        labelled.add(name)
+        r = d.est["radius95_mm"][sel] / 1000
+        ax.fill_between(n, np.maximum(depth - r, 0), depth + r, color=c, alpha=0.12)
+        top = max(top, float(depth[-1]))
+        X = _truth_point(d, tg) if tg is not None else None
+        if X is not None:
+            true = np.linalg.norm(X - eye) / 1000
+            ax.plot([n[0], n[-1]], [true, true], "--", color=c, lw=1)
+            top = max(top, true)
+    ax.set_ylim(0, max(2.0 * top, 0.5))
+    ax.set_xlabel("view lines of the fixation fed in (binocular samples)")
+    ax.set_ylabel("distance from the head (m)")
+    ax.set_title("Running estimate per fixation, in its target's colour (band: 95 % radius"
+                 + ("; dashed: the truth)" if d.truth else ")"), fontsize=10)
+    if len(d.est["t"]):
+        ax.legend(fontsize=8, ncol=2)
+    else:
+        _empty(ax, "no running estimate (a moving target's fixation has none)")
+    _save(fig, out / PLOTS[0])
+    return (PLOTS[0], "Depth against the number of view lines fed in, each fixation in its target's colour")
+
+
+def _slice_axes(d, tg) -> tuple[np.ndarray, np.ndarray]:
+    """(across, along): unit vectors (3,) spanning the slice through a target: horizontal
+    across its view lines, and along their mean direction."""
+    sel = d.tlabels == tg.index
+    u = np.mean(d.cyc[sel], axis=0) if sel.any() else tg.position_mm - d.centre
+    u = u / np.linalg.norm(u)
+    h = np.cross([0.0, -1.0, 0.0], u)
+    h = h / np.linalg.norm(h) if np.linalg.norm(h) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    return h, u
+
+
+def _plot_density(d, out: Path) -> tuple[str, str]:
+    """Log-likelihood slices through each of the first four static targets, in the plane of its
+    view lines (a moving one's lines meet no one point); the truth as a white square."""
+    plt = _plt()
+    static = [tg for tg in d.targets if not tg.moving and np.all(np.isfinite(tg.position_mm))][:4]
+    n_t = max(len(static), 1)
+    fig, axes = plt.subplots(1, n_t, figsize=(3.4 * n_t, 3.6), squeeze=False, layout="constrained")
+    for i, tg in enumerate(static):
+        ax = axes[0, i]
+        X = tg.position_mm
+        h, u = _slice_axes(d, tg)
+        lines = d.samples.select(np.flatnonzero(d.tlabels == tg.index)).lines()
+        a = tg.axes95_mm if np.all(np.isfinite(tg.axes95_mm)) else np.array([30.0, 30.0, 100.0])
+        # across: the ellipsoid's short axes; along: the likelihood's own extent (about the
+        # Cramer-Rao bound; the error model's ellipsoid can be far longer)
+        wide = 1.5 * a[2] if not np.isfinite(tg.crb_mm) else min(1.5 * a[2], 6 * tg.crb_mm)
+        across, along = max(4 * a[0], 30.0), max(wide, 4 * a[0], 30.0)
+        ga, gb = np.meshgrid(np.linspace(-across, across, 45), np.linspace(-along, along, 61))
+        P = X + ga.ravel()[:, None] * h + gb.ravel()[:, None] * u
+        ll = angular_log_likelihood(P, lines.origins_mm, lines.directions, np.deg2rad(1.0)).reshape(ga.shape)
+        ax.imshow(np.maximum(ll - ll.max(), -30), origin="lower", cmap="magma", aspect="auto",
+                  extent=(-across, across, -along, along))
+        ax.plot(0, 0, "c+", ms=10, label="estimate")
+        T = _truth_point(d, tg)
+        if T is not None:
+            ax.plot(np.dot(T - X, h), np.dot(T - X, u), color="w", **TRUTH_STYLE, label="truth")
+            ax.set_xlim(-across, across)
+            ax.set_ylim(-along, along)
+        ax.set_title(f"target {tg.index}", fontsize=9)
+        ax.set_xlabel("across the view lines (mm)", fontsize=8)
+        ax.set_ylabel("along the view lines (mm)" if i == 0 else "", fontsize=8)
+        ax.tick_params(labelsize=7)
+    if not static:
+        _empty(axes[0, 0], "no static target")
+    _save(fig, out / PLOTS[1])
+    return (PLOTS[1], "Log-likelihood of the gazed point (to -30) in the plane through each target along its view "
+            "lines: narrow across them, long along them" + (" (white square: the truth)" if d.truth else ""))
+
+
+def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
+    """3D view: head path, every 10th view line of each target, the targets (a moving one as its
+    path), the truth; equal scales on the three axes."""
+    plt = _plt()
+    fig = plt.figure(figsize=(7, 6), layout="constrained")
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(d.head[:, 0], d.head[:, 2], -d.head[:, 1], "k-", lw=1, label="head")
+    pts = [d.head]
+    for tg in d.targets:
+        X, c = tg.position_mm, colour(tg.index)
+        for a, b in line_segments(tg, d):
+            ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], color=c, lw=0.3, alpha=0.5)
+        if tg.index in d.paths:
+            P = d.paths[tg.index][1]
+            ax.plot(P[:, 0], P[:, 2], -P[:, 1], "-", color=c, lw=2, label=f"target {tg.index} (moving: its path)")
+            pts.append(P)
+        elif np.all(np.isfinite(X)):
+            ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {tg.index}")
+            pts.append(X[None])
+        T, Tp = _truth_point(d, tg), _truth_path(d, tg)
+        if T is not None:
+            ax.plot([T[0]], [T[2]], [-T[1]], color=c, **TRUTH_STYLE)
+        if Tp is not None:
+            ax.plot(Tp[:, 0], Tp[:, 2], -Tp[:, 1], "--", color=c, lw=1)
+    if d.truth:
+        ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
+    P = np.concatenate([p for p in pts if len(p)]) if any(len(p) for p in pts) else np.zeros((1, 3))
+    ax.set_box_aspect(np.maximum(np.ptp(P[:, [0, 2, 1]], axis=0), 1.0))
+    ax.set_xlabel("x (mm)", labelpad=8)
+    ax.set_ylabel("z (mm)", labelpad=8)
+    ax.set_zlabel("up, -y (mm)", labelpad=8)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("Head path, view lines and targets (equal scales)")
+    _save(fig, out / PLOTS[2])
+    return (PLOTS[2], "3D view (still): head path, view lines, targets; the view above can be turned")
+
+
+def _plot_top(d, out: Path, colour) -> tuple[str, str]:
+    """Top view: head path, view lines, each target's 95 % ellipsoid's shadow on the floor (a
+    moving target: its path, with its 95 % ellipsoid's shadow at every 10th knot); the truth."""
+    from matplotlib.patches import Ellipse  # noqa: PLC0415
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 6.5), layout="constrained")
+    ax.plot(d.head[:, 0], d.head[:, 2], "k-", lw=1, label="head")
+    for tg in d.targets:
+        X, c = tg.position_mm, colour(tg.index)
+        for a, b in line_segments(tg, d):
+            ax.plot([a[0], b[0]], [a[2], b[2]], color=c, lw=0.3, alpha=0.4)
+        if tg.index in d.paths:
+            _, P, cov = d.paths[tg.index]
+            ax.plot(P[:, 0], P[:, 2], "-", color=c, lw=2, label=f"target {tg.index} (moving: its path)")
+            for k in range(0, len(P), 10):
+                ax.add_patch(_shadow(Ellipse, P[k], 7.8147 * cov[k], c, 0.5))
+        elif np.all(np.isfinite(X)):
+            E = d.ellipsoid(tg)
+            if E is not None:
+                ax.add_patch(_shadow(Ellipse, X, E.T @ E, c, 1.0))
+            ax.plot(X[0], X[2], "o", color=c, label=f"target {tg.index} ({np.linalg.norm(X - d.centre) / 1000:.2f} m)")
+        T, Tp = _truth_point(d, tg), _truth_path(d, tg)
+        if T is not None:
+            ax.plot(T[0], T[2], color=c, **TRUTH_STYLE)
+        if Tp is not None:
+            ax.plot(Tp[:, 0], Tp[:, 2], "--", color=c, lw=1)
+    if d.truth:
+        ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("z (mm)")
+    ax.legend(fontsize=7)
+    ax.set_title("Top view (ellipses: the 95 % ellipsoid's shadow on the floor)", fontsize=10)
+    _save(fig, out / PLOTS[3])
+    return (PLOTS[3], "Top view: each target's 95 % ellipsoid seen from above")
+
+
+def _shadow(Ellipse, X, M, colour: str, lw: float):
+    """The outline of an ellipsoid {p: (p - X)^T M^-1 (p - X) <= 1} (M (3, 3), mm^2) seen from
+    above: the x-z block of M is its shadow's."""
+    S = np.asarray(M, float)[np.ix_([0, 2], [0, 2])]
+    w, V = np.linalg.eigh(S)
+    w = np.sqrt(np.clip(w, 0, None))
+    angle = float(np.degrees(np.arctan2(V[1, 1], V[0, 1])))
+    return Ellipse((X[0], X[2]), 2 * w[1], 2 * w[0], angle=angle, fill=False, color=colour, lw=lw)
+
+
+def line_segments(tg, d, every: int = 10):
+    """Every ``every``-th view line of a target, from the eye to the target's distance (a moving
+    target's: its path's point at the line's time)."""
+    for j in np.flatnonzero(d.tlabels == tg.index)[::every]:
+        X = tg.position_mm
+        if tg.index in d.paths:
+            t, P, _ = d.paths[tg.index]
+            X = np.array([np.interp(d.samples.t_s[j], t, P[:, m]) for m in range(3)])
+        if np.all(np.isfinite(X)):
+            yield d.orig[j], d.orig[j] + d.cyc[j] * np.linalg.norm(X - d.orig[j])
