@@ -10,14 +10,30 @@ from estimator import METHODS
 from . import args as A
 
 
+def check_rerun(args, inputs=()) -> None:
+    """``--rerun``, checked before any work: rerun-sdk installed (one line naming the extra
+    otherwise), and a file given is a place an .rrd can be written."""
+    if getattr(args, "rerun", None) is None:
+        return
+    from ..errors import check_output  # noqa: PLC0415
+    from ..pipeline.rerun_view import parse_rerun_dest, require_rerun  # noqa: PLC0415
+
+    kind, where = parse_rerun_dest(args.rerun)
+    require_rerun()
+    if kind == "file":
+        check_output(where, [p for p in inputs if p is not None], "--rerun")
+
+
 def cmd_process(args) -> int:
     from ..pipeline.process import format_result, process_session  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
+    check_rerun(args, [args.session, args.camera, args.eyes, args.person])
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=lambda name: progress_bar(name, 1), person=args.person,
-                          build_map=None if args.build_map is None else (args.build_map, args.map_dict))
+                          build_map=None if args.build_map is None else (args.build_map, args.map_dict),
+                          rerun=args.rerun, rerun_frames=args.rerun_frames)
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
@@ -48,7 +64,19 @@ def add_process(sub) -> None:
                     help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
     pr.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",
                     help="track one scene frame in N and interpolate the rest (default 2)")
+    add_rerun_option(pr, "also save the results for the rerun viewer: --rerun out.rrd, or a viewer's address "
+                         "(rerun+http://HOST:PORT/proxy), or --rerun alone to spawn one (pip install "
+                         "'wearable-gaze[rerun]'; docs/viewing.md)")
+    pr.add_argument("--rerun-frames", type=A.non_negative_int, default=0, metavar="N",
+                    help="with --rerun: one scene frame in N as the camera's image (default 0: none)")
     pr.set_defaults(func=cmd_process)
+
+
+def add_rerun_option(parser, help_text: str) -> None:
+    """``--rerun [DEST]``: no value spawns a viewer (or connects to the local one)."""
+    from ..pipeline.rerun_view import SPAWN  # noqa: PLC0415
+
+    parser.add_argument("--rerun", nargs="?", const=SPAWN, default=None, metavar="out.rrd|URL", help=help_text)
 
 
 def add_demo(sub) -> None:
