@@ -43,7 +43,7 @@ def cmd_process(args) -> int:
 def cmd_demo(args) -> int:
     from ..pipeline.demo import run_demo  # noqa: PLC0415
 
-    return run_demo(Path(args.out), args.seed, args.duration)
+    return run_demo(None if args.out is None else Path(args.out), args.seed, args.duration, args.reuse)
 
 
 def add_process(sub) -> None:
@@ -84,5 +84,8 @@ def add_demo(sub) -> None:
     d = sub.add_parser("demo", help="simulate the default session (lab-walkabout), process it, compare with the truth")
     d.add_argument("--seed", type=A.seed, default=0, metavar="S", help="random seed (default: 0)")
     d.add_argument("--duration", type=A.positive_float, default=20.0, metavar="S", help="session length (default: 20)")
-    d.add_argument("--out", default="wearable-gaze-demo", metavar="DIR", help="output folder")
+    d.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder, new or empty (default: a fresh ./wearable-gaze-demo-YYYYmmdd-HHMMSS)")
+    d.add_argument("--reuse", action="store_true",
+                   help="with --out: reuse the session and results an earlier demo left there")
     d.set_defaults(func=cmd_demo)
