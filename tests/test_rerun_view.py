@@ -185,6 +185,8 @@ def test_a_bad_rerun_option_is_refused_before_any_work(tmp_path, capsys):
     if code == 2:
         line = _one_line(capsys)
         assert "is a folder" in line or RERUN_MISSING in line
+    code = main(["process", str(tmp_path / "s"), "-o", str(tmp_path / "out"), "--rerun-frames", "5"])
+    assert code == 2 and "--rerun-frames needs --rerun" in _one_line(capsys)
     assert not (tmp_path / "out").exists()
 
 

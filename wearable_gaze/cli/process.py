@@ -7,6 +7,7 @@ from pathlib import Path
 
 from estimator import METHODS
 
+from ..errors import UserError
 from . import args as A
 
 
@@ -14,6 +15,8 @@ def check_rerun(args, inputs=()) -> None:
     """``--rerun``, checked before any work: rerun-sdk installed (one line naming the extra
     otherwise), and a file given is a place an .rrd can be written."""
     if getattr(args, "rerun", None) is None:
+        if getattr(args, "rerun_frames", 0):
+            raise UserError("--rerun-frames needs --rerun (out.rrd, a viewer's address, or nothing to spawn one)")
         return
     from ..errors import check_output  # noqa: PLC0415
     from ..pipeline.rerun_view import parse_rerun_dest, require_rerun  # noqa: PLC0415
