@@ -290,6 +290,8 @@ class LiveSession:
         self.publisher.close()
         if self.viewer is not None:
             self.viewer.close(5.0)
+            if self.viewer.dropped:
+                log.warning("rerun: %d of its items were dropped (the viewer fell behind)", self.viewer.dropped)
         if self.recorder is not None:
             self.recorder.close(complete=complete)
         self.update_stats()
