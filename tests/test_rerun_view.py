@@ -266,6 +266,11 @@ def test_process_rerun_saves_the_session_as_logged(rerun_session):
         d = (strips[:, 1] - strips[:, 0]) / np.linalg.norm(strips[:, 1] - strips[:, 0], axis=1, keepdims=True)
         miss = np.linalg.norm(np.cross(X - strips[:, 0], d), axis=1)
         assert np.median(miss) < 0.05 * np.linalg.norm(X - strips[:, 0], axis=1).mean()   # lines aim at it
+        q = _column(rrd[f"{path}/ellipsoid95"], "Ellipsoids3D:quaternions")[0][0]
+        if half[2] > 2 * half[1]:                   # depth is the least certain: the long axis along the lines
+            long_axis = Rotation.from_quat(q).apply([0.0, 0.0, 1.0])
+            mean_d = d.mean(axis=0) / np.linalg.norm(d.mean(axis=0))
+            assert np.degrees(np.arccos(min(abs(long_axis @ mean_d), 1.0))) < 5.0
     truth = [tt for tt in read_truth_targets(base / "session" / "truth" / "targets.json") if "position_mm" in tt]
     assert np.allclose(_column(rrd["/world/truth/targets"], "Points3D:positions")[0],
                        [tt["position_mm"] for tt in truth], atol=0.01)
