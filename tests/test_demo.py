@@ -97,6 +97,8 @@ def test_reuse_of_another_demo_or_without_a_folder_is_refused(first_run):
     with pytest.raises(UserError, match="holds no demo session"):
         demo_folder(other, True, 0, 4.0)
     assert demo_folder(base / "new", True, 0, 4.0) == (base / "new", False)   # nothing to reuse: a fresh run
+    with pytest.raises(UserError, match="is not empty"):
+        demo_folder(other, False, 0, 4.0)                            # someone's files: never written into
     (other / "notes.txt").unlink()
     other.rmdir()
 

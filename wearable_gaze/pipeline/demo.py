@@ -89,9 +89,11 @@ def demo_folder(out, reuse: bool, seed: int, duration_s: float, base: Path | Non
     out = Path(out).absolute()
     session = out / "session" / "session.json"
     if not reuse:
+        if session.is_file():
+            raise UserError(f"--out {out}: holds an earlier demo's results; add --reuse to use them again, or choose "
+                            "a new folder (leave --out out for a fresh one)")
         if out.is_dir() and any(out.iterdir()):
-            raise UserError(f"--out {out}: holds earlier results; add --reuse to use them again, or choose a new "
-                            "folder (leave --out out for a fresh one)")
+            raise UserError(f"--out {out}: is not empty; choose a new folder (leave --out out for a fresh one)")
         return out, False
     if not session.is_file():
         if out.is_dir() and any(out.iterdir()):
