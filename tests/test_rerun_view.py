@@ -307,3 +307,17 @@ def test_live_rerun_streams_head_estimates_and_targets(rerun_session):
             half = _column(rrd[f"{path}/ellipsoid95"], "Ellipsoids3D:half_sizes")[0][0]
             assert np.allclose(half, m["ellipsoid95_radii_mm"], atol=0.06)
         assert f"{path}/view_lines" in rrd
+
+
+def test_process_with_a_viewer_that_cannot_be_reached_keeps_its_results_and_says_so(rerun_session):
+    base = rerun_session
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["process", str(base / "session"), "-o", str(base / "out"), "--no-overlay",
+                     "--rerun", "rerun+http://127.0.0.1:9/proxy"])                # nothing listens on port 9
+    assert code == 0                                                              # the targets were found
+    ours = [ln for ln in err.getvalue().splitlines() if ln.startswith("wearable-gaze process:")]
+    assert len(ours) == 1 and "rerun: the rerun viewer could not be reached" in ours[0] and "--rerun out.rrd" in ours[0]
+    summary = json.loads((base / "out" / "summary.json").read_text())
+    assert "rerun" not in summary and any(p.startswith("rerun:") for p in summary["problems"])
+    assert (base / "out" / "targets.json").is_file()
