@@ -6,15 +6,17 @@ import sys
 
 from ..errors import UserError
 from . import args as A
+from .process import add_rerun_option, check_rerun
 
 
 def cmd_live(args) -> int:
     from ..live.app import run_live  # noqa: PLC0415
 
+    check_rerun(args, [args.camera_calib, args.eyes, args.markers])
     status = None if args.quiet else sys.stderr
     try:
         st = run_live(args.serial, args.camera, args.camera_calib, args.eyes, args.markers, args.record, args.publish,
-                      args.baud, args.duration, status_stream=status)
+                      args.baud, args.duration, status_stream=status, rerun=args.rerun)
     except UserError:
         if status is not None:
             print(file=sys.stderr)            # past the status line
@@ -22,7 +24,8 @@ def cmd_live(args) -> int:
     print(f"\nlive: ended: {st.end_reason}; {st.samples} eye samples, {st.published} messages, "
           f"{st.distinct_targets} distinct targets ({st.targets} target messages), latency median "
           f"{st.latency_all.percentile(50):.1f} ms, p95 {st.latency_all.percentile(95):.1f} ms; {st.counters()}"
-          + (f"; recorded {args.record}" if args.record else ""), file=sys.stderr)
+          + (f"; recorded {args.record}" if args.record else "")
+          + (f"; rerun: {args.rerun}" if args.rerun is not None else ""), file=sys.stderr)
     return 0
 
 
@@ -40,6 +43,9 @@ def add_live(sub) -> None:
     lv.add_argument("--record", metavar="DIR", help="record everything as a session folder")
     lv.add_argument("--publish", type=A.publish_url, metavar="udp://HOST:PORT",
                     help="also send the JSON lines to udp:// or tcp://")
+    add_rerun_option(lv, "also stream the session to the rerun viewer: --rerun alone spawns one (or connects to "
+                         "the local one), --rerun rerun+http://HOST:PORT/proxy connects to one, --rerun out.rrd "
+                         "saves it (pip install 'wearable-gaze[rerun]'; docs/viewing.md)")
     lv.add_argument("--duration", type=A.positive_float, default=None, metavar="S", help="stop after S seconds")
     lv.add_argument("--quiet", action="store_true", help="no status line")
     lv.set_defaults(func=cmd_live)

@@ -7,18 +7,37 @@ from pathlib import Path
 
 from estimator import METHODS
 
+from ..errors import UserError
 from . import args as A
+
+
+def check_rerun(args, inputs=()) -> None:
+    """``--rerun``, checked before any work: rerun-sdk installed (one line naming the extra
+    otherwise), and a file given is a place an .rrd can be written."""
+    if getattr(args, "rerun", None) is None:
+        if getattr(args, "rerun_frames", 0):
+            raise UserError("--rerun-frames needs --rerun (out.rrd, a viewer's address, or nothing to spawn one)")
+        return
+    from ..errors import check_output  # noqa: PLC0415
+    from ..pipeline.rerun_view import parse_rerun_dest, require_rerun  # noqa: PLC0415
+
+    kind, where = parse_rerun_dest(args.rerun)
+    require_rerun()
+    if kind == "file":
+        check_output(where, [p for p in inputs if p is not None], "--rerun")
 
 
 def cmd_process(args) -> int:
     from ..pipeline.process import format_result, process_session  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
+    check_rerun(args, [args.session, args.camera, args.eyes, args.person])
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=lambda name: progress_bar(name, 1), person=args.person,
                           build_map=None if args.build_map is None else (args.build_map, args.map_dict),
-                          sfm_map=args.map, overlay_video=args.overlay_video)
+                          sfm_map=args.map, overlay_video=args.overlay_video, rerun=args.rerun,
+                          rerun_frames=args.rerun_frames)
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
@@ -28,7 +47,7 @@ def cmd_process(args) -> int:
 def cmd_demo(args) -> int:
     from ..pipeline.demo import run_demo  # noqa: PLC0415
 
-    return run_demo(Path(args.out), args.seed, args.duration)
+    return run_demo(None if args.out is None else Path(args.out), args.seed, args.duration, args.reuse)
 
 
 def add_process(sub) -> None:
@@ -54,7 +73,19 @@ def add_process(sub) -> None:
                          "the session's markers")
     pr.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",
                     help="track one scene frame in N and interpolate the rest (default 2)")
+    add_rerun_option(pr, "also save the results for the rerun viewer: --rerun out.rrd, or a viewer's address "
+                         "(rerun+http://HOST:PORT/proxy), or --rerun alone to spawn one (pip install "
+                         "'wearable-gaze[rerun]'; docs/viewing.md)")
+    pr.add_argument("--rerun-frames", type=A.non_negative_int, default=0, metavar="N",
+                    help="with --rerun: one scene frame in N as the camera's image (default 0: none)")
     pr.set_defaults(func=cmd_process)
+
+
+def add_rerun_option(parser, help_text: str) -> None:
+    """``--rerun [DEST]``: no value spawns a viewer (or connects to the local one)."""
+    from ..pipeline.rerun_view import SPAWN  # noqa: PLC0415
+
+    parser.add_argument("--rerun", nargs="?", const=SPAWN, default=None, metavar="out.rrd|URL", help=help_text)
 
 
 def add_demo(sub) -> None:
@@ -62,5 +93,8 @@ def add_demo(sub) -> None:
     d = sub.add_parser("demo", help="simulate the default session (lab-walkabout), process it, compare with the truth")
     d.add_argument("--seed", type=A.seed, default=0, metavar="S", help="random seed (default: 0)")
     d.add_argument("--duration", type=A.positive_float, default=20.0, metavar="S", help="session length (default: 20)")
-    d.add_argument("--out", default="wearable-gaze-demo", metavar="DIR", help="output folder")
+    d.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder, new or empty (default: a fresh ./wearable-gaze-demo-YYYYmmdd-HHMMSS)")
+    d.add_argument("--reuse", action="store_true",
+                   help="with --out: reuse the session and results an earlier demo left there")
     d.set_defaults(func=cmd_demo)

@@ -29,6 +29,7 @@ from .publish import Publisher
 from .record import Recorder
 from .serial_in import EyeReader
 from .stats import LiveStats
+from .viewer import RerunViewer
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ def _open_camera(camera_source: str, camera) -> FrameSource:
 def open_session(serial_port: str, camera_source: str, camera_calib, eyes_path, markers_path, record=None,
                  publish=None, baud: int = 115200, method: str = "voxel", stdout: bool = True, status_stream=None,
                  hold_s: float = 0.05, stream=None, publish_queue: int = 1000,
-                 publish_stuck_s: float = 5.0) -> LiveSession:
+                 publish_stuck_s: float = 5.0, rerun=None) -> LiveSession:
     """Load the calibrations and the marker map, open the camera, the publisher and the
     recording, and wire the parts into a ``LiveSession`` (the serial port opens when it runs).
 
@@ -70,7 +71,9 @@ def open_session(serial_port: str, camera_source: str, camera_calib, eyes_path, 
             markers_path: the calibration and marker-map files; record: the recording folder or
             None; publish: the ``--publish`` URL or None; baud: serial speed; method: the
             estimator; stdout, stream: publish to ``stream`` (default stdout) too; hold_s: see
-            ``HeadTracker``; publish_queue, publish_stuck_s: see ``publish.Subscriber``.
+            ``HeadTracker``; publish_queue, publish_stuck_s: see ``publish.Subscriber``;
+            rerun: ``--rerun``'s value (an .rrd file, a viewer's address, 'spawn') or None
+            (``viewer.RerunViewer``).
 
     Raises:
         UserError: a file that is missing or malformed, a camera that will not open or does not
@@ -86,10 +89,18 @@ def open_session(serial_port: str, camera_source: str, camera_calib, eyes_path, 
         frames.cap.release()
         raise
     try:
+        viewer = RerunViewer(rerun, camera, marker_map) if rerun is not None else None
+    except BaseException:
+        publisher.close(0.1)
+        frames.cap.release()
+        raise
+    try:
         recorder = (Recorder(Path(record), frames.size, frames.fps, camera_calib, eyes_path, marker_map)
                     if record else None)
     except BaseException:
         publisher.close(0.1)
+        if viewer is not None:
+            viewer.close(0.1)
         frames.cap.release()
         raise
     try:
@@ -103,19 +114,21 @@ def open_session(serial_port: str, camera_source: str, camera_calib, eyes_path, 
         estimation = GazeEstimation(eyes, method)
     except BaseException:
         publisher.close(0.1)
+        if viewer is not None:
+            viewer.close(0.1)
         if recorder is not None:
             recorder.close(complete=False)
         frames.cap.release()
         raise
-    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream)
+    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer)
 
 
 def run_live(serial_port, camera_source, camera_calib, eyes_path, markers_path, record=None, publish=None,
-             baud: int = 115200, duration_s=None, status_stream=None) -> LiveStats:
+             baud: int = 115200, duration_s=None, status_stream=None, rerun=None) -> LiveStats:
     """``wearable-gaze live``: run until the camera file ends, the duration passes, Ctrl-C or
     SIGTERM; everything recorded stays complete."""
     session = open_session(serial_port, camera_source, camera_calib, eyes_path, markers_path, record, publish, baud,
-                           status_stream=status_stream)
+                           status_stream=status_stream, rerun=rerun)
     old = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):

@@ -82,9 +82,11 @@ class LiveSession:
         head: ``head.HeadTracker``; estimation: ``estimation.GazeEstimation``.
         publisher: ``publish.Publisher``; recorder: ``record.Recorder`` or None.
         status_stream: where the one-line status goes every 0.5 s (None: nowhere).
+        viewer: ``viewer.RerunViewer`` or None: fed every message, each tracked frame's head pose
+            and each target with its fixation's lines.
     """
 
-    def __init__(self, reader, frames, head, estimation, publisher, recorder=None, status_stream=None):
+    def __init__(self, reader, frames, head, estimation, publisher, recorder=None, status_stream=None, viewer=None):
         self.reader, self.frames = reader, frames
         self.head, self.estimation = head, estimation
         self.publisher, self.recorder = publisher, recorder
@@ -96,7 +98,8 @@ class LiveSession:
         self.last_arrival: float | None = None       # monotonic time the newest eye record arrived
         self.camera_ended_at: float | None = None
         self.publish_lock = threading.Lock()         # the loop and the target worker both publish
-        self.worker = TargetWorker(estimation.finish, self._publish_target)
+        self.viewer = viewer
+        self.worker = TargetWorker(self._finish if viewer is not None else estimation.finish, self._publish_target)
 
     def stop(self, *_):
         self.stop_event.set()
@@ -106,9 +109,18 @@ class LiveSession:
         the recording has the messages in the order subscribers get them."""
         with self.publish_lock:
             line = self.publisher.send(msg)
+            if self.viewer is not None:
+                self.viewer.message(msg)
             if self.recorder is not None:
                 self.recorder.message(line)
             self.stats.published += 1
+
+    def _finish(self, done):
+        """A finished fixation's target (in the target worker), shown in the viewer with its lines."""
+        target = self.estimation.finish(done)
+        if target is not None:
+            self.viewer.target(target, done.lines)
+        return target
 
     def _publish_target(self, target) -> None:
         """A finished fixation's target (in the target worker)."""
@@ -215,7 +227,8 @@ class LiveSession:
             return False
         self.tracking_skipped += len(items) - 1
         t, _, grey, _ = items[-1]
-        self.head.track(t - self.frames.t0, grey)
+        if self.head.track(t - self.frames.t0, grey) and self.viewer is not None:
+            self.viewer.head(*self.head.poses[-1])
         return True
 
     def _drain_eye(self) -> bool:
@@ -275,6 +288,10 @@ class LiveSession:
                 th.join(2.0)
         self.worker.drain()                          # after an error too: the targets found are kept
         self.publisher.close()
+        if self.viewer is not None:
+            self.viewer.close(5.0)
+            if self.viewer.dropped:
+                log.warning("rerun: %d of its items were dropped (the viewer fell behind)", self.viewer.dropped)
         if self.recorder is not None:
             self.recorder.close(complete=complete)
         self.update_stats()

@@ -137,7 +137,8 @@ class _Values:
 def process_session(session, out=None, method: str = "voxel", camera=None, eyes=None, force: bool = False,
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
                     segment_config: SegmentConfig | None = None, progress_factory=None, person=None,
-                    build_map: tuple | None = None, sfm_map=None, overlay_video: bool = False) -> ProcessResult:
+                    build_map: tuple | None = None, sfm_map=None, overlay_video: bool = False, rerun: str | None = None,
+                    rerun_frames: int = 0) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -158,6 +159,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         sfm_map: a markerless map folder (``map --markerless``): the scene video's frames are
             localised in it (``tracking.localise``) instead of tracked by the session's markers.
         overlay_video: the report also writes overlay.mp4, the overlay at full resolution.
+        rerun: also log the results to rerun (``pipeline.rerun_view``): an .rrd file, a viewer's
+            address, or 'spawn'; ``rerun_frames``: with it, one scene frame in this many (0: none).
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
@@ -211,7 +214,22 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         steps.finish(aborted=True)
         raise
     steps.finish()
+    if rerun is not None:
+        _view_in_rerun(rerun, rerun_frames, res, s, f, out, cam_path)
     return _finish(res, s, out, method)
+
+
+def _view_in_rerun(rerun: str, frames_every: int, res: ProcessResult, s, f: _SessionFiles, out: Path,
+                   cam_path: Path) -> None:
+    """The results logged to rerun (``pipeline.rerun_view``); a viewer that cannot be reached is a
+    problem, the results are kept."""
+    from .rerun_view import view_processed  # noqa: PLC0415  (rerun-sdk: an optional extra)
+    try:
+        res.summary["rerun"] = view_processed(rerun, out, res.found or None, cam_path, f.markers or out / BUILT_MAP,
+                                              s.path("truth_targets"), s.path("truth_head_poses"), f.video, f.stamps,
+                                              frames_every)
+    except UserError as exc:
+        res.problems.append(f"rerun: {exc}")
 
 
 def _calibration_steps(f: _SessionFiles, steps: Steps, vals: _Values, camera: Path | None, eyes: Path | None,
@@ -434,4 +452,6 @@ def format_result(res: ProcessResult) -> str:
         lines.append("unchanged, not redone: " + ", ".join(res.skipped) + " (--force redoes them)")
     if "report" in res.summary:
         lines.append(f"report: {res.summary['report']}")
+    if "rerun" in res.summary:
+        lines.append(f"rerun: {res.summary['rerun']}")
     return "\n".join(lines)
