@@ -15,6 +15,7 @@ from calibration.camera import CameraCalibration
 from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector
 from wearable_gaze.formats.eye_samples import EyeSamples
+from wearable_gaze.formats.targets import target_record
 from wearable_gaze.pipeline import overlay as ov
 from wearable_gaze.pipeline import view3d
 from wearable_gaze.pipeline.types import Target
@@ -45,9 +46,8 @@ def _inputs(marker_map=None, q_left=(0.1, -0.05), q_right=(-0.2, 0.1)):
 
 def _target(index=0, position=(0.0, 0.0, 1000.0)):
     x, y, z = position
-    return Target.from_row({"target": index, "x_mm": x, "y_mm": y, "z_mm": z, "axis1_mm": 10.0, "axis2_mm": 10.0,
-                            "axis3_mm": 50.0, "n_samples": 10, "t_start": 0.0, "t_end": 1.0, "fixations": "0",
-                            "method": "voxel", "status": "ok", "crb_mm": 5.0})
+    return Target.from_row(target_record(index, 0.0, 1.0, (x, y, z), (10.0, 10.0, 50.0), 10, "voxel", "ok",
+                                         crb_mm=5.0, fixations=[0]))
 
 
 def _ring_colour(img, centre, radius):

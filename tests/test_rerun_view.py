@@ -81,7 +81,9 @@ def _target(index, pos, cov=None, axes=None, status="ok"):
 def test_target_ellipsoids_from_covariance_or_along_the_line_of_sight(rng):
     cov = _random_covariances(rng, 1)[0]
     with_cov = _target(0, [100.0, 0.0, 2000.0], cov)
-    from_file = Target.from_row(_target(1, [0.0, 300.0, 1500.0], cov).row())      # semi-axes only
+    assert Target.from_row(_target(1, [0.0, 300.0, 1500.0], cov).row()).covariance_mm2 is not None   # kept in files
+    row = _target(1, [0.0, 300.0, 1500.0], cov).row()
+    from_file = Target.from_row({**row, "covariance_mm2": None})                # a record without one: semi-axes only
     no_point = _target(2, [np.nan] * 3, None, [np.nan] * 3, status="no-estimate")
     ell = target_ellipsoids([with_cov, from_file, no_point], {1: np.array([0.0, 0.0, 0.0])})
     assert list(ell["index"]) == [0, 1] and list(ell["from_covariance"]) == [True, False]

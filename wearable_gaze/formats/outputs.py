@@ -79,6 +79,7 @@ PROCESS_OUTPUTS = (
     *(OutputFile(n, "png", "report: a plot") for n in ("plot_depth_vs_observations.png", "plot_density_slices.png",
                                                          "plot_3d.png", "plot_top_view.png")),
     OutputFile("overlay.webp", "webp", "report: the overlay video"),
+    OutputFile("overlay.mp4", "mp4", "report (--overlay-video): the overlay at full resolution, every frame"),
     OutputFile("overlay_error.txt", "txt", "report: why the overlay could not be made"),
     OutputFile("summary.json", "json", "process: what ran, failed and was found", schema="summary"),
     OutputFile(".steps.json", "json", "process: the steps' cache fingerprints", schema="steps-state"),
