@@ -19,7 +19,6 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration, aruco_dictionary
@@ -31,6 +30,7 @@ from tracking.markers import MarkerDetector, unique_by_id
 from ..errors import UserError
 from ..formats.atomic import atomic_folder
 from ..formats.camera import load_camera
+from ..formats.images import write_image
 from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import write_sfm_map
 from .calibrate import input_files, read_frames
@@ -114,7 +114,7 @@ def _frames(inputs, cam: CameraCalibration, detector: MarkerDetector, max_frames
         if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
             raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
                             f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
-        cv2.imwrite(str(folder / f"{k:05d}.jpg"), grey, [cv2.IMWRITE_JPEG_QUALITY, 75])
+        write_image(folder / f"{k:05d}.jpg", grey)
         out["names"].append(name)
         out["features"].append(image_features(grey))
         out["markers"].append(unique_by_id(detector.detect(grey)))
