@@ -257,6 +257,7 @@ def test_a_moved_marker_is_rendered_where_it_is_at_each_frame_and_the_truth_has_
     assert np.allclose(local[:3, 3], [150.0, -40.0, 0.0]) and np.isclose(np.degrees(np.arctan2(local[1, 0],
                                                                                                local[0, 0])), 30.0)
     assert np.allclose(truth[0]["corners_after_mm"], marker_corners_world(200.0, Ta))
+    assert np.allclose(truth[0]["shift_mm"], [150.0, -40.0, 0.0]) and np.isclose(truth[0]["turn_deg"], 30.0)
     # the frames after the move differ where the marker was or went, nowhere else
     man = json.loads((roots["moved"] / "session.json").read_text())
     assert man["files"]["truth_moved_markers"] == "truth/moved_markers.json"

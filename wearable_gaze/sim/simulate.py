@@ -339,7 +339,7 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     files["truth_viewlines"] = "truth/viewlines.csv"
     files["truth_targets"] = "truth/targets.json"
     if world.moves:
-        write_truth_moved_markers(truth / "moved_markers.json", _moved_truth(world, scn.get("moved_marker")))
+        write_truth_moved_markers(truth / "moved_markers.json", _moved_truth(world))
         files["truth_moved_markers"] = "truth/moved_markers.json"
     video, n_frames = _write_scene_video(root, scn, camera, world, motion, noise, tick)
     files["scene_video"] = video
@@ -398,12 +398,14 @@ def _write_truth_targets(truth: Path, targets, plan, t_eye, dur: float) -> None:
     write_truth_targets(truth / "targets.json", tg_out)
 
 
-def _moved_truth(world, spec: dict) -> list[dict]:
-    """truth/moved_markers.json's entries: each moved marker's id, time, both poses and corners."""
+def _moved_truth(world) -> list[dict]:
+    """truth/moved_markers.json's entries: each moved marker's id, time, the move in its own frame
+    (``world.moved_pose``'s shift and turn), both poses and both sets of corners."""
     out = []
     for i, m in sorted(world.moves.items()):
-        out.append({"id": i, "at_s": m.at_s, "shift_mm": [float(v) for v in spec["shift_mm"]],
-                    "turn_deg": float(spec["turn_deg"]),
+        T_old_from_new = np.linalg.inv(m.T_world_from_marker_before) @ m.T_world_from_marker_after
+        out.append({"id": i, "at_s": m.at_s, "shift_mm": T_old_from_new[:3, 3].round(9).tolist(),
+                    "turn_deg": round(float(np.degrees(np.arctan2(T_old_from_new[1, 0], T_old_from_new[0, 0]))), 9),
                     "T_world_from_marker_before": m.T_world_from_marker_before.tolist(),
                     "T_world_from_marker_after": m.T_world_from_marker_after.tolist(),
                     "corners_before_mm": world.marker_corners()[i].tolist(),
