@@ -5,11 +5,23 @@ Accuracy: the built map's marker corners against the true map, after the transfo
 origin marker (its pose in both maps) and after the best similarity; and the time per run.
 
     python benchmarks/bench_map.py [--seconds 60] [--seed 0] [--frames 300] [--work DIR] [--walkabout N]
+                                   [--moved [ID]]
 
 With ``--walkabout N``: also N lab-walkabout sessions of the same room (seeds seed..seed+N-1, each
 with its own survey), each processed with its true map and with the map built from its survey
 (moved into the true world by the origin marker's pose, for the comparison only): the fixated
 targets' errors with each.
+
+With ``--moved [ID]``: also the same survey with marker ID (default 15) moved 150 mm along its
+wall halfway through (scenario ``moved_marker``, docs/scenarios.md): whether the map flags it,
+and only it; its pose after the move (the map's) and before it (fitted to the views before the
+move as the map posed them) against the truth; the other markers' corner errors beside the
+unmoved survey's (the baseline, measured in the same run). Marker 15 is in view at the loop's
+start and end; most markers are in view during one stretch of the loop only, so a move between
+two of their views cannot be seen (the run prints how many views it had on each side).
+
+Each survey is rendered once into --work (``survey-SEED-SECONDS``, ``...-movedID``) and reused;
+delete a folder there to render it again.
 
 Targets (issue 16): corners median <= 1.5 mm and max <= 5 mm after the origin marker's transform;
 <= 60 s for a 60 s 720p survey on one core; targets with the built map within 1.2x the errors
@@ -32,16 +44,24 @@ from wearable_gaze.formats.markermap import load_marker_map
 from wearable_gaze.pipeline.mapping import build_map_files
 from wearable_gaze.sim.simulate import simulate_scenario
 
+MOVED_SHIFT_MM = [150.0, 0.0, 0.0]
+"""--moved: the move, in the marker's frame (150 mm to its right along its wall)."""
 
-def survey_map(work: Path, seed: int, seconds: float, frames: int):
-    """(true map, built map, BuiltMap, seconds to build) of the survey of seed ``seed``."""
-    root = work / f"survey-{seed}-{seconds:g}"
+
+def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | None = None):
+    """(true map, built map, BuiltMap, seconds to build) of the survey of seed ``seed``;
+    ``moved``: the marker moved ``MOVED_SHIFT_MM`` halfway through it."""
+    tag = f"{seed}-{seconds:g}" + (f"-moved{moved}" if moved is not None else "")
+    root = work / f"survey-{tag}"
+    scn = {"base": "survey", "duration_s": seconds}
+    if moved is not None:
+        scn["moved_marker"] = {"id": moved, "at_s": seconds / 2, "shift_mm": MOVED_SHIFT_MM}
     if not (root / "session.json").is_file():
         t0 = time.perf_counter()
-        simulate_scenario({"base": "survey", "duration_s": seconds}, root, seed=seed)
+        simulate_scenario(scn, root, seed=seed)
         print(f"simulated {root} in {time.perf_counter() - t0:.0f} s")
     true_map = load_marker_map(root / "markers.json")
-    out = work / f"built-{seed}-{seconds:g}-{frames}.json"
+    out = work / f"built-{tag}-{frames}.json"
     t0 = time.perf_counter()
     built = build_map_files([root / "scene.mp4"], root / "truth" / "camera.json", out, true_map.dictionary,
                             true_map.marker_size_mm, max_frames=frames)
@@ -77,6 +97,78 @@ def walkabout_errors(work: Path, seed: int, built_path: Path) -> tuple[list, lis
     return out[0], out[1]
 
 
+def corner_errors(true_map, got, ids) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """Corner errors (mm) of markers ``ids`` of the built map ``got`` against ``true_map``: after
+    the transform fixed by the origin marker (its pose in both maps), and after the best
+    similarity; the similarity's scale and the origin marker."""
+    origin = min(ids, key=lambda i: np.linalg.norm(got.poses[i][:3, 3]))        # the one at the world origin
+    T = true_map.poses[origin] @ np.linalg.inv(got.poses[origin])                  # built world -> true world
+    A = np.concatenate([got.corners(i) for i in ids])
+    B = np.concatenate([true_map.corners(i) for i in ids])
+    e_sim, scale = similarity_errors(A, B)
+    return np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1), e_sim, scale, origin
+
+
+def moved_survey(args, unmoved: tuple) -> None:
+    """--moved: the survey with marker ``args.moved`` moved halfway, beside the unmoved one."""
+    from tracking.mapbuild import _fit_marker  # noqa: PLC0415  (the builder's own fit, for the pose before)
+    from tracking.markermap import marker_corners_world  # noqa: PLC0415
+    from tracking.markers import MarkerDetector, split_repeated  # noqa: PLC0415
+    from wearable_gaze.formats.camera import load_camera  # noqa: PLC0415
+    from wearable_gaze.formats.truth import read_truth_moved_markers  # noqa: PLC0415
+    from wearable_gaze.pipeline.calibrate import read_frames  # noqa: PLC0415
+
+    i = args.moved
+    true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, moved=i)
+    root = args.work / f"survey-{args.seed}-{args.seconds:g}-moved{i}"
+    (mv,) = read_truth_moved_markers(root / "truth" / "moved_markers.json")
+    got = load_marker_map(out)
+    others = sorted(set(got.poses) & set(true_map.poses) - {i})
+    e_origin, e_sim, scale, origin = corner_errors(true_map, got, others)
+    u_origin, u_sim = unmoved
+    # which of the views the map used saw the marker before and after the move (frame times)
+    n_video = len(np.loadtxt(root / "scene_timestamps.csv", delimiter=",", skiprows=1, ndmin=2))
+    fps = json.loads((root / "session.json").read_text())["fps"]
+    det = MarkerDetector(true_map.dictionary)
+    cam = load_camera(root / "truth" / "camera.json")
+    views, t_view = [], []
+    for name, grey in read_frames([root / "scene.mp4"], args.frames):
+        views.append(split_repeated(det.detect(grey))[0])
+        t_view.append(int(name.rsplit("#", 1)[1]) / fps)
+    before = [k for k, v in enumerate(views) if i in v and t_view[k] < mv["at_s"]]
+    after = [k for k, v in enumerate(views) if i in v and t_view[k] >= mv["at_s"]]
+    flagged = {j: inf.flags for j, inf in built.info.items() if inf.flags}
+    moved_flag = [f for f in flagged.get(i, []) if f.startswith("moved")]
+    print(f"\nmoved survey: marker {i} moved {MOVED_SHIFT_MM} mm (its frame) at {mv['at_s']:g} s; in {len(before)} "
+          f"of the {len(views)} frames used before the move and {len(after)} after ({n_video} in the video); "
+          f"{len(built.cameras)} views posed, RMS {built.rms_px:.2f} px, flagged {flagged}")
+    print(f"marker {i} flagged as moved: {'yes: ' + moved_flag[0] if moved_flag else 'NO'}; "
+          f"other markers flagged: {sorted(j for j in flagged if j != i) or 'none'}")
+    A = np.concatenate([got.corners(j) for j in others])
+    B = np.concatenate([true_map.corners(j) for j in others])
+    e_after, _ = similarity_errors(np.concatenate([A, got.corners(i)]), np.concatenate([B, mv["corners_after_mm"]]))
+    cams = {k: np.linalg.inv(T) for k, T in built.cameras.items()}
+    keys = [k for k in before if k in cams]
+    obs = [{j: cam.undistort_points(c) for j, c in v.items()} for v in views]
+    side = got.size_of(i)
+    if len(keys) >= 1:
+        T_before = _fit_marker(obs, side, i, got.poses[i], cams, keys)[0]
+        e_before, _ = similarity_errors(np.concatenate([A, marker_corners_world(side, T_before)]),
+                                        np.concatenate([B, mv["corners_before_mm"]]))
+        before_txt = f"max {e_before[-4:].max():.2f} mm (fitted to the {len(keys)} posed views before the move)"
+    else:
+        before_txt = "no posed view before the move"
+    print(f"marker {i}'s corners after the best similarity of all: after the move (the map's pose) max "
+          f"{e_after[-4:].max():.2f} mm; before it {before_txt}")
+    print(f"the other {len(others)} markers, after the origin marker's transform (marker {origin}): median "
+          f"{np.median(e_origin):.2f} mm, max {e_origin.max():.2f} mm (unmoved survey: {np.median(u_origin):.2f}, "
+          f"{u_origin.max():.2f})")
+    print(f"the other {len(others)} markers, after the best similarity: median {np.median(e_sim):.2f} mm, max "
+          f"{e_sim.max():.2f} mm, scale {scale:.5f} (unmoved survey: {np.median(u_sim):.2f}, {u_sim.max():.2f}; "
+          f"ratio of medians {np.median(e_sim) / np.median(u_sim):.2f})")
+    print(f"time: {dt:.1f} s for {args.frames} frames on one core")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="survey length (default 60)")
@@ -84,16 +176,13 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=300, help="frames used, evenly spaced (default 300)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/wg-bench-map"), help="folder kept between runs")
     ap.add_argument("--walkabout", type=int, default=0, help="lab-walkabout sessions processed with each map")
+    ap.add_argument("--moved", type=int, nargs="?", const=15, default=None, metavar="ID",
+                    help="also the survey with marker ID (default 15) moved halfway through")
     args = ap.parse_args()
     true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames)
     got = load_marker_map(out)
     common = sorted(set(got.poses) & set(true_map.poses))
-    origin = min(common, key=lambda i: np.linalg.norm(got.poses[i][:3, 3]))        # the one at the world origin
-    T = true_map.poses[origin] @ np.linalg.inv(got.poses[origin])                   # built world -> true world
-    A = np.concatenate([got.corners(i) for i in common])
-    B = np.concatenate([true_map.corners(i) for i in common])
-    e_origin = np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1)
-    e_sim, scale = similarity_errors(A, B)
+    e_origin, e_sim, scale, origin = corner_errors(true_map, got, common)
     flagged = {i: inf.flags for i, inf in built.info.items() if inf.flags}
     print(f"survey {args.seconds:g} s, seed {args.seed}: {len(common)} of {len(true_map.poses)} markers from "
           f"{len(built.cameras)} views ({len(built.unposed)} unposed), RMS {built.rms_px:.2f} px, flagged {flagged}")
@@ -102,6 +191,9 @@ def main() -> None:
     print(f"corners after the best similarity: median {np.median(e_sim):.2f} mm, max {e_sim.max():.2f} mm, "
           f"scale {scale:.5f}")
     print(f"time: {dt:.1f} s for {args.frames} frames on one core (target <= 60 s)")
+    if args.moved is not None:
+        others = [j for j in common if j != args.moved]
+        moved_survey(args, corner_errors(true_map, got, others)[:2])
     all_true, all_built = [], []
     for seed in range(args.seed, args.seed + args.walkabout):
         path = out if seed == args.seed else survey_map(args.work, seed, args.seconds, args.frames)[1]

@@ -409,8 +409,25 @@ def _moved(obs, size, markers, cams) -> dict:
         d = Ta[:3, 3] - Tb[:3, 3]
         dist, chi2 = float(np.linalg.norm(d)), float(d @ np.linalg.solve(Ca + Cb + 1e-9 * np.eye(3), d))
         if dist > MOVED_MM and chi2 > 25.0:
-            out[i] = (dist, chi2, seen[m])
+            out[i] = (dist, chi2, seen[_cut_without(obs, size, markers, cams, i, seen, m)])
     return out
+
+
+def _cut_without(obs, size, markers, cams, i, seen, m) -> int:
+    """Where a moved marker's views ``seen`` split, judged with each view posed by its other
+    markers (views that see none keep their pose): the adjustment before the split posed the
+    views after a move partly by the moved marker itself, so views next to the move side
+    with it and the best cut with those poses can fall a few views early. Returns the cut's
+    index into ``seen`` (``m``, the first guess, when no cut fits better)."""
+    own = {k: _pose_view({j: c for j, c in obs[k].items() if j != i}, size, markers) for k in seen}
+    own = {k: cams[k] if T is None else T for k, T in own.items()}
+    fit = {}
+
+    def cost(c):
+        if c not in fit:
+            fit[c] = sum(_fit_marker(obs, size[i], i, markers[i], own, part)[2] for part in (seen[:c], seen[c:]))
+        return fit[c]
+    return min(range(MIN_VIEWS, len(seen) - MIN_VIEWS + 1), key=lambda c: (cost(c), c != m))
 
 
 def _fit_marker(obs, side, i, T0, cams, keys):

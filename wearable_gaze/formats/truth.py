@@ -1,13 +1,15 @@
 """The simulator's ground truth of a session, ``truth/`` (docs/session.md, truth/; listed in
 docs/formats.md), in the formats of its own: ``targets.json`` (each target's position or path
 and its fixation intervals; ``demo`` and the accuracy tests compare the estimates with it) and
-``eyes.json`` (the simulated eyes: rotation centres, noise, bias, sensor models). The other truth
+``eyes.json`` (the simulated eyes: rotation centres, noise, bias, sensor models) and, when a
+marker moved during the session, ``moved_markers.json`` (its time and both poses). The other truth
 files are in the program's formats and go through their modules: ``camera.json``
 (formats/camera.py), ``head_poses.csv`` (formats/poses.py), ``viewlines.csv``
 (formats/viewlines.py), ``gaze.csv`` (a table, formats/tables.py).
 
 One reader and one writer each: ``read_truth_targets`` / ``write_truth_targets``,
-``read_truth_eyes`` / ``write_truth_eyes``.
+``read_truth_eyes`` / ``write_truth_eyes``, ``read_truth_moved_markers`` /
+``write_truth_moved_markers``.
 """
 
 from __future__ import annotations
@@ -52,3 +54,26 @@ def read_truth_eyes(path) -> dict:
         UserError: a missing or malformed file.
     """
     return read_json_text(path, "simulator's truth eyes file")
+
+
+def write_truth_moved_markers(path, moved: list[dict]) -> None:
+    """Write truth/moved_markers.json: per marker moved during the session a dict with ``id``,
+    ``at_s`` (the time of the move, s: frames at or after it see the new pose), ``shift_mm`` (3,)
+    and ``turn_deg`` (the move in the marker's own frame, as the scenario gave it),
+    ``T_world_from_marker_before`` and ``T_world_from_marker_after`` (4, 4), and
+    ``corners_before_mm`` and ``corners_after_mm`` (4, 3), world frame, mm. The session's
+    markers.json has the pose before the move."""
+    write_json(path, {"version": 1, "moved_markers": moved})
+
+
+def read_truth_moved_markers(path) -> list[dict]:
+    """The moved markers of a truth/moved_markers.json (the dicts ``write_truth_moved_markers``
+    wrote).
+
+    Raises:
+        UserError: a missing or malformed file.
+    """
+    d = read_json_text(path, "simulator's truth moved markers file")
+    if not isinstance(d, dict) or not isinstance(d.get("moved_markers"), list):
+        raise UserError(f"{path}: no 'moved_markers' list; simulate the session again (wearable-gaze simulate)")
+    return d["moved_markers"]

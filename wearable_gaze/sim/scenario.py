@@ -88,6 +88,12 @@ DEFAULTS = {
 # replaced as a whole by a scenario that gives them (not merged field by field)
 FREE_FORM = {"calibration.camera_board", "calibration.walls"}
 
+# fields without a default: absent unless a scenario gives them (so that a scenario without them
+# resolves, and writes its session, exactly as before they existed); their defaults inside
+MOVED_MARKER_DEFAULTS = {"shift_mm": [0.0, 0.0, 0.0], "turn_deg": 0.0}
+"""``moved_marker``: ``{"id", "at_s", "shift_mm", "turn_deg"}``, one marker moved during the
+session (``world.moved_pose``; docs/scenarios.md)."""
+
 # named scenarios: overrides of DEFAULTS
 NAMED = {
     "paper-table1": {
@@ -175,6 +181,8 @@ def check_scenario(s: dict, source="scenario") -> None:
         raise bad(["head", "follow"], "expected a fraction in (0, 1] for sway and walk motion")
     if s["head"]["motion"] == "survey":
         _check_survey(s["head"], bad)
+    if s.get("moved_marker") is not None:
+        _check_moved_marker(s, bad)
     if not any(s["head"]["forward"]):
         raise bad(["head", "forward"], "the heading must be a non-zero vector")
     if s["session"]:
@@ -195,6 +203,25 @@ def _check_survey(head: dict, bad) -> None:
     if not inset >= head["sway_mm"] + 300:
         raise bad(["head", "survey_inset_mm"], f"{inset:g} mm from the walls leaves too little room for "
                   f"head.sway_mm {head['sway_mm']:g}: give at least sway_mm + 300")
+
+
+def _check_moved_marker(s: dict, bad) -> None:
+    """The moved marker exists, moves inside the session, and stays on or in front of its wall."""
+    mv = s["moved_marker"]
+    n = 4 * int(s["room"]["markers_per_wall"]) if s["room"]["layout"] == "lab" else 0
+    if not s["session"]:
+        raise bad(["moved_marker"], "a calibration-only scenario (session false) has no session to move a marker in")
+    if not mv["id"] < n:
+        have = f"there are {n}: 0..{n - 1}" if n else "the room has none"
+        raise bad(["moved_marker", "id"], f"marker {mv['id']} does not exist ({have})")
+    if not 0 < mv["at_s"] < s["duration_s"]:
+        raise bad(["moved_marker", "at_s"], f"{mv['at_s']:g} s is not inside the session: give a time between 0 "
+                  f"and duration_s ({s['duration_s']:g} s)")
+    if not any(mv["shift_mm"]) and mv["turn_deg"] % 360 == 0:
+        raise bad(["moved_marker"], "the move leaves the marker where it was: give shift_mm or turn_deg")
+    if mv["shift_mm"][2] > 0:
+        raise bad(["moved_marker", "shift_mm"], f"z {mv['shift_mm'][2]:g} mm puts the marker behind its wall: "
+                  "z is along its normal, into the wall; give 0 (on the wall) or less (in front of it)")
 
 
 def survey_walls(room: dict) -> list:
@@ -234,6 +261,8 @@ def resolve(scenario, duration_s=None, resolution=None, source="scenario") -> di
         s["camera"]["resolution"] = list(resolution)
     if s["head"]["motion"] == "survey" and s["head"]["survey_walls_mm"] is None:
         s["head"]["survey_walls_mm"] = survey_walls(s["room"])
+    if isinstance(s.get("moved_marker"), dict):
+        s["moved_marker"] = {**copy.deepcopy(MOVED_MARKER_DEFAULTS), **s["moved_marker"]}
     if isinstance(scenario, str):
         source = f"scenario {scenario}"
     if duration_s is not None or resolution is not None:

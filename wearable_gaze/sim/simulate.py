@@ -25,7 +25,7 @@ from ..formats.poses import write_poses_csv
 from ..formats.serial_protocol import encode_stream
 from ..formats.session import FORMAT, VERSION, write_manifest
 from ..formats.tables import write_table
-from ..formats.truth import write_truth_eyes, write_truth_targets
+from ..formats.truth import write_truth_eyes, write_truth_moved_markers, write_truth_targets
 from ..formats.video import open_video_writer, write_frame_times
 from ..formats.viewlines import write_viewlines_csv
 from ..formats.walls import EYE_CSV, write_walls
@@ -34,7 +34,7 @@ from .eyes import EyeModel, gaze_points, plan_gaze
 from .motion import make_motion
 from .noise import SensorNoise
 from .render import render
-from .world import CalibrationWall, Target, board_plane, fixed_point, lab_room, look_at, waypoint_path
+from .world import CalibrationWall, Target, board_plane, fixed_point, lab_room, look_at, moved_pose, waypoint_path
 
 VIDEO_EXT = {"mp4v": ".mp4", "MJPG": ".avi", "FFV1": ".avi"}
 
@@ -79,6 +79,7 @@ def make_targets(scn: dict, rng: np.random.Generator) -> list:
 
 
 def build_world(scn: dict, rng: np.random.Generator, targets) -> World:  # noqa: F821
+    """The scenario's room (drawn from ``rng``) with ``targets``, and its moved marker, if any."""
     room = scn["room"]
     if room["layout"] == "lab":
         world = lab_room(rng, room["size_mm"], room["eye_height_mm"], room["back_mm"],
@@ -88,6 +89,10 @@ def build_world(scn: dict, rng: np.random.Generator, targets) -> World:  # noqa:
         from .world import World  # noqa: PLC0415
         world = World(dictionary=room["dictionary"], marker_size_mm=room["marker_size_mm"])
     world.targets = list(targets)
+    mv = scn.get("moved_marker")
+    if mv is not None:
+        i = int(mv["id"])
+        world.move_marker(i, float(mv["at_s"]), moved_pose(world.markers[i], mv["shift_mm"], mv["turn_deg"]))
     return world
 
 
@@ -333,6 +338,9 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     files["truth_gaze"] = "truth/gaze.csv"
     files["truth_viewlines"] = "truth/viewlines.csv"
     files["truth_targets"] = "truth/targets.json"
+    if world.moves:
+        write_truth_moved_markers(truth / "moved_markers.json", _moved_truth(world))
+        files["truth_moved_markers"] = "truth/moved_markers.json"
     video, n_frames = _write_scene_video(root, scn, camera, world, motion, noise, tick)
     files["scene_video"] = video
     files["scene_timestamps"] = "scene_timestamps.csv"
@@ -390,6 +398,21 @@ def _write_truth_targets(truth: Path, targets, plan, t_eye, dur: float) -> None:
     write_truth_targets(truth / "targets.json", tg_out)
 
 
+def _moved_truth(world) -> list[dict]:
+    """truth/moved_markers.json's entries: each moved marker's id, time, the move in its own frame
+    (``world.moved_pose``'s shift and turn), both poses and both sets of corners."""
+    out = []
+    for i, m in sorted(world.moves.items()):
+        T_old_from_new = np.linalg.inv(m.T_world_from_marker_before) @ m.T_world_from_marker_after
+        out.append({"id": i, "at_s": m.at_s, "shift_mm": T_old_from_new[:3, 3].round(9).tolist(),
+                    "turn_deg": round(float(np.degrees(np.arctan2(T_old_from_new[1, 0], T_old_from_new[0, 0]))), 9),
+                    "T_world_from_marker_before": m.T_world_from_marker_before.tolist(),
+                    "T_world_from_marker_after": m.T_world_from_marker_after.tolist(),
+                    "corners_before_mm": world.marker_corners()[i].tolist(),
+                    "corners_after_mm": world.marker_corners(m.at_s)[i].tolist()})
+    return out
+
+
 def _write_scene_video(root: Path, scn: dict, camera: Camera, world, motion, noise, tick) -> tuple[str, int]:
     """The scene video, scene_timestamps.csv and truth/head_poses.csv (with the markers in view);
     returns the video's file name and the frame count."""
@@ -408,7 +431,7 @@ def _write_scene_video(root: Path, scn: dict, camera: Camera, world, motion, noi
     try:
         for i, t in enumerate(t_frames):
             writer.write(_render_frame(camera, world, lambda s: motion.poses([s])[0], t, noise, scn))
-            visible[i] = _count_visible(camera, T_frames[i], corners)
+            visible[i] = _count_visible(camera, T_frames[i], world.marker_corners(t) if world.moves else corners)
             tick()
     finally:
         writer.release()

@@ -90,6 +90,37 @@ def waypoint_path(points, times) -> Callable[[np.ndarray], np.ndarray]:
     return lambda t: np.column_stack([np.interp(np.atleast_1d(t), T, P[:, i]) for i in range(3)])
 
 
+@dataclass(frozen=True)
+class MarkerMove:
+    """A marker taken down at ``at_s`` and put up again elsewhere at once (between two frames).
+
+    Attributes:
+        marker_id: the marker.
+        at_s: the time of the move, s: frames at ``t >= at_s`` see it at its new pose.
+        T_world_from_marker_before, T_world_from_marker_after: (4, 4) its poses, world frame, mm.
+        plane_before, plane_after: its ``Plane`` at each pose.
+    """
+
+    marker_id: int
+    at_s: float
+    T_world_from_marker_before: np.ndarray
+    T_world_from_marker_after: np.ndarray
+    plane_before: Plane
+    plane_after: Plane
+
+
+def moved_pose(T_world_from_marker, shift_mm, turn_deg: float) -> np.ndarray:
+    """(4, 4) a marker's pose after a move: shifted by ``shift_mm`` (3,) in its own frame (x right
+    along the print, y down, z into the wall: [150, 0, 0] is 150 mm to its right along the wall)
+    and turned ``turn_deg`` about its own z axis through its centre (clockwise as seen from the
+    room: x toward y)."""
+    a = np.deg2rad(float(turn_deg))
+    T_old_from_new = np.eye(4)
+    T_old_from_new[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T_old_from_new[:3, 3] = np.asarray(shift_mm, float)
+    return np.asarray(T_world_from_marker, float) @ T_old_from_new
+
+
 @dataclass
 class World:
     """Static planes, moving target cards and the marker map.
@@ -100,7 +131,9 @@ class World:
         dictionary: ``cv2.aruco`` dictionary name of the markers.
         marker_size_mm: side of every marker's black square, mm.
         markers: id -> (4, 4) ``T_world_from_marker`` (x right, y down along the printed
-            marker, z into the wall; origin at the marker's centre).
+            marker, z into the wall; origin at the marker's centre), at the session's start
+            (a moved marker's pose before its move: ``moves``).
+        moves: id -> ``MarkerMove``: markers that move during the session.
     """
 
     planes: list = field(default_factory=list)
@@ -108,17 +141,43 @@ class World:
     dictionary: str = "DICT_4X4_50"
     marker_size_mm: float = 150.0
     markers: dict = field(default_factory=dict)
+    moves: dict = field(default_factory=dict)
 
     def planes_at(self, t: float) -> list:
-        return self.planes + [tg.plane(t) for tg in self.targets]
+        """The planes seen at time t, s: moved markers where they are then, and the cards."""
+        planes = self.planes
+        if self.moves:
+            now = {id(m.plane_before): m.plane_after for m in self.moves.values() if t >= m.at_s}
+            planes = [now.get(id(p), p) for p in planes]
+        return planes + [tg.plane(t) for tg in self.targets]
 
     def add_marker(self, marker_id: int, T_world_from_marker) -> None:
         self.markers[int(marker_id)] = np.asarray(T_world_from_marker, float)
         self.planes.append(marker_plane(self.dictionary, marker_id, self.marker_size_mm, T_world_from_marker))
 
-    def marker_corners(self) -> dict:
-        """id -> (4, 3) world corners (cv2.aruco order), mm."""
-        return {i: marker_corners_world(self.marker_size_mm, T) for i, T in self.markers.items()}
+    def move_marker(self, marker_id: int, at_s: float, T_world_from_marker_after) -> MarkerMove:
+        """Move marker ``marker_id`` (already added, not yet moved) to ``T_world_from_marker_after``
+        (4, 4) at time ``at_s``, s. ``markers`` keeps its pose before the move."""
+        i = int(marker_id)
+        if i not in self.markers or i in self.moves:
+            raise ValueError(f"marker {i} is not in the world, or already moves: one move per marker")
+        before = next(p for p in self.planes if p.name == f"marker {i}")
+        after = np.asarray(T_world_from_marker_after, float)
+        move = MarkerMove(i, float(at_s), self.markers[i], after, before,
+                          marker_plane(self.dictionary, i, self.marker_size_mm, after))
+        self.moves[i] = move
+        return move
+
+    def markers_at(self, t: float) -> dict:
+        """id -> (4, 4) ``T_world_from_marker`` at time t, s."""
+        return {i: (self.moves[i].T_world_from_marker_after if i in self.moves and t >= self.moves[i].at_s else T)
+                for i, T in self.markers.items()}
+
+    def marker_corners(self, t: float | None = None) -> dict:
+        """id -> (4, 3) world corners (cv2.aruco order), mm: at the session's start (``markers``),
+        or at time ``t``, s."""
+        poses = self.markers if t is None else self.markers_at(t)
+        return {i: marker_corners_world(self.marker_size_mm, T) for i, T in poses.items()}
 
 
 def lab_room(rng: np.random.Generator, size_mm=(4000.0, 2700.0, 5000.0), eye_height_mm: float = 1600.0,
