@@ -87,7 +87,8 @@ def _schur(inv_vv, Hvo, Hoo):
     B (V, 6, 6M) the view-object blocks side by side)."""
     V, M = Hvo.shape[:2]
     B = Hvo.transpose(0, 2, 1, 3).reshape(V, 6, 6 * M)
-    return Hoo - np.einsum("vai,vab,vbj->ij", B, inv_vv, B), B
+    IB = inv_vv @ B                                    # (V, 6, 6M); then one product, not a 3-operand einsum
+    return Hoo - np.tensordot(B, IB, axes=([0, 1], [0, 1])), B
 
 
 def _schur_step(Hvv, Hvo, Hoo, gv, go, lam: float):
