@@ -156,7 +156,8 @@ def run_demo(out=None, seed: int = 0, duration_s: float = 20.0, reuse: bool = Fa
     if not reusing:
         with _announce(f"simulating {duration_s:g} s of scene video and eye data", err) as cb:
             simulate(scenario, session, seed, cb)
-    res = process_session(session, out / "processed", progress_factory=lambda name: _announce(STEP_NAMES.get(name, name), err))
+    res = process_session(session, out / "processed",
+                          progress_factory=lambda name: _announce(STEP_NAMES.get(name, name), err))
     if res.skipped:
         print(f"demo: reused, not redone: {', '.join(res.skipped)}", file=err)
     print(format_result(res))

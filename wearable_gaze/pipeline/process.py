@@ -187,10 +187,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     for p in remove_temporaries(out, [f for fs in OUTPUTS.values() for f in fs] + list(OTHER_FILES)):
         log.warning("removed %s, a temporary file left by an earlier run that was stopped", p)
     if s.manifest.get("complete") is False:
-        counts = ", ".join(f"{s.manifest[k]} {w}" for k, w in (("n_frames", "frames"), ("n_eye_samples", "eye samples"))
-                           if isinstance(s.manifest.get(k), int))
-        res.problems.append(f"session: {s.root / 'session.json'} says the recording was cut short (complete: "
-                            f"false{'; ' + counts + ' saved' if counts else ''}); processing what was recorded")
+        res.problems.append(_cut_short(s))
     f = _SessionFiles.of(s)
     if segment_config is None:          # the window follows the eye rate: 8 samples at 60 Hz, 2 at 10 Hz
         segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
@@ -217,6 +214,14 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     if rerun is not None:
         _view_in_rerun(rerun, rerun_frames, res, s, f, out, cam_path)
     return _finish(res, s, out, method)
+
+
+def _cut_short(s) -> str:
+    """The problem line of a session whose recording was cut short (``complete: false``)."""
+    counts = ", ".join(f"{s.manifest[k]} {w}" for k, w in (("n_frames", "frames"), ("n_eye_samples", "eye samples"))
+                       if isinstance(s.manifest.get(k), int))
+    return (f"session: {s.root / 'session.json'} says the recording was cut short (complete: "
+            f"false{'; ' + counts + ' saved' if counts else ''}); processing what was recorded")
 
 
 def _view_in_rerun(rerun: str, frames_every: int, res: ProcessResult, s, f: _SessionFiles, out: Path,
