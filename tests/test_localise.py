@@ -69,10 +69,11 @@ def test_matches_keep_a_point_seen_twice_and_drop_ambiguous_descriptors():
     pts, desc = _synthetic_map(rng)
     # each point twice (two views of it, nearly equal descriptors): the ratio test must compare
     # with the nearest descriptor of ANOTHER point, or every match would fail it
-    twice = np.vstack([desc, root_sift(desc**2 * (1 + 0.01 * rng.uniform(size=desc.shape)))])
-    fmap = FeatureMap(pts, twice, np.r_[np.arange(len(pts)), np.arange(len(pts))])
+    def view():
+        return root_sift(desc**2 * (1 + 0.02 * rng.uniform(size=desc.shape)))
+    fmap = FeatureMap(pts, np.vstack([view(), view()]), np.r_[np.arange(len(pts)), np.arange(len(pts))])
     loc = FeatureLocaliser(fmap, CAM)
-    q, p = loc.matches(desc[:50])
+    q, p = loc.matches(view()[:50])                                 # a third view of each
     assert len(q) >= 45 and np.all(p == q)
     # a query halfway between two points' descriptors is ambiguous: not matched
     mid = root_sift(((desc[0] ** 2 + desc[1] ** 2) / 2)[None])
