@@ -152,6 +152,29 @@ def test_a_markerless_map_of_a_rendered_survey_localises_its_frames_within_a_few
     assert np.median(rot) < 0.2 and np.median(pos) < 8, (np.median(rot), np.median(pos))
 
 
+def test_a_distance_walked_scales_a_map_without_markers(survey, tmp_path, capsys):
+    sess, _, _ = survey
+    truth = _truth(sess)
+    t_a, t_b = 0.5, 5.0                                            # frames 15 and 150 at 30 fps
+    mm = float(np.linalg.norm(truth[150][:3, 3] - truth[15][:3, 3]))
+    sfm = tmp_path / "sfm"
+    assert main(["map", "--markerless", str(sess / "scene.mp4"), "--camera", str(sess / "truth" / "camera.json"),
+                 "--distance", f"{t_a},{t_b},{mm:.3f}", "--max-frames", "30", "-o", str(sfm)]) == 0
+    assert "scale from" in capsys.readouterr().out
+    fmap, meta = load_sfm_map(sfm)
+    assert meta["scaled_by"]["kind"] == "distance"
+    # the survey path has the true scale: its views' distances from the first as the truth's
+    views = {int(v["name"].split("#")[1]): np.array(v["T_world_from_cam"]) for v in meta["survey"]}
+    k0 = min(views)
+    got = [np.linalg.norm(T[:3, 3] - views[k0][:3, 3]) for k, T in views.items() if k != k0]
+    want = [np.linalg.norm(truth[k][:3, 3] - truth[k0][:3, 3]) for k in views if k != k0]
+    assert np.median(np.array(got) / want) == pytest.approx(1, abs=0.01)
+    # the world is the camera's frame at t_a
+    T_a = np.linalg.inv(truth[15]) @ truth[k0]                  # the first view, seen from the camera at t_a
+    assert np.linalg.norm(views[k0][:3, 3] - T_a[:3, 3]) < 5
+    assert rotation_angle_deg(views[k0][:3, :3], T_a[:3, :3]) < 0.3
+
+
 def test_track_with_a_markerless_map_writes_poses(survey, tmp_path, capsys):
     sess, sfm, _ = survey
     out = tmp_path / "poses.csv"
@@ -168,6 +191,14 @@ def test_markerless_bad_inputs_are_one_line(survey, tmp_path, capsys):
     cases = [
         (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "-o", str(tmp_path / "a")],
          "--origin-marker ID --size-mm MM"),
+        (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "--distance", "1,2,300", "--markers",
+          str(sess / "markers.json"), "-o", str(tmp_path / "a")], "one of --origin-marker"),
+        (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "--distance", "1,1,300", "-o",
+          str(tmp_path / "a")], "two different times"),
+        (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "--distance", "1,99,300", "--max-frames",
+          "5", "-o", str(tmp_path / "a")], "no frame at 99 s"),
+        (["map", str(sess / "scene.mp4"), "--camera", cam, "--distance", "1,2,300", "--size-mm", "150", "-o",
+          str(tmp_path / "m.json")], "are for --markerless"),
         (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "--markers", str(sess / "markers.json"),
           "-o", str(sfm)], "already exists and is not empty"),
         (["map", "--markerless", str(sess / "scene.mp4"), "--camera", cam, "--origin-marker", "99", "--size-mm",
@@ -177,7 +208,11 @@ def test_markerless_bad_inputs_are_one_line(survey, tmp_path, capsys):
         (["process", str(sess), "--map", str(tmp_path), "-o", str(tmp_path / "out")], "not a markerless map folder"),
     ]
     for argv, needle in cases:
-        assert main(argv) == 2, argv
+        try:
+            code = main(argv)
+        except SystemExit as exc:                                   # argparse's own refusal (a bad option value)
+            code = exc.code
+        assert code == 2, argv
         err = capsys.readouterr().err.strip()
         assert needle in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "b").exists() and not (tmp_path / "out" / "poses.csv").exists()

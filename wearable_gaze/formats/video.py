@@ -43,6 +43,37 @@ def grey_frames(path):
         cap.release()
 
 
+def video_fps(path) -> float:
+    """A video's frame rate (30 when it does not say)."""
+    import cv2  # noqa: PLC0415
+
+    cap = cv2.VideoCapture(str(path))
+    try:
+        return float(cap.get(cv2.CAP_PROP_FPS) or 30.0)
+    finally:
+        cap.release()
+
+
+def grey_frames_at(path, frames) -> dict:
+    """{frame index: (H, W) uint8 grey image} of the frames ``frames`` (indices from 0) of a video,
+    decoded in order (the frames between are skipped undecoded); an index past its end is absent."""
+    import cv2  # noqa: PLC0415
+
+    want, out = set(int(i) for i in frames), {}
+    cap = cv2.VideoCapture(str(path))
+    try:
+        i = 0
+        while want - set(out) and i <= max(want) and cap.grab():
+            if i in want:
+                ok, frame = cap.retrieve()
+                if ok:
+                    out[i] = to_grey(frame)
+            i += 1
+    finally:
+        cap.release()
+    return out
+
+
 def sampled_grey_frames(path, max_frames: int, refused: str | None = None):
     """Yield (frame index, (H, W) uint8 grey image) of every k-th frame of a video, k = its frame
     count // ``max_frames`` (at least 1): about ``max_frames`` frames spread over it; the frames

@@ -22,7 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from calibration.camera import CameraCalibration, aruco_dictionary
-from tracking.localise import FEATURE_SCALE, MAX_FEATURES, FeatureMap, colmap_descriptors, image_features, triangulate
+from tracking.localise import (
+    FEATURE_SCALE,
+    MAX_FEATURES,
+    FeatureLocaliser,
+    FeatureMap,
+    colmap_descriptors,
+    image_features,
+    triangulate,
+)
 from tracking.mapbuild import similarity_transform
 from tracking.markermap import MarkerMap, square_corners
 from tracking.markers import MarkerDetector, unique_by_id
@@ -30,9 +38,10 @@ from tracking.markers import MarkerDetector, unique_by_id
 from ..errors import UserError
 from ..formats.atomic import atomic_folder
 from ..formats.camera import load_camera
-from ..formats.images import write_image
+from ..formats.images import IMAGE_EXT, write_image
 from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import write_sfm_map
+from ..formats.video import grey_frames_at, video_fps
 from .calibrate import input_files, read_frames
 
 log = logging.getLogger(__name__)
@@ -61,14 +70,16 @@ class SfmBuild:
 
 def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, dictionary: str = "DICT_4X4_50",
                     size_mm: float | None = None, origin: int | None = None, markers=None,
-                    progress=None) -> SfmBuild:
+                    progress=None, distance: tuple | None = None) -> SfmBuild:
     """Reconstruct the room of ``inputs`` (videos, images, folders of images; at most
     ``max_frames`` evenly spaced frames of each video) seen by the camera of ``camera_path``, and
     write the map folder ``out_dir`` (docs/formats.md, "Markerless map"; built beside it and
     renamed when complete). The world: marker ``origin``'s frame, its printed side ``size_mm``
     (markers of ``dictionary``); or with ``markers`` (a marker map), that map's world, fitted
-    to all its markers seen or to ``origin`` alone. ``progress(done, total)``: over the frames,
-    then over the views registered.
+    to all its markers seen or to ``origin`` alone; or, without markers, ``distance`` (t_a s,
+    t_b s, mm): the camera moved that far between those two times of the (one) video, and the
+    world is the camera's frame at t_a. ``progress(done, total)``: over the frames, then over
+    the views registered.
 
     Raises:
         UserError: unreadable inputs, images of another size than the camera's, no way to fix the
@@ -76,9 +87,12 @@ def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, diction
     """
     cam = load_camera(Path(camera_path))
     marker_map = load_marker_map(Path(markers)) if markers is not None else None
-    if marker_map is None and (origin is None or size_mm is None):
-        raise UserError("map --markerless: fix the scale and the world with --origin-marker ID --size-mm MM (a "
-                        "marker in view) or --markers MAP.json (the room's marker map)")
+    if (distance is not None) == (marker_map is not None or origin is not None) or (
+            distance is None and marker_map is None and size_mm is None):
+        raise UserError("map --markerless: fix the scale and the world with one of --origin-marker ID --size-mm MM "
+                        "(a marker in view), --markers MAP.json (the room's marker map) or --distance T1,T2,MM")
+    if distance is not None and (len(input_files(inputs)) != 1 or not _is_video(input_files(inputs)[0])):
+        raise UserError("map --markerless --distance: give one survey video (the times are in it)")
     dictionary = marker_map.dictionary if marker_map is not None else dictionary
     try:
         aruco_dictionary(dictionary)
@@ -87,7 +101,10 @@ def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, diction
     with atomic_folder(out_dir) as tmp:
         frames = _frames(inputs, cam, MarkerDetector(dictionary), max_frames, tmp / "images", progress)
         rec = _reconstruct(tmp, cam, frames, progress)
-        T_world_from_sfm, scaled_by = _world(rec, frames, cam, marker_map, origin, size_mm)
+        if distance is not None:
+            T_world_from_sfm, scaled_by = _world_by_distance(rec, frames, cam, input_files(inputs)[0], *distance)
+        else:
+            T_world_from_sfm, scaled_by = _world(rec, frames, cam, marker_map, origin, size_mm)
         fmap = _feature_map(rec, frames, T_world_from_sfm)
         cameras = {frames["names"][k]: T for k, T in _cameras(rec, T_world_from_sfm).items()}
         (tmp / "colmap").mkdir()
@@ -208,6 +225,37 @@ def _world(rec, frames: dict, cam: CameraCalibration, marker_map: MarkerMap | No
                **({"size_mm": float(size_mm)} if kind == "marker" else {})}
 
 
+def _is_video(path: Path) -> bool:
+    return path.suffix.lower() not in IMAGE_EXT
+
+
+def _world_by_distance(rec, frames: dict, cam: CameraCalibration, video: Path, t_a: float, t_b: float, mm: float
+                       ) -> tuple[np.ndarray, dict]:
+    """``T_world_from_sfm`` from a distance: the video's frames at ``t_a`` and ``t_b`` s (index =
+    round(t * fps)) localised in the unscaled reconstruction, their camera centres ``mm`` apart;
+    the world is the camera's frame at ``t_a`` (x right, y down, z forward), mm."""
+    fps = video_fps(video)
+    idx = [int(round(t * fps)) for t in (t_a, t_b)]
+    grey = grey_frames_at(video, idx)
+    localiser = FeatureLocaliser(_feature_map(rec, frames, np.eye(4)), cam, scale=FEATURE_SCALE)
+    poses = []
+    for t, i in zip((t_a, t_b), idx, strict=True):
+        if i not in grey:
+            raise UserError(f"--distance: {video} has no frame at {t:g} s; give times within the video")
+        res = localiser.estimate(grey[i])
+        if not res.ok:
+            raise UserError(f"--distance: the frame at {t:g} s could not be placed in the reconstruction "
+                            f"({res.reason}); choose times when the camera faced the surveyed walls")
+        poses.append(res.T_world_from_cam)
+    d = float(np.linalg.norm(poses[1][:3, 3] - poses[0][:3, 3]))
+    if d < 1e-6:
+        raise UserError(f"--distance: the camera did not move between {t_a:g} s and {t_b:g} s; give two times "
+                        "between which it moved the distance given")
+    T = np.diag([mm / d] * 3 + [1.0]) @ np.linalg.inv(poses[0])
+    return T, {"kind": "distance", "markers": [], "times_s": [float(t_a), float(t_b)], "distance_mm": float(mm),
+               "residual_mm": 0.0}
+
+
 def _feature_map(rec, frames: dict, T_world_from_sfm) -> FeatureMap:
     """The 3D points (world, mm) with the descriptors of up to ``DESCRIPTORS_PER_POINT`` views of each."""
     pts, desc, owner = [], [], []
@@ -238,7 +286,8 @@ def _meta(build: SfmBuild, cam: CameraCalibration, T_world_from_sfm) -> dict:
     """The JSON fields of the map (formats.sfmmap) besides format and version."""
     kind = build.scaled_by["kind"]
     world = (f"marker {build.scaled_by['markers'][0]}'s frame" if kind == "marker" else
-             f"the marker map's world (fitted to markers {build.scaled_by['markers']})")
+             f"the marker map's world (fitted to markers {build.scaled_by['markers']})" if kind == "marker_map" else
+             f"the camera's frame at {build.scaled_by['times_s'][0]:g} s of the survey video")
     return {"world": world, "T_world_from_sfm": np.round(T_world_from_sfm, 9).tolist(), "scaled_by": build.scaled_by,
             "camera": {"camera_matrix": cam.camera_matrix.tolist(), "image_size": list(cam.image_size)},
             "features": {"type": "rootsift", "scale": FEATURE_SCALE, "max_features": MAX_FEATURES},
@@ -263,7 +312,8 @@ def write_sfm_plot(build: SfmBuild, path: Path) -> None:
     ax.set_ylabel("z, mm")
     ax.legend(loc="best", fontsize=8, markerscale=10)
     ax.set_title(f"markerless map, top view: {build.registered} of {build.selected} views, "
-                 f"RMS {build.rms_px:.2f} px, scale fixed by markers {build.scaled_by['markers']}", fontsize=9)
+                 f"RMS {build.rms_px:.2f} px, scale fixed by {build.scaled_by['kind']} "
+                 f"{build.scaled_by['markers'] or build.scaled_by.get('distance_mm')}", fontsize=9)
     _save(fig, path)
 
 
@@ -272,7 +322,9 @@ def format_sfm_report(build: SfmBuild) -> list[str]:
     s = build.scaled_by
     lines = [f"{len(build.feature_map.points_world)} points from {build.registered} of {build.selected} views, "
              f"reprojection RMS {build.rms_px:.2f} px",
-             f"world and scale from markers {s['markers']} ({s['kind']}): corners fit to {s['residual_mm']:.1f} mm RMS"]
+             (f"world and scale from markers {s['markers']} ({s['kind']}): corners fit to {s['residual_mm']:.1f} mm RMS"
+              if s["kind"] != "distance" else f"scale from {s['distance_mm']:g} mm between {s['times_s'][0]:g} s and "
+              f"{s['times_s'][1]:g} s; the world is the camera's frame at {s['times_s'][0]:g} s")]
     if build.registered < 0.8 * build.selected:
         lines.append(f"  only {build.registered} of {build.selected} views were placed: frames of the session far "
                      "from the survey's may not localise")
