@@ -85,26 +85,55 @@ def test_sessions_are_found_and_named_apart(tmp_path):
         find_sessions([tmp_path / "a" / "p01" / "s1" / "processed"])
 
 
+def _killer(out: Path, pids=None):
+    """An ``on_status`` callback: after the first session ends, SIGKILL the worker process of a
+    session still running (one of ``pids()``, if given); what it did goes into the dict returned."""
+    killed = {}
+
+    def kill(status):
+        if killed:
+            return
+        allowed = None if pids is None else pids()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 60:
+            for d in out.iterdir():
+                st = read_status(d) if d.is_dir() else None
+                pid = int(st["worker"].rsplit(":", 1)[1]) if st and st["state"] == "running" else None
+                if pid is not None and pid != os.getpid() and (allowed is None or pid in allowed):
+                    killed.update(name=d.name, pid=pid)
+                    os.kill(pid, signal.SIGKILL)
+                    return
+            time.sleep(0.05)
+        killed["name"] = None
+    return kill, killed
+
+
 @pytest.fixture(scope="module")
 def local_batch(study, tmp_path_factory):
-    """Participants p01 and p03 (four sessions, p03/s2 corrupt) on two local worker processes."""
+    """Participants p01 and p03 (four sessions, p03/s2 corrupt) on two local worker processes,
+    one of them killed while processing a session."""
     root, _ = study
     out = tmp_path_factory.mktemp("local") / "out"
     seen = []
-    res = run_batch([root / "p01", root / "p03"], out, SETTINGS, workers=2, progress=lambda d, n: seen.append((d, n)))
-    return out, res, seen
+    kill, killed = _killer(out)
+    res = run_batch([root / "p01", root / "p03"], out, SETTINGS, workers=2, progress=lambda d, n: seen.append((d, n)),
+                    on_status=kill)
+    return out, res, seen, killed
 
 
-def test_local_batch_finishes_despite_a_corrupt_session(study, local_batch):
+def test_local_batch_finishes_despite_a_corrupt_session_and_a_killed_worker(study, local_batch):
     root, ref = study
-    out, res, seen = local_batch
+    out, res, seen, killed = local_batch
     _assert_batch_outputs(res, out, ref, ("p01/s1", "p01/s2", "p03/s1", "p03/s2"))
     assert seen[0] == (0, 4) and seen[-1] == (4, 4)
+    assert killed.get("name"), "no session was running after the first one finished"
+    st = res.statuses[killed["name"]]
+    assert st["attempt"] == 2 and not st["worker"].endswith(f":{killed['pid']}")      # done again, elsewhere
 
 
 def test_batch_report_tables_every_session_with_its_accuracy(study, local_batch):
     _, ref = study
-    out, _, _ = local_batch
+    out, _, _, _ = local_batch
     rep = read_table(out / "batch_report.csv", ["n_targets", "truth_targets", "truth_found", "error_rms_mm",
                                                 "recording_s", "processing_s"], ("session", "state", "reason"),
                      empty_ok=("truth_targets", "truth_found", "error_rms_mm"))
@@ -125,7 +154,7 @@ def test_batch_report_tables_every_session_with_its_accuracy(study, local_batch)
 
 def test_rerun_retries_the_failed_and_redoes_only_what_changed(study, local_batch):
     root, _ = study
-    out, res, _ = local_batch
+    out, res, _, _ = local_batch
     mtimes = {n: (out / n / "targets.json").stat().st_mtime_ns for n in res.done}
     res2 = run_batch([root / "p01", root / "p03"], out, SETTINGS, workers=2)
     assert sorted(res2.skipped) == sorted(res.done) and res2.failed == ["p03-s2"]
@@ -146,28 +175,12 @@ def test_dask_batch_survives_a_worker_killed_mid_session(study, tmp_path):
                                                            "'wearable-gaze[dask]'; the test extra has it)")
     root, ref = study
     out = tmp_path / "out"
-    killed = {}
-
-    def kill_a_busy_worker(status):
-        """After the first session: SIGKILL the worker process of a session still running."""
-        if killed:
-            return
-        pids = set(client.run(os.getpid).values())
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 60:
-            for d in out.iterdir():
-                st = read_status(d) if d.is_dir() else None
-                if st and st["state"] == "running" and int(st["worker"].rsplit(":", 1)[1]) in pids:
-                    killed.update(name=d.name, pid=int(st["worker"].rsplit(":", 1)[1]))
-                    os.kill(killed["pid"], signal.SIGKILL)
-                    return
-            time.sleep(0.05)
-
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
-        res = run_batch([root], out, SETTINGS, scheduler=cluster.scheduler_address, on_status=kill_a_busy_worker)
-    assert killed, "no session was running after the first one finished"
+        kill, killed = _killer(out, lambda: set(client.run(os.getpid).values()))
+        res = run_batch([root], out, SETTINGS, scheduler=cluster.scheduler_address, on_status=kill)
+    assert killed.get("name"), "no session was running after the first one finished"
     _assert_batch_outputs(res, out, ref)
     assert res.statuses[killed["name"]]["state"] == "done"
     assert not res.statuses[killed["name"]]["worker"].endswith(f":{killed['pid']}")    # done again elsewhere
@@ -201,7 +214,10 @@ def test_interrupted_batch_resumes_without_redoing_finished_sessions(study, tmp_
     root, _ = study
     sessions = [str(root / r) for r in ("p02/s1", "p02/s2")]
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "wearable_gaze", "batch", *sessions, "-o", str(out), "--workers", "1", "--no-overlay"]
+    # Ctrl-C raises KeyboardInterrupt even where the tests run in the background (which ignores SIGINT)
+    cmd = [sys.executable, "-c", "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+           "from wearable_gaze.cli import main; sys.exit(main())",
+           "batch", *sessions, "-o", str(out), "--workers", "1", "--no-overlay"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         _wait_for(out / "batch.json", lambda d: d["counts"]["done"] >= 1)
@@ -213,7 +229,8 @@ def test_interrupted_batch_resumes_without_redoing_finished_sessions(study, tmp_
     assert "interrupted" in stderr and "resume" in stdout
     index = json.loads((out / "batch.json").read_text())
     done = [s["name"] for s in index["sessions"] if s["state"] == "done"]
-    assert len(done) == 1 and index["counts"] == {"pending": 1, "running": 0, "done": 1, "failed": 0}   # the stopped
+    assert len(done) == 1 and index["counts"] == {"pending": 1, "running": 0, "done": 1, "failed": 0}, (index, stdout,
+                                                                                                  stderr)  # the stopped
     # session is pending again
     assert all(read_status(out / s["name"])["state"] == s["state"] for s in index["sessions"])
     mtimes = {n: [(out / n / f).stat().st_mtime_ns for f in ("targets.json", "report.html")] for n in done}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -10,6 +11,18 @@ from estimator import METHODS
 from ..errors import check_output
 from . import args as A
 from .args import one_line
+
+
+def scheduler_address(text):
+    """A Dask scheduler's address: ``tcp://HOST:PORT`` (or ``tls://``, ``ucx://``), or
+    ``HOST:PORT`` taken as TCP."""
+    scheme, sep, rest = text.rpartition("://")
+    host, colon, port = rest.rpartition(":")
+    if (sep and scheme not in ("tcp", "tls", "ucx")) or not colon or not host or not port.isdigit() \
+            or not 0 < int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{ascii(text)} is not a scheduler address tcp://HOST:PORT, e.g. "
+                                         "tcp://node1:8786 (what 'dask scheduler' prints)")
+    return text if sep else f"tcp://{text}"
 
 
 def cmd_batch(args) -> int:
@@ -42,7 +55,7 @@ def add_batch(sub) -> None:
     where = b.add_mutually_exclusive_group()
     where.add_argument("--workers", type=A.positive_int, default=None, metavar="N",
                        help="worker processes on this machine (default: one per core)")
-    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+    where.add_argument("--scheduler", type=scheduler_address, metavar="tcp://HOST:PORT",
                        help="run on the Dask cluster of this scheduler (needs wearable-gaze[dask] here and on the "
                             "workers, and a file system they share)")
     b.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")

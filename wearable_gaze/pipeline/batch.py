@@ -26,8 +26,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..errors import UserError
+from ..formats.atomic import remove_temporaries
 from ..formats.session import MANIFEST
-from .batch_report import earlier_statuses, read_status, write_batch_report, write_index, write_status
+from .batch_report import STATUS_FILE, earlier_statuses, read_status, write_batch_report, write_index, write_status
 from .batch_workers import DaskRunner, LocalRunner, SessionTask, WorkerLost, one_line
 
 log = logging.getLogger(__name__)
@@ -189,6 +190,7 @@ def _plan(paths, out: Path, settings: BatchSettings) -> tuple[dict, list, list]:
     statuses, tasks, skipped = {}, [], []
     for s in sessions:
         name, st = names[s], earlier.get(s)
+        remove_temporaries(out / name, [STATUS_FILE])          # left by a worker killed while writing it
         fp = session_fingerprint(s, settings, out)
         if (not settings.force and st is not None and st["state"] == "done" and st.get("fingerprint") == fp
                 and (out / name / "summary.json").is_file()):
@@ -232,7 +234,7 @@ def _interrupted(out: Path, statuses: dict, local: bool) -> None:
 
 
 def run_batch(paths, out, settings: BatchSettings = BatchSettings(), workers: int | None = None,
-              scheduler: str | None = None, progress=None, on_status=None, tasks_per_worker: int = 4) -> BatchResult:
+              scheduler: str | None = None, progress=None, on_status=None) -> BatchResult:
     """Process every session under ``paths`` (``find_sessions``) into ``out/NAME``, as
     ``process_session`` would with ``settings``, in parallel; then write the batch report
     (``batch_report.write_batch_report``).
@@ -242,7 +244,6 @@ def run_batch(paths, out, settings: BatchSettings = BatchSettings(), workers: in
         scheduler: a Dask scheduler's address (``tcp://HOST:PORT``): run there instead.
         progress: ``progress(done, total)`` over the sessions (those skipped count as done).
         on_status: called with each session's final status dict as it arrives.
-        tasks_per_worker: sessions a local worker process runs before a fresh one replaces it.
 
     Returns:
         BatchResult; ``interrupted`` when Ctrl-C stopped it (the statuses on disk say where).
@@ -252,7 +253,7 @@ def run_batch(paths, out, settings: BatchSettings = BatchSettings(), workers: in
     """
     t0 = time.perf_counter()
     out = Path(out).resolve()                   # workers may run elsewhere: absolute paths
-    runner = DaskRunner(scheduler) if scheduler else LocalRunner(workers or os.cpu_count() or 1, tasks_per_worker)
+    runner = DaskRunner(scheduler) if scheduler else LocalRunner(workers or os.cpu_count() or 1)
     try:
         out.mkdir(parents=True, exist_ok=True)
         statuses, tasks, skipped = _plan(paths, out, settings)

@@ -131,16 +131,47 @@ def _single_threaded_children():
                 os.environ[k] = v
 
 
-class LocalRunner:
-    """Worker processes on this machine (``concurrent.futures``, spawn start method): each runs
-    at most ``tasks_per_worker`` sessions before a fresh process replaces it, so a worker's
-    memory cannot grow across sessions. A worker that dies (a crash, the out-of-memory killer)
-    breaks the pool: its sessions are submitted again to a new one, at most ``MAX_ATTEMPTS``
-    times in all."""
+POLL_S = 0.2
+"""How often the coordinator looks up from waiting: a signal (Ctrl-C) that the system handed to
+another of its threads is acted on only when the main thread wakes (a blocking wait would hold
+it until the next session ends)."""
 
-    def __init__(self, workers: int, tasks_per_worker: int = 4):
+
+def _as_completed(futures):
+    """``concurrent.futures.as_completed``, waking every ``POLL_S`` s (see there)."""
+    from concurrent.futures import FIRST_COMPLETED, wait  # noqa: PLC0415
+
+    pending = set(futures)
+    while pending:
+        done, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+        yield from done
+
+
+def _context():
+    """The start method of local workers: forked from a server that has imported the pipeline
+    (with one-thread numerical libraries: it starts inside ``_single_threaded_children``)."""
+    import multiprocessing  # noqa: PLC0415
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["wearable_gaze.pipeline.batch_workers", "wearable_gaze.pipeline.process"])
+    return ctx
+
+
+class LocalRunner:
+    """Worker processes on this machine (``concurrent.futures``), each running one session and
+    replaced by a fresh one for the next (``max_tasks_per_child=1``), so no worker's memory can
+    grow across sessions. They are forked from a server process that has imported the pipeline
+    once (start method ``forkserver``; ``spawn`` where there is none), so a fresh worker costs
+    no import. A worker that dies (a crash, the out-of-memory killer) breaks the pool: its
+    sessions are submitted again to a new one, at most ``MAX_ATTEMPTS`` times in all.
+
+    (One worker for several sessions, ``max_tasks_per_child`` > 1, deadlocks the pool on
+    Python 3.11-3.14 when sessions are queued: CPython issue gh-115634.)"""
+
+    def __init__(self, workers: int):
         self.workers = max(1, int(workers))
-        self.tasks_per_worker = tasks_per_worker
         self.pool = None
 
     def describe(self) -> str:
@@ -148,47 +179,58 @@ class LocalRunner:
 
     def run(self, tasks):
         """Yield (task, status dict or exception) as sessions finish."""
-        import multiprocessing  # noqa: PLC0415
-        from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: PLC0415
+        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
         from concurrent.futures.process import BrokenProcessPool  # noqa: PLC0415
 
         todo = list(tasks)
-        while todo:
-            with _single_threaded_children():
-                self.pool = ProcessPoolExecutor(min(self.workers, len(todo)), multiprocessing.get_context("spawn"),
-                                                initializer=_init_local_worker,
-                                                max_tasks_per_child=self.tasks_per_worker)
-            futures = {self.pool.submit(run_session, t): t for t in todo}
-            todo = []
-            for fut in as_completed(futures):
-                t = futures[fut]
-                try:
-                    yield t, fut.result()
-                except BrokenProcessPool:
-                    st = read_status(Path(t.out))
-                    started = st is not None and st["state"] == "running" and st.get("attempt") == t.attempt
-                    again = replace(t, attempt=t.attempt + int(started))
-                    if again.attempt > MAX_ATTEMPTS:
-                        yield t, WorkerLost(f"its worker process died {MAX_ATTEMPTS} times (a crash, or killed: out "
-                                            "of memory?)")
-                    else:
-                        todo.append(again)
-            self.pool.shutdown(wait=True)
-            self.pool = None
+        with _single_threaded_children():               # the workers are started on demand, and replaced
+            while todo:
+                self.pool = ProcessPoolExecutor(min(self.workers, len(todo)), _context(),
+                                                initializer=_init_local_worker, max_tasks_per_child=1)
+                futures = {self.pool.submit(run_session, t): t for t in todo}
+                todo = []
+                for fut in _as_completed(futures):
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool:
+                        result = self._again(futures[fut], todo)
+                    if result is not None:
+                        yield futures[fut], result
+                self.pool.shutdown(wait=True)
+                self.pool = None
 
-    def stop(self) -> None:
-        """Stop every worker now (Ctrl-C): the sessions they were processing stay ``running``."""
+    @staticmethod
+    def _again(task: SessionTask, todo: list):
+        """A session whose pool broke (a worker died): queued again (None), or, started and lost
+        ``MAX_ATTEMPTS`` times, a ``WorkerLost``."""
+        st = read_status(Path(task.out))
+        started = st is not None and st["state"] == "running" and st.get("attempt") == task.attempt
+        again = replace(task, attempt=task.attempt + int(started))
+        if again.attempt > MAX_ATTEMPTS:
+            return WorkerLost(f"its worker process died {MAX_ATTEMPTS} times (a crash, or killed: out of memory?)")
+        todo.append(again)
+        return None
+
+    def stop(self, timeout_s: float = 30.0) -> None:
+        """Stop every worker now (Ctrl-C): the sessions they were processing stay ``running``.
+        The pool may be starting a worker meanwhile, so its workers are stopped until its
+        manager thread ends (the pool's own ``shutdown`` would wait for their sessions; the
+        standard library has no public way to stop workers before Python 3.14, and that one
+        misses a worker being started)."""
         pool, self.pool = self.pool, None
         if pool is None:
             return
-        terminate = getattr(pool, "terminate_workers", None)        # Python 3.14
-        if terminate is not None:
-            terminate()
-        else:
-            for p in list((getattr(pool, "_processes", None) or {}).values()):
+        processes = getattr(pool, "_processes", None) or {}
+        manager = getattr(pool, "_executor_manager_thread", None)
+        pool.shutdown(wait=False, cancel_futures=True)
+        t0 = time.monotonic()
+        while True:
+            for p in list(processes.values()):
                 with contextlib.suppress(Exception):
                     p.terminate()
-        pool.shutdown(wait=True, cancel_futures=True)
+            if manager is None or not manager.is_alive() or time.monotonic() - t0 > timeout_s:
+                break
+            manager.join(0.05)
 
 
 class DaskRunner:
@@ -222,12 +264,17 @@ class DaskRunner:
         batch_id = uuid.uuid4().hex[:8]
         self.futures = {self.client.submit(run_session, t, key=f"wearable-gaze-{t.name}-{batch_id}", pure=False,
                                            retries=1): t for t in tasks}
-        for fut in d.as_completed(list(self.futures)):
-            t = self.futures[fut]
-            try:
-                yield t, fut.result()
-            except Exception as exc:  # noqa: BLE001  (KilledWorker, a lost scheduler: that session fails)
-                yield t, exc
+        ac = d.as_completed(list(self.futures))
+        while not ac.is_empty():                        # polled: see POLL_S
+            ready = ac.next_batch(block=False) if ac.has_ready() else []
+            if not ready:
+                time.sleep(POLL_S)
+            for fut in ready:
+                try:
+                    result = fut.result()
+                except Exception as exc:  # noqa: BLE001  (KilledWorker, a lost scheduler: that session fails)
+                    result = exc
+                yield self.futures[fut], result
 
     def stop(self) -> None:
         """Cancel the sessions not yet started (those running finish on their workers)."""
