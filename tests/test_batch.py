@@ -177,7 +177,7 @@ def test_dask_batch_survives_a_worker_killed_mid_session(study, tmp_path):
     out = tmp_path / "out"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+            distributed.Client(cluster, set_as_default=False) as client:        # not the batch's client
         kill, killed = _killer(out, lambda: set(client.run(os.getpid).values()))
         res = run_batch([root], out, SETTINGS, scheduler=cluster.scheduler_address, on_status=kill)
     assert killed.get("name"), "no session was running after the first one finished"

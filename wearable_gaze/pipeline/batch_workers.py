@@ -264,7 +264,7 @@ class DaskRunner:
         batch_id = uuid.uuid4().hex[:8]
         self.futures = {self.client.submit(run_session, t, key=f"wearable-gaze-{t.name}-{batch_id}", pure=False,
                                            retries=1): t for t in tasks}
-        ac = d.as_completed(list(self.futures))
+        ac = d.as_completed(list(self.futures), loop=self.client.loop)
         while not ac.is_empty():                        # polled: see POLL_S
             ready = ac.next_batch(block=False) if ac.has_ready() else []
             if not ready:
