@@ -239,3 +239,21 @@ def test_interrupted_batch_resumes_without_redoing_finished_sessions(study, tmp_
     assert "2 done (1 unchanged, skipped), 0 failed" in run.stdout
     assert {n: [(out / n / f).stat().st_mtime_ns for f in ("targets.json", "report.html")] for n in done} == mtimes
     assert json.loads((out / "batch.json").read_text())["counts"]["done"] == 2
+
+
+def test_an_imported_session_is_processed_as_process_would(study, tmp_path):
+    from wearable_gaze.formats.devices.common import SessionImport, read_simulated_recording
+
+    root, _ = study
+    sim = read_simulated_recording(root / "p01" / "s1")
+    r = sim.rays
+    with SessionImport(tmp_path / "imported" / "dev1", "test", root / "p01" / "s1") as imp:   # a device's rays, poses
+        imp.add_rays(sim.t, r.left_origin_mm, r.left_direction, r.left_valid, r.right_origin_mm, r.right_direction,
+                     r.right_valid)
+        imp.add_head_poses(sim.t, sim.T_world_from_head)
+        imp.finish(sim.eye_rate_hz, 12.5, "device", {"head": "the scene camera"})
+    ref = process_session(tmp_path / "imported" / "dev1", tmp_path / "ref", **SETTINGS.process_kwargs())
+    res = run_batch([tmp_path / "imported"], tmp_path / "out", SETTINGS, workers=1)
+    assert res.done == ["dev1"] and res.statuses["dev1"]["n_targets"] == len(ref.found) > 0
+    for f in COMPARED:
+        assert (tmp_path / "out" / "dev1" / f).read_bytes() == (tmp_path / "ref" / f).read_bytes(), f
