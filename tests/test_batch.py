@@ -1,0 +1,259 @@
+"""``wearable-gaze batch`` (issue 18): many sessions processed as ``process`` would, in parallel on
+local worker processes or a Dask cluster; a corrupt session fails with its reason and the others
+finish; a killed worker's session is done again elsewhere; an interrupted batch resumes without
+redoing finished sessions; the batch report."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from wearable_gaze.cli import main
+from wearable_gaze.formats.tables import read_table
+from wearable_gaze.pipeline.batch import BatchSettings, find_sessions, output_names, run_batch
+from wearable_gaze.pipeline.batch_report import read_status
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.sim.simulate import simulate_scenario
+
+SCENARIO = {"base": "lab-walkabout", "duration_s": 5.0, "camera": {"resolution": [640, 360]},
+            "targets": {"random_count": 2, "random_depth_mm": [700.0, 3000.0]}, "calibration": {"camera_views": 6}}
+SETTINGS = BatchSettings(overlay=False, report=False)          # small and fast; the CLI test runs the report too
+COMPARED = ("targets.json", "targets.csv", "poses.csv")
+# the study: participant/session folders; same-named sessions in different folders; p03/s2 corrupt
+LAYOUT = {"p01/s1": "a", "p01/s2": "b", "p02/s1": "a", "p02/s2": "b", "p03/s1": "a", "p03/s2": "corrupt"}
+NAMES = {"p01/s1": "p01-s1", "p01/s2": "p01-s2", "p02/s1": "p02-s1", "p02/s2": "p02-s2", "p03/s1": "p03-s1",
+         "p03/s2": "p03-s2"}
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """Two simulated sessions (a, b), each processed once by ``process_session`` (the reference),
+    laid out as six sessions of three participants, one of them with a corrupt scene video."""
+    base = tmp_path_factory.mktemp("batch")
+    src, ref = {}, {}
+    for key, seed in (("a", 5), ("b", 6)):
+        src[key] = base / "src" / key
+        simulate_scenario(SCENARIO, src[key], seed=seed)
+        ref[key] = base / "ref" / key
+        assert process_session(src[key], ref[key], **SETTINGS.process_kwargs()).exit_status == 0
+    root = base / "study"
+    for rel, key in LAYOUT.items():
+        shutil.copytree(src["b" if key == "corrupt" else key], root / rel)
+    (root / "p03" / "s2" / "scene.mp4").write_bytes(b"\x00" * 1000)
+    return root, ref
+
+
+def _assert_batch_outputs(res, out, ref, sessions=tuple(LAYOUT)):
+    """The good ``sessions`` done with the outputs of a single process run, byte for byte; the
+    corrupt one failed with its reason; the exit status says so."""
+    assert list(res.statuses) == [NAMES[r] for r in sessions]
+    for rel in sessions:
+        name = NAMES[rel]
+        st = res.statuses[name]
+        assert st == read_status(out / name)                              # on disk as returned
+        if LAYOUT[rel] == "corrupt":
+            assert st["state"] == "failed" and "scene.mp4" in st["reason"] and "tracking" in st["reason"]
+            continue
+        assert st["state"] == "done" and st["n_targets"] == 2, st
+        for f in COMPARED:
+            assert (out / name / f).read_bytes() == (ref[LAYOUT[rel]] / f).read_bytes(), (name, f)
+    assert res.failed == ["p03-s2"] and res.exit_status == 2
+    index = json.loads((out / "batch.json").read_text())
+    assert index["counts"] == {"pending": 0, "running": 0, "done": len(sessions) - 1, "failed": 1}
+    assert len({res.statuses[n]["worker"] for n in res.done}) >= 2            # both workers took sessions
+
+
+def test_sessions_are_found_and_named_apart(tmp_path):
+    for rel in ("a/p01/s1", "a/p02/s1", "a/p02/s2", "b/s1", "a/p01/s1/processed/x", "a/.hidden/s9"):
+        (tmp_path / rel).mkdir(parents=True)
+    for rel in ("a/p01/s1", "a/p02/s1", "a/p02/s2", "b/s1", "a/.hidden/s9"):
+        (tmp_path / rel / "session.json").write_text("{}")
+    found = find_sessions([tmp_path / "a", tmp_path / "b" / "s1", tmp_path / "a" / "p02"])
+    assert found == sorted((tmp_path / r).resolve() for r in ("a/p01/s1", "a/p02/s1", "a/p02/s2", "b/s1"))
+    names = output_names(found)
+    assert sorted(names.values()) == ["b-s1", "p01-s1", "p02-s1", "s2"]
+    # an earlier run's names are kept; a new session never takes one of them
+    kept = output_names(found, {found[3]: "s1"})
+    assert kept[found[3]] == "s1" and len(set(kept.values())) == 4
+    with pytest.raises(Exception, match="no session folder"):
+        find_sessions([tmp_path / "a" / "p01" / "s1" / "processed"])
+
+
+def _killer(out: Path, pids=None):
+    """An ``on_status`` callback: after the first session ends, SIGKILL the worker process of a
+    session still running (one of ``pids()``, if given); what it did goes into the dict returned."""
+    killed = {}
+
+    def kill(status):
+        if killed:
+            return
+        allowed = None if pids is None else pids()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 60:
+            for d in out.iterdir():
+                st = read_status(d) if d.is_dir() else None
+                pid = int(st["worker"].rsplit(":", 1)[1]) if st and st["state"] == "running" else None
+                if pid is not None and pid != os.getpid() and (allowed is None or pid in allowed):
+                    killed.update(name=d.name, pid=pid)
+                    os.kill(pid, signal.SIGKILL)
+                    return
+            time.sleep(0.05)
+        killed["name"] = None
+    return kill, killed
+
+
+@pytest.fixture(scope="module")
+def local_batch(study, tmp_path_factory):
+    """Participants p01 and p03 (four sessions, p03/s2 corrupt) on two local worker processes,
+    one of them killed while processing a session."""
+    root, _ = study
+    out = tmp_path_factory.mktemp("local") / "out"
+    seen = []
+    kill, killed = _killer(out)
+    res = run_batch([root / "p01", root / "p03"], out, SETTINGS, workers=2, progress=lambda d, n: seen.append((d, n)),
+                    on_status=kill)
+    return out, res, seen, killed
+
+
+def test_local_batch_finishes_despite_a_corrupt_session_and_a_killed_worker(study, local_batch):
+    root, ref = study
+    out, res, seen, killed = local_batch
+    _assert_batch_outputs(res, out, ref, ("p01/s1", "p01/s2", "p03/s1", "p03/s2"))
+    assert seen[0] == (0, 4) and seen[-1] == (4, 4)
+    assert killed.get("name"), "no session was running after the first one finished"
+    st = res.statuses[killed["name"]]
+    assert st["attempt"] == 2 and not st["worker"].endswith(f":{killed['pid']}")      # done again, elsewhere
+
+
+def test_batch_report_tables_every_session_with_its_accuracy(study, local_batch):
+    _, ref = study
+    out, _, _, _ = local_batch
+    rep = read_table(out / "batch_report.csv", ["n_targets", "truth_targets", "truth_found", "error_rms_mm",
+                                                "recording_s", "processing_s"], ("session", "state", "reason"),
+                     empty_ok=("truth_targets", "truth_found", "error_rms_mm"))
+    assert list(rep["session"]) == ["p01-s1", "p01-s2", "p03-s1", "p03-s2"]
+    done = rep["state"] == "done"
+    assert list(rep["state"]) == ["done", "done", "done", "failed"] and "scene.mp4" in rep["reason"][3]
+    assert (rep["truth_found"][done] == 2).all() and (rep["truth_targets"][done] == 2).all()
+    assert (rep["error_rms_mm"][done] < 100).all() and (rep["recording_s"] == 5.0).all()
+    assert (rep["processing_s"] > 0).all()
+    targets = read_table(out / "all_targets.csv", ["x_mm", "y_mm", "z_mm", "crb_mm"], ("session", "status"))
+    assert len(targets["x_mm"]) == 6 and set(targets["session"]) == set(rep["session"][done])
+    a = json.loads((ref["a"] / "targets.json").read_text())["targets"]
+    assert [round(t["x_mm"], 1) for t in a] == list(targets["x_mm"][targets["session"] == "p01-s1"])
+    page = (out / "batch_report.html").read_text()
+    assert "RMS error (mm)" in page and "processing (s)" in page and page.count("<tr") == 5
+    assert "3 done, 1 failed" in page
+
+
+def test_rerun_retries_the_failed_and_redoes_only_what_changed(study, local_batch):
+    root, _ = study
+    out, res, _, _ = local_batch
+    mtimes = {n: (out / n / "targets.json").stat().st_mtime_ns for n in res.done}
+    res2 = run_batch([root / "p01", root / "p03"], out, SETTINGS, workers=2)
+    assert sorted(res2.skipped) == sorted(res.done) and res2.failed == ["p03-s2"]
+    assert res2.statuses["p03-s2"]["started"] > res.statuses["p03-s2"]["finished"]         # retried
+    assert {n: (out / n / "targets.json").stat().st_mtime_ns for n in res.done} == mtimes
+    # a changed session is redone (process itself then skips its unchanged steps); the others not
+    eye = root / "p01" / "s2" / "eye.csv"
+    os.utime(eye, ns=(eye.stat().st_atime_ns, eye.stat().st_mtime_ns + 10**9))      # same data, "edited"
+    res3 = run_batch([root / "p01", root / "p03"], out, SETTINGS, workers=1)
+    assert sorted(res3.skipped) == ["p01-s1", "p03-s1"] and res3.statuses["p01-s2"]["state"] == "done"
+    assert {"camera", "eyes", "tracking"} <= set(res3.statuses["p01-s2"]["steps_skipped"])
+    assert "viewlines" not in res3.statuses["p01-s2"]["steps_skipped"]
+    assert (out / "p01-s2" / "targets.json").stat().st_mtime_ns > mtimes["p01-s2"]
+
+
+def test_dask_batch_survives_a_worker_killed_mid_session(study, tmp_path):
+    distributed = pytest.importorskip("distributed", reason="Dask's distributed is not installed (pip install "
+                                                           "'wearable-gaze[dask]'; the test extra has it)")
+    root, ref = study
+    out = tmp_path / "out"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster, set_as_default=False) as client:        # not the batch's client
+        kill, killed = _killer(out, lambda: set(client.run(os.getpid).values()))
+        res = run_batch([root], out, SETTINGS, scheduler=cluster.scheduler_address, on_status=kill)
+    assert killed.get("name"), "no session was running after the first one finished"
+    _assert_batch_outputs(res, out, ref)
+    assert res.statuses[killed["name"]]["state"] == "done"
+    assert not res.statuses[killed["name"]]["worker"].endswith(f":{killed['pid']}")    # done again elsewhere
+
+
+def test_scheduler_without_dask_says_which_extra_to_install(study, tmp_path, monkeypatch, capsys):
+    root, _ = study
+    monkeypatch.setitem(sys.modules, "distributed", None)                # import distributed: ImportError
+    assert main(["batch", str(root / "p01"), "-o", str(tmp_path / "out"), "--scheduler", "tcp://127.0.0.1:8786"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "wearable-gaze[dask]" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()                                 # nothing written
+    assert main(["batch", str(tmp_path / "nothing"), "-o", str(tmp_path / "out")]) == 2
+    assert "no such folder" in capsys.readouterr().err
+
+
+def _wait_for(path: Path, cond, timeout=120.0):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        try:
+            d = json.loads(path.read_text())
+            if cond(d):
+                return d
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.05)
+    raise AssertionError(f"{path}: the condition did not hold within {timeout} s")
+
+
+def test_interrupted_batch_resumes_without_redoing_finished_sessions(study, tmp_path):
+    root, _ = study
+    sessions = [str(root / r) for r in ("p02/s1", "p02/s2")]
+    out = tmp_path / "out"
+    # Ctrl-C raises KeyboardInterrupt even where the tests run in the background (which ignores SIGINT)
+    cmd = [sys.executable, "-c", "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+           "from wearable_gaze.cli import main; sys.exit(main())",
+           "batch", *sessions, "-o", str(out), "--workers", "1", "--no-overlay"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for(out / "batch.json", lambda d: d["counts"]["done"] >= 1)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stderr and "resume" in stdout
+    index = json.loads((out / "batch.json").read_text())
+    done = [s["name"] for s in index["sessions"] if s["state"] == "done"]
+    assert len(done) == 1 and index["counts"] == {"pending": 1, "running": 0, "done": 1, "failed": 0}, (index, stdout,
+                                                                                                  stderr)  # the stopped
+    # session is pending again
+    assert all(read_status(out / s["name"])["state"] == s["state"] for s in index["sessions"])
+    mtimes = {n: [(out / n / f).stat().st_mtime_ns for f in ("targets.json", "report.html")] for n in done}
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "2 done (1 unchanged, skipped), 0 failed" in run.stdout
+    assert {n: [(out / n / f).stat().st_mtime_ns for f in ("targets.json", "report.html")] for n in done} == mtimes
+    assert json.loads((out / "batch.json").read_text())["counts"]["done"] == 2
+
+
+def test_an_imported_session_is_processed_as_process_would(study, tmp_path):
+    from wearable_gaze.formats.devices.common import SessionImport, read_simulated_recording
+
+    root, _ = study
+    sim = read_simulated_recording(root / "p01" / "s1")
+    r = sim.rays
+    with SessionImport(tmp_path / "imported" / "dev1", "test", root / "p01" / "s1") as imp:   # a device's rays, poses
+        imp.add_rays(sim.t, r.left_origin_mm, r.left_direction, r.left_valid, r.right_origin_mm, r.right_direction,
+                     r.right_valid)
+        imp.add_head_poses(sim.t, sim.T_world_from_head)
+        imp.finish(sim.eye_rate_hz, 12.5, "device", {"head": "the scene camera"})
+    ref = process_session(tmp_path / "imported" / "dev1", tmp_path / "ref", **SETTINGS.process_kwargs())
+    res = run_batch([tmp_path / "imported"], tmp_path / "out", SETTINGS, workers=1)
+    assert res.done == ["dev1"] and res.statuses["dev1"]["n_targets"] == len(ref.found) > 0
+    for f in COMPARED:
+        assert (tmp_path / "out" / "dev1" / f).read_bytes() == (tmp_path / "ref" / f).read_bytes(), f

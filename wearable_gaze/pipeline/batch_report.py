@@ -1,0 +1,197 @@
+"""The files of ``wearable-gaze batch`` (docs/batch.md): each session's status
+(``OUT/NAME/batch_status.json``), the batch's index (``OUT/batch.json``) and its report: one
+table of all sessions as ``batch_report.html`` and ``batch_report.csv`` (targets, durations,
+problems, accuracy against the simulator's truth where the session has one), and every
+session's targets in one table, ``all_targets.csv``. All written atomically.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import logging
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from ..formats.atomic import write_text
+from ..formats.jsonio import write_json
+from ..formats.session import MANIFEST
+from ..formats.tables import write_table
+from ..formats.targets import MOVING_COLUMN, TARGET_COLUMNS, TARGET_FORMATS, read_targets
+from ..formats.truth import read_truth_targets
+from .demo import match_targets
+
+log = logging.getLogger(__name__)
+
+STATUS_FILE = "batch_status.json"
+"""Each session's status, in its output folder."""
+INDEX_FILE = "batch.json"
+"""The batch's index: every session's status."""
+STATES = ("pending", "running", "done", "failed")
+REPORT_FILES = ("batch_report.html", "batch_report.csv", "all_targets.csv")
+
+# the report's columns: (CSV name, HTML header with its unit)
+COLUMNS = (("session", "session"), ("state", "state"), ("reason", "reason"), ("n_targets", "targets"),
+           ("recording_s", "recording (s)"), ("processing_s", "processing (s)"), ("n_problems", "problems"),
+           ("truth_targets", "true targets"), ("truth_found", "found"), ("error_rms_mm", "RMS error (mm)"),
+           ("error_max_mm", "max error (mm)"), ("crb_rms_mm", "RMS Cramér-Rao bound (mm)"),
+           ("peak_rss_mb", "worker peak memory (MB)"), ("worker", "worker"), ("path", "session folder"))
+FORMATS = {"recording_s": ".1f", "processing_s": ".1f", "error_rms_mm": ".1f", "error_max_mm": ".1f",
+           "crb_rms_mm": ".1f", "peak_rss_mb": ".0f"}
+
+
+# --- status files --------------------------------------------------------------------------------
+
+def read_status(folder: Path) -> dict | None:
+    """The status in ``folder/STATUS_FILE``, or None (no file, or one that is not a status)."""
+    p = Path(folder) / STATUS_FILE
+    try:
+        st = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        log.warning("%s is unreadable (%s); its session is done again", p, exc)
+        return None
+    ok = isinstance(st, dict) and st.get("state") in STATES and isinstance(st.get("session"), str)
+    return st if ok else None
+
+
+def write_status(folder: Path, status: dict) -> None:
+    """Write a session's status (a dict with ``name``, ``session``, ``state``, ``reason``,
+    ``fingerprint``, ...) into its output folder, atomically."""
+    write_json(Path(folder) / STATUS_FILE, status)
+
+
+def earlier_statuses(out: Path) -> dict:
+    """{resolved session path: status} of the sessions an earlier batch wrote into ``out``."""
+    found = {}
+    if out.is_dir():
+        for d in sorted(out.iterdir()):
+            st = read_status(d) if d.is_dir() else None
+            if st is not None and st.get("name") == d.name:
+                found[Path(st["session"])] = st
+    return found
+
+
+def write_index(out: Path, statuses: dict, settings: dict) -> None:
+    """``OUT/batch.json``: the settings, the counts per state and every session's status."""
+    counts = Counter(s["state"] for s in statuses.values())
+    write_json(Path(out) / INDEX_FILE, {"version": 1, "updated": time.time(), "settings": settings,
+                                        "counts": {k: counts.get(k, 0) for k in STATES},
+                                        "sessions": list(statuses.values())})
+
+
+# --- the report ----------------------------------------------------------------------------------
+
+def _recording_s(session: Path) -> float:
+    """The recording's length from its manifest (frames / fps), s; NaN when it does not say."""
+    try:
+        man = json.loads((session / MANIFEST).read_text(encoding="utf-8"))
+        if isinstance(man.get("duration_s"), (int, float)):
+            return float(man["duration_s"])
+        return float(man["n_frames"]) / float(man["fps"])
+    except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
+        return float("nan")
+
+
+def truth_errors(session: Path, rows: list[dict]) -> dict:
+    """The targets found (rows of targets.json) against a simulated session's truth
+    (``truth/targets.json``; ``demo.match_targets``): the static true targets, how many were
+    found, the RMS and largest distance of each found one to its truth (mm) and the RMS of their
+    Cramér-Rao bounds (mm). {} without a truth."""
+    path = session / "truth" / "targets.json"
+    if not path.is_file():
+        return {}
+    try:
+        truth = [t for t in read_truth_targets(path) if "position_mm" in t]
+    except UserError as exc:
+        log.warning("%s", exc)
+        return {}
+    pairs = [(tt, f) for tt, f in match_targets(rows, truth) if f is not None]
+    err = np.array([np.linalg.norm(np.array([f["x_mm"], f["y_mm"], f["z_mm"]]) - tt["position_mm"]) for tt, f in pairs])
+    crb = np.array([f["crb_mm"] for _, f in pairs], float)
+    nan = float("nan")
+    return {"truth_targets": len(truth), "truth_found": len(pairs),
+            "error_rms_mm": float(np.sqrt(np.mean(err ** 2))) if len(err) else nan,
+            "error_max_mm": float(err.max()) if len(err) else nan,
+            "crb_rms_mm": float(np.sqrt(np.nanmean(crb ** 2))) if np.isfinite(crb).any() else nan}
+
+
+def _session_row(out: Path, st: dict) -> tuple[dict, list[dict]]:
+    """A session's row of the report and its targets (rows of targets.json; none unless done)."""
+    session = Path(st["session"])
+    rows = []
+    if st["state"] == "done" and (out / st["name"] / "targets.json").is_file():
+        try:
+            rows = read_targets(out / st["name"] / "targets.json")
+        except UserError as exc:
+            log.warning("%s", exc)
+    nan = float("nan")
+    row = {"session": st["name"], "state": st["state"], "reason": st.get("reason") or "",
+           "n_targets": len(rows), "recording_s": _recording_s(session),
+           "processing_s": float(st.get("duration_s", nan)), "n_problems": len(st.get("problems", [])),
+           "truth_targets": "", "truth_found": "", "error_rms_mm": nan, "error_max_mm": nan, "crb_rms_mm": nan,
+           "peak_rss_mb": float(st.get("peak_rss_mb") or nan), "worker": st.get("worker", ""), "path": str(session)}
+    row.update(truth_errors(session, rows) if rows else {})
+    return row, rows
+
+
+def write_batch_report(out, statuses: dict) -> list[dict]:
+    """Write ``REPORT_FILES`` into ``out`` from each session's status ({name: status}) and
+    outputs. Returns the report's rows (dicts keyed by ``COLUMNS``' CSV names)."""
+    out = Path(out)
+    table, targets = [], []
+    for st in statuses.values():
+        row, rows = _session_row(out, st)
+        table.append(row)
+        targets += [dict(r, session=st["name"]) for r in rows]
+    write_table(out / "batch_report.csv", {k: np.array([r[k] for r in table], dtype=object if k not in FORMATS
+                                                          else float) for k, _ in COLUMNS}, FORMATS)
+    names = ["session", *TARGET_COLUMNS] + ([MOVING_COLUMN] if any(r.get(MOVING_COLUMN) for r in targets) else [])
+    cols = {k: [r[k] for r in targets] for k in names if k != MOVING_COLUMN}
+    if MOVING_COLUMN in names:
+        cols[MOVING_COLUMN] = [int(bool(r.get(MOVING_COLUMN))) for r in targets]
+    write_table(out / "all_targets.csv", {k: np.array(v, dtype=float if k in TARGET_FORMATS else object)
+                                          for k, v in cols.items()}, TARGET_FORMATS)
+    write_text(out / "batch_report.html", _html(out, table))
+    return table
+
+
+def _cell(key: str, value, out: Path) -> str:
+    if isinstance(value, float):
+        return "" if not np.isfinite(value) else format(value, FORMATS.get(key, ".1f"))
+    if key == "session" and (out / str(value) / "report.html").is_file():
+        return f'<a href="{html.escape(str(value))}/report.html">{html.escape(str(value))}</a>'
+    return html.escape(str(value))
+
+
+def _html(out: Path, table: list[dict]) -> str:
+    counts = Counter(r["state"] for r in table)
+    head = "".join(f"<th>{html.escape(h)}</th>" for _, h in COLUMNS)
+    body = "".join(f'<tr class="{html.escape(r["state"])}">' + "".join(
+        f"<td>{_cell(k, r[k], out)}</td>" for k, _ in COLUMNS) + "</tr>" for r in table)
+    found = [r for r in table if r["truth_targets"] != ""]
+    truth = ""
+    if found:
+        err = np.array([r["error_rms_mm"] for r in found], float)
+        truth = (f"<p>Against the simulator's truth ({len(found)} session(s)): {sum(r['truth_found'] for r in found)} "
+                 f"of {sum(r['truth_targets'] for r in found)} true targets found; RMS error over sessions "
+                 f"{np.sqrt(np.nanmean(err ** 2)):.1f} mm.</p>" if np.isfinite(err).any() else "")
+    summary = ", ".join(f"{counts.get(k, 0)} {k}" for k in ("done", "failed", "pending", "running") if counts.get(k))
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>wearable-gaze batch report</title>
+<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:4px 8px}}
+tr.failed{{background:#fdd}}tr.pending,tr.running{{background:#ffd}}</style>
+</head><body><h1>Batch: {len(table)} session(s)</h1>
+<p>{html.escape(summary)}. Each session's outputs are in its folder (its name links to its report). Errors are
+the distances from each found target to the true one it matches, world frame; the Cramér-Rao bound is the
+smallest RMS error the view lines allow. The same table: batch_report.csv; every target: all_targets.csv.</p>
+{truth}
+<table><tr>{head}</tr>{body}</table>
+</body></html>
+"""

@@ -1,0 +1,286 @@
+"""Where the sessions of ``wearable-gaze batch`` run (docs/batch.md): the worker's function
+``run_session`` (one session, as ``process`` would, its status written before and after), and the
+two runners that call it, ``LocalRunner`` (worker processes on this machine, no extra needed) and
+``DaskRunner`` (an existing Dask cluster; the optional extra ``wearable-gaze[dask]``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import logging
+import os
+import socket
+import time
+import uuid
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from ..errors import UserError
+from .batch_report import read_status, write_status
+
+log = logging.getLogger(__name__)
+
+MAX_ATTEMPTS = 3
+"""A session whose worker process dies this many times (a crash, the out-of-memory killer) fails."""
+DASK_EXTRA = "pip install 'wearable-gaze[dask]'"
+
+
+@dataclass(frozen=True)
+class SessionTask:
+    """One session to process: what a worker receives (picklable, paths as strings)."""
+
+    name: str
+    session: str
+    out: str
+    settings: object            # batch.BatchSettings
+    fingerprint: str
+    attempt: int = 1
+
+
+# --- one session, in a worker ----------------------------------------------------------------
+
+def _memory_mb() -> tuple[float | None, float | None]:
+    """(resident, peak resident) memory of this process, MB (Linux /proc; else the peak from
+    ``resource``)."""
+    try:
+        fields = dict(line.split(":", 1) for line in Path("/proc/self/status").read_text().splitlines() if ":" in line)
+        return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
+    except (OSError, KeyError, ValueError):
+        try:
+            import resource  # noqa: PLC0415
+
+            return None, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        except ImportError:
+            return None, None
+
+
+def one_line(text: str, limit: int = 500) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def run_session(task: SessionTask) -> dict:
+    """Process one session into ``task.out`` as ``process`` would (in a worker process, local or
+    Dask); write its status there before (``running``) and after (``done``, or ``failed`` with
+    the reason: the session unreadable, or no target estimated, as ``process`` exits 2); return
+    the final status. Never raises for a bad session; Ctrl-C and a killed worker leave the
+    status ``running``."""
+    from .process import process_session  # noqa: PLC0415  (the worker's heavy import, once)
+
+    out = Path(task.out)
+    out.mkdir(parents=True, exist_ok=True)
+    status = {"version": 1, "name": task.name, "session": task.session, "fingerprint": task.fingerprint,
+              "state": "running", "reason": None, "attempt": task.attempt, "worker": f"{socket.gethostname()}:"
+              f"{os.getpid()}", "started": time.time()}
+    write_status(out, status)
+    t0 = time.perf_counter()
+    try:
+        res = process_session(task.session, out, **task.settings.process_kwargs())
+    except UserError as exc:
+        status.update(state="failed", reason=one_line(exc))
+    except Exception as exc:  # noqa: BLE001  (a bug on one session must not stop the others)
+        log.exception("session %s: internal error", task.session)
+        status.update(state="failed", reason=one_line(f"internal error ({type(exc).__name__}: {exc}); this is a "
+                                                      "bug: run 'wearable-gaze -v process' on it for the traceback"))
+    else:
+        ok = res.exit_status == 0
+        status.update(state="done" if ok else "failed", reason=None if ok else one_line("; ".join(res.problems)),
+                      n_targets=len(res.found), problems=res.problems, failed_steps=res.failed,
+                      steps_skipped=res.skipped)
+    status["duration_s"] = round(time.perf_counter() - t0, 3)
+    status["finished"] = time.time()
+    gc.collect()
+    status["rss_mb"], status["peak_rss_mb"] = _memory_mb()
+    write_status(out, status)
+    return status
+
+
+def _init_local_worker() -> None:
+    """A local worker: Ctrl-C is the coordinator's to handle (it stops the workers); one thread
+    for OpenCV (the batch runs one worker per core)."""
+    import signal  # noqa: PLC0415
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with contextlib.suppress(ImportError):
+        import cv2  # noqa: PLC0415
+
+        cv2.setNumThreads(1)
+
+
+# --- the runners: local processes or a Dask cluster ------------------------------------------------
+
+class WorkerLost(Exception):
+    """A session's worker process died (crash, killed) too often for it to be retried."""
+
+
+@contextlib.contextmanager
+def _single_threaded_children():
+    """Numerical libraries in the worker processes started meanwhile use one thread each."""
+    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+    before = {k: os.environ.get(k) for k in names}
+    for k in names:
+        os.environ.setdefault(k, "1")
+    try:
+        yield
+    finally:
+        for k, v in before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+POLL_S = 0.2
+"""How often the coordinator looks up from waiting: a signal (Ctrl-C) that the system handed to
+another of its threads is acted on only when the main thread wakes (a blocking wait would hold
+it until the next session ends)."""
+
+
+def _as_completed(futures):
+    """``concurrent.futures.as_completed``, waking every ``POLL_S`` s (see there)."""
+    from concurrent.futures import FIRST_COMPLETED, wait  # noqa: PLC0415
+
+    pending = set(futures)
+    while pending:
+        done, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+        yield from done
+
+
+def _context():
+    """The start method of local workers: forked from a server that has imported the pipeline
+    (with one-thread numerical libraries: it starts inside ``_single_threaded_children``)."""
+    import multiprocessing  # noqa: PLC0415
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["wearable_gaze.pipeline.batch_workers", "wearable_gaze.pipeline.process"])
+    return ctx
+
+
+class LocalRunner:
+    """Worker processes on this machine (``concurrent.futures``), each running one session and
+    replaced by a fresh one for the next (``max_tasks_per_child=1``), so no worker's memory can
+    grow across sessions. They are forked from a server process that has imported the pipeline
+    once (start method ``forkserver``; ``spawn`` where there is none), so a fresh worker costs
+    no import. A worker that dies (a crash, the out-of-memory killer) breaks the pool: its
+    sessions are submitted again to a new one, at most ``MAX_ATTEMPTS`` times in all.
+
+    (One worker for several sessions, ``max_tasks_per_child`` > 1, deadlocks the pool on
+    Python 3.11-3.14 when sessions are queued: CPython issue gh-115634.)"""
+
+    def __init__(self, workers: int):
+        self.workers = max(1, int(workers))
+        self.pool = None
+
+    def describe(self) -> str:
+        return f"{self.workers} local worker process(es)"
+
+    def run(self, tasks):
+        """Yield (task, status dict or exception) as sessions finish."""
+        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+        from concurrent.futures.process import BrokenProcessPool  # noqa: PLC0415
+
+        todo = list(tasks)
+        with _single_threaded_children():               # the workers are started on demand, and replaced
+            while todo:
+                self.pool = ProcessPoolExecutor(min(self.workers, len(todo)), _context(),
+                                                initializer=_init_local_worker, max_tasks_per_child=1)
+                futures = {self.pool.submit(run_session, t): t for t in todo}
+                todo = []
+                for fut in _as_completed(futures):
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool:
+                        result = self._again(futures[fut], todo)
+                    if result is not None:
+                        yield futures[fut], result
+                self.pool.shutdown(wait=True)
+                self.pool = None
+
+    @staticmethod
+    def _again(task: SessionTask, todo: list):
+        """A session whose pool broke (a worker died): queued again (None), or, started and lost
+        ``MAX_ATTEMPTS`` times, a ``WorkerLost``."""
+        st = read_status(Path(task.out))
+        started = st is not None and st["state"] == "running" and st.get("attempt") == task.attempt
+        again = replace(task, attempt=task.attempt + int(started))
+        if again.attempt > MAX_ATTEMPTS:
+            return WorkerLost(f"its worker process died {MAX_ATTEMPTS} times (a crash, or killed: out of memory?)")
+        todo.append(again)
+        return None
+
+    def stop(self, timeout_s: float = 30.0) -> None:
+        """Stop every worker now (Ctrl-C): the sessions they were processing stay ``running``.
+        The pool may be starting a worker meanwhile, so its workers are stopped until its
+        manager thread ends (the pool's own ``shutdown`` would wait for their sessions; the
+        standard library has no public way to stop workers before Python 3.14, and that one
+        misses a worker being started)."""
+        pool, self.pool = self.pool, None
+        if pool is None:
+            return
+        processes = getattr(pool, "_processes", None) or {}
+        manager = getattr(pool, "_executor_manager_thread", None)
+        pool.shutdown(wait=False, cancel_futures=True)
+        t0 = time.monotonic()
+        while True:
+            for p in list(processes.values()):
+                with contextlib.suppress(Exception):
+                    p.terminate()
+            if manager is None or not manager.is_alive() or time.monotonic() - t0 > timeout_s:
+                break
+            manager.join(0.05)
+
+
+class DaskRunner:
+    """The sessions as tasks of an existing Dask cluster (its scheduler's address): one task per
+    session (``pure=False``: a re-run computes again), reassigned by the scheduler when a worker
+    dies while running it. The workers must have wearable-gaze installed and see the sessions and
+    OUT at the same paths (a shared file system)."""
+
+    def __init__(self, address: str, connect_timeout_s: float = 10.0):
+        try:
+            import distributed  # noqa: PLC0415
+        except ImportError:
+            raise UserError(f"--scheduler needs Dask's distributed scheduler (an optional extra): {DASK_EXTRA}") \
+                from None
+        self._distributed = distributed
+        self.address = address
+        try:
+            self.client = distributed.Client(address, timeout=connect_timeout_s, set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise UserError(f"--scheduler {address}: cannot connect ({one_line(exc, 200)}); start the scheduler "
+                            "('dask scheduler') or check the address") from None
+        self.futures = {}
+
+    def describe(self) -> str:
+        n = len(self.client.scheduler_info().get("workers", {}))
+        return f"the Dask cluster at {self.address} ({n} worker(s))"
+
+    def run(self, tasks):
+        """Yield (task, status dict or exception) as sessions finish."""
+        d = self._distributed
+        batch_id = uuid.uuid4().hex[:8]
+        self.futures = {self.client.submit(run_session, t, key=f"wearable-gaze-{t.name}-{batch_id}", pure=False,
+                                           retries=1): t for t in tasks}
+        ac = d.as_completed(list(self.futures), loop=self.client.loop)
+        while not ac.is_empty():                        # polled: see POLL_S
+            ready = ac.next_batch(block=False) if ac.has_ready() else []
+            if not ready:
+                time.sleep(POLL_S)
+            for fut in ready:
+                try:
+                    result = fut.result()
+                except Exception as exc:  # noqa: BLE001  (KilledWorker, a lost scheduler: that session fails)
+                    result = exc
+                yield self.futures[fut], result
+
+    def stop(self) -> None:
+        """Cancel the sessions not yet started (those running finish on their workers)."""
+        with contextlib.suppress(Exception):
+            self.client.cancel(list(self.futures))
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.client.close()
