@@ -146,7 +146,7 @@ def test_batch_report_tables_every_session_with_its_accuracy(study, local_batch)
     targets = read_table(out / "all_targets.csv", ["x_mm", "y_mm", "z_mm", "crb_mm"], ("session", "status"))
     assert len(targets["x_mm"]) == 6 and set(targets["session"]) == set(rep["session"][done])
     a = json.loads((ref["a"] / "targets.json").read_text())["targets"]
-    assert [round(t["x_mm"], 1) for t in a] == list(targets["x_mm"][targets["session"] == "p01-s1"])
+    assert [round(t["position_mm"][0], 1) for t in a] == list(targets["x_mm"][targets["session"] == "p01-s1"])
     page = (out / "batch_report.html").read_text()
     assert "RMS error (mm)" in page and "processing (s)" in page and page.count("<tr") == 5
     assert "3 done, 1 failed" in page

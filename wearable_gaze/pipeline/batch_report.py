@@ -21,7 +21,7 @@ from ..formats.atomic import write_text
 from ..formats.jsonio import write_json
 from ..formats.session import MANIFEST
 from ..formats.tables import write_table
-from ..formats.targets import MOVING_COLUMN, TARGET_COLUMNS, TARGET_FORMATS, read_targets
+from ..formats.targets import TARGET_FORMATS, read_targets, target_csv_columns
 from ..formats.truth import read_truth_targets
 from .demo import match_targets
 
@@ -112,8 +112,8 @@ def truth_errors(session: Path, rows: list[dict]) -> dict:
         log.warning("%s", exc)
         return {}
     pairs = [(tt, f) for tt, f in match_targets(rows, truth) if f is not None]
-    err = np.array([np.linalg.norm(np.array([f["x_mm"], f["y_mm"], f["z_mm"]]) - tt["position_mm"]) for tt, f in pairs])
-    crb = np.array([f["crb_mm"] for _, f in pairs], float)
+    err = np.array([np.linalg.norm(np.array(f["position_mm"]) - tt["position_mm"]) for tt, f in pairs])
+    crb = np.array([np.nan if f["crb_mm"] is None else f["crb_mm"] for _, f in pairs], float)
     nan = float("nan")
     return {"truth_targets": len(truth), "truth_found": len(pairs),
             "error_rms_mm": float(np.sqrt(np.mean(err ** 2))) if len(err) else nan,
@@ -144,19 +144,16 @@ def write_batch_report(out, statuses: dict) -> list[dict]:
     """Write ``REPORT_FILES`` into ``out`` from each session's status ({name: status}) and
     outputs. Returns the report's rows (dicts keyed by ``COLUMNS``' CSV names)."""
     out = Path(out)
-    table, targets = [], []
+    table, targets, sessions = [], [], []
     for st in statuses.values():
         row, rows = _session_row(out, st)
         table.append(row)
-        targets += [dict(r, session=st["name"]) for r in rows]
+        targets += rows
+        sessions += [st["name"]] * len(rows)
     write_table(out / "batch_report.csv", {k: np.array([r[k] for r in table], dtype=object if k not in FORMATS
                                                           else float) for k, _ in COLUMNS}, FORMATS)
-    names = ["session", *TARGET_COLUMNS] + ([MOVING_COLUMN] if any(r.get(MOVING_COLUMN) for r in targets) else [])
-    cols = {k: [r[k] for r in targets] for k in names if k != MOVING_COLUMN}
-    if MOVING_COLUMN in names:
-        cols[MOVING_COLUMN] = [int(bool(r.get(MOVING_COLUMN))) for r in targets]
-    write_table(out / "all_targets.csv", {k: np.array(v, dtype=float if k in TARGET_FORMATS else object)
-                                          for k, v in cols.items()}, TARGET_FORMATS)
+    cols = {"session": np.array(sessions, object), **target_csv_columns(targets)}      # targets.csv's columns
+    write_table(out / "all_targets.csv", cols, TARGET_FORMATS)
     write_text(out / "batch_report.html", _html(out, table))
     return table
 
