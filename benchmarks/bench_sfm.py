@@ -100,9 +100,9 @@ def target_errors(root: Path, sfm: Path | None) -> list:
     res = process_session(root, out, report=False, sfm_map=sfm)
     truth = [t for t in json.loads((root / "truth" / "targets.json").read_text())["targets"]
              if sum(b - a for a, b in t["fixations_s"]) >= 1.0]
-    found = [{"target": t.index, **dict(zip(("x_mm", "y_mm", "z_mm"), t.position_mm, strict=True))} for t in res.found]
-    return [float(np.linalg.norm(np.subtract([f["x_mm"], f["y_mm"], f["z_mm"]], tt["position_mm"])))
-            if f is not None else float("nan") for tt, f in match_targets(found, truth)]
+    found = [{"target": t.index, "position_mm": list(t.position_mm)} for t in res.found]
+    return [float(np.linalg.norm(np.subtract(f["position_mm"], tt["position_mm"]))) if f is not None else float("nan")
+            for tt, f in match_targets(found, truth)]
 
 
 def main() -> None:
@@ -112,19 +112,21 @@ def main() -> None:
     ap.add_argument("--origin", type=int, default=0, help="the one marker placing the map (default 0)")
     ap.add_argument("--step", type=int, default=1, help="localise every STEP-th walkabout frame (default 1)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/wg-bench-sfm"), help="folder kept between runs")
+    ap.add_argument("--reuse-map", action="store_true", help="localise in the map an earlier run built")
     args = ap.parse_args()
     survey = session(args.work, f"survey-{args.seed}-60", {"base": "survey", "duration_s": 60}, args.seed)
     walk = session(args.work, f"walkabout-{args.seed}", {"base": "lab-walkabout"}, args.seed)
     sfm = args.work / f"sfm-{args.seed}-{args.frames}-{args.origin}"
-    shutil.rmtree(sfm, ignore_errors=True)
-    t0, c0 = time.perf_counter(), time.process_time()
-    build = build_sfm_files([survey / "scene.mp4"], survey / "truth" / "camera.json", sfm, args.frames,
-                            markers=survey / "markers.json", origin=args.origin)
-    dt, cpu = time.perf_counter() - t0, time.process_time() - c0
-    for line in format_sfm_report(build):
-        print(line)
-    print(f"reconstruction: {dt:.0f} s ({cpu:.0f} s CPU) for {args.frames} frames of a 60 s 720p survey on one core "
-          "(target <= 600 s)")
+    if not (args.reuse_map and sfm.is_dir()):
+        shutil.rmtree(sfm, ignore_errors=True)
+        t0, c0 = time.perf_counter(), time.process_time()
+        build = build_sfm_files([survey / "scene.mp4"], survey / "truth" / "camera.json", sfm, args.frames,
+                                markers=survey / "markers.json", origin=args.origin)
+        dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+        for line in format_sfm_report(build):
+            print(line)
+        print(f"reconstruction: {dt:.0f} s ({cpu:.0f} s CPU) for {args.frames} frames of a 60 s 720p survey on one "
+              "core (target <= 600 s)")
     localisation(sfm, walk, args.step)
     e_markers, e_sfm = target_errors(walk, None), target_errors(walk, sfm)
     print(f"targets with markers {np.round(e_markers, 1).tolist()} mm, with the markerless map "
