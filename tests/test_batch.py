@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from wearable_gaze.cli import main
+from wearable_gaze.formats.batch_status import read_status
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.pipeline.batch import BatchSettings, find_sessions, output_names, run_batch
-from wearable_gaze.pipeline.batch_report import read_status
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 

@@ -139,11 +139,20 @@ def target_csv_columns(records: list[dict]) -> dict:
     return cols
 
 
+def write_targets_csv(path, records: list[dict], sessions=None) -> None:
+    """Write ``records`` as a targets.csv table (``target_csv_columns``) at ``path``; with
+    ``sessions`` ((N,) names), a ``session`` column in front (``batch``'s all_targets.csv)."""
+    cols = target_csv_columns(records)
+    if sessions is not None:
+        cols = {"session": np.array(list(sessions), object), **cols}
+    write_table(path, cols, TARGET_FORMATS)
+
+
 def write_targets(out, records: list[dict], method: str) -> None:
     """Write ``records`` (``target_record``) as ``out``/targets.csv and ``out``/targets.json
     (with ``method``, the estimator), each atomically."""
     out = Path(out)
-    write_table(out / "targets.csv", target_csv_columns(records), TARGET_FORMATS)
+    write_targets_csv(out / "targets.csv", records)
     write_json(out / "targets.json", {"version": TARGETS_VERSION, "method": method, "targets": records})
 
 

@@ -27,8 +27,9 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..formats.atomic import remove_temporaries
+from ..formats.batch_status import STATUS_FILE, earlier_statuses, read_status, write_index, write_status
 from ..formats.session import MANIFEST
-from .batch_report import STATUS_FILE, earlier_statuses, read_status, write_batch_report, write_index, write_status
+from .batch_report import write_batch_report
 from .batch_workers import DaskRunner, LocalRunner, SessionTask, WorkerLost, one_line
 
 log = logging.getLogger(__name__)

@@ -1,5 +1,5 @@
-"""The files of ``wearable-gaze batch`` (docs/batch.md): each session's status
-(``OUT/NAME/batch_status.json``), the batch's index (``OUT/batch.json``) and its report: one
+"""The report of ``wearable-gaze batch`` (docs/batch.md; the status files it reads:
+``formats.batch_status``): one
 table of all sessions as ``batch_report.html`` and ``batch_report.csv`` (targets, durations,
 problems, accuracy against the simulator's truth where the session has one), and every
 session's targets in one table, ``all_targets.csv``. All written atomically.
@@ -10,7 +10,6 @@ from __future__ import annotations
 import html
 import json
 import logging
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -18,20 +17,14 @@ import numpy as np
 
 from ..errors import UserError
 from ..formats.atomic import write_text
-from ..formats.jsonio import write_json
 from ..formats.session import MANIFEST
 from ..formats.tables import write_table
-from ..formats.targets import TARGET_FORMATS, read_targets, target_csv_columns
+from ..formats.targets import read_targets, write_targets_csv
 from ..formats.truth import read_truth_targets
 from .demo import match_targets
 
 log = logging.getLogger(__name__)
 
-STATUS_FILE = "batch_status.json"
-"""Each session's status, in its output folder."""
-INDEX_FILE = "batch.json"
-"""The batch's index: every session's status."""
-STATES = ("pending", "running", "done", "failed")
 REPORT_FILES = ("batch_report.html", "batch_report.csv", "all_targets.csv")
 
 # the report's columns: (CSV name, HTML header with its unit)
@@ -42,47 +35,6 @@ COLUMNS = (("session", "session"), ("state", "state"), ("reason", "reason"), ("n
            ("peak_rss_mb", "worker peak memory (MB)"), ("worker", "worker"), ("path", "session folder"))
 FORMATS = {"recording_s": ".1f", "processing_s": ".1f", "error_rms_mm": ".1f", "error_max_mm": ".1f",
            "crb_rms_mm": ".1f", "peak_rss_mb": ".0f"}
-
-
-# --- status files --------------------------------------------------------------------------------
-
-def read_status(folder: Path) -> dict | None:
-    """The status in ``folder/STATUS_FILE``, or None (no file, or one that is not a status)."""
-    p = Path(folder) / STATUS_FILE
-    try:
-        st = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        return None
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
-        log.warning("%s is unreadable (%s); its session is done again", p, exc)
-        return None
-    ok = isinstance(st, dict) and st.get("state") in STATES and isinstance(st.get("session"), str)
-    return st if ok else None
-
-
-def write_status(folder: Path, status: dict) -> None:
-    """Write a session's status (a dict with ``name``, ``session``, ``state``, ``reason``,
-    ``fingerprint``, ...) into its output folder, atomically."""
-    write_json(Path(folder) / STATUS_FILE, status)
-
-
-def earlier_statuses(out: Path) -> dict:
-    """{resolved session path: status} of the sessions an earlier batch wrote into ``out``."""
-    found = {}
-    if out.is_dir():
-        for d in sorted(out.iterdir()):
-            st = read_status(d) if d.is_dir() else None
-            if st is not None and st.get("name") == d.name:
-                found[Path(st["session"])] = st
-    return found
-
-
-def write_index(out: Path, statuses: dict, settings: dict) -> None:
-    """``OUT/batch.json``: the settings, the counts per state and every session's status."""
-    counts = Counter(s["state"] for s in statuses.values())
-    write_json(Path(out) / INDEX_FILE, {"version": 1, "updated": time.time(), "settings": settings,
-                                        "counts": {k: counts.get(k, 0) for k in STATES},
-                                        "sessions": list(statuses.values())})
 
 
 # --- the report ----------------------------------------------------------------------------------
@@ -152,8 +104,7 @@ def write_batch_report(out, statuses: dict) -> list[dict]:
         sessions += [st["name"]] * len(rows)
     write_table(out / "batch_report.csv", {k: np.array([r[k] for r in table], dtype=object if k not in FORMATS
                                                           else float) for k, _ in COLUMNS}, FORMATS)
-    cols = {"session": np.array(sessions, object), **target_csv_columns(targets)}      # targets.csv's columns
-    write_table(out / "all_targets.csv", cols, TARGET_FORMATS)
+    write_targets_csv(out / "all_targets.csv", targets, sessions)           # targets.csv's columns after session
     write_text(out / "batch_report.html", _html(out, table))
     return table
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import UserError
-from .batch_report import read_status, write_status
+from ..formats.batch_status import read_status, write_status
 
 log = logging.getLogger(__name__)
 
