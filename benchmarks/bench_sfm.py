@@ -18,7 +18,6 @@ and <= 15 mm; targets within 1.5x the errors with markers.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import shutil
 import time
@@ -27,11 +26,11 @@ from pathlib import Path
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from tracking.localise import FeatureLocaliser
 from tracking.pose import rotation_angle_deg
 from wearable_gaze.formats.camera import load_camera
+from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.sfmmap import load_sfm_map
 from wearable_gaze.pipeline.sfm import build_sfm_files, format_sfm_report
 from wearable_gaze.sim.simulate import simulate_scenario
@@ -48,14 +47,8 @@ def session(work: Path, name: str, spec: dict, seed: int) -> Path:
 
 def true_poses(root: Path) -> dict:
     """{frame: T_world_from_cam} of the simulator's truth."""
-    out = {}
-    with open(root / "truth" / "head_poses.csv", newline="") as fh:
-        for r in csv.DictReader(fh):
-            T = np.eye(4)
-            T[:3, :3] = Rotation.from_quat([float(r[k]) for k in ("qx", "qy", "qz", "qw")]).as_matrix()
-            T[:3, 3] = [float(r[k]) for k in ("tx", "ty", "tz")]
-            out[int(r["frame"])] = T
-    return out
+    _, frame, T, _ = read_poses_csv(root / "truth" / "head_poses.csv")
+    return dict(zip(frame.tolist(), T, strict=True))
 
 
 def localisation(sfm: Path, root: Path, step: int) -> None:

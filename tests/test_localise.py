@@ -19,6 +19,7 @@ from tracking.localise import FeatureLocaliser, FeatureMap, image_features, root
 from tracking.pose import rotation_angle_deg
 from wearable_gaze.cli import main
 from wearable_gaze.formats.camera import load_camera
+from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.sfmmap import load_sfm_map
 from wearable_gaze.pipeline.track import track_video
 from wearable_gaze.sim.simulate import simulate_scenario
@@ -117,14 +118,9 @@ def survey(tmp_path_factory):
 
 
 def _truth(sess) -> dict:
-    out = {}
-    with open(sess / "truth" / "head_poses.csv", newline="") as fh:
-        for r in csv.DictReader(fh):
-            T = np.eye(4)
-            T[:3, :3] = Rotation.from_quat([float(r[k]) for k in ("qx", "qy", "qz", "qw")]).as_matrix()
-            T[:3, 3] = [float(r[k]) for k in ("tx", "ty", "tz")]
-            out[int(r["frame"])] = T
-    return out
+    """{frame: T_world_from_cam} of the simulator's true head poses."""
+    _, frame, T, _ = read_poses_csv(sess / "truth" / "head_poses.csv")
+    return dict(zip(frame.tolist(), T, strict=True))
 
 
 def test_a_markerless_map_of_a_rendered_survey_localises_its_frames_within_a_few_mm(survey):

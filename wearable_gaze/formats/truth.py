@@ -35,10 +35,15 @@ def read_truth_targets(path) -> list[dict]:
     Raises:
         UserError: a missing or malformed file.
     """
-    d = read_json_text(path, "simulator's truth targets file")
-    if not isinstance(d, dict) or not isinstance(d.get("targets"), list):
-        raise UserError(f"{path}: no 'targets' list; simulate the session again (wearable-gaze simulate)")
-    return d["targets"]
+    return _truth_list(path, "targets", "simulator's truth targets file")
+
+
+def _truth_list(path, key: str, what: str) -> list:
+    """The list under ``key`` of a truth JSON file (``what`` it is, for messages)."""
+    d = read_json_text(path, what)
+    if not isinstance(d, dict) or not isinstance(d.get(key), list):
+        raise UserError(f"{path}: no '{key}' list; simulate the session again (wearable-gaze simulate)")
+    return d[key]
 
 
 def write_truth_eyes(path, eyes: dict) -> None:
@@ -73,7 +78,4 @@ def read_truth_moved_markers(path) -> list[dict]:
     Raises:
         UserError: a missing or malformed file.
     """
-    d = read_json_text(path, "simulator's truth moved markers file")
-    if not isinstance(d, dict) or not isinstance(d.get("moved_markers"), list):
-        raise UserError(f"{path}: no 'moved_markers' list; simulate the session again (wearable-gaze simulate)")
-    return d["moved_markers"]
+    return _truth_list(path, "moved_markers", "simulator's truth moved markers file")
