@@ -274,7 +274,11 @@ class DaskRunner:
                     result = fut.result()
                 except Exception as exc:  # noqa: BLE001  (KilledWorker, a lost scheduler: that session fails)
                     result = exc
-                yield self.futures[fut], result
+                task = self.futures.pop(fut)
+                # released at once: a finished task whose worker dies later would otherwise be
+                # computed again to restore its lost result, and write the session's status anew
+                fut.release()
+                yield task, result
 
     def stop(self) -> None:
         """Cancel the sessions not yet started (those running finish on their workers)."""
