@@ -184,6 +184,13 @@ def test_the_3d_views_data_survives_its_embedding():
     assert json.loads(m.group(1)) == scene                           # "</" escaped: the script is not cut short
     assert scene["targets"][0]["truth"] == [0, 0, 2900] and scene["head"] == [[0, 0, 0], [5, 5, 5]]
     assert "http" not in view3d.viewer_script()                       # nothing fetched: works offline
+    assert scene["points"] == []
+    # a markerless map's points: thinned, rounded to 1 mm, non-finite rows dropped
+    P = np.random.default_rng(0).uniform(-2000, 2000, (10000, 3))
+    P[5] = np.nan
+    pts = view3d.scene([tg], np.zeros((1, 3)), points_mm=P)["points"]
+    assert len(pts) == view3d.MAX_ROOM_POINTS and all(len(p) == 3 and isinstance(p[0], int) for p in pts)
+    assert pts[0] == [round(v) for v in P[0]] and [None] not in pts
 
 
 def test_process_overlay_video_option_reaches_the_report_step(tmp_path, monkeypatch):

@@ -398,12 +398,14 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
     inputs = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"] + ([f.video] if cfg.overlay and f.video
                                                                                  else [])
     extra = [p for p in (f.import_report, f.truth_targets, f.truth_head_poses, f.markers) if p]
+    extra += [cfg.sfm_map / SFM_FEATURES] if cfg.sfm_map is not None else []
 
     def do_report(cb):
         notes = _report_notes(f, cfg)
+        points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else None
         write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes,
                      load_truth(f.truth_targets, f.truth_head_poses), vals["marker_map"] if has_map else None,
-                     cfg.overlay_video)
+                     cfg.overlay_video, points)
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
               | ({"overlay_video": True} if cfg.overlay_video else {}), do_report)
 

@@ -125,6 +125,19 @@
     if (show.markers) {
       scene.markers.forEach(m => polyline(m.corners, true));
       stroke("#555555", 1.2, 0.9);
+      const r = window.devicePixelRatio || 1;
+      (scene.points || []).forEach(p => {       // a markerless map's points: small grey squares
+        const v = toView(p);
+        if (v[2] < near()) return;
+        const s = screen(v);
+        ctx.rect(s[0] - r, s[1] - r, 2 * r, 2 * r);
+        drawn += 1;
+      });
+      ctx.globalAlpha = 0.45;
+      ctx.fillStyle = "#8a8f96";
+      ctx.fill();
+      ctx.globalAlpha = 1;
+      ctx.beginPath();
     }
     const o = scene.origin, ax = 300;
     // the axes in grey, not red, green, blue: those are the targets' colours

@@ -16,6 +16,7 @@ import numpy as np
 
 MAX_HEAD_POINTS = 1500       # the head path is thinned to at most this many points
 MAX_LINES = 40               # view lines drawn per target
+MAX_ROOM_POINTS = 3000       # a markerless map's points are thinned to at most this many
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,7 @@ def _thin(P, n: int) -> np.ndarray:
     return P[np.unique(np.linspace(0, len(P) - 1, n).round().astype(int))]
 
 
-def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_truth=()) -> dict:
+def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_truth=(), points_mm=None) -> dict:
     """The 3D view's scene (JSON-ready, mm).
 
     Args:
@@ -71,6 +72,7 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
         markers_mm: (K, 4, 3) the map's markers' corners, or None.
         truth_head_mm: (M', 3) the true head path (simulated session), or None.
         other_truth: (label, position (3,)) true targets no estimate matched.
+        points_mm: (P, 3) the room's points (a markerless map's, ``process --map``), or None.
     """
     markers = [] if markers_mm is None else [{"corners": _mm(c)} for c in np.asarray(markers_mm, float)]
     return {
@@ -89,6 +91,7 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
             "truth_path": None if t.truth_path_mm is None else _mm(_thin(t.truth_path_mm, 300)),
         } for t in targets],
         "other_truth": [{"label": label, "position": _mm(p)} for label, p in other_truth],
+        "points": [] if points_mm is None else _mm(_thin(points_mm, MAX_ROOM_POINTS)),
     }
 
 
@@ -102,7 +105,7 @@ def html_block(scene_data: dict, has_truth: bool) -> str:
     targets' colours, the scene as JSON and the viewer inlined (``</`` escaped so no string in
     the data can end the script)."""
     data = json.dumps(scene_data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
-    layers = [("markers", "markers of the map"), ("head", "head path"), ("lines", "view lines"),
+    layers = [("markers", "the room (markers, map points)"), ("head", "head path"), ("lines", "view lines"),
               ("ellipsoids", "95 % ellipsoids")] + ([("truth", "truth")] if has_truth else [])
     boxes = " ".join(f'<label><input type="checkbox" data-layer="{k}" checked> {html.escape(v)}</label>'
                      for k, v in layers)
@@ -112,9 +115,10 @@ def html_block(scene_data: dict, has_truth: bool) -> str:
              if has_truth else "")
     return f"""<h2>3D view</h2>
 <p>Drag to turn, wheel to zoom, double-click to reset. World frame of the marker map (mm; up is &minus;y).
-Grey squares: the map's markers; black: the head path; thin lines: view lines (every few), from the eye to the
-target's distance; dots and ellipses: each target's estimate and its 95 % ellipsoid (three principal sections);
-the axes x, y, z (dark grey), 300 mm long, at the map's origin.{truth}</p>
+Grey squares: the map's markers (grey dots: a markerless map's points); black: the head path; thin lines:
+view lines (every few), from the eye to the target's distance; dots and ellipses: each target's estimate and
+its 95 % ellipsoid (three principal sections); the axes x, y, z (dark grey), 300 mm long, at the map's
+origin.{truth}</p>
 <p class="legend">{legend}</p>
 <p>{boxes}</p>
 <canvas id="view3d" style="width:100%;height:560px;border:1px solid #ccc;touch-action:none"></canvas>
