@@ -100,6 +100,18 @@ def publish_url(text):
     return text
 
 
+def times_and_distance(text: str) -> tuple:
+    """``T1,T2,MM`` -> (t1 s, t2 s, mm) for ``map --distance``."""
+    try:
+        t1, t2, mm = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not T1,T2,MM (two times in s, a distance in mm), e.g. "
+                                         "5,12.5,3000") from None
+    if not (t1 >= 0 and t2 >= 0 and t1 != t2 and mm > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: two different times >= 0 s and a distance > 0 mm")
+    return t1, t2, mm
+
+
 def resolution(text):
     try:
         w, h = (int(v) for v in text.lower().split("x"))

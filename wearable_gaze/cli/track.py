@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
-
 from ..errors import UserError
 from . import args as A
 
@@ -80,18 +78,6 @@ def cmd_map(args) -> int:
     return 0
 
 
-def _distance(text: str) -> tuple:
-    """``T1,T2,MM`` -> (t1 s, t2 s, mm) for ``map --distance``."""
-    try:
-        t1, t2, mm = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not T1,T2,MM (two times in s, a distance in mm), e.g. "
-                                         "5,12.5,3000") from None
-    if not (t1 >= 0 and t2 >= 0 and t1 != t2 and mm > 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: two different times >= 0 s and a distance > 0 mm")
-    return t1, t2, mm
-
-
 def _cmd_markerless(args) -> int:
     from ..pipeline.sfm import build_sfm_files, format_sfm_report  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
@@ -100,7 +86,7 @@ def _cmd_markerless(args) -> int:
         raise UserError("map --markerless: --extend and --sizes are for marker maps; a markerless map is fixed by "
                         "--origin-marker ID --size-mm MM or by --markers MAP.json")
     with progress_bar("features, matching and reconstruction", 1) as cb:
-        build = build_sfm_files(args.inputs, args.camera, args.out, args.max_frames or 150, args.dict or "DICT_4X4_50",
+        build = build_sfm_files(args.inputs, args.camera, args.out, args.max_frames or 150, args.dict,
                                 args.size_mm, args.origin_marker, args.markers, cb, args.distance)
     for line in format_sfm_report(build):
         print(line)
@@ -131,7 +117,7 @@ def add_map(sub) -> None:
     mp.add_argument("--markerless", action="store_true",
                     help="reconstruct the textured room itself (pycolmap structure from motion) into the folder -o; "
                          "scaled by --origin-marker ID --size-mm MM or placed by --markers MAP.json")
-    mp.add_argument("--distance", type=_distance, metavar="T1,T2,MM",
+    mp.add_argument("--distance", type=A.times_and_distance, metavar="T1,T2,MM",
                     help="with --markerless, no marker needed: the camera moved MM mm between T1 and T2 s of the "
                          "video (e.g. two tape-measured marks on the floor); the world is the camera's frame at T1")
     mp.add_argument("--markers", metavar="map.json",

@@ -78,9 +78,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     total = frames_total(files, max_frames)
     views, names, repeated = [], [], {}
     for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
-        if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
-            raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
-                            f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
+        check_frame_size(name, grey, cam)
         unique, rep, _ = split_repeated(detector.detect(grey))
         for i in rep:
             repeated[i] = repeated.get(i, 0) + 1
@@ -104,6 +102,17 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
+
+
+def check_frame_size(name: str, grey, cam) -> None:
+    """Refuse a frame (H, W) of another size than the camera calibration's (``name``: which).
+
+    Raises:
+        UserError: naming the two sizes and the fix.
+    """
+    if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
+        raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
+                        f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
 
 
 def frames_total(files, max_frames: int) -> int:

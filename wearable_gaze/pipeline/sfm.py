@@ -43,6 +43,7 @@ from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import write_sfm_map
 from ..formats.video import grey_frames_at, video_fps
 from .calibrate import input_files, read_frames
+from .mapping import DEFAULT_DICT, check_frame_size, frames_total
 
 log = logging.getLogger(__name__)
 
@@ -68,14 +69,14 @@ class SfmBuild:
     cameras: dict
 
 
-def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, dictionary: str = "DICT_4X4_50",
+def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, dictionary: str | None = None,
                     size_mm: float | None = None, origin: int | None = None, markers=None,
                     progress=None, distance: tuple | None = None) -> SfmBuild:
     """Reconstruct the room of ``inputs`` (videos, images, folders of images; at most
     ``max_frames`` evenly spaced frames of each video) seen by the camera of ``camera_path``, and
     write the map folder ``out_dir`` (docs/formats.md, "Markerless map"; built beside it and
     renamed when complete). The world: marker ``origin``'s frame, its printed side ``size_mm``
-    (markers of ``dictionary``); or with ``markers`` (a marker map), that map's world, fitted
+    (markers of ``dictionary``, default ``DEFAULT_DICT``); or with ``markers`` (a marker map), that map's world, fitted
     to all its markers seen or to ``origin`` alone; or, without markers, ``distance`` (t_a s,
     t_b s, mm): the camera moved that far between those two times of the (one) video, and the
     world is the camera's frame at t_a. ``progress(done, total)``: over the frames, then over
@@ -91,21 +92,24 @@ def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, diction
             distance is None and marker_map is None and size_mm is None):
         raise UserError("map --markerless: fix the scale and the world with one of --origin-marker ID --size-mm MM "
                         "(a marker in view), --markers MAP.json (the room's marker map) or --distance T1,T2,MM")
-    if distance is not None and (len(input_files(inputs)) != 1 or not _is_video(input_files(inputs)[0])):
+    files = input_files(inputs)
+    if distance is not None and (len(files) != 1 or files[0].suffix.lower() in IMAGE_EXT):
         raise UserError("map --markerless --distance: give one survey video (the times are in it)")
-    dictionary = marker_map.dictionary if marker_map is not None else dictionary
+    dictionary = marker_map.dictionary if marker_map is not None else (dictionary or DEFAULT_DICT)
     try:
         aruco_dictionary(dictionary)
     except ValueError as exc:
         raise UserError(f"--dict: {exc}") from None
     with atomic_folder(out_dir) as tmp:
-        frames = _frames(inputs, cam, MarkerDetector(dictionary), max_frames, tmp / "images", progress)
+        frames = _frames(files, cam, MarkerDetector(dictionary), max_frames, tmp / "images", progress)
         rec = _reconstruct(tmp, cam, frames, progress)
+        in_sfm = _feature_map(rec, frames)
         if distance is not None:
-            T_world_from_sfm, scaled_by = _world_by_distance(rec, frames, cam, input_files(inputs)[0], *distance)
+            T_world_from_sfm, scaled_by = _world_by_distance(in_sfm, cam, files[0], *distance)
         else:
             T_world_from_sfm, scaled_by = _world(rec, frames, cam, marker_map, origin, size_mm)
-        fmap = _feature_map(rec, frames, T_world_from_sfm)
+        fmap = FeatureMap(in_sfm.points_world @ T_world_from_sfm[:3, :3].T + T_world_from_sfm[:3, 3],   # a similarity
+                          in_sfm.descriptors, in_sfm.point_of)
         cameras = {frames["names"][k]: T for k, T in _cameras(rec, T_world_from_sfm).items()}
         (tmp / "colmap").mkdir()
         rec.write(str(tmp / "colmap"))
@@ -118,19 +122,15 @@ def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, diction
     return build
 
 
-def _frames(inputs, cam: CameraCalibration, detector: MarkerDetector, max_frames: int, folder: Path, progress) -> dict:
-    """The selected frames: names, features (positions px, descriptors), markers {id: corners
-    px}; each written to ``folder`` as NNNNN.jpg for pycolmap (which reads their sizes)."""
-    from .mapping import frames_total  # noqa: PLC0415
-
+def _frames(files, cam: CameraCalibration, detector: MarkerDetector, max_frames: int, folder: Path, progress) -> dict:
+    """The selected frames of ``files``: names, features (positions px, descriptors), markers
+    {id: corners px}; each written to ``folder`` as NNNNN.jpg for pycolmap (which reads their
+    sizes)."""
     folder.mkdir()
-    files = input_files(inputs)
     total = frames_total(files, max_frames)
     out = {"names": [], "features": [], "markers": []}
     for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room")):
-        if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
-            raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
-                            f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
+        check_frame_size(name, grey, cam)
         write_image(folder / f"{k:05d}.jpg", grey)
         out["names"].append(name)
         out["features"].append(image_features(grey))
@@ -225,19 +225,15 @@ def _world(rec, frames: dict, cam: CameraCalibration, marker_map: MarkerMap | No
                **({"size_mm": float(size_mm)} if kind == "marker" else {})}
 
 
-def _is_video(path: Path) -> bool:
-    return path.suffix.lower() not in IMAGE_EXT
-
-
-def _world_by_distance(rec, frames: dict, cam: CameraCalibration, video: Path, t_a: float, t_b: float, mm: float
+def _world_by_distance(in_sfm: FeatureMap, cam: CameraCalibration, video: Path, t_a: float, t_b: float, mm: float
                        ) -> tuple[np.ndarray, dict]:
     """``T_world_from_sfm`` from a distance: the video's frames at ``t_a`` and ``t_b`` s (index =
-    round(t * fps)) localised in the unscaled reconstruction, their camera centres ``mm`` apart;
-    the world is the camera's frame at ``t_a`` (x right, y down, z forward), mm."""
+    round(t * fps)) localised in the unscaled reconstruction (``in_sfm``), their camera centres
+    ``mm`` apart; the world is the camera's frame at ``t_a`` (x right, y down, z forward), mm."""
     fps = video_fps(video)
     idx = [int(round(t * fps)) for t in (t_a, t_b)]
     grey = grey_frames_at(video, idx)
-    localiser = FeatureLocaliser(_feature_map(rec, frames, np.eye(4)), cam, scale=FEATURE_SCALE)
+    localiser = FeatureLocaliser(in_sfm, cam, scale=FEATURE_SCALE)
     poses = []
     for t, i in zip((t_a, t_b), idx, strict=True):
         if i not in grey:
@@ -256,8 +252,9 @@ def _world_by_distance(rec, frames: dict, cam: CameraCalibration, video: Path, t
                "residual_mm": 0.0}
 
 
-def _feature_map(rec, frames: dict, T_world_from_sfm) -> FeatureMap:
-    """The 3D points (world, mm) with the descriptors of up to ``DESCRIPTORS_PER_POINT`` views of each."""
+def _feature_map(rec, frames: dict) -> FeatureMap:
+    """The 3D points (the reconstruction's frame and unit) with the descriptors of up to
+    ``DESCRIPTORS_PER_POINT`` views of each."""
     pts, desc, owner = [], [], []
     for p, (pid, point) in enumerate(sorted(rec.points3D.items())):
         del pid
@@ -267,8 +264,7 @@ def _feature_map(rec, frames: dict, T_world_from_sfm) -> FeatureMap:
             k = int(Path(rec.images[els[j].image_id].name).stem)
             desc.append(frames["features"][k][1][els[j].point2D_idx])
             owner.append(p)
-    P = np.asarray(pts, float) @ T_world_from_sfm[:3, :3].T + T_world_from_sfm[:3, 3]
-    return FeatureMap(P, np.asarray(desc, np.float32), np.asarray(owner, np.int64))
+    return FeatureMap(np.asarray(pts, float), np.asarray(desc, np.float32), np.asarray(owner, np.int64))
 
 
 def _cameras(rec, T_world_from_sfm) -> dict:
