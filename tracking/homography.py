@@ -18,7 +18,7 @@ from calibration.images import to_grey
 from estimator._checks import check_transform, check_vector
 from estimator.frames import invert
 
-from .pnp import pose_covariance, reprojection_residuals, rms_px, transform_from_rvec_tvec
+from .pnp import pose_covariance, pose_fault, reprojection_residuals, rms_px, transform_from_rvec_tvec
 from .pose import OK, REJECTED, TOO_FEW, PoseResult
 
 log = logging.getLogger(__name__)
@@ -101,10 +101,9 @@ class PlanarTracker:
         rms = rms_px(r, self.f)
         T_cp = transform_from_rvec_tvec(rvec, tvec)
         log.debug("planar tracker: %d of %d matches inliers, RMS %.2f px", len(x_i), len(good), rms)
-        if T_cp[2, 3] <= 0:
-            return PoseResult(None, REJECTED, "the surface would be behind the camera")
-        if rms > self.max_reproj_px:
-            return PoseResult(None, REJECTED, f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px")
+        why = pose_fault(T_cp, np.zeros((1, 3)), rms, self.max_reproj_px, "the surface")   # its origin in front
+        if why:
+            return PoseResult(None, REJECTED, why)
         cov = pose_covariance(obj_i, rvec, tvec, r, self.f, self.T_world_from_plane)
         T_wc = self.T_world_from_plane @ invert(T_cp)
         return PoseResult(T_wc, OK, "", [], int(len(x_i)), rms, cov)

@@ -24,7 +24,7 @@ import numpy as np
 from calibration.camera import CameraCalibration
 from estimator.frames import invert
 
-from .pnp import pose_covariance, reprojection_residuals, rms_px
+from .pnp import pose_covariance, pose_fault, reprojection_residuals, rms_px
 from .pose import OK, REJECTED, TOO_FEW, PoseResult
 
 log = logging.getLogger(__name__)
@@ -129,6 +129,13 @@ class FeatureLocaliser:
         self._index = cv2.flann_Index(feature_map.descriptors, {"algorithm": 1, "trees": 4})
         self._checks = checks
         self.scales = (scale,) if scale == FEATURE_SCALE else (scale, FEATURE_SCALE)
+        import pycolmap  # noqa: PLC0415  (made once: pose() runs on every frame)
+
+        w, h = (int(v) for v in camera.image_size)
+        self._pinhole = pycolmap.Camera(model="PINHOLE", width=w, height=h, params=[self.f, self.f, 0.0, 0.0])
+        self._options = pycolmap.AbsolutePoseEstimationOptions()
+        self._options.ransac.max_error = ransac_px
+        self._options.ransac.random_seed = 0
 
     def matches(self, desc) -> tuple[np.ndarray, np.ndarray]:
         """(query rows (K,), map points (K,)) of descriptors (N, 128) that pass the ratio test
@@ -169,12 +176,7 @@ class FeatureLocaliser:
         import pycolmap  # noqa: PLC0415
 
         x = self.camera.undistort_points(px)
-        w, h = (int(v) for v in self.camera.image_size)
-        cam = pycolmap.Camera(model="PINHOLE", width=w, height=h, params=[self.f, self.f, 0.0, 0.0])
-        opts = pycolmap.AbsolutePoseEstimationOptions()
-        opts.ransac.max_error = self.ransac_px
-        opts.ransac.random_seed = 0
-        r = pycolmap.estimate_and_refine_absolute_pose(x * self.f, pts_world, cam, opts)
+        r = pycolmap.estimate_and_refine_absolute_pose(x * self.f, pts_world, self._pinhole, self._options)
         if r is None:
             return PoseResult(None, REJECTED, "no consistent pose from the matched features", n_points=len(x))
         T_cw = np.eye(4)
@@ -184,10 +186,8 @@ class FeatureLocaliser:
         rvec, tvec = cv2.Rodrigues(T_cw[:3, :3])[0], T_cw[:3, 3].copy()
         res = reprojection_residuals(pts_world[inl], x[inl], rvec, tvec)
         rms = rms_px(res, self.f) if n else float("inf")
-        depth = (pts_world[inl] @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
         why = (f"{n} inlier matches, need {self.min_inliers}" if n < self.min_inliers else
-               "a matched point would be behind the camera" if np.any(depth <= 0) else
-               f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px" if rms > self.max_reproj_px else "")
+               pose_fault(T_cw, pts_world[inl], rms, self.max_reproj_px, "a matched point"))
         if why:
             log.debug("feature pose rejected: %s", why)
             return PoseResult(None, REJECTED, why, n_points=n, reproj_rms_px=rms)

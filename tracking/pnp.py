@@ -35,6 +35,17 @@ def rms_px(residuals, focal_px: float) -> float:
     return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1)))) * focal_px
 
 
+def pose_fault(T_cam_from_obj, pts_obj, rms: float, max_reproj_px: float, what: str) -> str:
+    """Why a solved pose fails the sanity checks every solver applies, or '' when it passes: a
+    point of ``pts_obj`` (N, 3), object frame, behind the camera (``what`` names the points in
+    the message), or the inliers' reprojection RMS ``rms`` over ``max_reproj_px`` pixels."""
+    T = np.asarray(T_cam_from_obj, float)
+    depth = np.asarray(pts_obj, float).reshape(-1, 3) @ T[2, :3] + T[2, 3]
+    if np.any(depth <= 0):
+        return f"{what} would be behind the camera"
+    return f"reprojection RMS {rms:.1f} px > {max_reproj_px} px" if rms > max_reproj_px else ""
+
+
 def covariance_cam_from_obj(obj_pts, rvec, tvec, residuals, focal_px: float) -> np.ndarray:
     """(6, 6) covariance of OpenCV's (rvec rad, tvec mm) of ``T_cam_from_obj`` from a least-squares
     fit: ``sigma^2 (J^T J)^-1`` with ``J`` the projection Jacobian at the inliers ``obj_pts`` (N, 3)

@@ -22,7 +22,7 @@ from estimator.frames import invert
 
 from .markermap import MarkerMap, square_corners
 from .markers import MarkerDetection, detection, split_repeated
-from .pnp import pose_covariance, reprojection_residuals, rms_px, transform_from_rvec_tvec
+from .pnp import pose_covariance, pose_fault, reprojection_residuals, rms_px, transform_from_rvec_tvec
 
 log = logging.getLogger(__name__)
 
@@ -173,10 +173,8 @@ class MarkerPoseEstimator:
         T_cw = transform_from_rvec_tvec(rvec, tvec)
         r = reprojection_residuals(obj_i, x_i, rvec, tvec)
         rms = rms_px(r, self.f)
-        depth = (obj @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
         used = sorted({ids[k // 4] for k in np.flatnonzero(inliers)})
-        why = ("a marker would be behind the camera" if np.any(depth <= 0) else
-               f"reprojection RMS {rms:.1f} px > {self.max_reproj_px} px" if rms > self.max_reproj_px else "")
+        why = pose_fault(T_cw, obj, rms, self.max_reproj_px, "a marker")
         if why:
             log.debug("pose from markers %s rejected: %s", used, why)
             return PoseResult(None, REJECTED, why, used, int(inliers.sum()), rms)
