@@ -71,8 +71,8 @@ def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | 
 def walkabout_errors(work: Path, seed: int, built_path: Path) -> tuple[list, list]:
     """Target errors (mm) of lab-walkabout ``seed`` processed with its true map and with the built
     one (the built world moved into the true one by the origin marker's pose)."""
-    from wearable_gaze.pipeline.demo import match_targets
     from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.truth_match import match_targets
 
     root = work / f"walkabout-{seed}"
     if not (root / "session.json").is_file():

@@ -86,8 +86,8 @@ def localisation(sfm: Path, root: Path, step: int) -> None:
 
 def target_errors(root: Path, sfm: Path | None) -> list:
     """Errors (mm) of the fixated targets of ``root`` processed with its markers or with ``sfm``."""
-    from wearable_gaze.pipeline.demo import match_targets
     from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.truth_match import match_targets
 
     out = root / ("processed-sfm" if sfm else "processed-markers")
     res = process_session(root, out, report=False, sfm_map=sfm)

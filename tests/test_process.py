@@ -11,8 +11,8 @@ import pytest
 
 from wearable_gaze.cli import main
 from wearable_gaze.formats.tables import read_table
-from wearable_gaze.pipeline.demo import match_targets
 from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.truth_match import match_targets
 
 # the fixture ``processed`` (tests/conftest.py): a simulated session processed once per test run
 

@@ -21,7 +21,7 @@ from ..formats.session import MANIFEST
 from ..formats.tables import write_table
 from ..formats.targets import read_targets, write_targets_csv
 from ..formats.truth import read_truth_targets
-from .demo import match_targets
+from .truth_match import match_targets
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ def _recording_s(session: Path) -> float:
 
 def truth_errors(session: Path, rows: list[dict]) -> dict:
     """The targets found (rows of targets.json) against a simulated session's truth
-    (``truth/targets.json``; ``demo.match_targets``): the static true targets, how many were
+    (``truth/targets.json``; ``truth_match.match_targets``): the static true targets, how many were
     found, the RMS and largest distance of each found one to its truth (mm) and the RMS of their
     Cramér-Rao bounds (mm). {} without a truth."""
     path = session / "truth" / "targets.json"

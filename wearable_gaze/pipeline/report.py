@@ -33,6 +33,7 @@ from ..formats.viewlines import read_viewlines_csv
 from . import report_plots, view3d
 from .overlay import PREVIEW_NAME, PREVIEW_WIDTH, VIDEO_NAME, OverlayInputs, OverlayTargets, caption, write_overlays
 from .report_plots import _plt, _save  # noqa: F401  (mapping.py's map plot uses them)
+from .truth_match import match_positions
 from .types import Target
 
 log = logging.getLogger(__name__)
@@ -150,11 +151,10 @@ def report_data(out: Path, T_p: np.ndarray, truth: ReportTruth | None = None) ->
 
 def match_truth(targets: list, paths: dict, truth: ReportTruth | None) -> tuple[dict, list]:
     """({target index: truth entry}, [unmatched truth entries]): each true fixed target paired
-    with the nearest static estimate as ``demo`` pairs them (``demo.match_positions``); each
+    with the nearest static estimate as the demo pairs them (``truth_match.match_positions``); each
     true moving target with the moving target whose time overlaps its fixations most."""
     if truth is None:
         return {}, []
-    from .demo import match_positions  # noqa: PLC0415  (demo imports process, which imports this)
 
     static = [t for t in targets if t.index not in paths and np.all(np.isfinite(t.position_mm))]
     matched, unmatched = {}, []
