@@ -304,3 +304,22 @@ def test_parse_ids():
     for bad in ("5-3", "-1", "", "a", "1-2-3", "0-99999999"):
         with pytest.raises(UserError):
             parse_ids(bad)
+
+
+def test_progress_bar_draws_a_new_total_at_once(monkeypatch):
+    """A batch learns its session count after the bar opens: the bar shows it before any step
+    ends (it used to read 0/1 until the first session finished)."""
+    import io
+    import sys
+
+    from wearable_gaze.progress import progress_bar
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    err = Tty()
+    monkeypatch.setattr(sys, "stderr", err)
+    with progress_bar("sessions", 1) as cb:
+        cb(0, 8)
+        assert "0/8" in err.getvalue()

@@ -17,7 +17,9 @@ def progress_bar(description: str, total: int):
     state = {"done": 0}
 
     def callback(done: int, total_: int):
-        bar.total = total_
+        if total_ != bar.total:             # a new total is drawn at once, not at the next step
+            bar.total = total_
+            bar.refresh()
         bar.update(done - state["done"])
         state["done"] = done
 
