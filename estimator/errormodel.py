@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.stats import chi2, norm
 
 from .frames import tangent_basis
 from .lines import ViewLines
@@ -46,9 +46,10 @@ Pupil Core 3D: 1.0-1.5 deg; Kassner et al. 2014, Niehorster et al. 2020), which 
 about 0.35-0.7 deg."""
 
 
-FAR_SIDE_K = 2.8
+FAR_SIDE_K = math.sqrt(chi2.ppf(0.95, 3))
 """``ErrorModel.far_side_k``: the 95 % ellipsoid's radius in sds (sqrt of chi2(3)'s 95 % point,
-7.81), so that the 95 % ellipsoid reaches the far end of the 95 % interval in inverse depth."""
+7.81: 2.80), so that the 95 % ellipsoid reaches the far end of the 95 % interval in inverse depth.
+Other levels' regions are ``at_level``'s."""
 
 
 @dataclass(frozen=True)
@@ -210,7 +211,8 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
                      weights=None) -> tuple[np.ndarray | None, dict]:
     """Covariance (3, 3), mm^2, of a point fitted to ``lines`` under the error model, and what it
     found (``info``: per-eye noise in degrees, chi-square ratios, whether it inflated the noise,
-    correlations, the bias, the floor's share of the trace, the far side's stretch, ``bias_cov``
+    correlations, the bias, the floor's share of the trace, the far side's stretch and what
+    ``at_level`` needs (``sight_info``), ``bias_cov``
     (3, 3) the floor itself and ``linear_cov`` (3, 3) the covariance before the stretch, a
     ``note`` for people). The covariance is stretched along the line of sight by ``far_side``.
 
@@ -244,7 +246,8 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
             "chi2_ratio": nz["chi2_ratio"].round(3).tolist(), "inflated": bool(inflated or f_t > 1),
             "eye_correlation": round(nz["rho"], 3), "time_correlation": round(nz["rho_t"], 3),
             "bias_deg": model.bias_deg, "pose_sigma_deg": model.pose_sigma_deg,
-            "bias_share": float(np.trace(C_bias) / max(np.trace(C), 1e-300)), "far_side_factor": round(far, 3)}
+            "bias_share": float(np.trace(C_bias) / max(np.trace(C), 1e-300)), "far_side_factor": round(far, 3),
+            **sight_info(C_lin, X, lines.origins_mm.mean(axis=0), model.far_side_k)}
     info["note"] = _note(nz, f_t, sigma_rad)
     info["bias_cov"], info["linear_cov"] = C_bias, 0.5 * (C_lin + C_lin.T)
     return C, info
@@ -281,6 +284,62 @@ def far_side(C, point_mm, origin_mm, k: float) -> tuple[np.ndarray, float]:
     f = FAR_SIDE_CAP if kr >= 1.0 - 1.0 / FAR_SIDE_CAP else 1.0 / (1.0 - kr)
     S = np.eye(3) + (f - 1.0) * np.outer(u, u)
     return S @ C @ S, float(f)
+
+
+def sight_info(C_lin, point_mm, origin_mm, k: float) -> dict:
+    """What an estimate's ``info["error_model"]`` keeps so that its regions at any level can be
+    drawn (``at_level``, ``depth_interval``): where its lines were seen from (``sight_origin_mm``,
+    the eyes' mean origin, world, mm), the far side's ``k`` its covariance was stretched with,
+    and ``depth_rel_sd``, the relative sd of its distance from there in the linearised
+    covariance ``C_lin`` (3, 3) mm^2 (before the stretch; NaN when undefined)."""
+    v = np.asarray(point_mm, float) - np.asarray(origin_mm, float)
+    D = float(np.linalg.norm(v))
+    r = math.sqrt(max(float(v @ np.asarray(C_lin, float) @ v), 0.0)) / D**2 if D > 0 else float("nan")
+    return {"sight_origin_mm": [float(x) for x in np.asarray(origin_mm, float).reshape(3)], "far_side_k": float(k),
+            "depth_rel_sd": float(r)}
+
+
+def _stretch(k: float, r: float) -> float:
+    """``far_side``'s stretch ``1 / (1 - k r)``, at most ``FAR_SIDE_CAP``."""
+    return FAR_SIDE_CAP if k * r >= 1.0 - 1.0 / FAR_SIDE_CAP else 1.0 / (1.0 - k * r)
+
+
+def at_level(C, point_mm, origin_mm, probability: float, k: float, rel_sd: float, dof: int = 3) -> np.ndarray:
+    """The covariance (3, 3) mm^2 whose ``probability`` ellipsoid (chi2 with ``dof``) is the
+    region of that level, from ``C``, the error model's covariance stretched by ``far_side``
+    with ``k`` (the 95 % level's). The stretch that makes the 95 % region reach the far end of
+    the 95 % interval in inverse depth makes a 68 % region too long (on the real Aria walk's
+    0.5 s windows, a median 3.4 times): each level gets its own, with ``k_p = sqrt(chi2.ppf(p,
+    dof))``. ``C`` unchanged when it was not stretched (``k`` 0) or nothing is defined.
+
+    Args:
+        C: (3, 3) covariance, mm^2 (``GazeEstimate.covariance_mm2``).
+        point_mm, origin_mm: (3,) the point and where it was seen from, mm.
+        probability: the region's level, in (0, 1).
+        k, rel_sd: the far side's ``k`` and the linearised relative depth sd (``sight_info``).
+        dof: 3 for a 3D region; 1 for an interval along the line of sight.
+    """
+    C = np.asarray(C, float)
+    v = np.asarray(point_mm, float) - np.asarray(origin_mm, float)
+    D = float(np.linalg.norm(v))
+    if k <= 0 or not D > 0 or not math.isfinite(rel_sd):
+        return C
+    u = v / D
+    g = _stretch(math.sqrt(chi2.ppf(probability, dof)), rel_sd) / _stretch(k, rel_sd)
+    S = np.eye(3) + (g - 1.0) * np.outer(u, u)
+    return S @ C @ S
+
+
+def depth_interval(point_mm, origin_mm, probability: float, rel_sd: float) -> tuple[float, float]:
+    """The ``probability`` interval (near, far) of the distance of ``point_mm`` from
+    ``origin_mm``, mm, symmetric in inverse depth (where vergence and parallax are Gaussian):
+    ``D / (1 +- z r)`` with ``r = rel_sd`` the linearised relative depth sd (``sight_info``);
+    far is ``inf`` when the interval has no far end; (NaN, NaN) when ``r`` is undefined."""
+    D = float(np.linalg.norm(np.asarray(point_mm, float) - np.asarray(origin_mm, float)))
+    if not (D > 0 and math.isfinite(rel_sd)):
+        return float("nan"), float("nan")
+    z = float(norm.ppf(0.5 + probability / 2.0))
+    return D / (1.0 + z * rel_sd), (D / (1.0 - z * rel_sd) if z * rel_sd < 1.0 else float("inf"))
 
 
 def _noise_meat(J, w, eye, si, nz: dict, pose_rad: float) -> np.ndarray:

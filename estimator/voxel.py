@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errormodel import ErrorModel, far_side, model_covariance
+from .errormodel import ErrorModel, far_side, model_covariance, sight_info
 from .grid import DensityGrid, _quadratic_fit_local
 from .likelihood import (
     MAX_TAN2,
@@ -454,8 +454,10 @@ class VoxelEstimator:
             bias, linear = minfo.pop("bias_cov"), minfo.pop("linear_cov")
             self._model = (L, linear - bias, bias, minfo, o.mean(axis=0))
         n0, noise, bias, minfo, origin = self._model
-        C, f = far_side(noise * (n0 / L) + bias, point, origin, model.far_side_k)
-        info["error_model"] = {**minfo, "far_side_factor": round(f, 3)}
+        C_lin = noise * (n0 / L) + bias
+        C, f = far_side(C_lin, point, origin, model.far_side_k)
+        info["error_model"] = {**minfo, "far_side_factor": round(f, 3),
+                               **sight_info(C_lin, point, origin, model.far_side_k)}
         return C
 
     def _result(self, point, cov) -> GazeEstimate:

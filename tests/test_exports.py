@@ -217,18 +217,27 @@ def test_one_target_record_for_targets_json_estimate_json_and_the_live_messages(
     records = read_targets(out / "targets.json")
     assert json.loads((out / "summary.json").read_text())["targets"] == res.targets
     capsys.readouterr()
-    assert main(["estimate", str(out / "viewlines.csv"), "--targets", "--method", "lse", "--json"]) == 0
+    assert main(["estimate", str(out / "viewlines.csv"), "--targets", "--method", "ml", "--json"]) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.strip()]
     for x in lines:
         validate(x, "estimate-line", "estimate --json")
     got = [x for x in lines if "target" in x]
     assert len(got) == len(records)
     assert all(list(g) == [*r, "covariance_model"] for g, r in zip(got, records, strict=True))
-    cols = read_table(out / "targets.csv", ["target", "x_mm", "cov_zz_mm2", "ellipsoid95_r3_mm"], ("fixations",))
+    cols = read_table(out / "targets.csv", ["target", "x_mm", "cov_zz_mm2", "ellipsoid95_r3_mm", "distance_mm",
+                                            "depth68_near_mm", "depth95_far_mm"], ("fixations",))
     for j, r in enumerate(records):
         assert cols["x_mm"][j] == pytest.approx(r["position_mm"][0], abs=0.051)
         assert cols["cov_zz_mm2"][j] == pytest.approx(r["covariance_mm2"][2][2], rel=1e-5)
         assert cols["fixations"][j] == ";".join(map(str, r["fixations"]))
+        d = r["depth"]                                   # the error model's: every target has its depth
+        assert cols["distance_mm"][j] == pytest.approx(d["distance_mm"], abs=0.051)
+        assert cols["depth68_near_mm"][j] == pytest.approx(d["interval68_mm"][0], abs=0.051)
+        assert d["interval95_mm"][0] < d["interval68_mm"][0] < d["distance_mm"] < d["interval68_mm"][1]
+        assert d["distance_mm"] == pytest.approx(np.linalg.norm(np.subtract(r["position_mm"], d["seen_from_mm"])))
+    capsys.readouterr()
+    assert main(["estimate", str(out / "viewlines.csv"), "--targets", "--method", "lse", "--json"]) == 0
+    assert not any("depth" in json.loads(x) for x in capsys.readouterr().out.splitlines() if x.strip())  # no model
 
 
 def test_the_export_formats_round_trip_through_their_one_reader(tmp_path, monkeypatch):

@@ -212,6 +212,11 @@ def test_live_estimates_converge_to_the_targets(live_run):
         m = next(x for x in targets if x["target"] == f["target"])
         err = np.linalg.norm(np.array(m["position_mm"]) - tt["position_mm"])
         assert err < 2.0 * max(m["ellipsoid95_radii_mm"])          # within twice its own 95 % ellipsoid
+        if not m.get("moving"):                                     # the error model's depth and its intervals
+            d = m["depth"]
+            assert d["interval95_mm"][0] < d["distance_mm"] < (d["interval95_mm"][1] or np.inf)
+            assert d["distance_mm"] == pytest.approx(np.linalg.norm(np.subtract(m["position_mm"], d["seen_from_mm"])),
+                                                     abs=0.2)
     est = [m for m in msgs if m["type"] == "estimate"]
     assert len(est) > 100
 

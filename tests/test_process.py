@@ -85,7 +85,11 @@ def test_report_in_headless_chromium_loads_shows_the_truth_and_a_3d_view_that_tu
             page.wait_for_function("document.body.dataset.images !== undefined")
             loaded, total = map(int, page.evaluate("document.body.dataset.images").split("/"))
             headers = page.eval_on_selector_all("#targets th", "els => els.map(e => e.textContent)")
-            errs = page.eval_on_selector_all("#targets tr td:nth-child(11)", "els => els.map(e => e.textContent)")
+            col = {h: k + 1 for k, h in enumerate(headers)}
+            errs = page.eval_on_selector_all(f"#targets tr td:nth-child({col['error (mm)']})",
+                                             "els => els.map(e => e.textContent)")
+            k = col["distance from where it was seen (m): estimate (68 % / 95 % intervals)"]
+            depth = page.eval_on_selector_all(f"#targets tr td:nth-child({k})", "els => els.map(e => e.textContent)")
             scene = json.loads(page.text_content("#view3d-data"))
             canvas = page.locator("#view3d")
             canvas.scroll_into_view_if_needed()
@@ -104,6 +108,8 @@ def test_report_in_headless_chromium_loads_shows_the_truth_and_a_3d_view_that_tu
     for h in ("true position x, y, z (mm)", "error (mm)", "error / bound", "Cramér-Rao bound (mm)"):
         assert h in headers
     assert len(errs) == len(res.targets) and all(re.fullmatch(r"\d+\.\d", e) for e in errs), errs
+    iv = r"\d+\.\d\d–(\d+\.\d\d|∞)"
+    assert depth and all(re.fullmatch(rf"\d+\.\d\d \({iv} / {iv}\)", x) for x in depth), depth
     assert drawn > 100 and shot.std() > 10                                    # not blank
     assert len(scene["targets"]) == len(res.targets) and len(scene["markers"]) > 0
     for t in scene["targets"]:

@@ -9,13 +9,16 @@ messages carry them (adding ``version``, ``type``, ``fixation``, rounded). Keys,
 ``target`` (index), ``t_start``, ``t_end`` (s), ``position_mm`` ([x, y, z], world frame, mm, or
 null: no usable estimate), ``ellipsoid95_radii_mm`` (the 95 % ellipsoid's semi-axes, increasing,
 mm, or null: no covariance), ``n_samples``, ``method``, ``status``, ``covariance_mm2`` (3x3, mm^2,
-or null), ``crb_mm`` (or null), ``fixations`` (list of fixation indices) and, on a moving target
-only, ``moving: true``. targets.json is ``{"version": 2, "method": ..., "targets": [records]}``
+or null), ``crb_mm`` (or null), ``fixations`` (list of fixation indices), on a moving target
+only, ``moving: true``, and, where the error model gave the covariance, ``depth`` (its distance
+from where it was seen and the 68 % and 95 % intervals of it, symmetric in inverse depth:
+``DEPTH_KEYS``). targets.json is ``{"version": 2, "method": ..., "targets": [records]}``
 (schema ``targets``); ``read_targets`` also reads version 1 files (flat rows, NaN for none) into
 records. targets.csv holds the same records flattened (``TARGET_CSV_COLUMNS``: ``position_mm``
 -> ``x_mm, y_mm, z_mm``; ``covariance_mm2`` -> ``cov_xx_mm2 .. cov_zz_mm2``, its six unique
 terms; ``ellipsoid95_radii_mm`` -> ``ellipsoid95_r1_mm .. r3_mm``; ``fixations`` ``;``-joined;
-``moving`` 1/0), an empty cell for null, rounded to 0.1 mm and 1 ms for spreadsheets.
+``moving`` 1/0; ``depth`` -> ``distance_mm``, ``depth68_near_mm .. depth95_far_mm``), an empty
+cell for null, rounded to 0.1 mm and 1 ms for spreadsheets.
 
 ``target_paths.csv`` holds the moving targets' paths, one row per knot: ``target``, ``t`` (s),
 ``x, y, z`` (world frame, mm) and the covariance terms ``cxx, cxy, cxz, cyy, cyz, czz`` (mm^2);
@@ -42,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.errormodel import FAR_SIDE_K, depth_interval
+
 from ..errors import UserError
 from .atomic import atomic_path
 from .jsonio import validate, write_json
@@ -53,10 +58,18 @@ TARGET_KEYS = ("target", "t_start", "t_end", "position_mm", "ellipsoid95_radii_m
 COV_TERMS = ("xx", "xy", "xz", "yy", "yz", "zz")
 TARGET_CSV_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", *(f"cov_{k}_mm2" for k in COV_TERMS), "ellipsoid95_r1_mm",
                       "ellipsoid95_r2_mm", "ellipsoid95_r3_mm", "n_samples", "t_start", "t_end", "fixations", "method",
-                      "status", "crb_mm", "moving")
+                      "status", "crb_mm", "moving", "distance_mm", "depth68_near_mm", "depth68_far_mm",
+                      "depth95_near_mm", "depth95_far_mm")
 """The columns of targets.csv: a record flattened (``target_csv_columns``)."""
+DEPTH_COLUMN = "depth"
+DEPTH_KEYS = ("seen_from_mm", "distance_mm", "relative_sd", "interval68_mm", "interval95_mm")
+"""The keys of a record's ``depth``: where it was seen from (the mean origin of its view lines,
+[x, y, z] world frame, mm), its distance from there (mm), the linearised relative sd of that
+distance, and the 68 % and 95 % intervals of it ([near, far] mm, far null when the interval has no
+far end), symmetric in inverse depth (``estimator.errormodel.depth_interval``)."""
 TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "ellipsoid95_r1_mm", "ellipsoid95_r2_mm",
-                                     "ellipsoid95_r3_mm", "crb_mm")} | {
+                                     "ellipsoid95_r3_mm", "crb_mm", "distance_mm", "depth68_near_mm",
+                                     "depth68_far_mm", "depth95_near_mm", "depth95_far_mm")} | {
     f"cov_{k}_mm2": ".6g" for k in COV_TERMS} | {"t_start": ".3f", "t_end": ".3f"}
 TARGETS_VERSION = 2
 MOVING_COLUMN = "moving"
@@ -87,7 +100,7 @@ def _finite(value, decimals: int | None = None):
 
 def target_record(index: int, t_start: float, t_end: float, position_mm, radii95_mm, n_samples: int, method: str,
                   status: str, covariance_mm2=None, crb_mm: float = float("nan"), fixations=(), moving: bool = False,
-                  rounded: bool = False) -> dict:
+                  rounded: bool = False, sight=None) -> dict:
     """The record of one target (keys ``TARGET_KEYS``, plain JSON values): the one function that
     makes the rows of targets.json, the objects of ``estimate --json --targets`` and the body of
     the live ``target`` message, so that they cannot drift apart.
@@ -102,6 +115,8 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
         fixations: the fixation indices merged into it.
         moving: a moving target: the record gets ``moving: true`` (a static one has no such key).
         rounded: round to 0.1 mm and 0.1 ms (a 6-digit covariance), as the live messages are sent.
+        sight: (where it was seen from (3,) mm, the far side's k, the relative depth sd) of the
+            error model (``pipeline.types.Target.sight``): the record gets ``depth``.
     """
     mm, s = (1, 4) if rounded else (None, None)
     cov = _finite_list(covariance_mm2, (3, 3), None)
@@ -114,7 +129,32 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
            "crb_mm": _finite(crb_mm, mm), "fixations": [int(f) for f in fixations]}
     if moving:
         rec[MOVING_COLUMN] = True
+    if sight is not None and rec["position_mm"] is not None and np.isfinite(sight[2]):
+        rec[DEPTH_COLUMN] = _depth(position_mm, sight, mm)
     return rec
+
+
+def _depth(position_mm, sight, mm: int | None) -> dict:
+    """A record's ``depth`` (``DEPTH_KEYS``) of the point ``position_mm`` seen from ``sight``."""
+    origin, r = np.asarray(sight[0], float), float(sight[2])
+
+    def interval(p):
+        near, far = depth_interval(position_mm, origin, p, r)
+        return [_finite(near, mm), _finite(far, mm)]
+
+    return {"seen_from_mm": _finite_list(origin, (3,), mm),
+            "distance_mm": _finite(np.linalg.norm(np.asarray(position_mm, float) - origin), mm),
+            "relative_sd": _finite(r, None if mm is None else 4), "interval68_mm": interval(0.68),
+            "interval95_mm": interval(0.95)}
+
+
+def record_sight(rec: dict):
+    """(seen from (3,) mm, the far side's k, relative depth sd) of a record with ``depth``
+    (targets.json's covariances are the error model's, stretched for the 95 % level), else None."""
+    d = rec.get(DEPTH_COLUMN)
+    if not d or d.get("seen_from_mm") is None or d.get("relative_sd") is None:
+        return None
+    return np.asarray(d["seen_from_mm"], float), FAR_SIDE_K, float(d["relative_sd"])
 
 
 def target_csv_columns(records: list[dict]) -> dict:
@@ -136,6 +176,15 @@ def target_csv_columns(records: list[dict]) -> dict:
     cols |= {k: np.array([r[k] for r in records], object) for k in ("method", "status")}
     cols |= {"crb_mm": np.array([np.nan if r["crb_mm"] is None else r["crb_mm"] for r in records], float),
              "moving": np.array([int(bool(r.get(MOVING_COLUMN))) for r in records], int)}
+
+    def depth(r, key, j=None):
+        d = r.get(DEPTH_COLUMN)
+        v = None if not d else (d[key] if j is None else d[key][j])
+        return np.nan if v is None else v
+
+    cols |= {"distance_mm": np.array([depth(r, "distance_mm") for r in records], float)}
+    cols |= {f"depth{p}_{side}_mm": np.array([depth(r, f"interval{p}_mm", j) for r in records], float)
+             for p in (68, 95) for j, side in enumerate(("near", "far"))}
     return cols
 
 

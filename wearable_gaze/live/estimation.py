@@ -281,7 +281,7 @@ class GazeEstimation:
         return Target(index=index, position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
                       axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm, status=str(est.status.value),
                       n_samples=done.n_samples, t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,),
-                      method=self.method, crb_mm=float("nan"))
+                      method=self.method, crb_mm=float("nan"), sight=est.sight())
 
     def moving_target(self, done: FinishedFixation, samples: BinocularSamples) -> Target | None:
         """The target of the finished fixation ``done`` when its (thinned) lines ``samples``

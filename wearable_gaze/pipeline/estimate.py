@@ -89,7 +89,7 @@ def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixa
     crb = _crb(samples.select(idx), e.position_mm, sigma_deg) if e.ok else None
     far = float(e.info.get("error_model", {}).get("far_side_factor", 1.0))
     status = target_status(e.status.value, pos, radii, samples.select(idx), far)
-    return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2,
+    return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2, sight=e.sight(),
                   axes95_mm=np.asarray(radii, float), status=status, n_samples=len(idx),
                   t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in fixations), method=method,

@@ -273,7 +273,9 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
     session has a truth."""
     has_truth = bool(d.truth or d.unmatched)
     head = ("<tr><th>target</th><th>position x, y, z (mm)</th><th>distance from the head (m)</th>"
-            "<th>95 % semi-axes (mm)</th><th>samples</th><th>time (s)</th><th>fixations</th>"
+            "<th>distance from where it was seen (m): estimate (68 % / 95 % intervals)</th>"
+            "<th>95 % semi-axes (mm)</th><th>samples</th>"
+            "<th>time (s)</th><th>fixations</th>"
             "<th>Cramér-Rao bound (mm)</th><th>predicted sd (mm)</th>"
             + ("<th>true position x, y, z (mm)</th><th>error (mm)</th><th>error / bound</th>"
                "<th>error / predicted sd</th>" if has_truth else "") + "<th>status</th></tr>")
@@ -282,7 +284,7 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
         sd = float(np.sqrt(np.sum(np.asarray(t.axes95_mm) ** 2)) / K95)
         dist = float(np.linalg.norm(t.position_mm - d.centre) / 1000)
         cells = (f'<td><span class="swatch" style="background:{colour(t.index)}"></span>{t.index}</td>'
-                 f"<td>{_xyz(t.position_mm)}</td>" + _cells(dist, fmt="{:.2f}")
+                 f"<td>{_xyz(t.position_mm)}</td>" + _cells(dist, fmt="{:.2f}") + f"<td>{_intervals(t)}</td>"
                  + f"<td>{_xyz(t.axes95_mm, ' / ')}</td><td>{t.n_samples}</td><td>{t.t_start:.1f}&ndash;{t.t_end:.1f}"
                  f"</td><td>{html.escape(', '.join(map(str, t.fixations)))}</td>" + _cells(t.crb_mm, sd))
         if has_truth:
@@ -297,10 +299,23 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
         rows.append(f"<tr>{cells}<td>{html.escape(status)}</td></tr>")
     for tt in d.unmatched:
         X = tt.get("position_mm")
-        rows.append(f"<tr><td>&ndash;</td><td>not found</td>{'<td></td>' * 7}"
+        rows.append(f"<tr><td>&ndash;</td><td>not found</td>{'<td></td>' * 8}"
                     f"<td>{_xyz(X) if X is not None else 'a moving target'} (true target {tt['index']})</td>"
                     f"{'<td></td>' * 3}<td>not found</td></tr>")
     return head, "".join(rows)
+
+
+def _intervals(t) -> str:
+    """A target's distance from where it was seen (its view lines' mean origin), m, and its 68 %
+    and 95 % intervals, symmetric in inverse depth (``Target.depth_interval``; '&infin;': no far
+    end); '&ndash;' without the error model's."""
+    parts = []
+    for p in (0.68, 0.95):
+        near, far = t.depth_interval(p)
+        if t.sight is None or not np.isfinite(near):
+            return "&ndash;"
+        parts.append(f"{near / 1000:.2f}&ndash;" + (f"{far / 1000:.2f}" if np.isfinite(far) else "&infin;"))
+    return f"{np.linalg.norm(t.position_mm - t.sight[0]) / 1000:.2f} ({' / '.join(parts)})"
 
 
 def _xyz(v, sep: str = ", ") -> str:

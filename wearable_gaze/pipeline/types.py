@@ -16,9 +16,10 @@ import numpy as np
 
 from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
+from estimator.errormodel import at_level, depth_interval
 from estimator.motion import STATIC, Trajectory
 
-from ..formats.targets import MOVING_COLUMN, TARGET_KEYS, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
+from ..formats.targets import MOVING_COLUMN, TARGET_KEYS, record_sight, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
 
 
 @dataclass
@@ -72,6 +73,9 @@ class Target:
             middle knot and its status 'moving'; the path is ``trajectory``.
         trajectory: a moving target's path (``estimator.motion.Trajectory``; target_paths.csv),
             or None (a static target, or one read from targets.json).
+        sight: (where its lines were seen from (3,) mm, the far side's k, the linearised
+            relative depth sd) of the error model (``estimator.errormodel.sight_info``), which
+            draws its region at any level; None without the error model.
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -91,6 +95,23 @@ class Target:
     samples: np.ndarray | None = None
     moving: bool = False
     trajectory: Trajectory | None = None
+    sight: tuple | None = None
+
+    def level_covariance(self, probability: float) -> np.ndarray | None:
+        """(3, 3) mm^2 whose ``probability`` ellipsoid is the region of that level (the error
+        model's far side drawn for that level: ``estimator.errormodel.at_level``); the
+        covariance itself when the target has no ``sight``; None without a covariance."""
+        if self.covariance_mm2 is None or self.sight is None:
+            return self.covariance_mm2
+        return at_level(self.covariance_mm2, self.position_mm, self.sight[0], probability, self.sight[1], self.sight[2])
+
+    def depth_interval(self, probability: float = 0.95) -> tuple[float, float]:
+        """(near, far) mm: the ``probability`` interval of its distance from where it was seen
+        (``sight``), symmetric in inverse depth (``estimator.errormodel.depth_interval``); (NaN,
+        NaN) without one."""
+        if self.sight is None or not np.all(np.isfinite(self.position_mm)):
+            return float("nan"), float("nan")
+        return depth_interval(self.position_mm, self.sight[0], probability, self.sight[2])
 
     @property
     def ok(self) -> bool:
@@ -103,7 +124,7 @@ class Target:
         target; ``rounded`` as the live messages send it."""
         return target_record(self.index, self.t_start, self.t_end, self.position_mm, self.axes95_mm, self.n_samples,
                              self.method, self.status, self.covariance_mm2, self.crb_mm, self.fixations, self.moving,
-                             rounded)
+                             rounded, self.sight)
 
     @classmethod
     def from_row(cls, row: dict) -> Target:
@@ -118,7 +139,7 @@ class Target:
                    axes95_mm=vec("ellipsoid95_radii_mm"), status=str(row["status"]), n_samples=int(row["n_samples"]),
                    t_start=_num(row["t_start"]), t_end=_num(row["t_end"]),
                    fixations=tuple(int(f) for f in row["fixations"]), method=str(row["method"]),
-                   crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)))
+                   crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)), sight=record_sight(row))
 
 
 def _num(v) -> float:
