@@ -250,3 +250,28 @@ def test_the_import_command_export_recording_prints_runs(tmp_path, capsys):
     assert argv[:2] == ["wearable-gaze", "import"]
     assert main(argv[1:]) == 0, capsys.readouterr().err
     assert (tmp_path / "imported" / "head_poses.csv").is_file()
+
+
+def test_the_way_out_of_a_session_without_a_map_can_be_taken(tmp_path, capsys):
+    """``process`` on a session without a marker map says what to do instead; every command and
+    option the line names exists, and the poses of ``track --reference`` go somewhere that takes
+    them (``viewlines --poses``; process has no option for poses: 'pass the poses' led nowhere)."""
+    import json  # noqa: PLC0415
+
+    from wearable_gaze.cli import main  # noqa: PLC0415
+
+    s = tmp_path / "s"
+    assert main(["simulate", "-o", str(s), "--duration", "1", "--resolution", "320x180"]) == 0
+    manifest = json.loads((s / "session.json").read_text())
+    (s / manifest["files"].pop("marker_map")).unlink()
+    (s / "session.json").write_text(json.dumps(manifest))
+    capsys.readouterr()
+    assert main(["process", str(s), "--camera", str(s / "truth" / "camera.json"),
+                 "--eyes", str(s / "truth" / "eyes.json")]) == 2
+    line = next(ln for ln in capsys.readouterr().err.splitlines() if "no marker map" in ln)
+    named = re.findall(r"'wearable-gaze (\S+)([^']*)'", line)
+    assert ("viewlines", " --poses") in named, line
+    for cmd, rest in named:
+        assert set(OPTION.findall(rest)) <= options_of(cmd), line
+    loose = re.sub(r"'wearable-gaze [^']*'", "", line)
+    assert set(OPTION.findall(loose)) <= options_of("process"), line
