@@ -275,3 +275,30 @@ def test_the_way_out_of_a_session_without_a_map_can_be_taken(tmp_path, capsys):
         assert set(OPTION.findall(rest)) <= options_of(cmd), line
     loose = re.sub(r"'wearable-gaze [^']*'", "", line)
     assert set(OPTION.findall(loose)) <= options_of("process"), line
+
+
+SECTION = re.compile(r'(docs/[\w/-]+\.md),? (?:"([^"]+)"|([A-Z][A-Za-z ]+[a-z])\))')
+LEAD = re.compile(r"^(?:#+ +(.+)|\s*(?:- )?\*\*(.+?)\*\*|\| *([^|]+))", re.M)
+
+
+def test_sections_cited_by_name_exist():
+    """``docs/x.md, "A section"`` names a heading (or a bold lead, or a table row) of that document."""
+    bad = []
+    for path in DOCS:
+        for m in SECTION.finditer(path.read_text(encoding="utf-8")):
+            doc, title = ROOT / m.group(1), (m.group(2) or m.group(3)).lower()
+            leads = [next(g for g in m.groups() if g).lower() for m in LEAD.finditer(doc.read_text(encoding="utf-8"))]
+            if not any(ln.startswith(title) and (ln[len(title):][:1] in ("", " ", "(", ":", ",")
+                                                 or ln[len(title):] == ".") for ln in leads):
+                bad.append(f"{path.relative_to(ROOT)}: {m.group(0)}")
+    assert not bad, "\n".join(bad)
+
+
+def test_formats_lists_every_schema():
+    """docs/formats.md, "How files are checked", lists the schemas there are."""
+    text = (ROOT / "docs" / "formats.md").read_text(encoding="utf-8")
+    listed = text.split("Every JSON format has a JSON Schema", 1)[1].split("A schema refers", 1)[0]
+    names = set(re.findall(r"`([a-z-]+)`", listed))
+    schemas = (ROOT / "wearable_gaze" / "formats" / "schemas").glob("*.schema.json")
+    files = {p.name.removesuffix(".schema.json") for p in schemas}
+    assert names == files, f"missing: {files - names}, not schemas: {names - files}"
