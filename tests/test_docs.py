@@ -302,3 +302,11 @@ def test_formats_lists_every_schema():
     schemas = (ROOT / "wearable_gaze" / "formats" / "schemas").glob("*.schema.json")
     files = {p.name.removesuffix(".schema.json") for p in schemas}
     assert names == files, f"missing: {files - names}, not schemas: {names - files}"
+
+
+def test_every_extra_the_docs_install_exists():
+    """``pip install 'wearable-gaze[X]'`` names an extra of pyproject.toml."""
+    tomllib = pytest.importorskip("tomllib", reason="tomllib is Python 3.11's")
+    extras = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    named = {(p.name, x) for p in DOCS for x in re.findall(r"wearable-gaze\[(\w+)\]", p.read_text(encoding="utf-8"))}
+    assert named and {x for _, x in named} <= extras, sorted(n for n in named if n[1] not in extras)
