@@ -310,3 +310,20 @@ def test_every_extra_the_docs_install_exists():
     extras = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"])
     named = {(p.name, x) for p in DOCS for x in re.findall(r"wearable-gaze\[(\w+)\]", p.read_text(encoding="utf-8"))}
     assert named and {x for _, x in named} <= extras, sorted(n for n in named if n[1] not in extras)
+
+
+def test_map_markerless_names_its_folder_as_given(tmp_path, monkeypatch, capsys):
+    """``map --markerless ... -o sfm/`` (as docs/tracking.md writes it) prints ``sfm/``, not ``sfm//``,
+    in the line a user copies from (the reconstruction itself is stubbed: only the printing is tested)."""
+    from wearable_gaze.cli import main  # noqa: PLC0415
+    from wearable_gaze.pipeline import sfm  # noqa: PLC0415
+
+    monkeypatch.setattr(sfm, "build_sfm_files", lambda *a, **k: None)
+    monkeypatch.setattr(sfm, "format_sfm_report", lambda build: [])
+    monkeypatch.chdir(tmp_path)
+    for name in ("survey.mp4", "camera.json"):
+        (tmp_path / name).write_bytes(b"x")
+    assert main(["map", "--markerless", "survey.mp4", "--camera", "camera.json", "-o", "sfm/",
+                 "--origin-marker", "0", "--size-mm", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "markerless map sfm/ (" in out and out.rstrip().endswith("--map sfm/") and "//" not in out, out
