@@ -111,19 +111,15 @@ def _all_uses():
 USES = list(_all_uses())
 
 
-def test_the_extraction_finds_the_commands_it_should():
+def test_the_extraction_finds_the_commands_it_should(tmp_path):
     """The extraction itself: a usage line continued over indented lines, a recipe with a backslash,
     an inline span and a quoted error message all come out with their options."""
     text = ("x `process --map sfm/` and `wearable-gaze estimate: lines.csv line 7`\n\n```\n"
             "wearable-gaze live --serial socket://h:1 \\\n   --eyes e.json &\n"
             "wearable-gaze batch S -o OUT [--workers N]\n       [--force]\n```\n")
-    p = ROOT / "build" / "_docs_probe.md"
-    p.parent.mkdir(exist_ok=True)
+    p = tmp_path / "probe.md"
     p.write_text(text)
-    try:
-        got = [(cmd, opts) for _, cmd, opts, _ in command_uses(p)]
-    finally:
-        p.unlink()
+    got = [(cmd, opts) for _, cmd, opts, _ in command_uses(p)]
     assert got == [("process", ["--map"]), ("estimate", []), ("live", ["--serial", "--eyes"]),
                    ("batch", ["-o", "--workers", "--force"])]
     assert len(USES) > 100, "the documents' commands were not found"
