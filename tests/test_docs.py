@@ -323,3 +323,21 @@ def test_map_markerless_names_its_folder_as_given(tmp_path, monkeypatch, capsys)
                  "--origin-marker", "0", "--size-mm", "200"]) == 0
     out = capsys.readouterr().out
     assert "markerless map sfm/ (" in out and out.rstrip().endswith("--map sfm/") and "//" not in out, out
+
+
+def test_scenario_fields_table_is_the_defaults():
+    """docs/scenarios.md's table of fields names every default of the simulator's scenarios
+    (``sim.scenario.DEFAULTS``) and nothing else (``moved_marker`` has no default)."""
+    from wearable_gaze.sim.scenario import DEFAULTS  # noqa: PLC0415
+
+    def flat(d, prefix=""):
+        for k, v in d.items():
+            if isinstance(v, dict) and k != "camera_board":
+                yield from flat(v, f"{prefix}{k}.")
+            else:
+                yield prefix + k
+
+    text = (ROOT / "docs" / "scenarios.md").read_text(encoding="utf-8").split("## Fields and defaults", 1)[1]
+    rows = re.findall(r"^\| (`[^|]+`) \|", text, re.M)
+    documented = {f for row in rows for f in re.findall(r"`([\w.]+)`", row)}
+    assert documented - {"moved_marker"} == set(flat(DEFAULTS))
