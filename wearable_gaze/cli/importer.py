@@ -28,9 +28,9 @@ def cmd_import(args) -> int:
 def cmd_export(args) -> int:
     from ..pipeline.importer import export_recording  # noqa: PLC0415
 
-    out = export_recording(args.session, args.out, args.format)
-    print(f"wrote the simulated session {args.session} as a {args.format} recording in {out}; import it with: "
-          f"wearable-gaze import {out} -o SESSION --format {args.format}")
+    command = export_recording(args.session, args.out, args.format)
+    print(f"wrote the simulated session {args.session} as a {args.format} recording in {args.out}; import it with: "
+          f"{command}")
     return 0
 
 

@@ -53,9 +53,19 @@ def check_outputs(args) -> None:
         inputs = []
         for a in input_attrs:
             v = getattr(args, a, None)
+            if a == "scenario" and _named_scenario(v):
+                continue                        # `simulate --scenario survey -o survey`: a name, not a file
             inputs += [] if v is None else [v] if isinstance(v, str) else list(v)
         opt = "--out" if attr == "out" and args.command in ("reproduce", "demo") else OPTION[attr]
         check_output(out, inputs, opt, folder=folder(args) if callable(folder) else folder)
+
+
+
+def _named_scenario(value) -> bool:
+    """A named scenario (``simulate`` reads it, not a file of that name)."""
+    from ..sim.scenario import NAMED  # noqa: PLC0415
+
+    return value in NAMED
 
 
 OS_FIX = {errno.EACCES: "the place is not writable: choose another or change its permissions",

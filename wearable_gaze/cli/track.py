@@ -90,8 +90,9 @@ def _cmd_markerless(args) -> int:
                                 args.size_mm, args.origin_marker, args.markers, cb, args.distance)
     for line in format_sfm_report(build):
         print(line)
-    print(f"wrote the markerless map {args.out}/ (sfm_map.json, features.npz, colmap/, sfm_top_view.png); "
-          f"track with --map {args.out}")
+    out = args.out.rstrip("/") or "/"                  # `-o sfm/`, as the docs write it, is not `sfm//`
+    print(f"wrote the markerless map {out}/ (sfm_map.json, features.npz, colmap/, sfm_top_view.png); "
+          f"track with --map {out}/")
     return 0
 
 

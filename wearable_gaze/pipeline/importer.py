@@ -16,6 +16,7 @@ from ..errors import UserError
 from ..formats.atomic import atomic_folder, check_new_folder
 from ..formats.devices import MODULES, detect_format, device_module
 from ..formats.devices.common import REPORT, ImportOptions, SessionImport, read_simulated_recording
+from ..formats.markermap import load_marker_map
 
 log = logging.getLogger(__name__)
 
@@ -56,15 +57,21 @@ def import_recording(src, out, fmt: str | None = None, options: ImportOptions | 
     return manifest, report
 
 
-def export_recording(session, out, fmt: str) -> Path:
+def export_recording(session, out, fmt: str) -> str:
     """Write the simulated session ``session`` as a ``fmt`` recording in the new folder ``out``
-    (documented fields only): what the round-trip tests import again."""
+    (documented fields only): what the round-trip tests import again. Returns the command that
+    imports it (with ``--marker-size-mm`` when the recording's head poses are in marker sides,
+    as Pupil Player's head-pose tracker writes them)."""
     if fmt not in MODULES:
         raise UserError(f"unknown recording format '{fmt}'; use one of {', '.join(MODULES)}")
     sim = read_simulated_recording(session)
     with atomic_folder(out) as tmp:
         device_module(fmt).write_recording(sim, tmp)
-    return Path(out)
+    command = f"wearable-gaze import {out} -o SESSION --format {fmt}"
+    if sim.marker_map is not None and any(Path(out).glob("exports/*/head_pose_tracker_poses.csv")):
+        size = load_marker_map(sim.marker_map).marker_size_mm
+        command += f" --marker-size-mm {size:g}"
+    return command
 
 
 def format_import(manifest: dict, report: dict, out) -> str:

@@ -381,8 +381,9 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
                   build_and_track)
     elif f.markers is None:
         fix = ("re-import it with --markers markers.json" if f.eye_rays is not None else
-               "track it with 'wearable-gaze track --reference' and pass the poses, or build a map from "
-               "its video with --build-map MM")
+               "build a map from its video with --build-map MM, or localise it in a markerless map with "
+               "--map sfm/, or track it with 'wearable-gaze track --reference' and go on from those poses "
+               "with 'wearable-gaze viewlines --poses' (docs/processing.md, Step by step)")
         steps.fail("tracking", f"the session has no marker map (markers.json); {fix}")
     else:
         steps.run("tracking", [f.video, cam_path, f.markers, f.stamps], {"every": cfg.track_every}, do_tracking)
