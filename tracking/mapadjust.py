@@ -34,6 +34,12 @@ MAX_ITER = 100
 MAX_MOVED = 5
 """At most this many moved markers are split in two and adjusted again (each costs one more
 adjustment); more are still flagged, by the last adjustment's test."""
+MAX_SUSPECTS = 4
+"""At most this many markers' splits are tried for each move found (each costs one adjustment,
+started from the last one's poses): the flagged ones and their neighbours at the move."""
+TRIAL_ITER = 30
+"""The step budget of each suspect's trial adjustment; the best one's, if it has not converged,
+is then carried on to ``MAX_ITER``."""
 HUBER_PX = 1.0
 """The bundle adjustment's robust loss turns from squares to absolute values past this, pixels."""
 
@@ -109,7 +115,8 @@ def _residuals(x, prob: dict) -> np.ndarray:
 @dataclass
 class Adjusted:
     """The bundle adjustment's outcome: poses, residuals (pixels, 8 per observation ``pairs``),
-    and the markers' information with the views marginalised (``tracking.bundle``)."""
+    the markers' information with the views marginalised (``tracking.bundle``), and whether it
+    converged (else it stopped at its step budget)."""
 
     markers: dict
     cams: dict
@@ -117,9 +124,10 @@ class Adjusted:
     information: np.ndarray
     pairs: list
     marker_keys: list
+    converged: bool = True
 
 
-def _adjust(obs, size, origin, markers, cams, focal, T_origin) -> Adjusted:
+def _adjust(obs, size, origin, markers, cams, focal, T_origin, max_iter: int = MAX_ITER) -> Adjusted:
     """Bundle adjustment of every posed view and placed marker but the origin, which stays at
     ``T_origin`` (Huber loss, ``HUBER_PX``; ``tracking.bundle``)."""
     cam_keys = sorted(cams)
@@ -135,12 +143,12 @@ def _adjust(obs, size, origin, markers, cams, focal, T_origin) -> Adjusted:
         return _residuals(np.concatenate([v.ravel(), o.ravel()]), prob).reshape(-1, 8)
     fit = bundle_adjust(fun, np.array([_pack(cams[k]) for k in cam_keys]),
                         np.array([_pack(markers[i]) for i in marker_keys]).reshape(-1, 6), prob["cam"], prob["marker"],
-                        HUBER_PX, MAX_ITER)
-    if not fit.converged:
+                        HUBER_PX, max_iter)
+    if not fit.converged and max_iter == MAX_ITER:
         log.warning("the map's bundle adjustment stopped after %d steps before converging", fit.iterations)
     cams, adjusted = _unpack(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
     adjusted[origin] = T_origin
-    return Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys)
+    return Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys, fit.converged)
 
 
 def marker_covariances(adj: Adjusted) -> dict:
@@ -153,36 +161,98 @@ def marker_covariances(adj: Adjusted) -> dict:
     return {i: C[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j, i in enumerate(adj.marker_keys)}
 
 
-def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tuple[Adjusted, dict]:
+def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tuple[Adjusted, dict, float]:
     """``_adjust``, and then while a marker (not the origin) moved during the survey (``_moved``),
-    the one that moved most surely becomes two for another adjustment: its views after the move
-    see a second marker (id ``-1 - i``) where it went, so that its move does not drag the
-    views and markers beside it. Returns the last adjustment with each moved marker's pose after
-    the move under its own id (the second marker dropped, its observations counted), and {id:
-    mm moved}."""
-    obs, size, markers, moved = list(obs), dict(size), dict(markers), {}
-    for _ in range(MAX_MOVED + 1):
-        adj = _adjust(obs, size, origin, markers, cams, focal, T_origin)
-        found = {i: v for i, v in _moved(obs, size, adj.markers, adj.cams).items() if i >= 0 and i != origin}
-        if len(moved) == MAX_MOVED:
-            moved.update({i: v[0] for i, v in found.items() if i not in moved})    # flagged, not split
-            break
+    one marker becomes two for another adjustment: its views after the move see a second marker
+    (id ``-1 - i``) where it went, so that its move does not drag the views and markers beside
+    it. Which one: a marker moved while in view with its neighbours drags them too, and they
+    can be flagged in its place, so each suspect (``_suspects``: the flagged markers and those
+    seen with the surest at its move) is split in turn at its own best cut, adjusted again
+    from the last adjustment's poses, and the split whose adjustment has the least robust cost
+    is kept. Returns the last adjustment with each moved marker's pose after the move under its
+    own id (the second marker dropped, its observations counted), {id: mm moved}, and the
+    reprojection RMS before any split, pixels."""
+    obs, size, moved = list(obs), dict(size), {}
+    adj = _adjust(obs, size, origin, markers, cams, focal, T_origin)
+    rms_unsplit = _rms(adj.residuals)
+    while True:
+        found = {i: v for i, v in _moved(obs, size, adj.markers, adj.cams).items()
+                 if i >= 0 and i != origin and i not in moved}
+        log.debug("moved markers found: %s", {i: (round(v[0]), round(v[1]), v[2]) for i, v in found.items()})
         if not found:
             break
-        i = max(found, key=lambda j: found[j][1])
-        moved[i] = found[i][0]
-        for k in [k for k in sorted(adj.cams) if k >= found[i][2] and i in obs[k]]:
-            obs[k] = {(-1 - j if j == i else j): c for j, c in obs[k].items()}
-        size[-1 - i] = size[i]
-        markers, cams = dict(adj.markers), dict(adj.cams)
-        markers[-1 - i] = markers[i]
+        if len(moved) == MAX_MOVED:
+            moved.update({i: v[0] for i, v in found.items()})    # flagged, not split
+            break
+        trials = []
+        for i, cut in _suspects(obs, size, adj, found, origin, moved):
+            o, s, m = _split(obs, size, adj, i, cut)
+            trial = _adjust(o, s, origin, m, adj.cams, focal, T_origin, TRIAL_ITER)
+            log.debug("moved marker: split of %d at view %d, cost %.4g, RMS %.3f px (converged: %s)", i, cut,
+                      _huber_cost(trial.residuals), _rms(trial.residuals), trial.converged)
+            trials.append((_huber_cost(trial.residuals), i, o, s, trial))
+        _, i, obs, size, adj = min(trials, key=lambda t: t[0])
+        if not adj.converged:                             # the best split's adjustment, finished
+            adj = _adjust(obs, size, origin, adj.markers, adj.cams, focal, T_origin)
+        moved[i] = found.get(i, (0.0,))[0]
     for i in [j for j in moved if -1 - j in adj.markers]:
         moved[i] = float(np.linalg.norm(adj.markers[-1 - i][:3, 3] - adj.markers[i][:3, 3]))   # as adjusted
         adj.markers[i] = adj.markers.pop(-1 - i)
         if moved[i] <= MOVED_MM:          # a first adjustment's doubt the last one does not bear out
             del moved[i]
         adj.pairs = [(k, i if j == -1 - i else j) for k, j in adj.pairs]
-    return adj, moved
+    return adj, moved, rms_unsplit
+
+
+def _suspects(obs, size, adj: Adjusted, found: dict, origin: int, moved: dict) -> list:
+    """[(id, first view after its move)] of the markers whose split is tried, at most
+    ``MAX_SUSPECTS``: the flagged ones ``found`` ({id: (mm, chi2, first view after the move)}),
+    surest first, then the markers seen with the surest in its ``2 * MIN_VIEWS`` views on each
+    side of its cut whose own views, posed without them, split into poses over ``MOVED_MM`` and
+    5 sd apart (``_cut_without``), surest first (the origin and markers already split left out)."""
+    flagged = sorted(found, key=lambda j: -found[j][1])
+    f, cut = flagged[0], found[flagged[0]][2]
+    seen = [k for k in sorted(adj.cams) if f in obs[k]]
+    c = next((n for n, k in enumerate(seen) if k >= cut), len(seen))
+    near = {j for k in seen[max(c - 2 * MIN_VIEWS, 0):c + 2 * MIN_VIEWS] for j in obs[k]}
+    others = []
+    for j in sorted(near - set(found) - set(moved) - {origin}):
+        views = [k for k in sorted(adj.cams) if j in obs[k]]
+        if j < 0 or len(views) < 2 * MIN_VIEWS:
+            continue
+        m = min(max(next((n for n, k in enumerate(views) if k >= cut), len(views)), MIN_VIEWS),
+                len(views) - MIN_VIEWS)
+        n, dist, chi2 = _cut_without(obs, size, adj.markers, adj.cams, j, views, m)
+        if dist > MOVED_MM and chi2 > 25.0:
+            others.append((chi2, j, views[n]))
+    log.debug("moved marker: suspects beside %s: %s", flagged, [(j, round(x)) for x, j, _ in sorted(others)[::-1]])
+    return ([(j, found[j][2]) for j in flagged] + [(j, k) for _, j, k in sorted(others, reverse=True)])[:MAX_SUSPECTS]
+
+
+def _split(obs, size, adj: Adjusted, i: int, cut: int) -> tuple[list, dict, dict]:
+    """Marker ``i`` made two at view ``cut``: (the observations with its views from ``cut`` on
+    seeing marker ``-1 - i``, the sizes, the markers to start the next adjustment from: both
+    halves fitted to their views as ``adj`` posed them)."""
+    after = [k for k in sorted(adj.cams) if k >= cut and i in obs[k]]
+    before = [k for k in sorted(adj.cams) if k < cut and i in obs[k]]
+    obs = list(obs)
+    for k in after:
+        obs[k] = {(-1 - j if j == i else j): c for j, c in obs[k].items()}
+    size = {**size, -1 - i: size[i]}
+    markers = dict(adj.markers)
+    markers[i] = fit_marker(obs, size[i], i, adj.markers[i], adj.cams, before)[0] if before else adj.markers[i]
+    markers[-1 - i] = fit_marker(obs, size[i], -1 - i, adj.markers[i], adj.cams, after)[0]
+    return obs, size, markers
+
+
+def _rms(r) -> float:
+    return float(np.sqrt(np.mean(np.square(r)))) if len(r) else float("nan")
+
+
+def _huber_cost(r) -> float:
+    """The adjustment's robust cost of residuals ``r`` (pixels): Huber's, past ``HUBER_PX``."""
+    a = np.abs(np.asarray(r))
+    return float(np.sum(np.where(a <= HUBER_PX, 0.5 * a * a, HUBER_PX * a - 0.5 * HUBER_PX ** 2)))
 
 
 def _moved(obs, size, markers, cams) -> dict:
@@ -210,25 +280,29 @@ def _moved(obs, size, markers, cams) -> dict:
         d = Ta[:3, 3] - Tb[:3, 3]
         dist, chi2 = float(np.linalg.norm(d)), float(d @ np.linalg.solve(Ca + Cb + 1e-9 * np.eye(3), d))
         if dist > MOVED_MM and chi2 > 25.0:
-            out[i] = (dist, chi2, seen[_cut_without(obs, size, markers, cams, i, seen, m)])
+            out[i] = (dist, chi2, seen[_cut_without(obs, size, markers, cams, i, seen, m)[0]])
     return out
 
 
-def _cut_without(obs, size, markers, cams, i, seen, m) -> int:
+def _cut_without(obs, size, markers, cams, i, seen, m) -> tuple[int, float, float]:
     """Where a moved marker's views ``seen`` split, judged with each view posed by its other
     markers (views that see none keep their pose): the adjustment before the split posed the
     views after a move partly by the moved marker itself, so views next to the move side
     with it and the best cut with those poses can fall a few views early. Returns the cut's
-    index into ``seen`` (``m``, the first guess, when no cut fits better)."""
+    index into ``seen`` (``m``, the first guess, when no cut fits better), and how far apart
+    the two halves' positions are there: mm, and chi2 (their squared Mahalanobis distance)."""
     own = {k: pose_view({j: c for j, c in obs[k].items() if j != i}, size, markers) for k in seen}
     own = {k: cams[k] if T is None else T for k, T in own.items()}
     fit = {}
 
     def cost(c):
         if c not in fit:
-            fit[c] = sum(fit_marker(obs, size[i], i, markers[i], own, part)[2] for part in (seen[:c], seen[c:]))
-        return fit[c]
-    return min(range(MIN_VIEWS, len(seen) - MIN_VIEWS + 1), key=lambda c: (cost(c), c != m))
+            fit[c] = [fit_marker(obs, size[i], i, markers[i], own, part) for part in (seen[:c], seen[c:])]
+        return fit[c][0][2] + fit[c][1][2]
+    c = min(range(MIN_VIEWS, len(seen) - MIN_VIEWS + 1), key=lambda c: (cost(c), c != m))
+    (Ta, Ca, _), (Tb, Cb, _) = fit[c]
+    d = Ta[:3, 3] - Tb[:3, 3]
+    return c, float(np.linalg.norm(d)), float(d @ np.linalg.solve(Ca + Cb + 1e-9 * np.eye(3), d))
 
 
 def fit_marker(obs, side, i, T0, cams, keys):

@@ -29,6 +29,12 @@ from .markermap import MarkerMap, marker_corners_world
 
 log = logging.getLogger(__name__)
 
+POOR_FIT = 3.0
+"""After a moved marker's split, a map whose reprojection RMS is over this many times its markers'
+median RMS still fits its views poorly: which marker moved is then uncertain, and its flags say so
+(a clean fit's ratio is about 1)."""
+
+
 @dataclass
 class MarkerInfo:
     """One marker of a built map.
@@ -38,7 +44,8 @@ class MarkerInfo:
         rms_px: reprojection RMS of its corners after adjustment, pixels.
         covariance: (6, 6) of (rotation vector, rad; position, mm) of ``T_world_from_marker``,
             the pose beside it (zeros for the origin marker, which fixes the world).
-        flags: why not to trust it: 'seen in N views', 'moved by N mm during the survey'.
+        flags: why not to trust it: 'seen in N views', 'moved by N mm during the survey', and
+            after a move 'the map fits its views poorly ...' (``POOR_FIT``).
     """
 
     n_views: int
@@ -50,14 +57,16 @@ class MarkerInfo:
 @dataclass
 class BuiltMap:
     """A map built from views: the ``MarkerMap``, per marker a ``MarkerInfo``, the posed views'
-    ``T_world_from_cam`` (view index -> (4, 4)), the views no marker of the map could pose, and
-    the overall reprojection RMS, pixels."""
+    ``T_world_from_cam`` (view index -> (4, 4)), the views no marker of the map could pose, the
+    overall reprojection RMS, pixels, after the moved markers were split, and before (the same
+    when none was)."""
 
     marker_map: MarkerMap
     info: dict
     cameras: dict
     unposed: list
     rms_px: float
+    rms_unsplit_px: float = float("nan")
 
 
 def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None = None,
@@ -101,7 +110,7 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     start = {i: T for i, T in prior.items() if i in counts} if prior else {origin: np.eye(4)}
     markers, cams = _chain(obs, size, origin, start)
     _refine_initial(obs, size, origin, markers, cams)
-    adj, moved = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin])
+    adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin])
     info = _marker_info(obs, size, origin, adj, moved)
     for i, T in prior.items():                       # not seen now: kept as the earlier map had it
         if i not in adj.markers:
@@ -109,12 +118,12 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
             info[i] = MarkerInfo(0, float("nan"), np.zeros((6, 6)))
     unposed = [k for k in range(len(obs)) if k not in adj.cams]
     rms = float(np.sqrt(np.mean(adj.residuals ** 2))) if len(adj.residuals) else float("nan")
-    log.info("map of %d markers from %d views (%d unposed), RMS %.2f px", len(adj.markers), len(adj.cams),
-             len(unposed), rms)
+    log.info("map of %d markers from %d views (%d unposed), RMS %.2f px (%.2f px before the moved markers were "
+             "split)", len(adj.markers), len(adj.cams), len(unposed), rms, rms_unsplit)
     common = float(max(set(size.values()), key=list(size.values()).count))            # the commonest size
     sides = {**{i: prior_map.size_of(i) for i in prior}, **size} if prior else size
     mm = MarkerMap(dictionary, common, dict(adj.markers), {}, {i: v for i, v in sides.items() if v != common})
-    return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms)
+    return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms, rms_unsplit)
 
 
 def similarity_transform(A, B) -> np.ndarray:
@@ -200,7 +209,8 @@ def _chain(obs: list, size: dict, origin: int, start: dict) -> tuple[dict, dict]
 
 
 def _marker_info(obs, size, origin, adj: Adjusted, moved: dict) -> dict:
-    """Per marker: views, RMS, covariance, flags (seen too rarely, moved)."""
+    """Per marker: views, RMS, covariance, flags (seen too rarely, moved; after a move, the map's
+    fit still poor: ``POOR_FIT``)."""
     cov = marker_covariances(adj)
     for i in [j for j in moved if -1 - j in cov]:     # the pose after the move: the second marker's
         cov[i] = cov.pop(-1 - i)
@@ -216,6 +226,16 @@ def _marker_info(obs, size, origin, adj: Adjusted, moved: dict) -> dict:
             info[i].flags.append(f"seen in {len(per[i])} view(s)")
     for i, mm in moved.items():
         info[i].flags.append(f"moved by {mm:.0f} mm during the survey (its pose after the move kept)")
+    rms, typical = float(np.sqrt(np.mean(adj.residuals ** 2))), float(np.nanmedian([m.rms_px for m in info.values()]))
+    if moved and rms > POOR_FIT * typical:
+        log.warning("after the moved markers' split the map still fits its views poorly: RMS %.2f px, its markers' "
+                    "median %.2f px", rms, typical)
+        for i in moved:
+            info[i].flags.append(f"the map fits its views poorly after the split (RMS {rms:.2f} px, its markers' "
+                                 f"median {typical:.2f} px): which marker moved is uncertain")
+        for i in [j for j, m in info.items() if m.rms_px > POOR_FIT * typical and j not in moved]:
+            info[i].flags.append(f"fits its views poorly (RMS {info[i].rms_px:.2f} px, the map's median "
+                                 f"{typical:.2f} px): it may have moved during the survey")
     return info
 
 
