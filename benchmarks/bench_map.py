@@ -122,8 +122,9 @@ def corner_errors(true_map, got, ids) -> tuple[np.ndarray, np.ndarray, float, in
     return np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1), e_sim, scale, origin
 
 
-def moved_survey(args, unmoved: tuple) -> None:
-    """--moved: the survey with marker ``args.moved`` moved halfway, beside the unmoved one."""
+def moved_survey(args, unmoved: tuple, unmoved_rms: float) -> None:
+    """--moved: the survey with marker ``args.moved`` moved halfway, beside the unmoved one (its
+    corner errors ``unmoved``, its reprojection RMS, px)."""
     from tracking.mapadjust import fit_marker  # noqa: PLC0415  (the builder's own fit, for the pose before)
     from tracking.markermap import marker_corners_world  # noqa: PLC0415
     from tracking.markers import MarkerDetector, split_repeated  # noqa: PLC0415
@@ -154,7 +155,8 @@ def moved_survey(args, unmoved: tuple) -> None:
     moved_flag = [f for f in flagged.get(i, []) if f.startswith("moved")]
     print(f"\nmoved survey: marker {i} moved {MOVED_SHIFT_MM} mm (its frame) at {mv['at_s']:g} s; in {len(before)} "
           f"of the {len(views)} frames used before the move and {len(after)} after ({n_video} in the video); "
-          f"{len(built.cameras)} views posed, RMS {built.rms_px:.2f} px, flagged {flagged}")
+          f"{len(built.cameras)} views posed, RMS {built.rms_px:.3f} px after the splits ({built.rms_unsplit_px:.3f} "
+          f"before; unmoved survey {unmoved_rms:.3f}), flagged {flagged}")
     print(f"marker {i} flagged as moved: {'yes: ' + moved_flag[0] if moved_flag else 'NO'}; "
           f"other markers flagged: {sorted(j for j in flagged if j != i) or 'none'}")
     A = np.concatenate([got.corners(j) for j in others])
@@ -212,7 +214,7 @@ def main() -> None:
     print(f"time: {dt:.1f} s for {args.frames} frames on one core (target <= 60 s)")
     if args.moved is not None:
         others = [j for j in common if j != args.moved]
-        moved_survey(args, corner_errors(true_map, got, others)[:2])
+        moved_survey(args, corner_errors(true_map, got, others)[:2], built.rms_px)
     all_true, all_built = [], []
     for seed in range(args.seed, args.seed + args.walkabout):
         path = out if seed == args.seed else survey_map(args.work, seed, args.seconds, args.frames)[1]
