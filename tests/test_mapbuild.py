@@ -173,7 +173,7 @@ def _row_views(seed: int, n: int = 60, moved_at: int = 55):
 
 def test_a_marker_moved_in_view_with_its_neighbours_is_the_one_flagged():
     """Marker 5 moves with 5 views left, which see it and its neighbours 4 and 6 alone: the
-    first adjustment drags those views after it, and 6 (and 3, 4) look moved more surely than 5
+    first adjustment drags those views after it, and 6 and 3 look moved more surely than 5
     (the builder used to split 6 and flag 4, 5 and 6, the others up to 15 mm off, RMS 0.57 px).
     Each suspect's split is tried and the one the adjustment fits best kept: 5 alone is flagged,
     by 150 mm, the others are where they were, and the fit is as clean as an unmoved survey's."""
