@@ -206,27 +206,30 @@ def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tupl
 
 def _suspects(obs, size, adj: Adjusted, found: dict, origin: int, moved: dict) -> list:
     """[(id, first view after its move)] of the markers whose split is tried, at most
-    ``MAX_SUSPECTS``: the flagged ones ``found`` ({id: (mm, chi2, first view after the move)}),
-    surest first, then the markers seen with the surest in its ``2 * MIN_VIEWS`` views on each
-    side of its cut whose own views, posed without them, split into poses over ``MOVED_MM`` and
-    5 sd apart (``_cut_without``), surest first (the origin and markers already split left out)."""
+    ``MAX_SUSPECTS``: the surest of the flagged ones ``found`` ({id: (mm, chi2, first view after
+    the move)}), then, surest first by their own views posed without them (``_cut_without``), the
+    other flagged ones and the markers seen with the surest in its ``2 * MIN_VIEWS`` views on
+    each side of its cut whose own views so posed split into poses over ``MOVED_MM`` and 5 sd
+    apart (the origin and markers already split left out)."""
     flagged = sorted(found, key=lambda j: -found[j][1])
     f, cut = flagged[0], found[flagged[0]][2]
     seen = [k for k in sorted(adj.cams) if f in obs[k]]
     c = next((n for n, k in enumerate(seen) if k >= cut), len(seen))
     near = {j for k in seen[max(c - 2 * MIN_VIEWS, 0):c + 2 * MIN_VIEWS] for j in obs[k]}
-    others = []
-    for j in sorted(near - set(found) - set(moved) - {origin}):
+    ranked = []
+    for j in sorted((near | set(found)) - set(moved) - {origin, f}):
         views = [k for k in sorted(adj.cams) if j in obs[k]]
         if j < 0 or len(views) < 2 * MIN_VIEWS:
             continue
-        m = min(max(next((n for n, k in enumerate(views) if k >= cut), len(views)), MIN_VIEWS),
+        first = found[j][2] if j in found else cut
+        m = min(max(next((n for n, k in enumerate(views) if k >= first), len(views)), MIN_VIEWS),
                 len(views) - MIN_VIEWS)
         n, dist, chi2 = _cut_without(obs, size, adj.markers, adj.cams, j, views, m)
-        if dist > MOVED_MM and chi2 > 25.0:
-            others.append((chi2, j, views[n]))
-    log.debug("moved marker: suspects beside %s: %s", flagged, [(j, round(x)) for x, j, _ in sorted(others)[::-1]])
-    return ([(j, found[j][2]) for j in flagged] + [(j, k) for _, j, k in sorted(others, reverse=True)])[:MAX_SUSPECTS]
+        if j in found or (dist > MOVED_MM and chi2 > 25.0):
+            ranked.append((chi2, j, first if j in found else views[n]))
+    ranked.sort(reverse=True)
+    log.debug("moved marker: suspects beside %d: %s", f, [(j, round(x)) for x, j, _ in ranked])
+    return [(f, cut)] + [(j, k) for _, j, k in ranked][:MAX_SUSPECTS - 1]
 
 
 def _split(obs, size, adj: Adjusted, i: int, cut: int) -> tuple[list, dict, dict]:
