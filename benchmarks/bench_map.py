@@ -5,7 +5,7 @@ Accuracy: the built map's marker corners against the true map, after the transfo
 origin marker (its pose in both maps) and after the best similarity; and the time per run.
 
     python benchmarks/bench_map.py [--seconds 60] [--seed 0] [--frames 300] [--work DIR] [--walkabout N]
-                                   [--moved [ID]]
+                                   [--moved [ID]] [--resolution WxH] [--fps F]
 
 With ``--walkabout N``: also N lab-walkabout sessions of the same room (seeds seed..seed+N-1, each
 with its own survey), each processed with its true map and with the map built from its survey
@@ -19,6 +19,10 @@ move as the map posed them) against the truth; the other markers' corner errors 
 unmoved survey's (the baseline, measured in the same run). Marker 15 is in view at the loop's
 start and end; most markers are in view during one stretch of the loop only, so a move between
 two of their views cannot be seen (the run prints how many views it had on each side).
+
+With ``--resolution`` or ``--fps`` (e.g. ``--resolution 960x540 --fps 3``, the size
+tests/test_sim_survey.py renders): the surveys at that size and rate, rendered as the test does
+(no calibration recordings, eyes at 10 Hz); with --frames above the video's frame count, every frame.
 
 Each survey is rendered once into --work (``survey-SEED-SECONDS``, ``...-movedID``) and reused;
 delete a folder there to render it again.
@@ -48,12 +52,21 @@ MOVED_SHIFT_MM = [150.0, 0.0, 0.0]
 """--moved: the move, in the marker's frame (150 mm to its right along its wall)."""
 
 
-def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | None = None):
+def survey_tag(seed: int, seconds: float, moved: int | None = None, camera=None) -> str:
+    """The name of a survey's folder in --work (``survey-TAG``) and of its built map."""
+    size = f"-{camera['resolution'][0]}x{camera['resolution'][1]}-{camera['fps']:g}fps" if camera else ""
+    return f"{seed}-{seconds:g}{size}" + (f"-moved{moved}" if moved is not None else "")
+
+
+def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | None = None, camera=None):
     """(true map, built map, BuiltMap, seconds to build) of the survey of seed ``seed``;
-    ``moved``: the marker moved ``MOVED_SHIFT_MM`` halfway through it."""
-    tag = f"{seed}-{seconds:g}" + (f"-moved{moved}" if moved is not None else "")
+    ``moved``: the marker moved ``MOVED_SHIFT_MM`` halfway through it; ``camera``: the scene
+    camera's {"resolution": [w, h], "fps": f} when not the scenario's (rendered as the tests do)."""
+    tag = survey_tag(seed, seconds, moved, camera)
     root = work / f"survey-{tag}"
     scn = {"base": "survey", "duration_s": seconds}
+    if camera:
+        scn.update({"camera": camera, "eyes": {"rate_hz": 10.0}, "calibration": {"eye": False, "camera_views": 0}})
     if moved is not None:
         scn["moved_marker"] = {"id": moved, "at_s": seconds / 2, "shift_mm": MOVED_SHIFT_MM}
     if not (root / "session.json").is_file():
@@ -109,9 +122,10 @@ def corner_errors(true_map, got, ids) -> tuple[np.ndarray, np.ndarray, float, in
     return np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1), e_sim, scale, origin
 
 
-def moved_survey(args, unmoved: tuple) -> None:
-    """--moved: the survey with marker ``args.moved`` moved halfway, beside the unmoved one."""
-    from tracking.mapbuild import _fit_marker  # noqa: PLC0415  (the builder's own fit, for the pose before)
+def moved_survey(args, unmoved: tuple, unmoved_rms: float) -> None:
+    """--moved: the survey with marker ``args.moved`` moved halfway, beside the unmoved one (its
+    corner errors ``unmoved``, its reprojection RMS, px)."""
+    from tracking.mapadjust import fit_marker  # noqa: PLC0415  (the builder's own fit, for the pose before)
     from tracking.markermap import marker_corners_world  # noqa: PLC0415
     from tracking.markers import MarkerDetector, split_repeated  # noqa: PLC0415
     from wearable_gaze.formats.camera import load_camera  # noqa: PLC0415
@@ -119,8 +133,8 @@ def moved_survey(args, unmoved: tuple) -> None:
     from wearable_gaze.pipeline.calibrate import read_frames  # noqa: PLC0415
 
     i = args.moved
-    true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, moved=i)
-    root = args.work / f"survey-{args.seed}-{args.seconds:g}-moved{i}"
+    true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, i, args.camera)
+    root = args.work / f"survey-{survey_tag(args.seed, args.seconds, i, args.camera)}"
     (mv,) = read_truth_moved_markers(root / "truth" / "moved_markers.json")
     got = load_marker_map(out)
     others = sorted(set(got.poses) & set(true_map.poses) - {i})
@@ -141,7 +155,8 @@ def moved_survey(args, unmoved: tuple) -> None:
     moved_flag = [f for f in flagged.get(i, []) if f.startswith("moved")]
     print(f"\nmoved survey: marker {i} moved {MOVED_SHIFT_MM} mm (its frame) at {mv['at_s']:g} s; in {len(before)} "
           f"of the {len(views)} frames used before the move and {len(after)} after ({n_video} in the video); "
-          f"{len(built.cameras)} views posed, RMS {built.rms_px:.2f} px, flagged {flagged}")
+          f"{len(built.cameras)} views posed, RMS {built.rms_px:.3f} px after the splits ({built.rms_unsplit_px:.3f} "
+          f"before; unmoved survey {unmoved_rms:.3f}), flagged {flagged}")
     print(f"marker {i} flagged as moved: {'yes: ' + moved_flag[0] if moved_flag else 'NO'}; "
           f"other markers flagged: {sorted(j for j in flagged if j != i) or 'none'}")
     A = np.concatenate([got.corners(j) for j in others])
@@ -152,7 +167,7 @@ def moved_survey(args, unmoved: tuple) -> None:
     obs = [{j: cam.undistort_points(c) for j, c in v.items()} for v in views]
     side = got.size_of(i)
     if len(keys) >= 1:
-        T_before = _fit_marker(obs, side, i, got.poses[i], cams, keys)[0]
+        T_before = fit_marker(obs, side, i, got.poses[i], cams, keys)[0]
         e_before, _ = similarity_errors(np.concatenate([A, marker_corners_world(side, T_before)]),
                                         np.concatenate([B, mv["corners_before_mm"]]))
         before_txt = f"max {e_before[-4:].max():.2f} mm (fitted to the {len(keys)} posed views before the move)"
@@ -178,8 +193,14 @@ def main() -> None:
     ap.add_argument("--walkabout", type=int, default=0, help="lab-walkabout sessions processed with each map")
     ap.add_argument("--moved", type=int, nargs="?", const=15, default=None, metavar="ID",
                     help="also the survey with marker ID (default 15) moved halfway through")
+    ap.add_argument("--resolution", type=str, default=None, metavar="WxH", help="scene camera size (default 1280x720)")
+    ap.add_argument("--fps", type=float, default=None, help="scene camera rate (default 30)")
     args = ap.parse_args()
-    true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames)
+    args.camera = None
+    if args.resolution or args.fps:
+        w, h = (int(v) for v in (args.resolution or "1280x720").lower().split("x"))
+        args.camera = {"resolution": [w, h], "fps": args.fps or 30.0}
+    true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, camera=args.camera)
     got = load_marker_map(out)
     common = sorted(set(got.poses) & set(true_map.poses))
     e_origin, e_sim, scale, origin = corner_errors(true_map, got, common)
@@ -193,7 +214,7 @@ def main() -> None:
     print(f"time: {dt:.1f} s for {args.frames} frames on one core (target <= 60 s)")
     if args.moved is not None:
         others = [j for j in common if j != args.moved]
-        moved_survey(args, corner_errors(true_map, got, others)[:2])
+        moved_survey(args, corner_errors(true_map, got, others)[:2], built.rms_px)
     all_true, all_built = [], []
     for seed in range(args.seed, args.seed + args.walkabout):
         path = out if seed == args.seed else survey_map(args.work, seed, args.seconds, args.frames)[1]

@@ -1,0 +1,325 @@
+"""A marker map's adjustment (``tracking.mapbuild``; docs/tracking.md, "Building a map"): all
+view and marker poses adjusted together (bundle adjustment on the corners' reprojection, a robust
+Huber loss, ``tracking.bundle``), and the markers that moved during the survey found and split
+in two (before and after), the split chosen among the suspects by the fit it gives. Also the
+single-marker poses (IPPE) and a view posed by its placed markers, which the chaining shares.
+
+World frame: the map's (the origin marker's), mm; views ``T_cam_from_world`` (4, 4); image
+points in normalised coordinates (undistorted), residuals in pixels (times the focal length).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from .bundle import bundle_adjust
+from .markermap import marker_corners_world, square_corners
+from .pnp import transform_from_rvec_tvec
+
+log = logging.getLogger(__name__)
+
+MIN_VIEWS = 3
+"""A marker seen in fewer views is kept but flagged: its pose rests on too little."""
+MOVED_MM = 10.0
+"""A marker whose views before and after the survey's middle fit positions farther apart than
+this (mm), and than 5 sd of the difference, is flagged as moved."""
+MAX_ITER = 100
+"""The bundle adjustment's step budget (it warns when it runs out)."""
+MAX_MOVED = 5
+"""At most this many moved markers are split in two and adjusted again (each costs one more
+adjustment); more are still flagged, by the last adjustment's test."""
+MAX_SUSPECTS = 4
+"""At most this many markers' splits are tried for each move found (each costs one adjustment,
+started from the last one's poses): the flagged ones and their neighbours at the move."""
+TRIAL_ITER = 30
+"""The step budget of each suspect's trial adjustment; the best one's, if it has not converged,
+is then carried on to ``MAX_ITER``."""
+HUBER_PX = 1.0
+"""The bundle adjustment's robust loss turns from squares to absolute values past this, pixels."""
+
+
+def ippe(corners_norm, side: float) -> list:
+    """IPPE's solutions for one marker seen alone: [(reprojection RMS in normalised units,
+    T_cam_from_marker (4, 4)), ...], the best first (planar IPPE: our corners, y down, are not in
+    IPPE_SQUARE's order)."""
+    n, rvecs, tvecs, errs = cv2.solvePnPGeneric(square_corners(side), corners_norm, np.eye(3), None,
+                                                flags=cv2.SOLVEPNP_IPPE)
+    return sorted(((float(e), transform_from_rvec_tvec(rvecs[k], tvecs[k])) for k, e in
+                   zip(range(n), np.ravel(errs), strict=True)), key=lambda c: c[0])
+
+
+def project(R, t, X) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``X`` (4, 3) or (n, 4, 3), world, in views ``R`` (n, 3, 3), ``t`` (n, 3) (their
+    ``T_cam_from_world``): (n, 4, 2) normalised image coordinates and (n, 4) depths."""
+    Xc = X @ np.swapaxes(R, 1, 2) + t[:, None]
+    return Xc[..., :2] / Xc[..., 2:3], Xc[..., 2]
+
+
+def pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
+    """T_cam_from_world (4, 4) of a view from the placed markers it sees (PnP on all their
+    corners, started from the best single-marker pose), or None when it sees none."""
+    known = [i for i in view if i in markers]
+    if not known:
+        return None
+    best = min((ippe(view[i], size[i])[0] + (i,) for i in known), key=lambda c: c[0])     # (rms, T, id)
+    T = best[1] @ np.linalg.inv(markers[best[2]])
+    if len(known) > 1:
+        obj = np.concatenate([marker_corners_world(size[i], markers[i]) for i in known])
+        img = np.concatenate([view[i] for i in known])
+        rvec, _ = cv2.Rodrigues(T[:3, :3])
+        ok, rvec, tvec = cv2.solvePnP(obj, img, np.eye(3), None, rvec, T[:3, 3].copy(), useExtrinsicGuess=True,
+                                      flags=cv2.SOLVEPNP_ITERATIVE)
+        if ok:
+            T = transform_from_rvec_tvec(rvec, tvec)
+    return T
+
+
+def _unpack(x, cam_keys, marker_keys) -> tuple[dict, dict]:
+    """Poses from the parameter vector: per view (rvec, tvec) of T_cam_from_world, then per
+    marker (rvec, tvec) of T_world_from_marker."""
+    p = x.reshape(-1, 6)
+    cams = {k: transform_from_rvec_tvec(p[j, :3], p[j, 3:]) for j, k in enumerate(cam_keys)}
+    n = len(cam_keys)
+    markers = {i: transform_from_rvec_tvec(p[n + j, :3], p[n + j, 3:]) for j, i in enumerate(marker_keys)}
+    return cams, markers
+
+
+def _pack(T) -> np.ndarray:
+    rvec, _ = cv2.Rodrigues(np.ascontiguousarray(T[:3, :3]))
+    return np.concatenate([rvec.ravel(), T[:3, 3]])
+
+
+def _residuals(x, prob: dict) -> np.ndarray:
+    """(8 per observation) corner reprojection errors, pixels (normalised times the focal length),
+    all observations at once: ``prob`` holds each observation's view row, marker row (-1: the
+    origin, whose pose is ``prob["origin"]``), marker-frame corners (n, 4, 3) and observed
+    corners (n, 4, 2)."""
+    p = x.reshape(-1, 6)
+    n_c = prob["n_cams"]
+    Rc, tc = Rotation.from_rotvec(p[:n_c, :3]).as_matrix(), p[:n_c, 3:]
+    To = prob["origin"]
+    Rm = np.concatenate([Rotation.from_rotvec(p[n_c:, :3]).as_matrix(), To[None, :3, :3]]) if len(p) > n_c else \
+        To[None, :3, :3]
+    tm = np.concatenate([p[n_c:, 3:], To[None, :3, 3]])
+    m, c = prob["marker"], prob["cam"]
+    Xw = prob["local"] @ np.swapaxes(Rm[m], 1, 2) + tm[m][:, None]
+    return prob["focal"] * (project(Rc[c], tc[c], Xw)[0] - prob["seen"]).ravel()
+
+
+@dataclass
+class Adjusted:
+    """The bundle adjustment's outcome: poses, residuals (pixels, 8 per observation ``pairs``),
+    the markers' information with the views marginalised (``tracking.bundle``), and whether it
+    converged (else it stopped at its step budget)."""
+
+    markers: dict
+    cams: dict
+    residuals: np.ndarray
+    information: np.ndarray
+    pairs: list
+    marker_keys: list
+    converged: bool = True
+
+
+def _adjust(obs, size, origin, markers, cams, focal, T_origin, max_iter: int = MAX_ITER) -> Adjusted:
+    """Bundle adjustment of every posed view and placed marker but the origin, which stays at
+    ``T_origin`` (Huber loss, ``HUBER_PX``; ``tracking.bundle``)."""
+    cam_keys = sorted(cams)
+    marker_keys = sorted(i for i in markers if i != origin)
+    pairs = [(k, i) for k in cam_keys for i in obs[k] if i in markers]
+    prob = {"n_cams": len(cam_keys), "focal": focal,
+            "cam": np.array([cam_keys.index(k) for k, _ in pairs]),
+            "marker": np.array([marker_keys.index(i) if i != origin else -1 for _, i in pairs]),
+            "local": np.array([square_corners(size[i]) for _, i in pairs]),
+            "seen": np.array([obs[k][i] for k, i in pairs]), "origin": T_origin}
+
+    def fun(v, o):
+        return _residuals(np.concatenate([v.ravel(), o.ravel()]), prob).reshape(-1, 8)
+    fit = bundle_adjust(fun, np.array([_pack(cams[k]) for k in cam_keys]),
+                        np.array([_pack(markers[i]) for i in marker_keys]).reshape(-1, 6), prob["cam"], prob["marker"],
+                        HUBER_PX, max_iter)
+    if not fit.converged and max_iter == MAX_ITER:
+        log.warning("the map's bundle adjustment stopped after %d steps before converging", fit.iterations)
+    cams, adjusted = _unpack(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
+    adjusted[origin] = T_origin
+    return Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys, fit.converged)
+
+
+def marker_covariances(adj: Adjusted) -> dict:
+    """{marker id: (6, 6)} the markers' parameter covariance: the inverse of their information
+    (the views marginalised) times the residuals' mean square per degree of freedom, pixels^2."""
+    n_par = 6 * len(adj.marker_keys) + 6 * len(adj.cams)
+    dof = max(len(adj.residuals) - n_par, 1)
+    S = adj.information
+    C = np.linalg.pinv(S) * float(np.sum(adj.residuals ** 2)) / dof if S.size else S
+    return {i: C[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j, i in enumerate(adj.marker_keys)}
+
+
+def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tuple[Adjusted, dict, float]:
+    """``_adjust``, and then while a marker (not the origin) moved during the survey (``_moved``),
+    one marker becomes two for another adjustment: its views after the move see a second marker
+    (id ``-1 - i``) where it went, so that its move does not drag the views and markers beside
+    it. Which one: a marker moved while in view with its neighbours drags them too, and they
+    can be flagged in its place, so each suspect (``_suspects``: the flagged markers and those
+    seen with the surest at its move) is split in turn at its own best cut, adjusted again
+    from the last adjustment's poses, and the split whose adjustment has the least robust cost
+    is kept. Returns the last adjustment with each moved marker's pose after the move under its
+    own id (the second marker dropped, its observations counted), {id: mm moved}, and the
+    reprojection RMS before any split, pixels."""
+    obs, size, moved = list(obs), dict(size), {}
+    adj = _adjust(obs, size, origin, markers, cams, focal, T_origin)
+    rms_unsplit = _rms(adj.residuals)
+    while True:
+        found = {i: v for i, v in _moved(obs, size, adj.markers, adj.cams).items()
+                 if i >= 0 and i != origin and i not in moved}
+        log.debug("moved markers found: %s", {i: (round(v[0]), round(v[1]), v[2]) for i, v in found.items()})
+        if not found:
+            break
+        if len(moved) == MAX_MOVED:
+            moved.update({i: v[0] for i, v in found.items()})    # flagged, not split
+            break
+        trials = []
+        for i, cut in _suspects(obs, size, adj, found, origin, moved):
+            o, s, m = _split(obs, size, adj, i, cut)
+            trial = _adjust(o, s, origin, m, adj.cams, focal, T_origin, TRIAL_ITER)
+            log.debug("moved marker: split of %d at view %d, cost %.4g, RMS %.3f px (converged: %s)", i, cut,
+                      _huber_cost(trial.residuals), _rms(trial.residuals), trial.converged)
+            trials.append((_huber_cost(trial.residuals), i, o, s, trial))
+        _, i, obs, size, adj = min(trials, key=lambda t: t[0])
+        if not adj.converged:                             # the best split's adjustment, finished
+            adj = _adjust(obs, size, origin, adj.markers, adj.cams, focal, T_origin)
+        moved[i] = found.get(i, (0.0,))[0]
+    for i in [j for j in moved if -1 - j in adj.markers]:
+        moved[i] = float(np.linalg.norm(adj.markers[-1 - i][:3, 3] - adj.markers[i][:3, 3]))   # as adjusted
+        adj.markers[i] = adj.markers.pop(-1 - i)
+        if moved[i] <= MOVED_MM:          # a first adjustment's doubt the last one does not bear out
+            del moved[i]
+        adj.pairs = [(k, i if j == -1 - i else j) for k, j in adj.pairs]
+    return adj, moved, rms_unsplit
+
+
+def _suspects(obs, size, adj: Adjusted, found: dict, origin: int, moved: dict) -> list:
+    """[(id, first view after its move)] of the markers whose split is tried, at most
+    ``MAX_SUSPECTS``: the surest of the flagged ones ``found`` ({id: (mm, chi2, first view after
+    the move)}), then, surest first by their own views posed without them (``_cut_without``), the
+    other flagged ones and the markers seen with the surest in its ``2 * MIN_VIEWS`` views on
+    each side of its cut whose own views so posed split into poses over ``MOVED_MM`` and 5 sd
+    apart (the origin and markers already split left out)."""
+    flagged = sorted(found, key=lambda j: -found[j][1])
+    f, cut = flagged[0], found[flagged[0]][2]
+    seen = [k for k in sorted(adj.cams) if f in obs[k]]
+    c = next((n for n, k in enumerate(seen) if k >= cut), len(seen))
+    near = {j for k in seen[max(c - 2 * MIN_VIEWS, 0):c + 2 * MIN_VIEWS] for j in obs[k]}
+    ranked = []
+    for j in sorted((near | set(found)) - set(moved) - {origin, f}):
+        views = [k for k in sorted(adj.cams) if j in obs[k]]
+        if j < 0 or len(views) < 2 * MIN_VIEWS:
+            continue
+        first = found[j][2] if j in found else cut
+        m = min(max(next((n for n, k in enumerate(views) if k >= first), len(views)), MIN_VIEWS),
+                len(views) - MIN_VIEWS)
+        n, dist, chi2 = _cut_without(obs, size, adj.markers, adj.cams, j, views, m)
+        if j in found or (dist > MOVED_MM and chi2 > 25.0):
+            ranked.append((chi2, j, first if j in found else views[n]))
+    ranked.sort(reverse=True)
+    log.debug("moved marker: suspects beside %d: %s", f, [(j, round(x)) for x, j, _ in ranked])
+    return [(f, cut)] + [(j, k) for _, j, k in ranked][:MAX_SUSPECTS - 1]
+
+
+def _split(obs, size, adj: Adjusted, i: int, cut: int) -> tuple[list, dict, dict]:
+    """Marker ``i`` made two at view ``cut``: (the observations with its views from ``cut`` on
+    seeing marker ``-1 - i``, the sizes, the markers to start the next adjustment from: both
+    halves fitted to their views as ``adj`` posed them)."""
+    after = [k for k in sorted(adj.cams) if k >= cut and i in obs[k]]
+    before = [k for k in sorted(adj.cams) if k < cut and i in obs[k]]
+    obs = list(obs)
+    for k in after:
+        obs[k] = {(-1 - j if j == i else j): c for j, c in obs[k].items()}
+    size = {**size, -1 - i: size[i]}
+    markers = dict(adj.markers)
+    markers[i] = fit_marker(obs, size[i], i, adj.markers[i], adj.cams, before)[0] if before else adj.markers[i]
+    markers[-1 - i] = fit_marker(obs, size[i], -1 - i, adj.markers[i], adj.cams, after)[0]
+    return obs, size, markers
+
+
+def _rms(r) -> float:
+    return float(np.sqrt(np.mean(np.square(r)))) if len(r) else float("nan")
+
+
+def _huber_cost(r) -> float:
+    """The adjustment's robust cost of residuals ``r`` (pixels): Huber's, past ``HUBER_PX``."""
+    a = np.abs(np.asarray(r))
+    return float(np.sum(np.where(a <= HUBER_PX, 0.5 * a * a, HUBER_PX * a - 0.5 * HUBER_PX ** 2)))
+
+
+def _moved(obs, size, markers, cams) -> dict:
+    """{marker id: (mm, chi2, first view after the move)} of the markers that moved during the
+    survey: split its views (in view order) where two poses fit them best (views fixed), those
+    two poses' positions are more than ``MOVED_MM`` and 5 sd apart (chi2: the squared
+    Mahalanobis distance between them)."""
+    out = {}
+    order = sorted(cams)
+    for i in markers:
+        seen = [k for k in order if i in obs[k]]
+        if len(seen) < 2 * MIN_VIEWS:
+            continue
+        fit = {}
+
+        def cost(m, i=i, seen=seen, fit=fit):
+            if m not in fit:
+                fit[m] = [fit_marker(obs, size[i], i, markers[i], cams, part) for part in (seen[:m], seen[m:])]
+            return fit[m][0][2] + fit[m][1][2]
+        cuts = range(MIN_VIEWS, len(seen) - MIN_VIEWS + 1)
+        step = max(len(cuts) // 10, 1)
+        m = min(cuts[::step], key=cost)
+        m = min(range(max(m - step, cuts[0]), min(m + step, cuts[-1]) + 1), key=cost)
+        (Ta, Ca, _), (Tb, Cb, _) = fit[m]
+        d = Ta[:3, 3] - Tb[:3, 3]
+        dist, chi2 = float(np.linalg.norm(d)), float(d @ np.linalg.solve(Ca + Cb + 1e-9 * np.eye(3), d))
+        if dist > MOVED_MM and chi2 > 25.0:
+            out[i] = (dist, chi2, seen[_cut_without(obs, size, markers, cams, i, seen, m)[0]])
+    return out
+
+
+def _cut_without(obs, size, markers, cams, i, seen, m) -> tuple[int, float, float]:
+    """Where a moved marker's views ``seen`` split, judged with each view posed by its other
+    markers (views that see none keep their pose): the adjustment before the split posed the
+    views after a move partly by the moved marker itself, so views next to the move side
+    with it and the best cut with those poses can fall a few views early. Returns the cut's
+    index into ``seen`` (``m``, the first guess, when no cut fits better), and how far apart
+    the two halves' positions are there: mm, and chi2 (their squared Mahalanobis distance)."""
+    own = {k: pose_view({j: c for j, c in obs[k].items() if j != i}, size, markers) for k in seen}
+    own = {k: cams[k] if T is None else T for k, T in own.items()}
+    fit = {}
+
+    def cost(c):
+        if c not in fit:
+            fit[c] = [fit_marker(obs, size[i], i, markers[i], own, part) for part in (seen[:c], seen[c:])]
+        return fit[c][0][2] + fit[c][1][2]
+    c = min(range(MIN_VIEWS, len(seen) - MIN_VIEWS + 1), key=lambda c: (cost(c), c != m))
+    (Ta, Ca, _), (Tb, Cb, _) = fit[c]
+    d = Ta[:3, 3] - Tb[:3, 3]
+    return c, float(np.linalg.norm(d)), float(d @ np.linalg.solve(Ca + Cb + 1e-9 * np.eye(3), d))
+
+
+def fit_marker(obs, side, i, T0, cams, keys):
+    """A marker's pose fitted to its corners in views ``keys`` (views fixed), from ``T0``:
+    (T_world_from_marker, its position's covariance (3, 3), mm^2, the sum of squared
+    residuals, normalised)."""
+    R = np.array([cams[k][:3, :3] for k in keys])
+    t = np.array([cams[k][:3, 3] for k in keys])
+    seen = np.array([obs[k][i] for k in keys])
+
+    def res(x):
+        return (project(R, t, marker_corners_world(side, transform_from_rvec_tvec(x[:3], x[3:])))[0] - seen).ravel()
+    fit = least_squares(res, _pack(T0), method="lm")
+    J = fit.jac
+    s2 = float(np.sum(fit.fun ** 2)) / max(len(fit.fun) - 6, 1)
+    C = np.linalg.pinv(J.T @ J) * s2
+    return transform_from_rvec_tvec(fit.x[:3], fit.x[3:]), C[3:, 3:], float(np.sum(fit.fun ** 2))
