@@ -118,6 +118,7 @@ def test_tracking_one_frame_in_two_keeps_the_tracked_poses_and_interpolates_the_
     t2, f2, T2, x2 = read_poses_csv(tmp_path / "p2.csv")
     assert np.array_equal(f1, f2) and np.array_equal(t1, t2)
     assert np.array_equal(T1[::2], T2[::2]) and list(x2["status"][1:-1:2]) == ["interpolated"] * 14
+    assert np.array_equal(T1[-1], T2[-1]) and x2["status"][-1] == "ok"   # the last frame (29) is tracked too
     w = ((t2[1:-1:2] - t2[0:-2:2]) / (t2[2::2] - t2[0:-2:2]))[:, None]   # linear in translation, SLERP in rotation
     assert np.allclose(T2[1:-1:2, :3, 3], (1 - w) * T2[0:-2:2, :3, 3] + w * T2[2::2, :3, 3], atol=1e-3)
     assert np.abs(T1[1:-1:2, :3, 3] - T2[1:-1:2, :3, 3]).max() < 20.0       # mm: and near the tracked pose
@@ -153,10 +154,10 @@ def test_a_tracked_pose_that_jumps_off_the_heads_path_and_back_is_rejected(tmp_p
     from tracking.pose import OK, PoseResult
     poses = [_T(t=(20.0 * i, 0.0, 0.0)) for i in range(30)]
     poses[12] = _T(t=(240.0, 400.0, 0.0))
-    calls = iter(range(30))
+    tracked = iter([*range(0, 30, 2), 29])                # one in two, and the last
 
     def locate(grey):
-        i = 2 * next(calls)
+        i = next(tracked)
         return PoseResult(poses[i], OK, markers=[1], n_points=4, reproj_rms_px=0.1), []
     res = track_cmd.track_poses(_FrameSource(30), 30.0, 30, locate, every=2)
     status = list(res.columns["status"])

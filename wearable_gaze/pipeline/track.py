@@ -166,8 +166,10 @@ POSE_ROW = ("t", "frame", "T", "n_markers", "n_points", "reproj_rms_px", "status
 
 
 def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progress, draw) -> tuple[dict, int]:
-    """Track the frames of ``cap``: one in ``every`` (all when ``draw``), the others get a NaN
-    pose marked 'interpolated'. ``draw(frame, found, res)`` is called on every tracked frame.
+    """Track the frames of ``cap``: one in ``every`` (all when ``draw``) and the last (of
+    ``n_total``, when known: the frames after the last tracked one would have no pose, nor would
+    the eye samples there), the others get a NaN pose marked 'interpolated'. ``draw(frame,
+    found, res)`` is called on every tracked frame.
     A frame ``times`` has no time for (a recording cut short saves its video ahead of its
     timestamps) cannot be placed in time: it is left out, with a warning. Returns the columns
     ``POSE_ROW``, one entry per frame kept, and the number of frames left out."""
@@ -181,7 +183,7 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
             i += 1
             continue
         t = times[i] if times is not None else i / fps
-        if every > 1 and i % every and draw is None:
+        if every > 1 and i % every and draw is None and not (n_total and i >= n_total - 1):   # the last is tracked
             if not cap.grab():
                 break
             values = (t, i, np.full((4, 4), np.nan), 0, 0, np.nan, "interpolated")
