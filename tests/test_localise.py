@@ -221,3 +221,21 @@ def test_markerless_bad_inputs_are_one_line(survey, tmp_path, capsys):
     assert main(["track", str(sess / "scene.mp4"), "--camera", cam, "--map", str(bad), "-o",
                  str(tmp_path / "p.csv")]) == 2
     assert "different maps" in capsys.readouterr().err
+
+
+def test_a_map_placed_loosely_by_its_markers_says_so():
+    """The terminal report of a markerless map placed by several markers whose corners fit their
+    places by more than ``LOOSE_PLACEMENT_MM`` says so and what to do; a tight fit, one marker
+    or a distance does not."""
+    from types import SimpleNamespace
+
+    from wearable_gaze.pipeline.sfm import LOOSE_PLACEMENT_MM, SfmBuild, format_sfm_report
+
+    fmap = SimpleNamespace(points_world=np.zeros((10, 3)))
+
+    def report(markers, residual):
+        scaled = {"kind": "marker_map", "markers": markers, "views": {}, "residual_mm": residual}
+        return "\n".join(format_sfm_report(SfmBuild(fmap, 40, 40, 0.7, scaled, {})))
+    assert "loosely (21.8 mm RMS)" in report([0, 1, 2], 21.8) and "--origin-marker" in report([0, 1, 2], 21.8)
+    assert "loosely" not in report([0, 1, 2], LOOSE_PLACEMENT_MM * 0.8)
+    assert "loosely" not in report([0], 21.8)                       # one marker fits itself: nothing to judge
