@@ -357,6 +357,21 @@ def test_bad_samples_are_counted_with_reasons(tmp_path):
     assert r.left_valid.sum() == 46 and r.right_valid.sum() == 48
 
 
+
+def test_g2_sync_lines_with_a_garbage_time_are_counted_not_a_crash(tmp_path):
+    """A ``vts`` line whose ``ts`` or ``vts`` is not an integer (a damaged copy: the first one,
+    read by the prepass, and a later one) is counted and skipped; the clock comes from the good
+    sync lines (it was an internal error: ``'>' not supported between 'str' and 'int'``)."""
+    src = g2_folder(tmp_path, n=50)
+    live = src / "segments" / "1" / "livedata.json.gz"
+    lines = gzip.open(live, "rt").read().splitlines()
+    lines = ['{"ts":"abc","s":0,"vts":5}'] + lines[:100] + ['{"ts":1400000,"s":0,"vts":"x"}'] + lines[100:]
+    with gzip.open(live, "wt") as fh:
+        fh.write("\n".join(lines) + "\n")
+    rep = run_import(tobii_g2, src, tmp_path / "out")
+    assert rep["dropped"]["line: video sync (vts) line without an integer ts or vts"] == 2
+    assert rep["eye_samples_written"] == 50 and rep["clock_offset_s"] == pytest.approx(1.0)
+
 @pytest.mark.parametrize(("make", "needle"), [
     (lambda root: (root / "rec").mkdir(), "no recording"),
     (lambda root: (root / "rec" / "segments" / "1").mkdir(parents=True), "no livedata.json.gz"),
