@@ -205,6 +205,20 @@ def test_missing_streams_and_files_give_one_line(sample, copy, tmp_path):
     one_line_error(copy, tmp_path / "d", "not a readable Neon recording")
 
 
+
+@pytest.mark.parametrize("damage", ["cut", "empty", "nan"])
+def test_a_damaged_calibration_bin_is_one_line(copy, tmp_path, damage):
+    """calibration.bin cut mid-record or emptied (the vendor's reader failed with an IndexError:
+    an internal error), or with a NaN camera matrix: one line saying it is damaged and the fix."""
+    path = copy / "calibration.bin"
+    data = bytearray(path.read_bytes())
+    assert len(data) == neon.CALIBRATION_DTYPE.itemsize
+    if damage == "nan":
+        data[7:15] = np.array([np.nan]).tobytes()                            # scene K[0, 0]
+    path.write_bytes(bytes(data[: {"cut": 100, "empty": 0, "nan": len(data)}[damage]]))
+    msg = one_line_error(copy, tmp_path / "out", "damaged copy")
+    assert "calibration.bin" in msg and "--camera" in msg
+
 def test_gaze_is_matched_to_eye_states_within_5_ms(copy, tmp_path):
     for name in ("gaze ps1.time", "gaze_200hz.time"):
         t = np.fromfile(copy / name, "<i8")

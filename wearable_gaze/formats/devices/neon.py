@@ -303,7 +303,7 @@ def _camera(rec, imp: SessionImport, options: ImportOptions, src: Path):
     """The scene camera: ``camera.json`` from ``--camera`` or else calibration.bin, the scene
     video if present, the marker map. Returns (the camera Neon's 2D gaze was mapped through:
     calibration.bin's, or ``--camera`` without it; image size; fps; the vendor's scene stream)."""
-    cal = rec.calibration
+    cal = streams.read_calibration(rec, src)
     user = load_camera(options.camera) if options.camera is not None else None
     if cal is None and user is None:
         raise UserError(f"{src}: no calibration.bin (the scene camera's intrinsics); copy it from the recording or "

@@ -30,6 +30,8 @@ from ...errors import UserError
 log = logging.getLogger(__name__)
 
 TIME_DTYPE = np.dtype("<i8")
+CALIBRATION_BYTES = 803
+"""The size of calibration.bin's one record (``neon.CALIBRATION_DTYPE``, the reader's ``calib.py``)."""
 
 
 def vendor():
@@ -152,3 +154,25 @@ def open_stream(src: Path, base: str, fallback: np.dtype) -> Stream | None:
     """Stream ``base`` of the Neon folder ``src``, or None when it has no part with a ``.time`` file."""
     pairs = stream_pairs(src, base)
     return Stream(pairs, fallback) if pairs else None
+
+
+def read_calibration(rec, src: Path):
+    """calibration.bin by the vendor's reader ``rec`` (None: the folder ``src`` has none).
+
+    Raises:
+        UserError: a file shorter than one record, or a scene camera matrix that is not finite
+            and positive (a damaged copy; the reader failed with an IndexError on a short one).
+    """
+    path = Path(src) / "calibration.bin"
+    if not path.is_file():
+        return None
+    size = path.stat().st_size
+    fix = "copy it again from the recording, or delete it and give the scene camera's calibration with --camera"
+    if size < CALIBRATION_BYTES:
+        raise UserError(f"{path}: {size} bytes, shorter than Neon's {CALIBRATION_BYTES}-byte calibration record "
+                        f"(a damaged copy); {fix}")
+    cal = rec.calibration
+    K = np.asarray(cal.scene_camera_matrix, float)
+    if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise UserError(f"{path}: the scene camera matrix is not finite and positive (a damaged copy); {fix}")
+    return cal
