@@ -304,3 +304,17 @@ def test_parse_ids():
     for bad in ("5-3", "-1", "", "a", "1-2-3", "0-99999999"):
         with pytest.raises(UserError):
             parse_ids(bad)
+
+
+def test_process_into_another_session_folder_is_refused(real_data, tmp_path, capsys):
+    """``process A -o B`` with B a session folder (the real Aria sample imported twice) mixed
+    process's outputs (poses.csv, viewlines.csv, report.html, ...) into session B; it is one line,
+    exit status 2, and B is left as it was."""
+    for name in ("a", "b"):
+        assert main(["import", str(real_data / "aria_mps_sample_gen1"), "-o", str(tmp_path / name)]) == 0
+    before = sorted(p.name for p in (tmp_path / "b").iterdir())
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "a"), "-o", str(tmp_path / "b")]) == 2
+    line = _one_line_error(capsys)
+    assert "is a session folder" in line and "SESSION/processed" in line
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == before
