@@ -219,6 +219,23 @@ def test_a_damaged_calibration_bin_is_one_line(copy, tmp_path, damage):
     msg = one_line_error(copy, tmp_path / "out", "damaged copy")
     assert "calibration.bin" in msg and "--camera" in msg
 
+
+def test_a_damaged_blinks_stream_is_not_called_missing(copy, tmp_path):
+    """``blinks ps1.raw`` cut mid-record was reported as "no 'blinks' stream" and the import went
+    on without Neon's blinks (the vendor's reader failed); it is one line with the truncate
+    command, as for eye_state. A ``.time`` emptied (the vendor's reader silently read no blink)
+    is a note counting the records cut."""
+    raw, time = copy / "blinks ps1.raw", copy / "blinks ps1.time"
+    data = raw.read_bytes()
+    raw.write_bytes(data[:-2])
+    cut = f"blinks ps1.raw: ends in a partial 20-byte record.*truncate -s {len(data) - 20} "
+    one_line_error(copy, tmp_path / "a", cut)
+    raw.write_bytes(data)
+    time.write_bytes(b"")
+    rep = run_import(copy, tmp_path / "b")
+    assert "blinks: 2 records or times cut (.raw and .time differ in length)" in rep["notes"]
+    assert "inside a blink (Neon's blinks stream)" not in rep["dropped"]
+
 def test_gaze_is_matched_to_eye_states_within_5_ms(copy, tmp_path):
     for name in ("gaze ps1.time", "gaze_200hz.time"):
         t = np.fromfile(copy / name, "<i8")
