@@ -372,6 +372,18 @@ def test_g2_sync_lines_with_a_garbage_time_are_counted_not_a_crash(tmp_path):
     assert rep["dropped"]["line: video sync (vts) line without an integer ts or vts"] == 2
     assert rep["eye_samples_written"] == 50 and rep["clock_offset_s"] == pytest.approx(1.0)
 
+
+def test_g2_one_line_with_a_garbage_time_does_not_move_its_sample(tmp_path):
+    """A sample whose first line (left ``pc``) has a damaged ``ts`` far ahead took that time: on the
+    real recording it sat at t ~ 1e5 s in eye_rays.csv and the gap counter reported 4,999,282
+    samples missing (in a recording longer than one chunk every later sample would be dropped as
+    'time not increasing'). The sample's time is the median of its lines' times."""
+    bad = {20: [GOOD[0].format(ts=99_999_999_999, g=20)] + [s.format(ts=1_400_000, g=20) for s in GOOD[1:]]}
+    rep = run_import(tobii_g2, g2_folder(tmp_path, replace=bad), tmp_path / "out")
+    assert rep["eye_samples_written"] == 50 and not any(k.startswith("gap") for k in rep["dropped"])
+    t = read_eye_rays(tmp_path / "out" / "eye_rays.csv").t_s
+    np.testing.assert_allclose(np.diff(t), 0.02, atol=1e-9)
+
 @pytest.mark.parametrize(("make", "needle"), [
     (lambda root: (root / "rec").mkdir(), "no recording"),
     (lambda root: (root / "rec" / "segments" / "1").mkdir(parents=True), "no livedata.json.gz"),

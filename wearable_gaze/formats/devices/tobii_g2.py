@@ -192,7 +192,8 @@ def _row(g: dict, drops: Counter):
         drops["sample: incomplete gidx group (an eye's pc or gd line missing)"] += 1
         return None
     g3 = g.get("gp3", (NAN3, 1))
-    return (g["ts"], g["pc_left"][0], g["gd_left"][0], g["pc_left"][1] or g["gd_left"][1],
+    ts = sorted(g["ts"])[(len(g["ts"]) - 1) // 2]     # the lines' median: one line's damaged ts cannot move it
+    return (ts, g["pc_left"][0], g["gd_left"][0], g["pc_left"][1] or g["gd_left"][1],
             g["pc_right"][0], g["gd_right"][0], g["pc_right"][1] or g["gd_right"][1], g3[0] if g3[1] == 0 else NAN3)
 
 
@@ -276,7 +277,8 @@ def stream_livedata(path: Path, clock: _Clock, gaps: GapCounter, chunks: RayChun
             elif "vts" in obj and obj.get("s") == 0:
                 chunks.drops["line: video sync (vts) line without an integer ts or vts"] += 1
             continue
-        g = pending.setdefault(gidx, {"ts": obj["ts"]})
+        g = pending.setdefault(gidx, {"ts": []})
+        g["ts"].append(obj["ts"])
         s = obj.get("s", 0) if isinstance(obj.get("s", 0), int) else 1
         eye = obj.get("eye")
         for key in ("pc", "gd", "pd", "gp", "gp3"):
