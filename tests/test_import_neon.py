@@ -236,6 +236,23 @@ def test_a_damaged_blinks_stream_is_not_called_missing(copy, tmp_path):
     assert "blinks: 2 records or times cut (.raw and .time differ in length)" in rep["notes"]
     assert "inside a blink (Neon's blinks stream)" not in rep["dropped"]
 
+
+def test_a_damaged_time_far_ahead_drops_only_itself(copy, tmp_path, monkeypatch):
+    """One eye-state time set far ahead (2**62 ns) made every later sample 'time not increasing':
+    1,087 of the demo recording's samples dropped, 653 kept. Now only the damaged times go (one
+    alone, and a run of three), whatever the chunk size, and a time that goes back still goes."""
+    clean = run_import(copy, tmp_path / "clean")
+    path = copy / "eye_state ps1.time"
+    t = np.fromfile(path, "<i8")
+    t[700], t[900:903], t[1200] = 2**62, 2**61, t[1190]
+    t.tofile(path)
+    rep = run_import(copy, tmp_path / "a")
+    assert rep["dropped"]["time not increasing"] == 5
+    assert clean["eye_samples_written"] - 5 <= rep["eye_samples_written"] <= clean["eye_samples_written"]
+    monkeypatch.setattr(neon, "CHUNK", 7)
+    run_import(copy, tmp_path / "b")
+    assert (tmp_path / "a" / "eye_rays.csv").read_bytes() == (tmp_path / "b" / "eye_rays.csv").read_bytes()
+
 def test_gaze_is_matched_to_eye_states_within_5_ms(copy, tmp_path):
     for name in ("gaze ps1.time", "gaze_200hz.time"):
         t = np.fromfile(copy / name, "<i8")

@@ -180,10 +180,7 @@ class _Eyes:
         c = _fields(part, EYE_FIELDS[:6], (len(t_ns), 2, 3)).transpose(1, 0, 2)
         d = _fields(part, EYE_FIELDS[6:12], (len(t_ns), 2, 3)).transpose(1, 0, 2)
         aperture = _fields(part, EYE_FIELDS[12:], (len(t_ns), 2)).T
-        # non-increasing times: kept only where above every earlier time
-        before = np.maximum.accumulate(t_ns)[:-1]
-        keep = np.concatenate([[True] if t_max is None else [t_ns[0] > t_max],
-                               t_ns[1:] > (before if t_max is None else np.maximum(before, t_max))])
+        keep, self.t_latest = streams.in_time_order(t_ns, self.eyes.read(b, b + streams.LOOKAHEAD)[0], t_max)
         self._drop("time not increasing", int((~keep).sum()))
         if self.worn is not None:
             i = np.clip(self.worn.searchsorted(t_ns, side="right") - 1, 0, self.worn.n - 1)
@@ -222,7 +219,7 @@ class _Eyes:
         self.count, t_max = count, None
         for a in range(0, self.n, CHUNK):
             ch = self.chunk(a, min(a + CHUNK, self.n), t_max)
-            t_max = int(ch["t_ns"].max()) if t_max is None else max(t_max, int(ch["t_ns"].max()))
+            t_max = self.t_latest
             yield a, ch
 
 
