@@ -325,6 +325,23 @@ def test_opencv_camera_files_read_as_camera_json(tmp_path, suffix):
         load_camera(tmp_path / "bad.yml")
 
 
+
+def test_an_opencv_camera_file_without_an_image_size_is_one_line(real_data, tmp_path, capsys):
+    """OpenCV's tutorial_camera_params.yml gives no image_width/height: its size was guessed as
+    2 * principal point + 1 = 649x523, so ``map`` on the tutorial's 640x480 photos stopped with "the
+    camera calibration is for 649x523", a size the file never states. It is one line asking for the
+    size, at load and through the CLI."""
+    from wearable_gaze.cli import main
+
+    d = real_data / "opencv_aruco_charuco_tutorial"
+    with pytest.raises(UserError, match="no image_width and image_height") as err:
+        load_camera(d / "tutorial_camera_params.yml")
+    assert "\n" not in str(err.value)
+    assert main(["map", str(d / "singlemarkersoriginal.jpg"), "--camera", str(d / "tutorial_camera_params.yml"),
+                 "--size-mm", "40", "--dict", "DICT_6X6_250", "-o", str(tmp_path / "map.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "image_width" in err and "649x523" not in err and len(err.splitlines()) == 1
+
 def test_live_streamed_rows_are_the_table_writers_rows(tmp_path):
     """The recorder writes eye samples and frame times row by row (LF); the table writer (CRLF)
     writes the same cells, and the reader gives the same values for both."""
