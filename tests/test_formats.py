@@ -466,6 +466,18 @@ def test_a_header_only_estimates_csv_is_empty_but_a_broken_one_is_one_line(tmp_p
         read_estimates(tmp_path / "short.csv")
 
 
+
+def test_an_estimate_without_a_covariance_is_read_back(tmp_path):
+    """``process --method lse`` (or ``paper`` on a short fixation) writes estimates.csv with an
+    empty radius95_mm (no covariance); its own reader refused that cell, so on the real Aria sample
+    the export and report steps failed ("radius95_mm: '' is not a number"). Empty reads as NaN."""
+    cols = {"t": [0.1, 0.2], "segment": [0, 0], "x": [1.0, 2.0], "y": [3.0, 4.0], "z": [5.0, 6.0],
+            "radius95_mm": [float("nan"), 12.5]}
+    write_estimates(tmp_path / "e.csv", cols)
+    assert tmp_path.joinpath("e.csv").read_text().splitlines()[1].endswith(",")
+    back = read_estimates(tmp_path / "e.csv")
+    assert np.isnan(back["radius95_mm"][0]) and back["radius95_mm"][1] == 12.5 and list(back["x"]) == [1.0, 2.0]
+
 # --- the streaming CSV reader (tables.csv_header, iter_csv_chunks, chunk_numbers) ------------------
 
 def _stream_csv(path, data: bytes):
