@@ -126,6 +126,20 @@ def test_import_refuses_bad_input_in_one_line(tmp_path, capsys, argv, match):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]        # no temporary folder left
 
 
+
+def test_a_session_inside_the_recording_is_refused(real_data, tmp_path, capsys):
+    """``import REC -o REC/session`` (a copy of the real Aria sample) wrote the session into the
+    recording's folder; it is one line, exit status 2, and the recording is left as it was."""
+    import shutil
+
+    rec = tmp_path / "mps"
+    shutil.copytree(real_data / "aria_mps_sample_gen1", rec, ignore=shutil.ignore_patterns("*.gz"))
+    before = sorted(p.name for p in rec.iterdir())
+    assert main(["import", str(rec), "-o", str(rec / "session")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is inside the recording" in err[0], err
+    assert sorted(p.name for p in rec.iterdir()) == before
+
 def test_detect_format_names_the_choices(tmp_path):
     with pytest.raises(UserError, match="--format"):
         detect_format(tmp_path)
