@@ -318,3 +318,19 @@ def test_process_into_another_session_folder_is_refused(real_data, tmp_path, cap
     line = _one_line_error(capsys)
     assert "is a session folder" in line and "SESSION/processed" in line
     assert sorted(p.name for p in (tmp_path / "b").iterdir()) == before
+
+
+def test_an_imported_sessions_eye_rays_are_not_taken_for_view_lines(real_data, tmp_path, capsys):
+    """eye_rays.csv has the view-line CSV's columns plus left_valid/right_valid, in the head frame.
+    ``estimate`` and ``fixations`` read it as world view lines: on the real Aria sample (a walking
+    head) ``estimate eye_rays.csv --one-point`` gave an 'ok' point in the head frame. Both refuse
+    it in one line naming processed/viewlines.csv."""
+    s = tmp_path / "s"
+    assert main(["import", str(real_data / "aria_mps_sample_gen1"), "-o", str(s)]) == 0
+    capsys.readouterr()
+    for argv in (["estimate", str(s / "eye_rays.csv"), "--one-point"],
+                 ["fixations", str(s / "eye_rays.csv"), "-o", str(tmp_path / "f.csv")]):
+        assert main(argv) == 2
+        line = _one_line_error(capsys)
+        assert "eye-ray CSV" in line and "processed/viewlines.csv" in line
+    assert not (tmp_path / "f.csv").exists()
