@@ -140,6 +140,23 @@ def test_a_session_inside_the_recording_is_refused(real_data, tmp_path, capsys):
     assert len(err) == 1 and "is inside the recording" in err[0], err
     assert sorted(p.name for p in rec.iterdir()) == before
 
+
+def test_a_recording_given_to_process_or_a_session_to_import_says_which_command(real_data, tmp_path, capsys):
+    """A new user's first slips on the real recordings: ``process`` on the Aria MPS folder said
+    "session.json: no such file; pass the session manifest", on the Tufts CSV "run 'wearable-gaze
+    simulate -o .../test.csv'" (into the data folder), and ``import`` of an imported session "matches
+    none of the known formats". Each line now names the command to run."""
+    aria, tufts = real_data / "aria_mps_sample_gen1", real_data / "tufts_gaze_depth" / "test.csv"
+    assert main(["import", str(aria), "-o", str(tmp_path / "s")]) == 0
+    capsys.readouterr()
+    for argv, want in ((["process", str(aria), "-o", str(tmp_path / "p1")], f"wearable-gaze import {aria} -o"),
+                       (["process", str(tufts), "-o", str(tmp_path / "p2")], f"wearable-gaze import {tufts} -o"),
+                       (["import", str(tmp_path / "s"), "-o", str(tmp_path / "s2")],
+                        f"wearable-gaze process {tmp_path / 's'}")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and want in err[0] and "simulate" not in err[0], err
+
 def test_detect_format_names_the_choices(tmp_path):
     with pytest.raises(UserError, match="--format"):
         detect_format(tmp_path)
