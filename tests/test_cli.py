@@ -334,3 +334,17 @@ def test_an_imported_sessions_eye_rays_are_not_taken_for_view_lines(real_data, t
         line = _one_line_error(capsys)
         assert "eye-ray CSV" in line and "processed/viewlines.csv" in line
     assert not (tmp_path / "f.csv").exists()
+
+
+def test_output_piped_into_a_reader_that_stops_is_no_error(csv_two_segments):
+    """``wearable-gaze estimate ... --json | head -1`` (on the real Neon session's view lines)
+    printed "cannot write or read ?: Broken pipe; check the path and try again" and exited 2, as if
+    an input were bad. A reader that stops early is no error of ours: nothing on stderr, status
+    141 (128 + SIGPIPE, what a shell reports for a writer the pipe stopped)."""
+    exe = Path(sys.executable).with_name("wearable-gaze")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "wearable_gaze.cli"]
+    p = subprocess.Popen(cmd + ["estimate", str(csv_two_segments), "--json"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()                                       # the reader is gone before the first line
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 141 and err == "", err
