@@ -410,6 +410,20 @@ def test_g2_not_gzip_and_truncated(tmp_path):
     assert 0 < rep["eye_samples_written"] < 50
 
 
+
+def test_g2_livedata_cut_mid_line_is_noted_as_cut(tmp_path):
+    """A livedata copy cut mid-line but gzipped whole (the real recording cut at half its lines)
+    was read up to the cut with only "1 (line: unparsable JSON)" to show for it; the docs promise a
+    note that the file was cut short, as for a truncated gzip."""
+    src = g2_folder(tmp_path)
+    live = src / "segments" / "1" / "livedata.json.gz"
+    text = gzip.open(live, "rt").read()
+    with gzip.open(live, "wt") as fh:
+        fh.write(text[: len(text) // 2].rstrip("\n")[:-5])
+    rep = run_import(tobii_g2, src, tmp_path / "out")
+    assert any("ends in a partial line" in n and "cut short" in n for n in rep["notes"]), rep["notes"]
+    assert 0 < rep["eye_samples_written"] < 50
+
 def test_g2_all_samples_invalid_is_one_line(tmp_path):
     src = g2_folder(tmp_path, replace={i: [s.format(ts=1_000_000 + 20_000 * i, g=i).replace('"s":0', '"s":16')
                                            for s in GOOD] for i in range(50)})
