@@ -323,3 +323,47 @@ def test_progress_bar_draws_a_new_total_at_once(monkeypatch):
     with progress_bar("sessions", 1) as cb:
         cb(0, 8)
         assert "0/8" in err.getvalue()
+
+
+def test_process_into_another_session_folder_is_refused(real_data, tmp_path, capsys):
+    """``process A -o B`` with B a session folder (the real Aria sample imported twice) mixed
+    process's outputs (poses.csv, viewlines.csv, report.html, ...) into session B; it is one line,
+    exit status 2, and B is left as it was."""
+    for name in ("a", "b"):
+        assert main(["import", str(real_data / "aria_mps_sample_gen1"), "-o", str(tmp_path / name)]) == 0
+    before = sorted(p.name for p in (tmp_path / "b").iterdir())
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "a"), "-o", str(tmp_path / "b")]) == 2
+    line = _one_line_error(capsys)
+    assert "is a session folder" in line and "SESSION/processed" in line
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == before
+
+
+def test_an_imported_sessions_eye_rays_are_not_taken_for_view_lines(real_data, tmp_path, capsys):
+    """eye_rays.csv has the view-line CSV's columns plus left_valid/right_valid, in the head frame.
+    ``estimate`` and ``fixations`` read it as world view lines: on the real Aria sample (a walking
+    head) ``estimate eye_rays.csv --one-point`` gave an 'ok' point in the head frame. Both refuse
+    it in one line naming processed/viewlines.csv."""
+    s = tmp_path / "s"
+    assert main(["import", str(real_data / "aria_mps_sample_gen1"), "-o", str(s)]) == 0
+    capsys.readouterr()
+    for argv in (["estimate", str(s / "eye_rays.csv"), "--one-point"],
+                 ["fixations", str(s / "eye_rays.csv"), "-o", str(tmp_path / "f.csv")]):
+        assert main(argv) == 2
+        line = _one_line_error(capsys)
+        assert "eye-ray CSV" in line and "processed/viewlines.csv" in line
+    assert not (tmp_path / "f.csv").exists()
+
+
+def test_output_piped_into_a_reader_that_stops_is_no_error(csv_two_segments):
+    """``wearable-gaze estimate ... --json | head -1`` (on the real Neon session's view lines)
+    printed "cannot write or read ?: Broken pipe; check the path and try again" and exited 2, as if
+    an input were bad. A reader that stops early is no error of ours: nothing on stderr, status
+    141 (128 + SIGPIPE, what a shell reports for a writer the pipe stopped)."""
+    exe = Path(sys.executable).with_name("wearable-gaze")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "wearable_gaze.cli"]
+    p = subprocess.Popen(cmd + ["estimate", str(csv_two_segments), "--json"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()                                       # the reader is gone before the first line
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 141 and err == "", err

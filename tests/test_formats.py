@@ -325,6 +325,23 @@ def test_opencv_camera_files_read_as_camera_json(tmp_path, suffix):
         load_camera(tmp_path / "bad.yml")
 
 
+
+def test_an_opencv_camera_file_without_an_image_size_is_one_line(real_data, tmp_path, capsys):
+    """OpenCV's tutorial_camera_params.yml gives no image_width/height: its size was guessed as
+    2 * principal point + 1 = 649x523, so ``map`` on the tutorial's 640x480 photos stopped with "the
+    camera calibration is for 649x523", a size the file never states. It is one line asking for the
+    size, at load and through the CLI."""
+    from wearable_gaze.cli import main
+
+    d = real_data / "opencv_aruco_charuco_tutorial"
+    with pytest.raises(UserError, match="no image_width and image_height") as err:
+        load_camera(d / "tutorial_camera_params.yml")
+    assert "\n" not in str(err.value)
+    assert main(["map", str(d / "singlemarkersoriginal.jpg"), "--camera", str(d / "tutorial_camera_params.yml"),
+                 "--size-mm", "40", "--dict", "DICT_6X6_250", "-o", str(tmp_path / "map.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "image_width" in err and "649x523" not in err and len(err.splitlines()) == 1
+
 def test_live_streamed_rows_are_the_table_writers_rows(tmp_path):
     """The recorder writes eye samples and frame times row by row (LF); the table writer (CRLF)
     writes the same cells, and the reader gives the same values for both."""
@@ -448,6 +465,18 @@ def test_a_header_only_estimates_csv_is_empty_but_a_broken_one_is_one_line(tmp_p
     with pytest.raises(UserError, match="missing column"):
         read_estimates(tmp_path / "short.csv")
 
+
+
+def test_an_estimate_without_a_covariance_is_read_back(tmp_path):
+    """``process --method lse`` (or ``paper`` on a short fixation) writes estimates.csv with an
+    empty radius95_mm (no covariance); its own reader refused that cell, so on the real Aria sample
+    the export and report steps failed ("radius95_mm: '' is not a number"). Empty reads as NaN."""
+    cols = {"t": [0.1, 0.2], "segment": [0, 0], "x": [1.0, 2.0], "y": [3.0, 4.0], "z": [5.0, 6.0],
+            "radius95_mm": [float("nan"), 12.5]}
+    write_estimates(tmp_path / "e.csv", cols)
+    assert tmp_path.joinpath("e.csv").read_text().splitlines()[1].endswith(",")
+    back = read_estimates(tmp_path / "e.csv")
+    assert np.isnan(back["radius95_mm"][0]) and back["radius95_mm"][1] == 12.5 and list(back["x"]) == [1.0, 2.0]
 
 # --- the streaming CSV reader (tables.csv_header, iter_csv_chunks, chunk_numbers) ------------------
 

@@ -88,8 +88,8 @@ def test_eye_rays_round_trip_and_refuse_bad_rows(tmp_path):
     assert s.frame == "head" and list(s.left_valid) == [True, False] and np.allclose(s.left_direction[0], [0, 0, 1])
     text = p.read_text().splitlines()
     (tmp_path / "order.csv").write_text("\n".join([text[0], text[2], text[1]]) + "\n")
-    with pytest.raises(UserError, match="does not increase"):
-        read_eye_rays(tmp_path / "order.csv")
+    with pytest.raises(UserError, match=r"line 3: t = 0.000000 does not increase \(line 2 has t = 0.100000\)"):
+        read_eye_rays(tmp_path / "order.csv")        # both rows named: the damaged one may be the earlier
     bad = text[2].split(",")
     bad[7] = "1"                                   # the left eye marked valid, its ray empty
     (tmp_path / "valid.csv").write_text("\n".join([text[0], text[1], ",".join(bad)]) + "\n")
@@ -125,6 +125,37 @@ def test_import_refuses_bad_input_in_one_line(tmp_path, capsys, argv, match):
     assert (tmp_path / "full" / "keep.txt").read_text() == "mine" and (tmp_path / "file.txt").read_text() == "mine"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]        # no temporary folder left
 
+
+
+def test_a_session_inside_the_recording_is_refused(real_data, tmp_path, capsys):
+    """``import REC -o REC/session`` (a copy of the real Aria sample) wrote the session into the
+    recording's folder; it is one line, exit status 2, and the recording is left as it was."""
+    import shutil
+
+    rec = tmp_path / "mps"
+    shutil.copytree(real_data / "aria_mps_sample_gen1", rec, ignore=shutil.ignore_patterns("*.gz"))
+    before = sorted(p.name for p in rec.iterdir())
+    assert main(["import", str(rec), "-o", str(rec / "session")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is inside the recording" in err[0], err
+    assert sorted(p.name for p in rec.iterdir()) == before
+
+
+def test_a_recording_given_to_process_or_a_session_to_import_says_which_command(real_data, tmp_path, capsys):
+    """A new user's first slips on the real recordings: ``process`` on the Aria MPS folder said
+    "session.json: no such file; pass the session manifest", on the Tufts CSV "run 'wearable-gaze
+    simulate -o .../test.csv'" (into the data folder), and ``import`` of an imported session "matches
+    none of the known formats". Each line now names the command to run."""
+    aria, tufts = real_data / "aria_mps_sample_gen1", real_data / "tufts_gaze_depth" / "test.csv"
+    assert main(["import", str(aria), "-o", str(tmp_path / "s")]) == 0
+    capsys.readouterr()
+    for argv, want in ((["process", str(aria), "-o", str(tmp_path / "p1")], f"wearable-gaze import {aria} -o"),
+                       (["process", str(tufts), "-o", str(tmp_path / "p2")], f"wearable-gaze import {tufts} -o"),
+                       (["import", str(tmp_path / "s"), "-o", str(tmp_path / "s2")],
+                        f"wearable-gaze process {tmp_path / 's'}")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and want in err[0] and "simulate" not in err[0], err
 
 def test_detect_format_names_the_choices(tmp_path):
     with pytest.raises(UserError, match="--format"):

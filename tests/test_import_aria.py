@@ -229,11 +229,24 @@ def test_missing_or_wrong_files_give_one_line(copy, tmp_path):
     edit(copy / TRAJ, lambda ls: [ls[0].replace("qw", "qw_world_device")] + ls[1:])
     for p in copy.glob("eye_gaze*/*.csv"):
         edit(p, lambda ls: [ls[0].replace("pitch_rads_cpf", "pitch")] + ls[1:])
-    one_line_error(aria, copy, tmp_path / "bad", "no MPS eye-gaze CSV")
+    one_line_error(aria, copy, tmp_path / "bad", "missing column(s) pitch_rads_cpf of an MPS eye-gaze CSV")
     shutil.rmtree(copy / "eye_gaze")
     shutil.rmtree(copy / "eye_gaze_vergence")
     one_line_error(aria, copy, tmp_path / "bad", "no MPS eye-gaze CSV")
 
+
+
+@pytest.mark.parametrize("column", ["pitch_rads_cpf", "right_yaw_rads_cpf"])
+def test_a_per_eye_file_with_a_column_deleted_is_refused_not_replaced(copy, tmp_path, column):
+    """The per-eye (vergence) file with a column deleted (a damaged copy) was skipped, and the
+    import went on from the pre-2024 file (one cyclopean line, no device depth) with only a
+    'not read' note; it is one line naming the file and the column."""
+    def drop(ls):
+        i = ls[0].split(",").index(column)
+        return [",".join(c for j, c in enumerate(ln.split(",")) if j != i) for ln in ls]
+    edit(copy / GAZE, drop)
+    msg = one_line_error(aria, copy, tmp_path / "bad", f"missing column(s) {column} of an MPS eye-gaze CSV")
+    assert "generalized_gaze.csv" in msg
 
 def test_gen2_and_wrong_units_are_refused(copy, tmp_path):
     gen2 = ",yaw_rads_cpf,left_pitch_rads_cpf,right_pitch_rads_cpf"

@@ -205,6 +205,54 @@ def test_missing_streams_and_files_give_one_line(sample, copy, tmp_path):
     one_line_error(copy, tmp_path / "d", "not a readable Neon recording")
 
 
+
+@pytest.mark.parametrize("damage", ["cut", "empty", "nan"])
+def test_a_damaged_calibration_bin_is_one_line(copy, tmp_path, damage):
+    """calibration.bin cut mid-record or emptied (the vendor's reader failed with an IndexError:
+    an internal error), or with a NaN camera matrix: one line saying it is damaged and the fix."""
+    path = copy / "calibration.bin"
+    data = bytearray(path.read_bytes())
+    assert len(data) == neon.CALIBRATION_DTYPE.itemsize
+    if damage == "nan":
+        data[7:15] = np.array([np.nan]).tobytes()                            # scene K[0, 0]
+    path.write_bytes(bytes(data[: {"cut": 100, "empty": 0, "nan": len(data)}[damage]]))
+    msg = one_line_error(copy, tmp_path / "out", "damaged copy")
+    assert "calibration.bin" in msg and "--camera" in msg
+
+
+def test_a_damaged_blinks_stream_is_not_called_missing(copy, tmp_path):
+    """``blinks ps1.raw`` cut mid-record was reported as "no 'blinks' stream" and the import went
+    on without Neon's blinks (the vendor's reader failed); it is one line with the truncate
+    command, as for eye_state. A ``.time`` emptied (the vendor's reader silently read no blink)
+    is a note counting the records cut."""
+    raw, time = copy / "blinks ps1.raw", copy / "blinks ps1.time"
+    data = raw.read_bytes()
+    raw.write_bytes(data[:-2])
+    cut = f"blinks ps1.raw: ends in a partial 20-byte record.*truncate -s {len(data) - 20} "
+    one_line_error(copy, tmp_path / "a", cut)
+    raw.write_bytes(data)
+    time.write_bytes(b"")
+    rep = run_import(copy, tmp_path / "b")
+    assert "blinks: 2 records or times cut (.raw and .time differ in length)" in rep["notes"]
+    assert "inside a blink (Neon's blinks stream)" not in rep["dropped"]
+
+
+def test_a_damaged_time_far_ahead_drops_only_itself(copy, tmp_path, monkeypatch):
+    """One eye-state time set far ahead (2**62 ns) made every later sample 'time not increasing':
+    1,087 of the demo recording's samples dropped, 653 kept. Now only the damaged times go (one
+    alone, and a run of three), whatever the chunk size, and a time that goes back still goes."""
+    clean = run_import(copy, tmp_path / "clean")
+    path = copy / "eye_state ps1.time"
+    t = np.fromfile(path, "<i8")
+    t[700], t[900:903], t[1200] = 2**62, 2**61, t[1190]
+    t.tofile(path)
+    rep = run_import(copy, tmp_path / "a")
+    assert rep["dropped"]["time not increasing"] == 5
+    assert clean["eye_samples_written"] - 5 <= rep["eye_samples_written"] <= clean["eye_samples_written"]
+    monkeypatch.setattr(neon, "CHUNK", 7)
+    run_import(copy, tmp_path / "b")
+    assert (tmp_path / "a" / "eye_rays.csv").read_bytes() == (tmp_path / "b" / "eye_rays.csv").read_bytes()
+
 def test_gaze_is_matched_to_eye_states_within_5_ms(copy, tmp_path):
     for name in ("gaze ps1.time", "gaze_200hz.time"):
         t = np.fromfile(copy / name, "<i8")

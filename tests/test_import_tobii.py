@@ -357,6 +357,33 @@ def test_bad_samples_are_counted_with_reasons(tmp_path):
     assert r.left_valid.sum() == 46 and r.right_valid.sum() == 48
 
 
+
+def test_g2_sync_lines_with_a_garbage_time_are_counted_not_a_crash(tmp_path):
+    """A ``vts`` line whose ``ts`` or ``vts`` is not an integer (a damaged copy: the first one,
+    read by the prepass, and a later one) is counted and skipped; the clock comes from the good
+    sync lines (it was an internal error: ``'>' not supported between 'str' and 'int'``)."""
+    src = g2_folder(tmp_path, n=50)
+    live = src / "segments" / "1" / "livedata.json.gz"
+    lines = gzip.open(live, "rt").read().splitlines()
+    lines = ['{"ts":"abc","s":0,"vts":5}'] + lines[:100] + ['{"ts":1400000,"s":0,"vts":"x"}'] + lines[100:]
+    with gzip.open(live, "wt") as fh:
+        fh.write("\n".join(lines) + "\n")
+    rep = run_import(tobii_g2, src, tmp_path / "out")
+    assert rep["dropped"]["line: video sync (vts) line without an integer ts or vts"] == 2
+    assert rep["eye_samples_written"] == 50 and rep["clock_offset_s"] == pytest.approx(1.0)
+
+
+def test_g2_one_line_with_a_garbage_time_does_not_move_its_sample(tmp_path):
+    """A sample whose first line (left ``pc``) has a damaged ``ts`` far ahead took that time: on the
+    real recording it sat at t ~ 1e5 s in eye_rays.csv and the gap counter reported 4,999,282
+    samples missing (in a recording longer than one chunk every later sample would be dropped as
+    'time not increasing'). The sample's time is the median of its lines' times."""
+    bad = {20: [GOOD[0].format(ts=99_999_999_999, g=20)] + [s.format(ts=1_400_000, g=20) for s in GOOD[1:]]}
+    rep = run_import(tobii_g2, g2_folder(tmp_path, replace=bad), tmp_path / "out")
+    assert rep["eye_samples_written"] == 50 and not any(k.startswith("gap") for k in rep["dropped"])
+    t = read_eye_rays(tmp_path / "out" / "eye_rays.csv").t_s
+    np.testing.assert_allclose(np.diff(t), 0.02, atol=1e-9)
+
 @pytest.mark.parametrize(("make", "needle"), [
     (lambda root: (root / "rec").mkdir(), "no recording"),
     (lambda root: (root / "rec" / "segments" / "1").mkdir(parents=True), "no livedata.json.gz"),
@@ -382,6 +409,20 @@ def test_g2_not_gzip_and_truncated(tmp_path):
     assert any("truncated" in n for n in rep["notes"])
     assert 0 < rep["eye_samples_written"] < 50
 
+
+
+def test_g2_livedata_cut_mid_line_is_noted_as_cut(tmp_path):
+    """A livedata copy cut mid-line but gzipped whole (the real recording cut at half its lines)
+    was read up to the cut with only "1 (line: unparsable JSON)" to show for it; the docs promise a
+    note that the file was cut short, as for a truncated gzip."""
+    src = g2_folder(tmp_path)
+    live = src / "segments" / "1" / "livedata.json.gz"
+    text = gzip.open(live, "rt").read()
+    with gzip.open(live, "wt") as fh:
+        fh.write(text[: len(text) // 2].rstrip("\n")[:-5])
+    rep = run_import(tobii_g2, src, tmp_path / "out")
+    assert any("ends in a partial line" in n and "cut short" in n for n in rep["notes"]), rep["notes"]
+    assert 0 < rep["eye_samples_written"] < 50
 
 def test_g2_all_samples_invalid_is_one_line(tmp_path):
     src = g2_folder(tmp_path, replace={i: [s.format(ts=1_000_000 + 20_000 * i, g=i).replace('"s":0', '"s":16')

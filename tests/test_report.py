@@ -208,3 +208,22 @@ def test_process_overlay_video_option_reaches_the_report_step(tmp_path, monkeypa
     main(["process", str(tmp_path / "s"), "--overlay-video"])
     main(["process", str(tmp_path / "s")])
     assert [k["overlay_video"] for k in seen] == [True, False]
+
+
+def test_a_targets_distance_is_from_where_it_was_looked_at():
+    """The report's "distance from the head" was the distance from the head's mean position over
+    the session: on the real Aria sample (a 7.7 m walk) 0.76 m for a target looked at from 2.1 m.
+    It is the median distance from the eyes at the target's own samples (the mean position only
+    for a target without samples)."""
+    from types import SimpleNamespace
+
+    from wearable_gaze.pipeline.report import ReportData
+
+    x = np.linspace(0.0, 10000.0, 101)                         # the head walks 10 m along x
+    orig = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    tlabels = np.where(x < 500, 0, -1)                          # target 0 looked at from the first 0.5 m
+    d = ReportData([], None, tlabels, None, orig, orig.mean(axis=0), {}, orig, None, {}, {}, [])
+    seen = SimpleNamespace(index=0, position_mm=np.array([250.0, 0.0, 2000.0]))
+    assert abs(d.distance_m(seen) - np.median(np.hypot(250.0 - x[x < 500], 2000.0)) / 1000) < 1e-12
+    unseen = SimpleNamespace(index=1, position_mm=np.array([5000.0, 0.0, 2000.0]))
+    assert abs(d.distance_m(unseen) - 2.0) < 1e-12

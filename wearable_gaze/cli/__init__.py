@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 
 from ..errors import UserError
@@ -45,7 +46,8 @@ def _version() -> str:
 
 def main(argv=None) -> int:
     """Run one command (``argv``: the arguments, default ``sys.argv[1:]``); returns the exit status:
-    0 done, 2 bad input (one line on stderr), 1 a bug (``-v`` shows the traceback), 130 Ctrl-C."""
+    0 done, 2 bad input (one line on stderr), 1 a bug (``-v`` shows the traceback), 130 Ctrl-C, 141 the
+    reader of stdout left (``| head``)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -62,6 +64,9 @@ def main(argv=None) -> int:
     except UserError as exc:
         print(f"{name}: {one_line(str(exc))}", file=sys.stderr)
         return 2
+    except BrokenPipeError:                     # the reader of stdout left (| head): no error of ours to report
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())     # nor at the interpreter's last flush
+        return 141                              # 128 + SIGPIPE, as a shell reports a writer the pipe stopped
     except OSError as exc:                      # an output that cannot be written (or a device gone)
         where = exc.filename if exc.filename is not None else "?"
         fix = safety.OS_FIX.get(exc.errno, "check the path and try again")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 
 from estimator import METHODS
 
@@ -18,8 +19,9 @@ def cmd_estimate(args) -> int:
     if args.export_density and args.method not in ("voxel", "paper"):
         raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no "
                         "density); add one of them or drop --export-density")
+    model = replace(DEFAULT_ERROR_MODEL, pose_offset_deg=0.0) if args.device_poses else DEFAULT_ERROR_MODEL
     results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density, args.one_point,
-                            args.targets, None if args.no_error_model else DEFAULT_ERROR_MODEL)
+                            args.targets, None if args.no_error_model else model)
     if args.json:                               # the skipped rows are an entry of their own (status 'skipped')
         for r in results:
             print(json.dumps(r))
@@ -43,6 +45,9 @@ def add_estimate(sub) -> None:
     how.add_argument("--one-point", action="store_true",
                      help="a file without a segment column: estimate all its rows as one point, even if they hold "
                           "several fixations")
+    e.add_argument("--device-poses", action="store_true",
+                   help="the head poses are a device's own or a still head (an imported session): --targets merges "
+                        "without the per-fixation pose offset of poses tracked in the scene video, as process does")
     e.add_argument("--sigma-deg", type=A.positive_float, default=1.0, metavar="S",
                    help="angular noise of a view line, degrees per axis (default: 1.0)")
     e.add_argument("--no-error-model", action="store_true",

@@ -92,8 +92,10 @@ def _read_opencv_camera(path: Path) -> dict:
         fs.release()
     if K is None or K.shape != (3, 3):
         raise UserError(f"{path}: no 3x3 camera_matrix in this OpenCV file; add one (docs/calibration.md)")
-    if not (w and h) and np.all(np.isfinite(K)):
-        w, h = 2 * K[0, 2] + 1, 2 * K[1, 2] + 1          # best guess; said in the JSON we write
+    if not (w and h):        # a guess from the principal point was off by 9x43 px on OpenCV's own tutorial file
+        raise UserError(f"{path}: no image_width and image_height in this OpenCV file, and a calibration holds for "
+                        "one image size only; add them (the size of the images it was made from, e.g. "
+                        "'image_width: 640' and 'image_height: 480')")
     size = [int(round(v)) if np.isfinite(v) and abs(v) < 1e9 else -1 for v in (w, h)]
     return {"camera_matrix": K.tolist(), "dist_coeffs": [] if D is None else D.ravel().tolist(),
             "image_size": size, "model": model}

@@ -77,8 +77,8 @@ def read_eye_rays(path) -> BinocularSamples:
     t = tab["t"]
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise UserError(f"{path} line {i + 3}: t = {t[i + 1]:.6f} does not increase; the rows must be in time order "
-                        "(re-run 'wearable-gaze import')")
+        raise UserError(f"{path} line {i + 3}: t = {t[i + 1]:.6f} does not increase (line {i + 2} has t = {t[i]:.6f}); "
+                        "the rows must be in time order (re-run 'wearable-gaze import')")
     arrays = []
     for side in SIDES:
         v = tab[f"{side}_valid"] != 0

@@ -74,8 +74,14 @@ def load_session(root) -> Session:
         UserError: naming what is missing or wrong.
     """
     root = Path(root)
+    if root.is_file():
+        raise UserError(f"{root}: a file, and no such session folder; a device's recording is imported first: "
+                        f"wearable-gaze import {root} -o SESSION (docs/importers.md)")
     if not root.is_dir():
         raise UserError(f"{root}: no such session folder; record one or run 'wearable-gaze simulate -o {root}'")
+    if not (root / MANIFEST).exists():
+        raise UserError(f"{root}: not a session folder: no such file {MANIFEST}; a device's recording is imported "
+                        f"first: wearable-gaze import {root} -o SESSION (docs/importers.md)")
     man = load_json(root / MANIFEST, "session")        # schema: format, version, files inside root
     for key, rel in man["files"].items():
         if not (root / rel).exists():

@@ -28,13 +28,14 @@ One writer, ``write_targets`` (both files), and one reader, ``read_targets`` (th
 targets.json, exact). ``target_labels.npy`` has ``write_target_labels`` and
 ``read_target_labels``. ``estimates.csv`` has one row per usable estimate while a fixation's view
 lines were fed in, as a live session would: ``t`` (s, the last line fed), ``segment`` (the
-fixation), ``x, y, z`` (world frame, mm) and ``radius95_mm``, a header alone when no fixation gave
-an estimate; ``write_estimates`` and ``read_estimates``. ``device_comparison.csv`` (an imported
-session) sets each target beside the device's own 3D gaze: ``target``, ``n_samples``,
-``ours_distance_mm`` (our estimate's distance from the head, median over the target's samples),
-``device_depth_mm`` (the device's gaze depth, median over the same samples), ``ours_x_mm..z``;
-``write_device_comparison`` and ``read_device_comparison``. The records are plain dicts here;
-``pipeline.types.Target`` converts (``Target.row`` / ``Target.from_row``).
+fixation), ``x, y, z`` (world frame, mm) and ``radius95_mm`` (empty: no covariance), a header
+alone when no fixation gave an estimate; ``write_estimates`` and ``read_estimates``.
+``device_comparison.csv`` (an imported session) sets each target beside the device's own 3D gaze:
+``target``, ``n_samples``, ``ours_distance_mm`` (our estimate's distance from the head, median
+over the target's samples), ``device_depth_mm`` (the device's gaze depth, median over the same
+samples), ``ours_x_mm..z``; ``write_device_comparison`` and ``read_device_comparison``. The
+records are plain dicts here; ``pipeline.types.Target`` converts (``Target.row`` /
+``Target.from_row``).
 """
 
 from __future__ import annotations
@@ -301,7 +302,8 @@ def read_estimates(path) -> dict:
     Raises:
         UserError: a missing file, a missing column, a cell that is not a number (one line).
     """
-    return read_table(path, list(ESTIMATE_COLUMNS), what="running-estimate CSV (estimates.csv)", rows_required=False)
+    return read_table(path, list(ESTIMATE_COLUMNS), what="running-estimate CSV (estimates.csv)", rows_required=False,
+                      empty_ok=("radius95_mm",))          # empty: an estimate without a covariance (lse)
 
 
 DEVICE_COLUMNS = ("target", "n_samples", "ours_distance_mm", "device_depth_mm", "ours_x_mm", "ours_y_mm", "ours_z_mm")

@@ -57,6 +57,10 @@ def read_viewlines_csv(path) -> list[Segment]:
     path = Path(path)
     names, reader = open_csv(path, REQUIRED, "view-line CSV", "pass a view-line CSV (see docs/formats.md)")
     col = {n: i for i, n in enumerate(names)}
+    if "left_valid" in col or "right_valid" in col:      # eye_rays.csv's columns (formats/eye_rays.py)
+        raise UserError(f"{path}: an eye-ray CSV (an imported session's eye_rays.csv: each eye's rays in the head "
+                        "frame, not view lines in the world); run 'wearable-gaze process SESSION' and pass its "
+                        "processed/viewlines.csv")
     has_segment = "segment" in col
     rows = {}
     order = []

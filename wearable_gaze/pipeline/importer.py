@@ -40,6 +40,9 @@ def import_recording(src, out, fmt: str | None = None, options: ImportOptions | 
     src, out = Path(src), check_new_folder(out)
     if not src.exists():
         raise UserError(f"{src}: no such recording; pass the folder the device wrote")
+    if src.is_dir() and src.resolve() in out.resolve().parents:
+        raise UserError(f"-o {out}: is inside the recording {src}; writing there would change the recording: "
+                        "choose a folder outside it")
     name = fmt or detect_format(src)
     module = device_module(name)
     options = options or ImportOptions()

@@ -199,7 +199,7 @@ def _plot_top(d, out: Path, colour) -> tuple[str, str]:
             E = d.ellipsoid(tg)
             if E is not None:
                 ax.add_patch(_shadow(Ellipse, X, E.T @ E, c, 1.0))
-            ax.plot(X[0], X[2], "o", color=c, label=f"target {tg.index} ({np.linalg.norm(X - d.centre) / 1000:.2f} m)")
+            ax.plot(X[0], X[2], "o", color=c, label=f"target {tg.index} ({d.distance_m(tg):.2f} m)")
         T, Tp = _truth_point(d, tg), _truth_path(d, tg)
         if T is not None:
             ax.plot(T[0], T[2], color=c, **TRUTH_STYLE)

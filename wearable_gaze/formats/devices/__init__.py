@@ -41,6 +41,9 @@ def detect_format(src) -> str:
     if not src.is_dir():
         raise UserError(f"{src}: no such folder; pass the recording's folder")
     found = [name for name in MODULES if device_module(name).detect(src)]
+    if not found and (src / "session.json").is_file():
+        raise UserError(f"{src}: matches none of the known formats and is a session folder already (session.json): "
+                        f"process it with 'wearable-gaze process {src}' (a recording's format is named with --format)")
     if len(found) != 1:
         what = "none of the known formats" if not found else f"more than one format ({', '.join(found)})"
         raise UserError(f"{src}: the folder matches {what}; pass --format {{{','.join(MODULES)}}} (docs/importers.md "

@@ -149,6 +149,10 @@ def _gaze_file(src: Path):
         if "yaw_rads_cpf" in names and "left_pitch_rads_cpf" in names and "right_pitch_rads_cpf" in names:
             raise UserError(f"{p}: an Aria gen2 eye-gaze file (per-eye pitch); only gen1 MPS output is supported")
         model = "per-eye" if all(c in names for c in PER_EYE) else "pre-2024" if all(c in names for c in LEGACY) else ""
+        part = PER_EYE if any(c in names for c in PER_EYE[:2]) else LEGACY if LEGACY[0] in names else ()
+        if part and not model:           # a damaged file must not silently give way to an older model's
+            raise UserError(f"{p}: missing column(s) {', '.join(c for c in part if c not in names)} of an MPS "
+                            "eye-gaze CSV (a damaged copy); copy it again from the MPS output, or remove it")
         if model:
             rank = (model == "per-eye", "personalized" in p.name, not p.name.startswith("eyegaze"))
             if best is None or rank > best[0]:

@@ -3,8 +3,8 @@ docs/devices/tobii-pupil.md section 4).
 
 Files read. Pupil Labs' reader ``pupil_labs.neon_recording`` (the optional extra
 ``wearable-gaze[neon]``) finds and orders the multi-part files ``ps1, ps2, ...`` and reads
-``info.json``, ``calibration.bin``, blinks and the scene video; the large streams (eye_state,
-gaze, worn) are read by ``neon_streams`` in chunks, with each stream's ``.dtype`` file (which
+``info.json``, ``calibration.bin`` and the scene video; the streams (eye_state, gaze, worn
+in chunks; blinks whole) are read by ``neon_streams``, with each stream's ``.dtype`` file (which
 changed across data-format versions) or the reader's built-in layout:
 
 - ``info.json``: ``gaze_frequency`` (Hz), ``start_time`` (ns) for the report;
@@ -101,6 +101,7 @@ EYE_STATE_FALLBACK = np.dtype([(f"{f}_{s}{x}", "<f4") for s in ("left", "right")
                                                             for a in "xyz"))])
 GAZE_FALLBACK = np.dtype([("x", "<f4"), ("y", "<f4")])
 WORN_FALLBACK = np.dtype([("worn", "u1")])
+BLINKS_FALLBACK = np.dtype([("start_timestamp_ns", "<i8"), ("end_timestamp_ns", "<i8")])   # the reader's
 
 
 def detect(src: Path) -> bool:
@@ -159,10 +160,13 @@ class _Eyes:
         self.worn = streams.open_stream(src, "worn", WORN_FALLBACK)
         if self.worn is not None and (not self.worn.n or "worn" not in (self.worn.dtype.names or ())):
             self.worn = None
-        blinks = _stream(self.rec, "blinks")
-        self.blinks = None if blinks is None else (np.asarray(blinks.start_time), np.asarray(blinks.stop_time))
+        blinks = streams.open_stream(src, "blinks", BLINKS_FALLBACK)        # a part cut mid-record: one line
+        ends = None if blinks is None else blinks.read(0, blinks.n)[1]
+        self.blinks = None if ends is None else (ends["start_timestamp_ns"], ends["end_timestamp_ns"])
         self.notes = [f"no '{n}' stream: not checked" for n, s in (("worn", self.worn), ("blinks", blinks))
                       if s is None]
+        if blinks is not None and blinks.cut:
+            self.notes.append(f"blinks: {blinks.cut} records or times cut (.raw and .time differ in length)")
 
     def _drop(self, reason: str, n: int) -> None:
         if self.imp is not None and self.count:
@@ -176,10 +180,7 @@ class _Eyes:
         c = _fields(part, EYE_FIELDS[:6], (len(t_ns), 2, 3)).transpose(1, 0, 2)
         d = _fields(part, EYE_FIELDS[6:12], (len(t_ns), 2, 3)).transpose(1, 0, 2)
         aperture = _fields(part, EYE_FIELDS[12:], (len(t_ns), 2)).T
-        # non-increasing times: kept only where above every earlier time
-        before = np.maximum.accumulate(t_ns)[:-1]
-        keep = np.concatenate([[True] if t_max is None else [t_ns[0] > t_max],
-                               t_ns[1:] > (before if t_max is None else np.maximum(before, t_max))])
+        keep, self.t_latest = streams.in_time_order(t_ns, self.eyes.read(b, b + streams.LOOKAHEAD)[0], t_max)
         self._drop("time not increasing", int((~keep).sum()))
         if self.worn is not None:
             i = np.clip(self.worn.searchsorted(t_ns, side="right") - 1, 0, self.worn.n - 1)
@@ -218,7 +219,7 @@ class _Eyes:
         self.count, t_max = count, None
         for a in range(0, self.n, CHUNK):
             ch = self.chunk(a, min(a + CHUNK, self.n), t_max)
-            t_max = int(ch["t_ns"].max()) if t_max is None else max(t_max, int(ch["t_ns"].max()))
+            t_max = self.t_latest
             yield a, ch
 
 
@@ -303,7 +304,7 @@ def _camera(rec, imp: SessionImport, options: ImportOptions, src: Path):
     """The scene camera: ``camera.json`` from ``--camera`` or else calibration.bin, the scene
     video if present, the marker map. Returns (the camera Neon's 2D gaze was mapped through:
     calibration.bin's, or ``--camera`` without it; image size; fps; the vendor's scene stream)."""
-    cal = rec.calibration
+    cal = streams.read_calibration(rec, src)
     user = load_camera(options.camera) if options.camera is not None else None
     if cal is None and user is None:
         raise UserError(f"{src}: no calibration.bin (the scene camera's intrinsics); copy it from the recording or "

@@ -30,6 +30,11 @@ from ...errors import UserError
 log = logging.getLogger(__name__)
 
 TIME_DTYPE = np.dtype("<i8")
+LOOKAHEAD = 8
+"""``in_time_order`` compares a time with the next this many: a run of up to half as many
+damaged times far ahead is dropped alone."""
+CALIBRATION_BYTES = 803
+"""The size of calibration.bin's one record (``neon.CALIBRATION_DTYPE``, the reader's ``calib.py``)."""
 
 
 def vendor():
@@ -152,3 +157,42 @@ def open_stream(src: Path, base: str, fallback: np.dtype) -> Stream | None:
     """Stream ``base`` of the Neon folder ``src``, or None when it has no part with a ``.time`` file."""
     pairs = stream_pairs(src, base)
     return Stream(pairs, fallback) if pairs else None
+
+
+def read_calibration(rec, src: Path):
+    """calibration.bin by the vendor's reader ``rec`` (None: the folder ``src`` has none).
+
+    Raises:
+        UserError: a file shorter than one record, or a scene camera matrix that is not finite
+            and positive (a damaged copy; the reader failed with an IndexError on a short one).
+    """
+    path = Path(src) / "calibration.bin"
+    if not path.is_file():
+        return None
+    size = path.stat().st_size
+    fix = "copy it again from the recording, or delete it and give the scene camera's calibration with --camera"
+    if size < CALIBRATION_BYTES:
+        raise UserError(f"{path}: {size} bytes, shorter than Neon's {CALIBRATION_BYTES}-byte calibration record "
+                        f"(a damaged copy); {fix}")
+    cal = rec.calibration
+    K = np.asarray(cal.scene_camera_matrix, float)
+    if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise UserError(f"{path}: the scene camera matrix is not finite and positive (a damaged copy); {fix}")
+    return cal
+
+
+def in_time_order(t_ns: np.ndarray, t_next: np.ndarray, t_max: int | None) -> tuple[np.ndarray, int | None]:
+    """Which of a chunk's times (n,) int64 ns to keep: each must be above every earlier kept time
+    (``t_max``: the latest before the chunk, None at the start) and below the lower median of the
+    ``LOOKAHEAD`` times after it (``t_next``: the times after the chunk's last, up to LOOKAHEAD).
+    The second test drops a time far ahead that the stream comes back from (a damaged time), which
+    would otherwise make every later sample "not increasing"; a time that goes back is dropped by
+    the first. Returns (keep (n,) bool, the latest kept time)."""
+    lo = np.iinfo(np.int64).min if t_max is None else int(t_max)
+    following = np.concatenate([t_ns[1:], t_next, np.full(LOOKAHEAD, np.iinfo(np.int64).max)]).astype(np.int64)
+    window = np.lib.stride_tricks.sliding_window_view(following, LOOKAHEAD)[:len(t_ns)]
+    ahead = t_ns >= np.sort(window, axis=1)[:, (LOOKAHEAD - 1) // 2]
+    run = np.maximum.accumulate(np.where(ahead, np.iinfo(np.int64).min, t_ns))
+    keep = ~ahead & (t_ns > np.maximum(np.concatenate([[lo], run[:-1]]), lo))
+    latest = max(lo, int(run[-1])) if len(t_ns) else lo
+    return keep, (None if latest == np.iinfo(np.int64).min else latest)

@@ -197,6 +197,9 @@ class JsonLines:
                         yield obj
                     elif line.strip():
                         self.drops["line: unparsable JSON"] += 1
+                        if not line.endswith("\n"):        # the last line, cut: the file was cut short
+                            self.truncated = (f"{self.path.name} ends in a partial line (line {self.n_lines}: the "
+                                              "file was cut short); read up to there")
             except gzip.BadGzipFile as exc:
                 raise UserError(f"{self.path}: not a gzip file ({exc}); copy it again from the recording") from None
             except (EOFError, zlib.error) as exc:

@@ -152,14 +152,22 @@ def _camera_from_record(v, path) -> GlassesCamera:
 
 # --- livedata.json.gz ---------------------------------------------------------------------------
 
+def sync_pair(obj: dict) -> tuple[int, int] | None:
+    """A valid ``vts`` line's (ts, vts), us; None for any other line, or one whose status is not 0 or
+    whose ``ts`` or ``vts`` is not an integer (a damaged line is skipped, not a crash)."""
+    ts, vts = obj.get("ts"), obj.get("vts")
+    ok = obj.get("s") == 0 and all(isinstance(v, int) and not isinstance(v, bool) for v in (ts, vts))
+    return (ts, vts) if ok else None
+
+
 def prepass(path: Path) -> dict:
     """From the start of ``livedata.json.gz`` (streamed; stops when it has what it needs): the first
     valid sync pair (ts, vts), the eye rate (median step of the first samples, Hz) and up to
     ``PREPASS_PAIRS`` valid (gp3, gp) pairs for ``choose_convention``."""
     gp, gp3, ts, first_vts = {}, {}, set(), None
     for obj in JsonLines(path, Counter()):
-        if "vts" in obj and obj.get("s") == 0 and first_vts is None:
-            first_vts = (int(obj["ts"]), int(obj["vts"]))
+        if first_vts is None:
+            first_vts = sync_pair(obj)
         if "gidx" in obj and isinstance(obj.get("ts"), int):
             if len(ts) < PREPASS_PAIRS:
                 ts.add(obj["ts"])
@@ -184,7 +192,8 @@ def _row(g: dict, drops: Counter):
         drops["sample: incomplete gidx group (an eye's pc or gd line missing)"] += 1
         return None
     g3 = g.get("gp3", (NAN3, 1))
-    return (g["ts"], g["pc_left"][0], g["gd_left"][0], g["pc_left"][1] or g["gd_left"][1],
+    ts = sorted(g["ts"])[(len(g["ts"]) - 1) // 2]     # the lines' median: one line's damaged ts cannot move it
+    return (ts, g["pc_left"][0], g["gd_left"][0], g["pc_left"][1] or g["gd_left"][1],
             g["pc_right"][0], g["gd_right"][0], g["pc_right"][1] or g["gd_right"][1], g3[0] if g3[1] == 0 else NAN3)
 
 
@@ -263,10 +272,13 @@ def stream_livedata(path: Path, clock: _Clock, gaps: GapCounter, chunks: RayChun
             continue
         if not isinstance(gidx, int) or not isinstance(obj.get("ts"), int):
             kinds[next((k for k in ("vts", "pts", "ac", "gy", "sig") if k in obj), "other")] += 1
-            if "vts" in obj and obj.get("s") == 0 and isinstance(obj.get("vts"), int):
-                clock.add(obj["ts"], obj["vts"])
+            if (pair := sync_pair(obj)) is not None:
+                clock.add(*pair)
+            elif "vts" in obj and obj.get("s") == 0:
+                chunks.drops["line: video sync (vts) line without an integer ts or vts"] += 1
             continue
-        g = pending.setdefault(gidx, {"ts": obj["ts"]})
+        g = pending.setdefault(gidx, {"ts": []})
+        g["ts"].append(obj["ts"])
         s = obj.get("s", 0) if isinstance(obj.get("s", 0), int) else 1
         eye = obj.get("eye")
         for key in ("pc", "gd", "pd", "gp", "gp3"):
