@@ -93,6 +93,7 @@ def test_real_sample_counts_clock_and_labels(sample, tmp_path):
     assert report["eye_gaze"]["file"] == GAZE and report["eye_gaze"]["model"] == "per-eye"
     assert report["trajectory"]["graph_uid"] == "ea7288b8-b6a0-012d-8156-257aba6bd796"
     assert any("swapped: 117 of 123" in n for n in report["notes"])
+    assert any("general model, not calibrated to this wearer" in n for n in report["notes"])    # a caveat said
     # clock: session t = 0 at the first imported sample (device 149.202622 s), 10 Hz, no offset to poses
     assert report["clock_offset_s"] == pytest.approx(149.202622, abs=1e-9)
     assert rays.t_s[0] == 0.0 and np.allclose(np.diff(rays.t_s), 0.1, atol=1e-6)
@@ -212,6 +213,7 @@ def test_personalized_file_is_preferred_and_several_session_uids_are_noted(copy,
     edit(pers, lambda ls: ls[:60] + [ln.rsplit(",", 1)[0] + ",second-calibration" for ln in ls[60:]])
     report, rays, _, _ = run(copy, tmp_path / "s")
     assert report["eye_gaze"]["file"] == "eye_gaze_vergence/personalized_gaze.csv"
+    assert not any("general model" in n for n in report["notes"])                       # calibrated: no caveat
     assert len(report["eye_gaze"]["session_uids"]) == 2 and len(rays) == 114
     assert any("2 session_uid values" in n for n in report["notes"])
     assert any(n.endswith("; not read: eye_gaze/eyegaze.csv, eye_gaze/generalized_eye_gaze.csv, " + GAZE)

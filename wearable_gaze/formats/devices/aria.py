@@ -267,6 +267,11 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
     others = [str(p.relative_to(src)) for p in sorted(src.glob("eye_gaze*/*.csv")) if p != path]
     imp.note(f"eye gaze from {path.relative_to(src)} ({model} model)" + (f"; not read: {', '.join(others)}"
                                                                           if others else ""))
+    if "personalized" not in path.name:
+        imp.note("the gaze is Aria's general model, not calibrated to this wearer: where the head stands still the "
+                 "depth comes from its vergence alone, which on MPS's sample reads about 2.7 deg too divergent, and "
+                 "the depth intervals, made for a tracker calibrated to its wearer (0.5 deg per axis), are too "
+                 "narrow there (docs/estimators.md)")
     info = _survey(path, names, model)
     swapped = info["diverging"] > info["converging"]
     if model == "per-eye":
