@@ -4,6 +4,7 @@ simulated session served over TCP whose recording ``process`` turns into the sam
 
 import json
 import os
+import re
 import socket
 import threading
 import time
@@ -367,6 +368,7 @@ def test_the_closing_line_shows_every_counter_once_and_counts_distinct_targets(l
     assert len(closing) == 1
     line = closing[0]
     assert f"{len(ids)} distinct targets ({len(targets)} target messages)" in line
+    assert re.search(r"; (\d+) of the (\d+) eye samples received processed", line)    # not two unlabelled counts
     for counter in ("skipped", "missed", "stalls", "corrupt", "lost", "dropped", "reconnects", "no pose"):
         assert f"{counter} 0" in line or f"{counter} " in line
     assert "corrupt 0" in line and "lost 0" in line          # the injected junk is garbage between records

@@ -21,7 +21,9 @@ def cmd_live(args) -> int:
         if status is not None:
             print(file=sys.stderr)            # past the status line
         raise
-    print(f"\nlive: ended: {st.end_reason}; {st.samples} eye samples, {st.published} messages, "
+    print(f"\nlive: ended: {st.end_reason}; {st.samples} of the {st.eye_records} eye samples received processed "
+          f"(the others dropped for room or still waiting for a frame at the end; all recorded), "
+          f"{st.published} messages, "
           f"{st.distinct_targets} distinct targets ({st.targets} target messages), latency median "
           f"{st.latency_all.percentile(50):.1f} ms, p95 {st.latency_all.percentile(95):.1f} ms; {st.counters()}"
           + (f"; recorded {args.record}" if args.record else "")
