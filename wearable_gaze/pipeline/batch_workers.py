@@ -216,21 +216,46 @@ class LocalRunner:
         The pool may be starting a worker meanwhile, so its workers are stopped until its
         manager thread ends (the pool's own ``shutdown`` would wait for their sessions; the
         standard library has no public way to stop workers before Python 3.14, and that one
-        misses a worker being started)."""
+        misses a worker being started). ``shutdown(wait=False)`` lets go of the workers while
+        the manager thread may meet one's exit and count them (``len(None)``): the thread then
+        ends, as it should, and ``_quiet_end`` keeps its traceback off the terminal."""
         pool, self.pool = self.pool, None
         if pool is None:
             return
         processes = getattr(pool, "_processes", None) or {}
         manager = getattr(pool, "_executor_manager_thread", None)
-        pool.shutdown(wait=False, cancel_futures=True)
-        t0 = time.monotonic()
-        while True:
-            for p in list(processes.values()):
-                with contextlib.suppress(Exception):
-                    p.terminate()
-            if manager is None or not manager.is_alive() or time.monotonic() - t0 > timeout_s:
-                break
-            manager.join(0.05)
+        with _quiet_end(pool, manager):
+            pool.shutdown(wait=False, cancel_futures=True)
+            t0 = time.monotonic()
+            while True:
+                for p in list(processes.values()):
+                    with contextlib.suppress(Exception):
+                        p.terminate()
+                if manager is None or not manager.is_alive() or time.monotonic() - t0 > timeout_s:
+                    break
+                manager.join(0.05)
+
+
+@contextlib.contextmanager
+def _quiet_end(pool, manager):
+    """While a stopped pool's manager thread ends: its ``TypeError`` from counting the workers the
+    pool has let go of (``_processes`` None) is that end, not an error, and is not printed (it
+    was, as a traceback, when Ctrl-C met a worker's exit); any other exception is."""
+    import threading  # noqa: PLC0415
+
+    previous = threading.excepthook
+
+    def hook(args):
+        if not (args.thread is manager and args.exc_type is TypeError and getattr(pool, "_processes", 1) is None):
+            previous(args)
+    threading.excepthook = hook
+    try:
+        yield
+    finally:
+        if manager is not None:
+            manager.join(1.0)
+        if threading.excepthook is hook:
+            threading.excepthook = previous
 
 
 class DaskRunner:
