@@ -144,8 +144,9 @@ def _aria_row(rows: list, samples, method: str, em, ref, head) -> None:
     e = estimate(samples, method, **({} if em is None else {"error_model": em}))
     if not e.ok or e.covariance_mm2 is None:
         return
-    origin = np.asarray(e.info["error_model"]["sight_origin_mm"], float) if em is not None else np.nanmedian(head, 0)
-    d, depth = e.position_mm - X, float(np.linalg.norm(X - origin))
+    sight = e.sight()
+    d = e.position_mm - X
+    depth = sight.distance_mm(X) if sight is not None else float(np.linalg.norm(X - np.nanmedian(head, 0)))
     row = []
     for p in (0.68, 0.95):
         row.append(float(d @ np.linalg.solve(e.level_covariance(p), d)) <= chi2.ppf(p, 3))
@@ -191,8 +192,8 @@ def main():
             d2.append(float(e @ np.linalg.solve(t.covariance_mm2, e)))
             row = [float(e @ np.linalg.solve(t.level_covariance(p), e)) <= chi2.ppf(p, 3) for p in (0.68, 0.95)]
             if t.sight is not None:
-                depth = float(np.linalg.norm(truth - t.sight[0]))
-                row += [t.depth_interval(p)[0] <= depth <= t.depth_interval(p)[1] for p in (0.68, 0.95)]
+                depth = t.sight.distance_mm(truth)
+                row += [near <= depth <= far for near, far in (t.depth_interval(p) for p in (0.68, 0.95))]
             inside.append(row + [np.nan] * (4 - len(row)))
             errs.append(float(np.linalg.norm(e)))
             radii.append(float(t.axes95_mm.max()))

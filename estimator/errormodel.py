@@ -239,7 +239,8 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
     C_noise = Hi @ meat @ Hi * f_t
     C_bias = _bias_floor(Hi, J, w, eye, lines.directions, b1, b2, model)
     C_lin = C_noise + C_bias
-    C, far = far_side(C_lin, X, lines.origins_mm.mean(axis=0), model.far_side_k)
+    origin = lines.origins_mm.mean(axis=0)
+    C, far = far_side(C_lin, X, origin, model.far_side_k)
     C = 0.5 * (C + C.T)
     inflated = any(nz["inflated"])
     info = {"sigma_eye_deg": np.rad2deg(nz["sigma"]).round(4).tolist(),
@@ -247,7 +248,7 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
             "eye_correlation": round(nz["rho"], 3), "time_correlation": round(nz["rho_t"], 3),
             "bias_deg": model.bias_deg, "pose_sigma_deg": model.pose_sigma_deg,
             "bias_share": float(np.trace(C_bias) / max(np.trace(C), 1e-300)), "far_side_factor": round(far, 3),
-            **sight_info(C_lin, X, lines.origins_mm.mean(axis=0), model.far_side_k)}
+            **sight_info(C_lin, X, origin, model.far_side_k)}
     info["note"] = _note(nz, f_t, sigma_rad)
     info["bias_cov"], info["linear_cov"] = C_bias, 0.5 * (C_lin + C_lin.T)
     return C, info
@@ -280,8 +281,7 @@ def far_side(C, point_mm, origin_mm, k: float) -> tuple[np.ndarray, float]:
     if k <= 0 or not D > 0 or not np.all(np.isfinite(C)):
         return C, 1.0
     u = v / D
-    kr = k * math.sqrt(max(float(u @ C @ u), 0.0)) / D
-    f = FAR_SIDE_CAP if kr >= 1.0 - 1.0 / FAR_SIDE_CAP else 1.0 / (1.0 - kr)
+    f = _stretch(k, math.sqrt(max(float(u @ C @ u), 0.0)) / D)
     S = np.eye(3) + (f - 1.0) * np.outer(u, u)
     return S @ C @ S, float(f)
 
@@ -297,6 +297,43 @@ def sight_info(C_lin, point_mm, origin_mm, k: float) -> dict:
     r = math.sqrt(max(float(v @ np.asarray(C_lin, float) @ v), 0.0)) / D**2 if D > 0 else float("nan")
     return {"sight_origin_mm": [float(x) for x in np.asarray(origin_mm, float).reshape(3)], "far_side_k": float(k),
             "depth_rel_sd": float(r)}
+
+
+@dataclass(frozen=True)
+class Sight:
+    """Where an estimate's view lines were seen from and how the error model shaped its
+    covariance (``sight_info``): what its region at any level and its depth intervals are drawn
+    from (``at_level``, ``depth_interval``).
+
+    Attributes:
+        origin_mm: (3,) the lines' mean origin, world frame, mm.
+        far_side_k: the far side's ``k`` the covariance was stretched with (0: not stretched).
+        depth_rel_sd: the linearised relative sd of the distance from ``origin_mm`` (NaN: none).
+    """
+
+    origin_mm: np.ndarray
+    far_side_k: float
+    depth_rel_sd: float
+
+    @classmethod
+    def from_info(cls, error_model_info: dict | None) -> Sight | None:
+        """The sight kept in an estimate's ``info["error_model"]``, or None (no error model)."""
+        em = error_model_info or {}
+        if em.get("sight_origin_mm") is None:
+            return None
+        return cls(np.asarray(em["sight_origin_mm"], float), float(em["far_side_k"]), float(em["depth_rel_sd"]))
+
+    def level_covariance(self, C, point_mm, probability: float) -> np.ndarray:
+        """``at_level`` of the covariance ``C`` (3, 3) mm^2 of the point ``point_mm`` (3,) mm."""
+        return at_level(C, point_mm, self.origin_mm, probability, self.far_side_k, self.depth_rel_sd)
+
+    def depth_interval(self, point_mm, probability: float) -> tuple[float, float]:
+        """``depth_interval`` of the point ``point_mm`` (3,) mm: (near, far) mm."""
+        return depth_interval(point_mm, self.origin_mm, probability, self.depth_rel_sd)
+
+    def distance_mm(self, point_mm) -> float:
+        """The distance of ``point_mm`` (3,) from ``origin_mm``, mm."""
+        return float(np.linalg.norm(np.asarray(point_mm, float) - self.origin_mm))
 
 
 def _stretch(k: float, r: float) -> float:

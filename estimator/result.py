@@ -8,7 +8,7 @@ from enum import Enum
 import numpy as np
 from scipy.stats import chi2
 
-from .errormodel import at_level, depth_interval
+from .errormodel import Sight
 
 
 class Status(str, Enum):
@@ -73,30 +73,29 @@ class GazeEstimate:
         C = self.level_covariance(probability)
         return None if C is None else covariance_ellipsoid(self.position_mm, C, probability)
 
-    def sight(self) -> tuple | None:
-        """(where its lines were seen from (3,) mm, the far side's k, the linearised relative
-        depth sd) when the error model gave the covariance (``estimator.errormodel.sight_info``):
-        what its regions at every level are drawn from; None otherwise."""
-        return _sight(self.info) if self.ok else None
+    def sight(self) -> Sight | None:
+        """Where its lines were seen from and how the error model shaped its covariance
+        (``estimator.errormodel.Sight``) when the error model gave it; None otherwise."""
+        return Sight.from_info(self.info.get("error_model")) if self.ok else None
 
     def level_covariance(self, probability: float) -> np.ndarray | None:
         """(3, 3) mm^2: the covariance whose ``probability`` ellipsoid is the region of that level
         (``covariance_mm2`` itself without the error model's far side); None without one."""
         if self.position_mm is None or self.covariance_mm2 is None:
             return None
-        sight = _sight(self.info)
+        sight = Sight.from_info(self.info.get("error_model"))
         if sight is None:
             return self.covariance_mm2
-        return at_level(self.covariance_mm2, self.position_mm, sight[0], probability, sight[1], sight[2])
+        return sight.level_covariance(self.covariance_mm2, self.position_mm, probability)
 
     def depth_interval(self, probability: float = 0.95) -> tuple[float, float]:
         """(near, far) mm: the ``probability`` interval of the point's distance from where its
         lines were seen (their mean origin), symmetric in inverse depth; far is ``inf`` when it
         has no far end. (NaN, NaN) without the error model's covariance."""
-        sight = _sight(self.info)
+        sight = Sight.from_info(self.info.get("error_model"))
         if self.position_mm is None or self.covariance_mm2 is None or sight is None:
             return float("nan"), float("nan")
-        return depth_interval(self.position_mm, sight[0], probability, sight[2])
+        return sight.depth_interval(self.position_mm, probability)
 
     def to_dict(self) -> dict:
         """JSON-ready dict (lists, not arrays)."""
@@ -111,15 +110,6 @@ class GazeEstimate:
             "n_samples": int(self.n_samples),
             "n_lines": int(self.n_lines),
         }
-
-
-def _sight(info: dict):
-    """(origin (3,) mm, far side k, relative depth sd) from an estimate's ``info["error_model"]``
-    (``estimator.errormodel.sight_info``), or None."""
-    em = info.get("error_model") or {}
-    if em.get("sight_origin_mm") is None:
-        return None
-    return np.asarray(em["sight_origin_mm"], float), float(em["far_side_k"]), float(em["depth_rel_sd"])
 
 
 def failed(method: str, status: Status, reason: str, n_samples: int, n_lines: int,

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.errormodel import FAR_SIDE_K, depth_interval
+from estimator.errormodel import FAR_SIDE_K, Sight
 
 from ..errors import UserError
 from .atomic import atomic_path
@@ -101,7 +101,7 @@ def _finite(value, decimals: int | None = None):
 
 def target_record(index: int, t_start: float, t_end: float, position_mm, radii95_mm, n_samples: int, method: str,
                   status: str, covariance_mm2=None, crb_mm: float = float("nan"), fixations=(), moving: bool = False,
-                  rounded: bool = False, sight=None) -> dict:
+                  rounded: bool = False, sight: Sight | None = None) -> dict:
     """The record of one target (keys ``TARGET_KEYS``, plain JSON values): the one function that
     makes the rows of targets.json, the objects of ``estimate --json --targets`` and the body of
     the live ``target`` message, so that they cannot drift apart.
@@ -116,8 +116,9 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
         fixations: the fixation indices merged into it.
         moving: a moving target: the record gets ``moving: true`` (a static one has no such key).
         rounded: round to 0.1 mm and 0.1 ms (a 6-digit covariance), as the live messages are sent.
-        sight: (where it was seen from (3,) mm, the far side's k, the relative depth sd) of the
-            error model (``pipeline.types.Target.sight``): the record gets ``depth``.
+        sight: where it was seen from and how the error model shaped its covariance
+            (``estimator.errormodel.Sight``; ``pipeline.types.Target.sight``): the record gets
+            ``depth``.
     """
     mm, s = (1, 4) if rounded else (None, None)
     cov = _finite_list(covariance_mm2, (3, 3), None)
@@ -130,32 +131,29 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
            "crb_mm": _finite(crb_mm, mm), "fixations": [int(f) for f in fixations]}
     if moving:
         rec[MOVING_COLUMN] = True
-    if sight is not None and rec["position_mm"] is not None and np.isfinite(sight[2]):
+    if sight is not None and rec["position_mm"] is not None and np.isfinite(sight.depth_rel_sd):
         rec[DEPTH_COLUMN] = _depth(position_mm, sight, mm)
     return rec
 
 
-def _depth(position_mm, sight, mm: int | None) -> dict:
+def _depth(position_mm, sight: Sight, mm: int | None) -> dict:
     """A record's ``depth`` (``DEPTH_KEYS``) of the point ``position_mm`` seen from ``sight``."""
-    origin, r = np.asarray(sight[0], float), float(sight[2])
-
     def interval(p):
-        near, far = depth_interval(position_mm, origin, p, r)
-        return [_finite(near, mm), _finite(far, mm)]
+        return [_finite(v, mm) for v in sight.depth_interval(position_mm, p)]
 
-    return {"seen_from_mm": _finite_list(origin, (3,), mm),
-            "distance_mm": _finite(np.linalg.norm(np.asarray(position_mm, float) - origin), mm),
-            "relative_sd": _finite(r, None if mm is None else 4), "interval68_mm": interval(0.68),
+    return {"seen_from_mm": _finite_list(sight.origin_mm, (3,), mm),
+            "distance_mm": _finite(sight.distance_mm(position_mm), mm),
+            "relative_sd": _finite(sight.depth_rel_sd, None if mm is None else 4), "interval68_mm": interval(0.68),
             "interval95_mm": interval(0.95)}
 
 
-def record_sight(rec: dict):
-    """(seen from (3,) mm, the far side's k, relative depth sd) of a record with ``depth``
-    (targets.json's covariances are the error model's, stretched for the 95 % level), else None."""
+def record_sight(rec: dict) -> Sight | None:
+    """The sight of a record with ``depth`` (targets.json's covariances are the error model's,
+    stretched for the 95 % level), else None."""
     d = rec.get(DEPTH_COLUMN)
     if not d or d.get("seen_from_mm") is None or d.get("relative_sd") is None:
         return None
-    return np.asarray(d["seen_from_mm"], float), FAR_SIDE_K, float(d["relative_sd"])
+    return Sight(np.asarray(d["seen_from_mm"], float), FAR_SIDE_K, float(d["relative_sd"]))
 
 
 def target_csv_columns(records: list[dict]) -> dict:

@@ -324,7 +324,7 @@ def _intervals(t) -> str:
         if t.sight is None or not np.isfinite(near):
             return "&ndash;"
         parts.append(f"{near / 1000:.2f}&ndash;" + (f"{far / 1000:.2f}" if np.isfinite(far) else "&infin;"))
-    return f"{np.linalg.norm(t.position_mm - t.sight[0]) / 1000:.2f} ({' / '.join(parts)})"
+    return f"{t.sight.distance_mm(t.position_mm) / 1000:.2f} ({' / '.join(parts)})"
 
 
 def _xyz(v, sep: str = ", ") -> str:

@@ -16,7 +16,7 @@ import numpy as np
 
 from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
-from estimator.errormodel import at_level, depth_interval
+from estimator.errormodel import Sight
 from estimator.motion import STATIC, Trajectory
 
 from ..formats.targets import MOVING_COLUMN, TARGET_KEYS, record_sight, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
@@ -73,9 +73,9 @@ class Target:
             middle knot and its status 'moving'; the path is ``trajectory``.
         trajectory: a moving target's path (``estimator.motion.Trajectory``; target_paths.csv),
             or None (a static target, or one read from targets.json).
-        sight: (where its lines were seen from (3,) mm, the far side's k, the linearised
-            relative depth sd) of the error model (``estimator.errormodel.sight_info``), which
-            draws its region at any level; None without the error model.
+        sight: where its lines were seen from and how the error model shaped its covariance
+            (``estimator.errormodel.Sight``), which draws its region at any level and its depth
+            intervals; None without the error model.
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -95,7 +95,7 @@ class Target:
     samples: np.ndarray | None = None
     moving: bool = False
     trajectory: Trajectory | None = None
-    sight: tuple | None = None
+    sight: Sight | None = None
 
     def level_covariance(self, probability: float) -> np.ndarray | None:
         """(3, 3) mm^2 whose ``probability`` ellipsoid is the region of that level (the error
@@ -103,7 +103,7 @@ class Target:
         covariance itself when the target has no ``sight``; None without a covariance."""
         if self.covariance_mm2 is None or self.sight is None:
             return self.covariance_mm2
-        return at_level(self.covariance_mm2, self.position_mm, self.sight[0], probability, self.sight[1], self.sight[2])
+        return self.sight.level_covariance(self.covariance_mm2, self.position_mm, probability)
 
     def depth_interval(self, probability: float = 0.95) -> tuple[float, float]:
         """(near, far) mm: the ``probability`` interval of its distance from where it was seen
@@ -111,7 +111,7 @@ class Target:
         NaN) without one."""
         if self.sight is None or not np.all(np.isfinite(self.position_mm)):
             return float("nan"), float("nan")
-        return depth_interval(self.position_mm, self.sight[0], probability, self.sight[2])
+        return self.sight.depth_interval(self.position_mm, probability)
 
     @property
     def ok(self) -> bool:
