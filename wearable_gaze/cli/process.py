@@ -32,9 +32,6 @@ def cmd_process(args) -> int:
     from ..progress import progress_bar  # noqa: PLC0415
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person])
-    if args.out is not None and (Path(args.out) / "session.json").is_file():
-        raise UserError(f"-o {args.out}: is a session folder (it has session.json); process would mix its outputs "
-                        "into that session: choose a new folder (the default is SESSION/processed)")
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=lambda name: progress_bar(name, 1), person=args.person,

@@ -60,7 +60,6 @@ def check_outputs(args) -> None:
         check_output(out, inputs, opt, folder=folder(args) if callable(folder) else folder)
 
 
-
 def _named_scenario(value) -> bool:
     """A named scenario (``simulate`` reads it, not a file of that name)."""
     from ..sim.scenario import NAMED  # noqa: PLC0415

@@ -32,7 +32,7 @@ from ..formats.jsonio import write_json
 from ..formats.markermap import load_marker_map
 from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv, write_poses_csv
-from ..formats.session import load_session
+from ..formats.session import MANIFEST, load_session
 from ..formats.sfmmap import FEATURES as SFM_FEATURES
 from ..formats.sfmmap import MAP_JSON as SFM_JSON
 from ..formats.sfmmap import load_sfm_map
@@ -175,6 +175,9 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
     out = Path(out) if out is not None else s.root / "processed"
+    if (out / MANIFEST).is_file():
+        raise UserError(f"-o {out}: is a session folder (it has {MANIFEST}); process would mix its outputs into that "
+                        "session: choose a new folder (the default is SESSION/processed)")
     out.mkdir(parents=True, exist_ok=True)
     res = ProcessResult(out)
     files = s.manifest["files"]
