@@ -40,7 +40,8 @@ def _huber_weights(r, k: float) -> np.ndarray:
     return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
 
 
-def _huber_cost(r, k: float) -> float:
+def huber_cost(r, k: float) -> float:
+    """Huber's cost of residuals ``r`` with threshold ``k`` (the adjustment's robust loss)."""
     a = np.abs(r)
     return float(np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)))
 
@@ -111,7 +112,7 @@ def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int
     views, objs = np.array(views, float), np.array(objs, float).reshape(-1, 6)
     V, M = len(views), len(objs)
     r = fun(views, objs)
-    cost, lam, converged, it = _huber_cost(r, huber), 1e-3, False, 0
+    cost, lam, converged, it = huber_cost(r, huber), 1e-3, False, 0
     while it < max_iter:
         it += 1
         w = _huber_weights(r, huber)
@@ -121,7 +122,7 @@ def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int
             dv, do = _schur_step(*blocks, lam)
             nv, no = views + dv, objs + do
             nr = fun(nv, no)
-            ncost = _huber_cost(nr, huber) if np.all(np.isfinite(nr)) else np.inf
+            ncost = huber_cost(nr, huber) if np.all(np.isfinite(nr)) else np.inf
             if ncost <= cost:
                 break
             lam *= 10.0

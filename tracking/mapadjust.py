@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from .bundle import bundle_adjust
+from .bundle import bundle_adjust, huber_cost
 from .markermap import marker_corners_world, square_corners
 from .pnp import transform_from_rvec_tvec
 
@@ -174,7 +174,7 @@ def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tupl
     reprojection RMS before any split, pixels."""
     obs, size, moved = list(obs), dict(size), {}
     adj = _adjust(obs, size, origin, markers, cams, focal, T_origin)
-    rms_unsplit = _rms(adj.residuals)
+    rms_unsplit = residual_rms(adj.residuals)
     while True:
         found = {i: v for i, v in _moved(obs, size, adj.markers, adj.cams).items()
                  if i >= 0 and i != origin and i not in moved}
@@ -189,8 +189,8 @@ def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tupl
             o, s, m = _split(obs, size, adj, i, cut)
             trial = _adjust(o, s, origin, m, adj.cams, focal, T_origin, TRIAL_ITER)
             log.debug("moved marker: split of %d at view %d, cost %.4g, RMS %.3f px (converged: %s)", i, cut,
-                      _huber_cost(trial.residuals), _rms(trial.residuals), trial.converged)
-            trials.append((_huber_cost(trial.residuals), i, o, s, trial))
+                      huber_cost(trial.residuals, HUBER_PX), residual_rms(trial.residuals), trial.converged)
+            trials.append((huber_cost(trial.residuals, HUBER_PX), i, o, s, trial))
         _, i, obs, size, adj = min(trials, key=lambda t: t[0])
         if not adj.converged:                             # the best split's adjustment, finished
             adj = _adjust(obs, size, origin, adj.markers, adj.cams, focal, T_origin)
@@ -248,14 +248,9 @@ def _split(obs, size, adj: Adjusted, i: int, cut: int) -> tuple[list, dict, dict
     return obs, size, markers
 
 
-def _rms(r) -> float:
+def residual_rms(r) -> float:
+    """RMS of residuals ``r`` (pixels), NaN for none."""
     return float(np.sqrt(np.mean(np.square(r)))) if len(r) else float("nan")
-
-
-def _huber_cost(r) -> float:
-    """The adjustment's robust cost of residuals ``r`` (pixels): Huber's, past ``HUBER_PX``."""
-    a = np.abs(np.asarray(r))
-    return float(np.sum(np.where(a <= HUBER_PX, 0.5 * a * a, HUBER_PX * a - 0.5 * HUBER_PX ** 2)))
 
 
 def _moved(obs, size, markers, cams) -> dict:

@@ -24,7 +24,16 @@ import numpy as np
 
 from calibration.camera import undistort_points
 
-from .mapadjust import MIN_VIEWS, Adjusted, adjust_with_moves, ippe, marker_covariances, pose_view, project
+from .mapadjust import (
+    MIN_VIEWS,
+    Adjusted,
+    adjust_with_moves,
+    ippe,
+    marker_covariances,
+    pose_view,
+    project,
+    residual_rms,
+)
 from .markermap import MarkerMap, marker_corners_world
 
 log = logging.getLogger(__name__)
@@ -111,13 +120,13 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     markers, cams = _chain(obs, size, origin, start)
     _refine_initial(obs, size, origin, markers, cams)
     adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin])
-    info = _marker_info(obs, size, origin, adj, moved)
+    rms = residual_rms(adj.residuals)
+    info = _marker_info(obs, size, origin, adj, moved, rms)
     for i, T in prior.items():                       # not seen now: kept as the earlier map had it
         if i not in adj.markers:
             adj.markers[i] = T
             info[i] = MarkerInfo(0, float("nan"), np.zeros((6, 6)))
     unposed = [k for k in range(len(obs)) if k not in adj.cams]
-    rms = float(np.sqrt(np.mean(adj.residuals ** 2))) if len(adj.residuals) else float("nan")
     log.info("map of %d markers from %d views (%d unposed), RMS %.2f px (%.2f px before the moved markers were "
              "split)", len(adj.markers), len(adj.cams), len(unposed), rms, rms_unsplit)
     common = float(max(set(size.values()), key=list(size.values()).count))            # the commonest size
@@ -208,9 +217,9 @@ def _chain(obs: list, size: dict, origin: int, start: dict) -> tuple[dict, dict]
                 markers[i] = np.linalg.inv(T) @ ippe(c, size[i])[0][1]
 
 
-def _marker_info(obs, size, origin, adj: Adjusted, moved: dict) -> dict:
+def _marker_info(obs, size, origin, adj: Adjusted, moved: dict, rms: float) -> dict:
     """Per marker: views, RMS, covariance, flags (seen too rarely, moved; after a move, the map's
-    fit still poor: ``POOR_FIT``)."""
+    fit, ``rms`` px over all its residuals, still poor: ``POOR_FIT``)."""
     cov = marker_covariances(adj)
     for i in [j for j in moved if -1 - j in cov]:     # the pose after the move: the second marker's
         cov[i] = cov.pop(-1 - i)
@@ -220,13 +229,12 @@ def _marker_info(obs, size, origin, adj: Adjusted, moved: dict) -> dict:
     info = {}
     for i in sorted(adj.markers):
         r = np.concatenate(per[i]) if per[i] else np.zeros(0)
-        info[i] = MarkerInfo(len(per[i]), float(np.sqrt(np.mean(r ** 2))) if len(r) else float("nan"),
-                             cov.get(i, np.zeros((6, 6))))
+        info[i] = MarkerInfo(len(per[i]), residual_rms(r), cov.get(i, np.zeros((6, 6))))
         if len(per[i]) < MIN_VIEWS:
             info[i].flags.append(f"seen in {len(per[i])} view(s)")
     for i, mm in moved.items():
         info[i].flags.append(f"moved by {mm:.0f} mm during the survey (its pose after the move kept)")
-    rms, typical = float(np.sqrt(np.mean(adj.residuals ** 2))), float(np.nanmedian([m.rms_px for m in info.values()]))
+    typical = float(np.nanmedian([m.rms_px for m in info.values()]))
     if moved and rms > POOR_FIT * typical:
         log.warning("after the moved markers' split the map still fits its views poorly: RMS %.2f px, its markers' "
                     "median %.2f px", rms, typical)
