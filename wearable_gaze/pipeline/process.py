@@ -174,11 +174,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         load_sfm_map(sfm_map)                                   # checked before any step
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
-    out = Path(out) if out is not None else s.root / "processed"
-    if (out / MANIFEST).is_file():
-        raise UserError(f"-o {out}: is a session folder (it has {MANIFEST}); process would mix its outputs into that "
-                        "session: choose a new folder (the default is SESSION/processed)")
-    out.mkdir(parents=True, exist_ok=True)
+    out = _output_folder(s.root, out)
     res = ProcessResult(out)
     files = s.manifest["files"]
     # a live recording carries the calibrations it ran with
@@ -412,6 +408,21 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
                      cfg.overlay_video, points)
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
               | ({"overlay_video": True} if cfg.overlay_video else {}), do_report)
+
+
+def _output_folder(root: Path, out) -> Path:
+    """The output folder (``out``, default ROOT/processed), made; one that is a session is refused:
+    process would mix its outputs into that session.
+
+    Raises:
+        UserError: ``out`` holds a session manifest.
+    """
+    out = Path(out) if out is not None else root / "processed"
+    if (out / MANIFEST).is_file():
+        raise UserError(f"-o {out}: is a session folder (it has {MANIFEST}); process would mix its outputs into that "
+                        "session: choose a new folder (the default is SESSION/processed)")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
 
 
 def _report_notes(f: _SessionFiles, cfg: _Settings) -> list[str]:
