@@ -17,6 +17,7 @@ import numpy as np
 
 from estimator._checks import check_points
 
+from . import cvcompat
 from .images import to_grey
 
 log = logging.getLogger(__name__)
@@ -146,9 +147,9 @@ def detect_board(image, spec: BoardSpec, name: str = "", min_corners: int = 8) -
         return BoardView(name, spec.object_points(), corners.reshape(-1, 2).astype(float),
                          np.arange(spec.cols * spec.rows))
     board = spec.charuco_board()
-    ch_corners, ch_ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(grey)
-    if ch_ids is None or len(ch_ids) < min_corners:
-        empty.reason = f"{0 if ch_ids is None else len(ch_ids)} ChArUco corners found, need {min_corners}"
+    ch_corners, ch_ids = cvcompat.detect_charuco(cv2.aruco.CharucoDetector(board), grey)
+    if len(ch_ids) < min_corners:
+        empty.reason = f"{len(ch_ids)} ChArUco corners found, need {min_corners}"
         return empty
     obj, img = board.matchImagePoints(ch_corners, ch_ids)
     return BoardView(name, obj.reshape(-1, 3).astype(float), img.reshape(-1, 2).astype(float),
@@ -220,12 +221,9 @@ def undistort_points(px, camera_matrix, dist_coeffs, model: str = "pinhole") -> 
     if p.size == 0:
         return np.zeros((0, 2))
     p = check_points(p, "px", 2).reshape(-1, 1, 2)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
     if model == "fisheye":
-        out = cv2.fisheye.undistortPoints(p, camera_matrix, dist_coeffs, criteria=crit)
-    else:
-        out = cv2.undistortPoints(p, camera_matrix, dist_coeffs, criteria=crit)
-    return out.reshape(-1, 2)
+        return cvcompat.undistort_points_fisheye(p, camera_matrix, dist_coeffs, 50, 1e-10)
+    return cvcompat.undistort_points(p, camera_matrix, dist_coeffs, 50, 1e-10)
 
 
 def undistort_image(image, cal: CameraCalibration, alpha: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import aruco_dictionary as get_dictionary
+from calibration.cvcompat import detect_markers
 from calibration.images import to_grey
 
 from .corners import refine_markers
@@ -110,10 +111,9 @@ class MarkerDetector:
         k = self.downscale or (2 if grey.shape[1] >= 1200 and self.refine != "apriltag" else 1)
         small = grey if k == 1 else cv2.resize(grey, (grey.shape[1] // k, grey.shape[0] // k),
                                                interpolation=cv2.INTER_AREA)
-        corners, ids, _ = (self._det if k == 1 else self._det_small).detectMarkers(small)
-        if ids is None:
+        c, ids = detect_markers(self._det if k == 1 else self._det_small, small)
+        if len(ids) == 0:
             return []
-        c = np.array([q.reshape(4, 2) for q in corners], float)
         if self.refine == "apriltag":
             # OpenCV's AprilTag quad refinement returns AprilTag's pixel convention (a pixel's
             # centre at +0.5): back to OpenCV's (centre at the integer coordinate)
@@ -127,7 +127,7 @@ class MarkerDetector:
             c = pts.reshape(-1, 4, 2).astype(float)
         if self.refine == "edges":
             c = refine_markers(grey, c, self.modules)
-        return [detection(i, ci) for i, ci in zip(ids.ravel(), c, strict=True)]
+        return [detection(i, ci) for i, ci in zip(ids, c, strict=True)]
 
     def detect_unique(self, image) -> dict[int, np.ndarray]:
         """{id: (4, 2) corners px} of the markers in ``image`` whose id is seen exactly once

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from calibration.cvcompat import undistort_points
+
 CANVAS_AREA = 0.25
 
 
@@ -64,9 +66,7 @@ class Camera:
         w, h = self.image_size
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         pts = np.stack([u.ravel(), v.ravel()], -1).reshape(-1, 1, 2)
-        und = cv2.undistortPoints(pts, self.camera_matrix, self.dist_coeffs,
-                                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10))
-        und = und.reshape(h, w, 2)
+        und = undistort_points(pts, self.camera_matrix, self.dist_coeffs, 40, 1e-10).reshape(h, w, 2)
         return und[..., 0].copy(), und[..., 1].copy()
 
     @functools.cached_property
