@@ -5,7 +5,7 @@ OpenCV 5.1's ``ArucoDetector.detectMarkers`` returns an empty id array, not ``No
 nothing, and ``track`` stopped with an ``AxisError`` on the first frame without a marker; OpenCV 4.x
 returns ``None``. ``calibration/cvcompat.py`` gives one behaviour on both, and these tests run
 with the newest packages and with the declared floors (``.ci/run``'s floor subset: marker
-``floors``).
+``floors``, tests/conftest.py).
 """
 
 import cv2
@@ -17,8 +17,6 @@ from calibration.camera import aruco_dictionary, undistort_points
 from tracking.markers import MarkerDetector
 from wearable_gaze.cli import main
 from wearable_gaze.formats.video import grey_frames, open_video_writer
-
-pytestmark = pytest.mark.floors
 
 
 class _Detector:
