@@ -108,10 +108,10 @@ def undistort_points_fisheye(px, camera_matrix, dist_coeffs, iterations: int = 5
     return np.asarray(out, np.float64).reshape(-1, 2)
 
 
-#: ``cv2.fisheye.calibrate``'s flag to re-estimate the views' poses at each step: the fisheye
-#: module's own constant is right on every release (OpenCV 5 also has ``cv2.CALIB_RECOMPUTE_EXTRINSIC``
-#: with the same value; OpenCV 4 has no such name at the top level).
-FISHEYE_RECOMPUTE_EXTRINSIC = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC
+#: ``cv2.fisheye.calibrate``'s flag to re-estimate the views' poses at each step: OpenCV 4 has it
+#: only as ``cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC`` (value 2), 5.0 only as
+#: ``cv2.CALIB_RECOMPUTE_EXTRINSIC`` (1 << 23), 5.1 as both (1 << 23).
+FISHEYE_RECOMPUTE_EXTRINSIC = getattr(cv2.fisheye, "CALIB_RECOMPUTE_EXTRINSIC", None) or cv2.CALIB_RECOMPUTE_EXTRINSIC
 
 
 def silence_logging() -> None:
