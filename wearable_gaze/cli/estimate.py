@@ -14,6 +14,7 @@ from . import args as A
 
 
 def cmd_estimate(args) -> int:
+    from ..pipeline import estimate as est  # noqa: PLC0415
     from ..pipeline.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note  # noqa: PLC0415
 
     if args.export_density and args.method not in ("voxel", "paper"):
@@ -22,6 +23,9 @@ def cmd_estimate(args) -> int:
     model = replace(DEFAULT_ERROR_MODEL, pose_offset_deg=0.0) if args.device_poses else DEFAULT_ERROR_MODEL
     results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density, args.one_point,
                             args.targets, None if args.no_error_model else model)
+    problem = est.nothing_estimated(args.viewlines, results)
+    if problem is not None:
+        raise problem
     if args.json:                               # the skipped rows are an entry of their own (status 'skipped')
         for r in results:
             print(json.dumps(r))

@@ -174,7 +174,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         load_sfm_map(sfm_map)                                   # checked before any step
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
-    out = _output_folder(s.root, out)
+    out = _output_folder(s.root, out, s.manifest["files"].values())
     res = ProcessResult(out)
     files = s.manifest["files"]
     # a live recording carries the calibrations it ran with
@@ -339,7 +339,7 @@ def session_error_model(imported: bool, eyes_path: Path, tracked: bool = True) -
     video add the merge test's per-fixation pose offset (``estimator.merge.MERGE_POSE_DEG``); a
     device's own poses (SLAM) or a still head do not."""
     pose = MERGE_POSE_DEG if tracked else 0.0
-    if imported:
+    if imported or not eyes_path.is_file():       # none: the eye step failed and said so; nothing uses this
         return ErrorModel(pose_offset_deg=pose)
     try:
         eyes = json.loads(eyes_path.read_text(encoding="utf-8"))["eyes"]
@@ -410,17 +410,23 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
               | ({"overlay_video": True} if cfg.overlay_video else {}), do_report)
 
 
-def _output_folder(root: Path, out) -> Path:
-    """The output folder (``out``, default ROOT/processed), made; one that is a session is refused:
-    process would mix its outputs into that session.
+def _output_folder(root: Path, out, inputs=()) -> Path:
+    """The output folder (``out``, default ROOT/processed), made; one that is a session, or in one
+    of its input folders (the folder of a manifest's file, ``inputs``, below ``root``), is refused:
+    process would mix its outputs into that session, or into that folder's inputs.
 
     Raises:
-        UserError: ``out`` holds a session manifest.
+        UserError: ``out`` holds a session manifest, or is in a folder of the session's inputs.
     """
     out = Path(out) if out is not None else root / "processed"
     if (out / MANIFEST).is_file():
         raise UserError(f"-o {out}: is a session folder (it has {MANIFEST}); process would mix its outputs into that "
                         "session: choose a new folder (the default is SESSION/processed)")
+    for rel in inputs:
+        folder = (root / rel) if (root / rel).is_dir() else (root / rel).parent
+        if folder.resolve() != root.resolve() and out.resolve().is_relative_to(folder.resolve()):
+            raise UserError(f"-o {out}: is in the session's input folder {folder}; process would write among its "
+                            "inputs: choose a folder outside it (the default is SESSION/processed)")
     out.mkdir(parents=True, exist_ok=True)
     return out
 

@@ -42,8 +42,8 @@ from ..formats.images import IMAGE_EXT, write_image
 from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import write_sfm_map
 from ..formats.video import grey_frames_at, video_fps
-from .calibrate import input_files, read_frames
-from .mapping import DEFAULT_DICT, check_frame_size, frames_total
+from .calibrate import check_frame_size, input_files, read_frames
+from .mapping import DEFAULT_DICT, frames_total
 
 log = logging.getLogger(__name__)
 
