@@ -7,12 +7,12 @@ import pytest
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 
 # The floor subset (``pytest -m floors``): what ``.ci/run`` also runs with the declared floor
-# versions (constraints/floors.txt) and with OpenCV 5.0: tracking, calibration, two importers and
-# one short ``process`` (in test_opencv_compat.py). A test there whose figure is a property of the
+# versions (constraints/floors.txt) and with OpenCV 5.0: tracking, calibration, the Tobii importers
+# (and their round trips through ``process``) and one short ``process`` of a video with empty frames
+# (test_opencv_compat.py). A test there whose figure is a property of the
 # newest OpenCV itself, not of this project, is marked ``newest_opencv`` with the reason, and
 # the floor run leaves it out.
-FLOOR_MODULES = {"test_opencv_compat.py", "test_tracking.py", "test_calibration.py", "test_import_tobii.py",
-                 "test_import_aria.py"}
+FLOOR_MODULES = {"test_opencv_compat.py", "test_tracking.py", "test_calibration.py", "test_import_tobii.py"}
 
 
 def pytest_collection_modifyitems(config, items):
