@@ -18,7 +18,7 @@ from ...errors import UserError
 
 # format name -> module (imported on demand: a vendor reader may be an optional extra)
 MODULES = {"pupil-core": "pupil_core", "pupil-neon": "neon", "tobii-g2": "tobii_g2", "tobii-g3": "tobii_g3",
-           "aria-mps": "aria"}
+           "aria-mps": "aria", "pupil-cloud": "pupil_cloud"}
 
 
 def device_module(name: str):
