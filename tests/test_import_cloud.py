@@ -99,3 +99,24 @@ def test_a_walking_2d_only_session_finds_its_targets_within_twice_the_binocular_
     nat, got, report = roundtrip_errors("pupil-cloud", tmp_path_factory.getbasetemp(), tmp_path)
     assert report["pose_source"] == "scene_video" and report["rays"] == "cyclopean"
     assert np.all(np.isfinite(got)) and rms(got) <= 2.0 * rms(nat), (got, nat)
+
+
+def test_an_export_with_neon_eye_states_gives_per_eye_visual_axes(tmp_path):
+    """With ``3d_eye_states.csv`` (Neon) each eye is its own line, turned into a visual axis by
+    the kappa offset fitted on the export's gaze ray at 1 m: the simulated eyes' axes already
+    point at the target, so the fitted offsets are small and the rays meet in front."""
+    from helpers import walkabout_recording  # noqa: PLC0415
+
+    sim = walkabout_recording(tmp_path / "sim")
+    pupil_cloud.write_recording(sim, tmp_path / "rec", eye_states=True)
+    rep = run_import(pupil_cloud, tmp_path / "rec", tmp_path / "out")
+    assert rep["rays"] == "binocular" and rep["kappa"]["method"] == "cyclopean-ray"
+    assert rep["kappa"]["depth_mm"] == 1000.0
+    for side in ("left", "right"):
+        assert np.all(np.abs(rep["kappa"][f"{side}_deg"]) < 2.0), rep["kappa"]
+    assert rep["kappa"]["rays_after"]["in_front_share"] > 0.9
+    got = read_eye_rays(tmp_path / "out" / "eye_rays.csv")
+    assert got.left_valid.sum() > 0.9 * len(got.t_s) and got.right_valid.sum() > 0.9 * len(got.t_s)
+    assert np.allclose(got.left_origin_mm[got.left_valid], sim.rays.left_origin_mm[np.isin(sim.t, got.t_s)][
+        got.left_valid], atol=1e-3)
+    assert any("kappa offset" in n for n in rep["notes"])

@@ -52,6 +52,7 @@ from ...errors import UserError
 from ..camera import load_camera
 from ..jsonio import read_json_text
 from ..tables import csv_header, iter_csv_chunks, write_table
+from . import pupil_cloud_eyes as eyes
 from .tobii_common import GapCounter, video_frame_times
 
 NAME = "pupil-cloud"
@@ -160,8 +161,11 @@ class _GazeChunks:
         cells = [r[k] if len(r) > k else "" for r in rows]
         return np.array([float(c) if c.strip() else np.nan for c in cells], float)
 
-    def add(self, rows, lines) -> None:
-        t = (_int_times([r[self.index[T_COL]] for r in rows], self.path, lines) - self.start_ns) / 1e9
+    def parse(self, rows, lines) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t_ns (n,) int64, directions (n, 3) in the scene camera's frame, the reason each row
+        is dropped (n,) object, '': kept) of a chunk of gaze.csv rows; the gaps counted."""
+        t_ns = _int_times([r[self.index[T_COL]] for r in rows], self.path, lines)
+        t = (t_ns - self.start_ns) / 1e9
         if self.gaps is None:
             steps = np.diff(t[:2000])
             steps = steps[steps > 0]
@@ -174,25 +178,62 @@ class _GazeChunks:
             xy = undistort_points(np.column_stack([self._column(rows, p) for p in PIXELS]), self.K, self.D)
             d = np.column_stack([xy, np.ones(len(xy))])
             d /= np.linalg.norm(d, axis=1, keepdims=True)
-        worn = self._column(rows, "worn")
-        blink = self._column(rows, "blink id")
-        keep = np.ones(len(t), bool)
-        for reason, bad in (("not worn (worn 0)", worn == 0), ("inside a blink (blink id)", np.isfinite(blink)),
+        why = np.full(len(t), "", object)
+        for reason, bad in (("not worn (worn 0)", self._column(rows, "worn") == 0),
+                            ("inside a blink (blink id)", np.isfinite(self._column(rows, "blink id"))),
                             ("no gaze direction (empty or not finite)", ~np.all(np.isfinite(d), axis=1))):
-            bad &= keep
-            self.drops[reason] += int(bad.sum())
-            keep &= ~bad
-        order = np.concatenate([[self.t_last], t])
-        increasing = np.maximum.accumulate(order)[:-1] < t
-        late = keep & ~increasing
-        self.drops["time does not increase"] += int(late.sum())
+            why[bad & (why == "")] = reason
+        self.imp.count("gaze.csv rows", len(t))
+        return t_ns, d, why
+
+    def add(self, rows, lines) -> None:
+        """A chunk of gaze.csv rows as cyclopean rays (one line per sample from the camera's centre)."""
+        t_ns, d, why = self.parse(rows, lines)
+        t = (t_ns - self.start_ns) / 1e9
+        for reason in set(why[why != ""]):
+            self.drops[reason] += int(np.sum(why == reason))
+        keep = why == ""
+        increasing = np.maximum.accumulate(np.concatenate([[self.t_last], t]))[:-1] < t
+        self.drops["time does not increase"] += int((keep & ~increasing).sum())
         keep &= increasing
         if keep.any():
             n = int(keep.sum())
             self.imp.add_rays(t[keep], np.zeros((n, 3)), d[keep], np.ones(n, bool), np.full((n, 3), np.nan),
                               np.full((n, 3), np.nan), np.zeros(n, bool))
             self.t_last = float(t[keep][-1])
-        self.imp.count("gaze.csv rows", len(t))
+
+
+def _binocular(src: Path, imp, chunks: _GazeChunks, progress) -> dict:
+    """Neon's eye states (``pupil_cloud_eyes``): per-eye visual axes, the export's gaze for the
+    kappa offset and its drops (not worn, in a blink); the report's ``kappa`` entry."""
+    parts = [chunks.parse(rows, lines) for rows, lines in iter_csv_chunks(src / GAZE, "Pupil Cloud gaze CSV", CHUNK,
+                                                                          progress)]
+    g_t = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+    g_d = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 3))
+    g_why = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, object)
+    order = np.argsort(g_t, kind="stable")
+    g_t, g_d, g_why = g_t[order], g_d[order], g_why[order]
+    t_ns, centres, axes = eyes.read_eye_states(src / eyes.EYE_STATES)
+    imp.count(f"{eyes.EYE_STATES} rows", len(t_ns))
+    ok = eyes.eye_validity(centres, axes, chunks.drops)
+    gaze = eyes.gaze_at(t_ns, g_t, g_d)
+    j = np.clip(np.searchsorted(g_t, t_ns), 0, max(len(g_t) - 1, 0))
+    if len(g_t):
+        for reason in ("not worn (worn 0)", "inside a blink (blink id)"):
+            bad = (g_t[j] == t_ns) & (g_why[j] == reason) & ok.any(axis=0)
+            chunks.drops[reason] += int(bad.sum())
+            ok[:, bad] = False
+    vis, kappa = eyes.visual_axes(src, centres, axes, ok, gaze)
+    t = (t_ns - chunks.start_ns) / 1e9
+    keep = ok.any(axis=0) & (np.maximum.accumulate(np.concatenate([[-np.inf], t]))[:-1] < t)
+    chunks.drops["sample: no valid eye or a time that does not increase"] += int((~keep).sum())
+    k = np.flatnonzero(keep)
+    for a in range(0, len(k), CHUNK):
+        s = k[a:a + CHUNK]
+        imp.add_rays(t[s], centres[0][s], vis[0][s], ok[0][s], centres[1][s], vis[1][s], ok[1][s])
+    imp.note(f"per-eye rays from {eyes.EYE_STATES}: optical axes turned into visual axes by the kappa offset fitted "
+             f"on the export's gaze ray at {eyes.KAPPA_DEPTH_MM:g} mm (an assumed depth; docs/importers.md)")
+    return kappa
 
 
 def _video(src: Path) -> Path | None:
@@ -210,8 +251,12 @@ def read_recording(src: Path, imp, options, progress=None) -> None:
     start_ns, start_from = _start_ns(src)
     frame_times = _world_times(src, start_ns)
     chunks = _GazeChunks(imp, src / GAZE, start_ns, K, D)
-    for rows, lines in iter_csv_chunks(src / GAZE, "Pupil Cloud gaze CSV", CHUNK, progress):
-        chunks.add(rows, lines)
+    kappa = None
+    if (src / eyes.EYE_STATES).is_file():
+        kappa = _binocular(src, imp, chunks, progress)
+    else:
+        for rows, lines in iter_csv_chunks(src / GAZE, "Pupil Cloud gaze CSV", CHUNK, progress):
+            chunks.add(rows, lines)
     for reason, n in chunks.drops.most_common():
         imp.drop(reason, n)
     if chunks.gaps is None:
@@ -230,10 +275,11 @@ def read_recording(src: Path, imp, options, progress=None) -> None:
             shutil.copyfile(src / name, imp.out / dst)
             imp.files[dst.removesuffix(".csv")] = dst
             imp.count(f"{name} rows (the device's own, kept)", max(0, _count_rows(src / name)))
-    _finish(imp, options, K, D, size, video, frame_times, chunks, start_ns, start_from)
+    _finish(imp, options, K, D, size, video, frame_times, chunks, start_ns, start_from, kappa)
 
 
-def _finish(imp, options, K, D, size, video, frame_times, chunks, start_ns: int, start_from: str) -> None:
+def _finish(imp, options, K, D, size, video, frame_times, chunks, start_ns: int, start_from: str,
+            kappa: dict | None) -> None:
     """The camera (the export's, or ``--camera``), the scene video, the marker map, the pose
     source and the report, then ``imp.finish``."""
     if options.camera is not None:
@@ -246,20 +292,23 @@ def _finish(imp, options, K, D, size, video, frame_times, chunks, start_ns: int,
         imp.add_scene_video(video, frame_times)
     if options.markers is not None:
         imp.set_marker_map(options.markers)
-    imp.note("one cyclopean view line per sample (the export has no eye states): a depth comes from head motion "
-             "alone")
+    if kappa is None:
+        imp.note("one cyclopean view line per sample (the export has no eye states): a depth comes from head motion "
+                 "alone")
     missing = [what for what, have in (("a scene video", video is not None),
                                        ("a marker map (--markers)", options.markers is not None)) if not have]
     if missing:
-        imp.note(f"no head poses ({', '.join(missing)} missing): the head is taken as still, and one line per "
-                 "sample from a still head gives a direction but no depth")
+        imp.note(f"no head poses ({', '.join(missing)} missing): the head is taken as still, and "
+                 + ("one line per sample from a still head gives a direction but no depth" if kappa is None
+                    else "only the two eyes' vergence fixes a depth"))
     frames = {"head": "scene camera, OpenCV axes (x right, y down, z forward), mm",
               "device": "Pupil's scene camera frame (OpenCV axes): identity",
               "T_head_from_device": np.eye(4).tolist(),
               "gaze": ("azimuth = atan2(x, z), elevation = asin(-y) of the gaze direction" if chunks.use_angles
                        else "gaze px undistorted through scene_camera.json")}
+    extra = {"rays": "cyclopean"} if kappa is None else {"rays": "binocular", "kappa": kappa}
     imp.finish(chunks.rate, start_ns / 1e9, "still_head" if missing else "scene_video", frames, image_size=size,
-               rays="cyclopean", clock_start=start_from)
+               clock_start=start_from, **extra)
 
 
 def _count_rows(path: Path) -> int:
@@ -289,11 +338,12 @@ def _cyclopean(sim) -> np.ndarray:
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
-def write_recording(sim, dst: Path, start_ns: int = 1_700_000_000_000_000_000) -> None:
-    """Write a simulated session as a Cloud Timeseries export folder ``dst`` (2D gaze only, no
-    eye states): ``gaze.csv`` (angles and px, ``worn`` 1), ``world_timestamps.csv``,
-    ``scene_camera.json`` (the simulation's intrinsics), ``info.json`` and the scene video.
-    Times are the session's plus ``start_ns``."""
+def write_recording(sim, dst: Path, start_ns: int = 1_700_000_000_000_000_000, eye_states: bool = False) -> None:
+    """Write a simulated session as a Cloud Timeseries export folder ``dst``: ``gaze.csv``
+    (angles and px, ``worn`` 1), ``world_timestamps.csv``, ``scene_camera.json`` (the
+    simulation's intrinsics), ``info.json`` and the scene video; with ``eye_states``, also
+    Neon's ``3d_eye_states.csv`` (the simulated eyes' centres and measured directions, as optical
+    axes). Times are the session's plus ``start_ns``."""
     dst = Path(dst)
     dst.mkdir(parents=True, exist_ok=True)
     d = _cyclopean(sim)
@@ -320,3 +370,9 @@ def write_recording(sim, dst: Path, start_ns: int = 1_700_000_000_000_000_000) -
             "data_format_version": "1.4", "app_version": "simulated"}
     (dst / INFO).write_text(json.dumps(info, indent=4) + "\n", encoding="utf-8")
     shutil.copyfile(sim.video, dst / f"{sec[:8]}_0.0-{float(sim.t[-1]):.3f}.mp4")
+    if eye_states:
+        r = sim.rays
+        valid = [np.asarray(r.left_valid, bool)[:, None], np.asarray(r.right_valid, bool)[:, None]]
+        centres = np.stack([np.where(valid[e], o, np.nan) for e, o in enumerate((r.left_origin_mm, r.right_origin_mm))])
+        axes = np.stack([np.where(valid[e], d, np.nan) for e, d in enumerate((r.left_direction, r.right_direction))])
+        eyes.write_eye_states(dst / eyes.EYE_STATES, t_ns, centres, axes, sec, rec)
