@@ -31,13 +31,15 @@ def cmd_process(args) -> int:
     from ..pipeline.process import format_result, process_session  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
-    check_rerun(args, [args.session, args.camera, args.eyes, args.person])
+    check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=lambda name: progress_bar(name, 1), person=args.person,
                           build_map=None if args.build_map is None else (args.build_map, args.map_dict),
                           sfm_map=args.map, overlay_video=args.overlay_video, rerun=args.rerun,
-                          rerun_frames=args.rerun_frames)
+                          rerun_frames=args.rerun_frames, markers=args.markers)
+    for note in res.summary.get("notes", []):
+        print(f"wearable-gaze process: {note}", file=sys.stderr)
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
@@ -64,8 +66,11 @@ def add_process(sub) -> None:
     pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
     pr.add_argument("--overlay-video", action="store_true",
                     help="also write the overlay at full resolution, every frame: OUT/overlay.mp4 (mp4v)")
+    pr.add_argument("--markers", metavar="MAP.json",
+                    help="track the video in this marker map (from 'wearable-gaze map') instead of the session's")
     pr.add_argument("--build-map", type=A.positive_float, metavar="MM",
-                    help="no marker map: build one from the session's video, markers of this side (mm)")
+                    help="build a marker map from the session's video, markers of this side (mm), and track in it "
+                         "(in place of the session's map, if it has one)")
     pr.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",
                     help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
     pr.add_argument("--map", metavar="SFM_FOLDER",
