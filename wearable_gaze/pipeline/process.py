@@ -173,16 +173,11 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
         failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated.
 
-    An option that cannot apply to the session is reset and said in a note (``summary["notes"]``).
-
     Raises:
-        UserError: the session itself cannot be read; options that contradict each other or a
-            map that cannot be read (``process_options.check_map_options``).
+        UserError: the session cannot be read; contradicting options, a bad map (``check_map_options``).
     """
     s = load_session(session)
-    if sfm_map is not None:
-        load_sfm_map(sfm_map)                                   # checked before any step
-    markers = check_map_options(markers, build_map, sfm_map, overlay, overlay_video)
+    markers = check_map_options(markers, build_map, sfm_map, overlay, overlay_video)       # before any step
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
     out = _output_folder(s.root, out)

@@ -23,11 +23,12 @@ from .truth_match import TruthFrame, fit_truth_frame
 
 def check_map_options(markers, build_map, sfm_map, overlay: bool, overlay_video: bool) -> Path | None:
     """The options that contradict each other refused, and the map ``markers`` (a marker-map
-    JSON, ``wearable-gaze map``) read once to check it, before any step. Returns its path.
+    JSON, ``wearable-gaze map``) or ``sfm_map`` (a markerless map folder) read once to check it,
+    before any step. Returns the path of ``markers``.
 
     Raises:
         UserError: two of ``markers``, ``build_map``, ``sfm_map`` (each chooses the map);
-            ``overlay_video`` without ``overlay``; a ``markers`` file that is missing or not a map.
+            ``overlay_video`` without ``overlay``; a map that is missing or cannot be read.
     """
     given = [opt for opt, v in (("--markers MAP", markers), ("--build-map MM", build_map),
                                 ("--map SFM_FOLDER", sfm_map)) if v is not None]
@@ -37,6 +38,8 @@ def check_map_options(markers, build_map, sfm_map, overlay: bool, overlay_video:
                         "markerless one)")
     if overlay_video and not overlay:
         raise UserError("--overlay-video writes the overlay that --no-overlay leaves out: give one of them")
+    if sfm_map is not None:
+        load_sfm_map(sfm_map)
     if markers is None:
         return None
     markers = Path(markers)
