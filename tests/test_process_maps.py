@@ -174,6 +174,7 @@ def test_an_option_that_cannot_apply_says_so_and_changes_nothing(session, tmp_pa
     (["--markers", "{t}/m.json", "--build-map", "200"], "give one"),
     (["--markers", "{t}/m.json", "--map", "{t}"], "give one"),
     (["--overlay-video", "--no-overlay"], "give one of them"),
+    (["--map-dict", "DICT_5X5_50"], "give --build-map too"),
 ])
 def test_contradicting_options_and_a_bad_map_get_one_line(session, tmp_path, capsys, extra, needle):
     root = session[0]

@@ -29,14 +29,14 @@ def cmd_batch(args) -> int:
     from ..pipeline.batch import BatchSettings, format_summary, run_batch  # noqa: PLC0415
     from ..pipeline.process_options import check_map_options  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
+    from .process import build_map_option  # noqa: PLC0415
 
     check_output(args.out, [*args.sessions, args.camera, args.eyes, args.markers], "-o", folder=True)
     check_map_options(args.markers, args.build_map, None, True, False)        # before any session
     camera, eyes, markers = (None if p is None else str(Path(p).resolve()) for p in (args.camera, args.eyes,
                                                                                     args.markers))
     settings = BatchSettings(args.method, camera, eyes, args.force, not args.no_overlay, True,
-                             args.track_every, None if args.build_map is None else (args.build_map, args.map_dict),
-                             markers)
+                             args.track_every, build_map_option(args), markers)
     with progress_bar("sessions", 1) as cb:
         res = run_batch(args.sessions, args.out, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=cb)
@@ -72,7 +72,7 @@ def add_batch(sub) -> None:
     b.add_argument("--build-map", type=A.positive_float, metavar="MM",
                    help="each session gets a marker map built from its video, markers of this side (mm), in place "
                         "of its own (as process --build-map)")
-    b.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",
+    b.add_argument("--map-dict", type=A.marker_dictionary, default=None, metavar="DICT",
                    help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
     b.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",
                    help="track one scene frame in N and interpolate the rest (default 2)")

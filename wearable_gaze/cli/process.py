@@ -35,7 +35,7 @@ def cmd_process(args) -> int:
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=lambda name: progress_bar(name, 1), person=args.person,
-                          build_map=None if args.build_map is None else (args.build_map, args.map_dict),
+                          build_map=build_map_option(args),
                           sfm_map=args.map, overlay_video=args.overlay_video, rerun=args.rerun,
                           rerun_frames=args.rerun_frames, markers=args.markers)
     for note in res.summary.get("notes", []):
@@ -44,6 +44,19 @@ def cmd_process(args) -> int:
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
     return res.exit_status                  # 2 when no target could be estimated
+
+
+def build_map_option(args) -> tuple | None:
+    """``--build-map MM [--map-dict DICT]`` as (side mm, dictionary), or None; ``--map-dict``
+    alone, which nothing would use, refused."""
+    from ..pipeline.mapping import DEFAULT_DICT  # noqa: PLC0415
+
+    if args.build_map is None:
+        if args.map_dict is not None:
+            raise UserError("--map-dict names the dictionary of the markers --build-map MM builds a map of: give "
+                            "--build-map too, or leave --map-dict out")
+        return None
+    return args.build_map, args.map_dict or DEFAULT_DICT
 
 
 def cmd_demo(args) -> int:
@@ -71,7 +84,7 @@ def add_process(sub) -> None:
     pr.add_argument("--build-map", type=A.positive_float, metavar="MM",
                     help="build a marker map from the session's video, markers of this side (mm), and track in it "
                          "(in place of the session's map, if it has one)")
-    pr.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",
+    pr.add_argument("--map-dict", type=A.marker_dictionary, default=None, metavar="DICT",
                     help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
     pr.add_argument("--map", metavar="SFM_FOLDER",
                     help="localise the scene video in this markerless map (map --markerless) instead of tracking "
