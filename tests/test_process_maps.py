@@ -67,6 +67,11 @@ def test_the_truth_is_moved_by_the_similarity_through_the_shared_markers(rng):
     moved = frame.targets([{"index": 0, "position_mm": [1.0, 2.0, 3.0]}, {"index": 1, "path_mm": [[0, 0, 0]] * 2}])
     np.testing.assert_allclose(moved[0]["position_mm"], T[:3, :3] @ [1.0, 2.0, 3.0] + T[:3, 3])
     np.testing.assert_allclose(moved[1]["path_mm"], [T[:3, 3]] * 2)
+    head = np.stack([_shift(), np.full((4, 4), np.nan)])                               # a pose, and none
+    got = frame.poses(head)
+    np.testing.assert_allclose(got[0, :3, 3], T[:3, :3] @ head[0, :3, 3] + T[:3, 3])
+    np.testing.assert_allclose(got[0, :3, :3], T[:3, :3] / 1.02 @ head[0, :3, :3], atol=1e-12)
+    assert np.isnan(got[1]).all()
     again = TruthFrame.from_record(json.loads(json.dumps(frame.record())))
     np.testing.assert_allclose(again.T_map_from_truth, T, atol=1e-8)
     assert "3 marker(s)" in frame.note() and "scale 1.0200" in frame.note()

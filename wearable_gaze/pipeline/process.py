@@ -57,6 +57,7 @@ from .report import OverlayInputs, load_truth, write_report
 from .segmentation import segment_view_lines
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
 from .track import frame_times, track_video
+from .truth_match import TruthFrame
 from .types import Poses, Target
 
 log = logging.getLogger(__name__)
@@ -238,7 +239,7 @@ def _view_in_rerun(rerun: str, frames_every: int, res: ProcessResult, s, f: _Ses
     try:
         res.summary["rerun"] = view_processed(rerun, out, res.found or None, cam_path, f.markers or out / BUILT_MAP,
                                               s.path("truth_targets"), s.path("truth_head_poses"), f.video, f.stamps,
-                                              frames_every)
+                                              frames_every, TruthFrame.from_record(res.summary.get("truth_frame")))
     except UserError as exc:
         res.problems.append(f"rerun: {exc}")
 

@@ -85,6 +85,14 @@ class TruthFrame:
         T = self.T_map_from_truth
         return np.asarray(pts_truth, float).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
 
+    def poses(self, T_truth_from_cam) -> np.ndarray:
+        """(N, 4, 4) poses of the truth's frame (truth/head_poses.csv; NaN rows kept) in the used
+        map's world: the positions moved by the similarity, the rotations turned by its rotation."""
+        T, S = np.array(T_truth_from_cam, float).reshape(-1, 4, 4), self.T_map_from_truth
+        T[:, :3, :3] = np.einsum("ij,njk->nik", S[:3, :3] / self.scale, T[:, :3, :3])
+        T[:, :3, 3] = self.points(T[:, :3, 3])
+        return T
+
     def targets(self, truth: list) -> list:
         """Truth target entries (truth/targets.json) with ``position_mm`` (3,) and ``path_mm``
         (K, 3) moved into the used map's world; the rest of each entry as it was."""
