@@ -216,3 +216,16 @@ def test_batch_passes_the_map_through_and_its_report_moves_the_truth(tmp_path):
     got = truth_errors(tmp_path / "s", rows, TruthFrame("built", T, 0.5, (0,)))
     assert got["truth_found"] == 2 and abs(got["error_max_mm"] - np.sqrt(27.0)) < 1e-6
     assert truth_errors(tmp_path / "s", rows)["truth_found"] == 0                     # not moved: nothing near
+
+
+@pytest.mark.parametrize("extra, needle", [(["--markers", "{t}/m.json", "--build-map", "200"], "give one"),
+                                           (["--map-dict", "DICT_5X5_50"], "give --build-map too"),
+                                           (["--markers", "{t}/none.json"], "no such file")])
+def test_batch_refuses_the_same_before_any_session(tmp_path, capsys, extra, needle):
+    (tmp_path / "m.json").write_text("{}")
+    (tmp_path / "s").mkdir()
+    argv = ["batch", str(tmp_path / "s"), "-o", str(tmp_path / "out"), *[a.format(t=tmp_path) for a in extra]]
+    assert main(argv) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and needle in err[0], err
+    assert not (tmp_path / "out").exists()
