@@ -22,7 +22,7 @@ OUTPUTS = {
               ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],
     "map": [("out", lambda a: a.markerless, ("inputs", "camera", "extend", "markers"))],
     "simulate": [("out", True, ("scenario",))],
-    "process": [("out", True, ("session", "camera", "eyes", "person"))],
+    "process": [("out", True, ("session", "camera", "eyes", "person", "markers"))],
     "learn-bias": [("out", False, ("session", "validation", "processed", "eyes"))],
     "import": [("out", True, ("src", "markers", "camera", "kappa_recording"))],
     "export-recording": [("out", True, ("session",))],

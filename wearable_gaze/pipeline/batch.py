@@ -41,7 +41,8 @@ _SKIP_DIRS = ("processed",)                    # process's default output folder
 class BatchSettings:
     """The ``process`` settings every session of a batch runs with (``process_session``'s
     arguments of the same names; ``camera``, ``eyes``: files used instead of calibrating each
-    session; ``build_map``: (marker side mm, dictionary))."""
+    session; ``build_map``: (marker side mm, dictionary); ``markers``: a marker map every session is
+    tracked in)."""
 
     method: str = "voxel"
     camera: str | None = None
@@ -51,12 +52,13 @@ class BatchSettings:
     report: bool = True
     track_every: int = 2
     build_map: tuple | None = None
+    markers: str | None = None
 
     def process_kwargs(self) -> dict:
         """The keyword arguments of ``process_session``."""
         return {"method": self.method, "camera": self.camera, "eyes": self.eyes, "force": self.force,
                 "overlay": self.overlay, "report": self.report, "track_every": self.track_every,
-                "build_map": self.build_map}
+                "build_map": self.build_map, "markers": self.markers}
 
     def fingerprint_params(self) -> dict:
         """What decides a session's results (``force`` only says to redo them)."""
@@ -172,7 +174,7 @@ def session_fingerprint(root: Path, settings: BatchSettings, exclude=None) -> st
             if not f.startswith("."):
                 st = os.stat(os.path.join(dirpath, f))
                 h.update(f"{os.path.relpath(os.path.join(dirpath, f), root)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
-    for p in (settings.camera, settings.eyes):
+    for p in (settings.camera, settings.eyes, settings.markers):
         if p is not None:
             st = os.stat(p) if os.path.exists(p) else None
             h.update(f"{Path(p).resolve()}:{st and (st.st_size, st.st_mtime_ns)}\n".encode())

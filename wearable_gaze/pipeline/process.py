@@ -52,10 +52,12 @@ from .device import POSE_NOTES, device_comparison, device_poses, still_head_pose
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
+from .process_options import applicable, check_map_options, report_truth, truth_frame
 from .report import OverlayInputs, load_truth, write_report
 from .segmentation import segment_view_lines
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
 from .track import frame_times, track_video
+from .truth_match import TruthFrame
 from .types import Poses, Target
 
 log = logging.getLogger(__name__)
@@ -75,6 +77,7 @@ class _Settings:
     build_map: tuple | None = None      # (marker side mm, dictionary) to build a map from the video
     sfm_map: Path | None = None         # a markerless map folder to localise the video's frames in
     overlay_video: bool = False         # the report also writes the full-resolution overlay.mp4
+    map_kind: str = "session"           # the map tracked in: session, given, built, markerless
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,8 @@ class _SessionFiles:
     clock_offset_s: float = 0.0             # ... the device's clock at session time 0, s
     truth_targets: Path | None = None       # a simulated session's truth, shown in the report
     truth_head_poses: Path | None = None
+    truth_map: Path | None = None           # ... its true marker map (the truth's frame)
+    truth_moved: Path | None = None         # ... the markers moved during it
 
     @classmethod
     def of(cls, s) -> _SessionFiles:
@@ -108,7 +113,9 @@ class _SessionFiles:
                    s.path("eye_rays"), s.path("head_poses"), s.path("device_gaze"),
                    s.manifest.get("source", {}).get("pose_source"), s.manifest.get("eye_rate_hz"),
                    s.path("import_report"), float(s.manifest.get("source", {}).get("clock_offset_s", 0.0)),
-                   s.path("truth_targets"), s.path("truth_head_poses"))
+                   s.path("truth_targets"), s.path("truth_head_poses"),
+                   s.path("truth_markers") or (s.path("truth_targets") and s.path("marker_map")),
+                   s.path("truth_moved_markers"))
 
 
 class _Values:
@@ -138,7 +145,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
                     segment_config: SegmentConfig | None = None, progress_factory=None, person=None,
                     build_map: tuple | None = None, sfm_map=None, overlay_video: bool = False, rerun: str | None = None,
-                    rerun_frames: int = 0) -> ProcessResult:
+                    rerun_frames: int = 0, markers=None) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -153,12 +160,13 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         segment_config: fixation segmentation settings (default ``SegmentConfig()``).
         progress_factory: name -> context manager yielding a progress(done, total) callback.
         person: a person.json (``learn-bias``) whose per-eye correction the view lines get.
-        build_map: (marker side, mm; dictionary name): a session without a marker map gets one
-            built from its own scene video (``pipeline.mapping``, written as built_map.json)
-            before tracking; a session with one keeps it.
+        build_map: (marker side, mm; dictionary name): a map built from the session's own scene
+            video (``pipeline.mapping``, written as built_map.json) before tracking, used in place
+            of the session's map if it has one (a note says so).
         sfm_map: a markerless map folder (``map --markerless``): the scene video's frames are
             localised in it (``tracking.localise``) instead of tracked by the session's markers.
         overlay_video: the report also writes overlay.mp4, the overlay at full resolution.
+        markers: a marker map (``map``) to track the video in, in place of the session's.
         rerun: also log the results to rerun (``pipeline.rerun_view``): an .rrd file, a viewer's
             address, or 'spawn'; ``rerun_frames``: with it, one scene frame in this many (0: none).
 
@@ -167,11 +175,10 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated.
 
     Raises:
-        UserError: the session itself cannot be read.
+        UserError: the session cannot be read; contradicting options, a bad map (``check_map_options``).
     """
     s = load_session(session)
-    if sfm_map is not None:
-        load_sfm_map(sfm_map)                                   # checked before any step
+    markers = check_map_options(markers, build_map, sfm_map, overlay, overlay_video)       # before any step
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
     out = _output_folder(s.root, out, s.manifest["files"].values())
@@ -182,7 +189,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         camera = s.root / files["camera"]
     if eyes is None and "eyes" in files and "eye_calibration" not in files:
         eyes = s.root / files["eyes"]
-    steps = Steps(out, force, res, progress_factory, [p for p in (camera, eyes) if p is not None])
+    steps = Steps(out, force, res, progress_factory, [p for p in (camera, eyes, markers) if p is not None])
     for p in remove_temporaries(out, [f for fs in OUTPUTS.values() for f in fs] + list(OTHER_FILES)):
         log.warning("removed %s, a temporary file left by an earlier run that was stopped", p)
     if s.manifest.get("complete") is False:
@@ -193,6 +200,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person,
                     None if build_map is None else (float(build_map[0]), str(build_map[1])),
                     None if sfm_map is None else Path(sfm_map), overlay_video)
+    f, cfg, res.summary["notes"] = applicable(f, cfg, markers, eyes is not None, rerun_frames)
     if correction is not None:
         res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
     cam_path = Path(camera) if camera else out / "camera.json"
@@ -231,7 +239,7 @@ def _view_in_rerun(rerun: str, frames_every: int, res: ProcessResult, s, f: _Ses
     try:
         res.summary["rerun"] = view_processed(rerun, out, res.found or None, cam_path, f.markers or out / BUILT_MAP,
                                               s.path("truth_targets"), s.path("truth_head_poses"), f.video, f.stamps,
-                                              frames_every)
+                                              frames_every, TruthFrame.from_record(res.summary.get("truth_frame")))
     except UserError as exc:
         res.problems.append(f"rerun: {exc}")
 
@@ -276,6 +284,10 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
     and targets, 6. plots, overlay, report."""
     poses_path = out / "poses.csv"
     _tracking_step(f, steps, vals, cam_path, poses_path, cfg)
+    frame = truth_frame(f, cfg, out / BUILT_MAP, lambda: vals["marker_map"]) if (
+        steps.status.get("tracking") in GOOD) else None
+    if frame is not None:
+        res.summary["truth_frame"] = frame.record()
     raw_vl, counts_path = out / ".viewlines_unsegmented.csv", out / ".viewlines_counts.json"
 
     def do_viewlines(cb):
@@ -311,7 +323,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
     _export_step(f, out, steps, vals, cam_path, eye_inputs, correction)
     if cfg.report:
-        _report_step(f, out, steps, vals, eyes_path, cfg)
+        _report_step(f, out, steps, vals, eyes_path, cfg, frame)
 
 
 def _export_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, cam_path: Path, eye_inputs: list,
@@ -388,7 +400,8 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
         steps.run("tracking", [f.video, cam_path, f.markers, f.stamps], {"every": cfg.track_every}, do_tracking)
 
 
-def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_path: Path, cfg: _Settings) -> None:
+def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_path: Path, cfg: _Settings,
+                 frame=None) -> None:
     has_map = f.markers is not None or (out / BUILT_MAP).is_file()
 
     def overlay_inputs() -> OverlayInputs:
@@ -401,13 +414,14 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
     extra += [cfg.sfm_map / SFM_FEATURES] if cfg.sfm_map is not None else []
 
     def do_report(cb):
-        notes = _report_notes(f, cfg)
+        truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
         points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else None
-        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes,
-                     load_truth(f.truth_targets, f.truth_head_poses), vals["marker_map"] if has_map else None,
+        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb,
+                     _report_notes(f, cfg) + truth_notes, truth, vals["marker_map"] if has_map else None,
                      cfg.overlay_video, points)
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
-              | ({"overlay_video": True} if cfg.overlay_video else {}), do_report)
+              | ({"overlay_video": True} if cfg.overlay_video else {})
+              | ({"truth_frame": frame.record()} if frame else {}), do_report)
 
 
 def _output_folder(root: Path, out, inputs=()) -> Path:
