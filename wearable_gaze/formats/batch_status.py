@@ -21,7 +21,8 @@ STATUS_FILE = "batch_status.json"
 """Each session's status, in its output folder."""
 INDEX_FILE = "batch.json"
 """The batch's index: every session's status."""
-STATES = ("pending", "running", "done", "failed")
+STATES = ("pending", "running", "done", "partial", "failed")
+"""A session's states: ``partial``: targets estimated but a step failed (``process`` exits 3)."""
 
 
 def read_status(folder: Path) -> dict | None:

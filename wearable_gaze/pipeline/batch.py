@@ -31,6 +31,7 @@ from ..formats.batch_status import STATUS_FILE, earlier_statuses, read_status, w
 from ..formats.session import MANIFEST
 from .batch_report import write_batch_report
 from .batch_workers import DaskRunner, LocalRunner, SessionTask, WorkerLost, one_line
+from .steps import EXIT_PARTIAL
 
 log = logging.getLogger(__name__)
 
@@ -93,10 +94,15 @@ class BatchResult:
         return [n for n, s in self.statuses.items() if s["state"] == "done"]
 
     @property
+    def partial(self) -> list:
+        return [n for n, s in self.statuses.items() if s["state"] == "partial"]
+
+    @property
     def exit_status(self) -> int:
-        """0 when every session is done, 2 when any failed (as ``process`` on that session), 130
-        when interrupted."""
-        return 130 if self.interrupted else 2 if self.failed else 0
+        """0 when every session is done, 2 when any failed (as ``process`` on that session), else
+        3 when any is partial (targets, but a step failed: ``process`` exits 3), 130 when
+        interrupted."""
+        return 130 if self.interrupted else 2 if self.failed else EXIT_PARTIAL if self.partial else 0
 
 
 # --- the sessions and their output folders ------------------------------------------------------
@@ -292,9 +298,11 @@ def format_summary(res: BatchResult) -> str:
     counts = Counter(s["state"] for s in res.statuses.values())
     parts = [f"{counts.get('done', 0)} done" + (f" ({len(res.skipped)} unchanged, skipped)" if res.skipped else ""),
              f"{counts.get('failed', 0)} failed"]
+    if counts.get("partial"):
+        parts.insert(1, f"{counts['partial']} partial (a step failed)")
     left = counts.get("pending", 0) + counts.get("running", 0)
     if left:
         parts.append(f"{left} not finished (interrupted: run the same command again to resume)")
-    n_targets = sum(s.get("n_targets", 0) for s in res.statuses.values() if s["state"] == "done")
+    n_targets = sum(s.get("n_targets", 0) for s in res.statuses.values() if s["state"] in ("done", "partial"))
     return (f"batch: {len(res.statuses)} session(s): {', '.join(parts)}; {n_targets} target(s); "
             f"{res.seconds:.0f} s; report {res.out / 'batch_report.html'}")

@@ -12,12 +12,13 @@ import logging
 import os
 import socket
 import time
+import traceback
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import UserError
-from ..formats.batch_status import read_status, write_status
+from ..formats.batch_status import STATUS_FILE, read_status, write_status
 
 log = logging.getLogger(__name__)
 
@@ -62,10 +63,11 @@ def one_line(text: str, limit: int = 500) -> str:
 
 def run_session(task: SessionTask) -> dict:
     """Process one session into ``task.out`` as ``process`` would (in a worker process, local or
-    Dask); write its status there before (``running``) and after (``done``, or ``failed`` with
-    the reason: the session unreadable, or no target estimated, as ``process`` exits 2); return
-    the final status. Never raises for a bad session; Ctrl-C and a killed worker leave the
-    status ``running``."""
+    Dask); write its status there before (``running``) and after (``done``; ``partial`` with the
+    reason: targets, but a step failed, as ``process`` exits 3; or ``failed`` with the reason:
+    the session unreadable, or no target estimated, as ``process`` exits 2, or an internal error,
+    its traceback kept in the status as ``traceback``); return the final status. Never raises for
+    a bad session; Ctrl-C and a killed worker leave the status ``running``."""
     from .process import process_session  # noqa: PLC0415  (the worker's heavy import, once)
 
     out = Path(task.out)
@@ -82,10 +84,11 @@ def run_session(task: SessionTask) -> dict:
     except Exception as exc:  # noqa: BLE001  (a bug on one session must not stop the others)
         log.exception("session %s: internal error", task.session)
         status.update(state="failed", reason=one_line(f"internal error ({type(exc).__name__}: {exc}); this is a "
-                                                      "bug: run 'wearable-gaze -v process' on it for the traceback"))
+                                                      f"bug: its traceback is in {STATUS_FILE}"),
+                      traceback=traceback.format_exc())
     else:
-        ok = res.exit_status == 0
-        status.update(state="done" if ok else "failed", reason=None if ok else one_line("; ".join(res.problems)),
+        state = {"ok": "done", "partial": "partial"}.get(res.outcome, "failed")
+        status.update(state=state, reason=None if state == "done" else one_line("; ".join(res.problems)),
                       n_targets=len(res.found), problems=res.problems, failed_steps=res.failed,
                       steps_skipped=res.skipped)
     status["duration_s"] = round(time.perf_counter() - t0, 3)

@@ -164,7 +164,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
-        failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated.
+        failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated, 3
+        when targets were but a step failed (``outcome`` 'partial').
 
     Raises:
         UserError: the session itself cannot be read.
@@ -441,7 +442,8 @@ def _report_notes(f: _SessionFiles, cfg: _Settings) -> list[str]:
 
 
 def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
-    summary = {"version": 1, "session": str(s.root), "method": method, "targets": res.targets,
+    summary = {"version": 1, "session": str(s.root), "method": method, "outcome": res.outcome,
+               "targets": res.targets,
                "problems": res.problems, "failed_steps": res.failed, "steps_not_done": res.not_done,
                "removed_outputs": res.removed, "steps_skipped": res.skipped,
                "timings_s": {k: round(v, 3) for k, v in res.timings.items()}}
@@ -465,6 +467,8 @@ def format_result(res: ProcessResult) -> str:
                      f"{t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}")
     if res.failed:
         lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")
+    if res.outcome == "partial":
+        lines.append(f"PARTIAL: targets estimated, but not every step succeeded (exit status {res.exit_status})")
     if res.not_done:
         lines.append("not done, as they need a failed step: " + ", ".join(res.not_done))
     if res.removed:

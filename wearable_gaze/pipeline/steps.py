@@ -38,6 +38,11 @@ NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines"
 OPTIONAL = (*REPORT_OPTIONAL, "device_comparison.csv", "target_paths.csv", "built_map.json")
 OTHER_FILES = ("summary.json", ".steps.json")
 GOOD = ("done", "cached", "external", "device")   # usable: outputs, a file given instead, or the device's own
+EXIT_NO_TARGET = 2
+"""``process``'s exit status when no target could be estimated (as for a bad input)."""
+EXIT_PARTIAL = 3
+"""... when targets were estimated but a step failed (or was not done as it needs a failed one):
+the output folder lacks that step's files, e.g. no gaze.csv or report.html (docs/processing.md)."""
 
 
 
@@ -81,9 +86,17 @@ class ProcessResult:
         return [s for s in STEPS if self.status.get(s) == "not_done"]
 
     @property
+    def outcome(self) -> str:
+        """'ok': targets, and every step that ran succeeded; 'partial': targets, but a step
+        failed or was not done (its outputs are missing); 'no_targets': none estimated."""
+        if not self.found:
+            return "no_targets"
+        return "partial" if self.failed or self.not_done else "ok"
+
+    @property
     def exit_status(self) -> int:
-        """2 when no target could be estimated (docs/processing.md), else 0."""
-        return 0 if self.found else 2
+        """0 ok, ``EXIT_NO_TARGET`` (2) no target, ``EXIT_PARTIAL`` (3) partial (docs/processing.md)."""
+        return {"ok": 0, "no_targets": EXIT_NO_TARGET, "partial": EXIT_PARTIAL}[self.outcome]
 
 
 def fingerprint(paths, params) -> str:

@@ -1,0 +1,92 @@
+"""What ``process`` and ``batch`` say a run came to (issue 25): a run with targets but a failed
+step exits 3 (``partial``), not 0; a batch marks such a session ``partial`` and a session whose
+worker met an internal error ``failed`` with its traceback."""
+
+import json
+import shutil
+
+import pytest
+
+import wearable_gaze.pipeline.process as process_mod
+from wearable_gaze.cli import main
+from wearable_gaze.errors import UserError
+from wearable_gaze.formats.batch_status import read_status
+from wearable_gaze.pipeline import batch_workers
+from wearable_gaze.pipeline.batch import BatchSettings, run_batch
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.sim.simulate import simulate_scenario
+
+SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}
+SETTINGS = BatchSettings(overlay=False)
+
+
+@pytest.fixture(scope="module")
+def small_session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("status") / "session"
+    simulate_scenario(SMALL, root, seed=0)
+    return root
+
+
+@pytest.fixture
+def session(small_session, tmp_path):
+    s = tmp_path / "study" / "s1"
+    shutil.copytree(small_session, s)
+    return s
+
+
+def _plant_report_failure(monkeypatch):
+    def fail(*args, **kwargs):
+        raise UserError("planted: the report could not be written")
+    monkeypatch.setattr(process_mod, "write_report", fail)
+
+
+def _in_process(monkeypatch):
+    """Local batch sessions run in this process (so that a monkeypatch reaches them)."""
+    def run(self, tasks):
+        for t in tasks:
+            yield t, batch_workers.run_session(t)
+    monkeypatch.setattr(batch_workers.LocalRunner, "run", run)
+
+
+def test_a_run_with_targets_and_a_failed_step_exits_partial(session, monkeypatch, capsys):
+    _plant_report_failure(monkeypatch)
+    rc = main(["process", str(session), "--no-overlay"])
+    out, err = capsys.readouterr()
+    assert rc == 3, (out, err)
+    assert "FAILED: report" in out and "PARTIAL" in out and "planted" in err
+    summary = json.loads((session / "processed" / "summary.json").read_text())
+    assert summary["outcome"] == "partial" and summary["failed_steps"] == ["report"] and summary["targets"]
+    assert not (session / "processed" / "report.html").exists()
+    # the same session with nothing planted: 0, outcome ok
+    monkeypatch.undo()
+    res = process_session(session, overlay=False)
+    assert res.exit_status == 0 and res.outcome == "ok" and res.skipped == ["camera", "eyes", "tracking", "viewlines",
+                                                                           "targets", "export"]
+
+
+def test_batch_marks_a_session_with_a_failed_step_partial(session, tmp_path, monkeypatch, capsys):
+    _plant_report_failure(monkeypatch)
+    _in_process(monkeypatch)
+    res = run_batch([session.parent], tmp_path / "out", SETTINGS)
+    st = res.statuses["s1"]
+    assert st["state"] == "partial" and "planted" in st["reason"] and st["n_targets"] > 0, st
+    assert st == read_status(tmp_path / "out" / "s1") and res.partial == ["s1"] and res.exit_status == 3
+    index = json.loads((tmp_path / "out" / "batch.json").read_text())
+    assert index["counts"]["partial"] == 1
+    assert 'class="partial"' in (tmp_path / "out" / "batch_report.html").read_text()
+    # the CLI: exit 3, the reason on stderr
+    rc = main(["batch", str(session.parent), "-o", str(tmp_path / "out2"), "--no-overlay"])
+    out, err = capsys.readouterr()
+    assert rc == 3 and "s1 partial: report: planted" in err and "1 partial" in out, (out, err)
+
+
+def test_an_internal_error_in_a_batch_session_fails_it_with_its_traceback(session, tmp_path, monkeypatch):
+    def bug(*args, **kwargs):
+        raise ZeroDivisionError("planted fault")
+    monkeypatch.setattr(process_mod, "find_targets", bug)
+    _in_process(monkeypatch)
+    res = run_batch([session.parent], tmp_path / "out", SETTINGS)
+    st = read_status(tmp_path / "out" / "s1")
+    assert res.statuses["s1"] == st and st["state"] == "failed" and res.exit_status == 2
+    assert "internal error (ZeroDivisionError: planted fault)" in st["reason"] and "\n" not in st["reason"]
+    assert "Traceback" in st["traceback"] and "in bug" in st["traceback"], st
