@@ -3,6 +3,7 @@ step exits 3 (``partial``), not 0; a batch marks such a session ``partial`` and 
 worker met an internal error ``failed`` with its traceback."""
 
 import json
+import logging
 import shutil
 
 import pytest
@@ -90,3 +91,40 @@ def test_an_internal_error_in_a_batch_session_fails_it_with_its_traceback(sessio
     assert res.statuses["s1"] == st and st["state"] == "failed" and res.exit_status == 2
     assert "internal error (ZeroDivisionError: planted fault)" in st["reason"] and "\n" not in st["reason"]
     assert "Traceback" in st["traceback"] and "in bug" in st["traceback"], st
+
+
+# --- cached outputs are trusted by content ---------------------------------------------------------
+
+def test_a_cached_output_cut_short_is_redone_with_a_line_saying_why(session, caplog):
+    first = process_session(session, overlay=False)
+    poses = session / "processed" / "poses.csv"
+    whole = poses.read_bytes()
+    lines = whole.splitlines(keepends=True)
+    poses.write_bytes(b"".join(lines[:len(lines) // 2]))
+    with caplog.at_level(logging.WARNING):
+        again = process_session(session, overlay=False)
+    why = [r.getMessage() for r in caplog.records if "redoing the step" in r.getMessage()]
+    assert len(why) == 1 and "poses.csv changed since step 'tracking' wrote it" in why[0], why
+    assert "tracking" not in again.skipped and again.exit_status == 0
+    assert again.targets == first.targets and poses.read_bytes() == whole
+
+
+@pytest.mark.parametrize("garbage", [b'{"samples": "\xe9"}', b"[" * 100000])
+def test_a_viewlines_counts_file_not_utf8_or_nested_is_redone(session, caplog, garbage):
+    first = process_session(session, overlay=False)
+    (session / "processed" / ".viewlines_counts.json").write_bytes(garbage)
+    with caplog.at_level(logging.WARNING):
+        again = process_session(session, overlay=False)
+    assert any(".viewlines_counts.json changed" in r.getMessage() for r in caplog.records)
+    assert "viewlines" not in again.skipped and again.targets == first.targets and again.exit_status == 0
+    assert again.summary["viewlines"] == first.summary["viewlines"]
+
+
+def test_a_batch_session_that_lost_targets_json_is_not_done(session, tmp_path, monkeypatch):
+    _in_process(monkeypatch)
+    out = tmp_path / "out"
+    assert run_batch([session.parent], out, SETTINGS).done == ["s1"]
+    assert run_batch([session.parent], out, SETTINGS).skipped == ["s1"]
+    (out / "s1" / "targets.json").unlink()
+    res = run_batch([session.parent], out, SETTINGS)
+    assert res.skipped == [] and res.done == ["s1"] and (out / "s1" / "targets.json").is_file()

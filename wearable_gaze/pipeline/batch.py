@@ -31,7 +31,7 @@ from ..formats.batch_status import STATUS_FILE, earlier_statuses, read_status, w
 from ..formats.session import MANIFEST
 from .batch_report import write_batch_report
 from .batch_workers import DaskRunner, LocalRunner, SessionTask, WorkerLost, one_line
-from .steps import EXIT_PARTIAL
+from .steps import EXIT_PARTIAL, missing_output
 
 log = logging.getLogger(__name__)
 
@@ -199,13 +199,15 @@ def _plan(paths, out: Path, settings: BatchSettings) -> tuple[dict, list, list]:
         name, st = names[s], earlier.get(s)
         remove_temporaries(out / name, [STATUS_FILE])          # left by a worker killed while writing it
         fp = session_fingerprint(s, settings, out)
-        if (not settings.force and st is not None and st["state"] == "done" and st.get("fingerprint") == fp
-                and (out / name / "summary.json").is_file()):
+        same = st is not None and st["state"] == "done" and st.get("fingerprint") == fp
+        lost = missing_output(out / name) if same else None
+        if not settings.force and same and lost is None:
             log.info("%s: done earlier and unchanged: skipped", name)
             statuses[name] = st
             skipped.append(name)
             continue
-        why = ("new" if st is None else "forced" if settings.force else "changed" if st["state"] == "done" else
+        why = ("new" if st is None else "forced" if settings.force else f"done earlier, but {lost}" if same else
+               "changed" if st["state"] == "done" else
                f"{st['state']} in the earlier run" + (f" ({st['reason']})" if st.get("reason") else ""))
         log.info("%s: %s: to do", name, why)
         statuses[name] = {"version": 1, "name": name, "session": str(s), "fingerprint": fp, "state": "pending",

@@ -28,7 +28,7 @@ from ..formats.devices.common import read_import_report
 from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
-from ..formats.jsonio import write_json
+from ..formats.jsonio import load_json, write_json
 from ..formats.markermap import load_marker_map
 from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv, write_poses_csv
@@ -289,7 +289,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
     eye_inputs = [f.eye_rays] if f.eye_rays is not None else [f.eye_samples, eyes_path]
     person = {} if correction is None else {"person": correction.tolist()}
     if steps.run("viewlines", eye_inputs + [poses_path], person, do_viewlines):
-        res.summary["viewlines"] = json.loads(counts_path.read_text(encoding="utf-8"))
+        res.summary["viewlines"] = load_json(counts_path, "viewlines-counts")     # as written: steps.changed_output
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples

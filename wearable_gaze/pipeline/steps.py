@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..formats.atomic import write_text
+from ..formats.jsonio import load_json
 from .report import OPTIONAL_FILES as REPORT_OPTIONAL
 from .report import REPORT_FILES
 
@@ -117,6 +118,45 @@ def fingerprint(paths, params) -> str:
     return h.hexdigest()
 
 
+def content_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def changed_output(out: Path, recorded: dict) -> str | None:
+    """The first output of a step whose content is no longer what the step wrote (``recorded``:
+    {file name: SHA-256}), with what happened to it, or None: all as written."""
+    for name, digest in recorded.items():
+        p = out / name
+        if not p.is_file():
+            return f"{name} is gone"
+        if content_digest(p) != digest:
+            return f"{name} changed"
+    return None
+
+
+def missing_output(out: Path) -> str | None:
+    """What an output folder lacks of a finished run, by name, or None: ``summary.json``, a
+    readable ``.steps.json``, ``targets.json``, or a file a step recorded there as written (its
+    presence only: a batch skips a finished session without reading its files)."""
+    for name in ("summary.json", ".steps.json", "targets.json"):
+        if not (out / name).is_file():
+            return f"{name} is gone"
+    try:
+        state = load_json(out / ".steps.json", "steps-state")
+    except UserError:
+        return ".steps.json is unreadable"
+    for entry in state.values():
+        for name in entry["outputs"]:
+            if not (out / name).is_file():
+                return f"{name} is gone"
+    return None
+
+
 class Steps:
     """Runs steps with caching and problem recording, and keeps the output folder consistent:
     a step being redone has no outputs until it succeeds, and the outputs of a step that failed
@@ -135,16 +175,16 @@ class Steps:
         self.state = {} if force else self._load_state()
 
     def _load_state(self) -> dict:
+        """{step: {"inputs": fingerprint, "outputs": {file: SHA-256}}} of ``.steps.json``; any
+        file that is not one (an older format, a crash, an edit, bytes that are not UTF-8, a
+        nesting too deep) is a warning and every step is redone."""
         if not self.state_path.is_file():
             return {}
         try:
-            state = json.loads(self.state_path.read_text(encoding="utf-8"))
-            if not isinstance(state, dict) or not all(isinstance(v, str) for v in state.values()):
-                raise ValueError("not a {step: fingerprint} object")
-        except (ValueError, UnicodeDecodeError) as exc:            # JSONDecodeError is a ValueError
+            return load_json(self.state_path, "steps-state")
+        except UserError as exc:
             log.warning("%s is unreadable (%s); redoing every step", self.state_path, exc)
             return {}
-        return state
 
     def run(self, name, inputs, params, fn) -> bool:
         """Run ``fn(progress)`` unless its fingerprint matches and its outputs exist. Returns
@@ -154,8 +194,7 @@ class Steps:
             self.status[name] = "not_done"
             return False
         fp = fingerprint(inputs, params)
-        needed = [self.out / o for o in OUTPUTS[name] if o not in OPTIONAL]
-        if not self.force and self.state.get(name) == fp and all(o.is_file() for o in needed):
+        if self._cached(name, fp):
             self.result.skipped.append(name)
             self.status[name] = "cached"
             return True
@@ -175,8 +214,23 @@ class Steps:
             self.current = None
         self.result.timings[name] = time.perf_counter() - t0
         self.status[name] = "done"
-        self.state[name] = fp
+        self.state[name] = {"inputs": fp, "outputs": {o: content_digest(self.out / o) for o in OUTPUTS[name]
+                                                      if (self.out / o).is_file()}}
         self._save()
+        return True
+
+    def _cached(self, name: str, fp: str) -> bool:
+        """The step's inputs and settings are unchanged (``fp``), and so is every output it
+        wrote, by content (a file cut short or edited since is not this step's result: the step
+        is redone, with a line saying why)."""
+        entry = self.state.get(name)
+        needed = [self.out / o for o in OUTPUTS[name] if o not in OPTIONAL]
+        if self.force or entry is None or entry["inputs"] != fp or not all(o.is_file() for o in needed):
+            return False
+        why = changed_output(self.out, entry["outputs"])
+        if why is not None:
+            log.warning("%s: %s since step '%s' wrote it; redoing the step", self.out, why, name)
+            return False
         return True
 
     def external(self, name, path: Path, load) -> bool:
