@@ -128,3 +128,12 @@ def test_a_batch_session_that_lost_targets_json_is_not_done(session, tmp_path, m
     (out / "s1" / "targets.json").unlink()
     res = run_batch([session.parent], out, SETTINGS)
     assert res.skipped == [] and res.done == ["s1"] and (out / "s1" / "targets.json").is_file()
+
+
+def test_a_batch_output_folder_inside_one_of_its_sessions_is_refused(session, capsys):
+    before = sorted(p.relative_to(session.parent) for p in session.parent.rglob("*"))
+    for out in (session / "batch-out", session):
+        rc = main(["batch", str(session.parent), "-o", str(out)])
+        err = capsys.readouterr().err
+        assert rc == 2 and len(err.strip().splitlines()) == 1 and "session.json" in err and "Traceback" not in err, err
+        assert sorted(p.relative_to(session.parent) for p in session.parent.rglob("*")) == before

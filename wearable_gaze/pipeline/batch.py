@@ -186,6 +186,20 @@ def session_fingerprint(root: Path, settings: BatchSettings, exclude=None) -> st
     return h.hexdigest()
 
 
+def check_out_folder(out: Path) -> None:
+    """Refuse an output folder that is a session folder or inside one: the batch would write its
+    outputs into that session (and skip it, as a session is not searched inside).
+
+    Raises:
+        UserError: ``out`` or a folder above it holds a session manifest.
+    """
+    for d in (out, *out.parents):
+        if (d / MANIFEST).is_file():
+            raise UserError(f"-o {out}: is {'a session folder' if d == out else f'inside the session folder {d}'} "
+                            f"(it has {MANIFEST}); batch would write into that session: choose a folder outside "
+                            "every session")
+
+
 # --- the batch -------------------------------------------------------------------------------------
 
 def _plan(paths, out: Path, settings: BatchSettings) -> tuple[dict, list, list]:
@@ -258,10 +272,12 @@ def run_batch(paths, out, settings: BatchSettings = BatchSettings(), workers: in
         BatchResult; ``interrupted`` when Ctrl-C stopped it (the statuses on disk say where).
 
     Raises:
-        UserError: no session found, a Dask scheduler unreachable or Dask not installed.
+        UserError: no session found, ``out`` inside a session, a Dask scheduler unreachable or
+            Dask not installed.
     """
     t0 = time.perf_counter()
     out = Path(out).resolve()                   # workers may run elsewhere: absolute paths
+    check_out_folder(out)
     runner = DaskRunner(scheduler) if scheduler else LocalRunner(workers or os.cpu_count() or 1)
     try:
         out.mkdir(parents=True, exist_ok=True)
