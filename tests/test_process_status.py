@@ -5,13 +5,25 @@ worker met an internal error ``failed`` with its traceback."""
 import json
 import logging
 import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
 import wearable_gaze.pipeline.process as process_mod
 from wearable_gaze.cli import main
 from wearable_gaze.errors import UserError
-from wearable_gaze.formats.batch_status import read_status
+from wearable_gaze.formats.batch_status import (
+    LOCK_FILE,
+    process_start,
+    read_status,
+    release_lock,
+    take_lock,
+    this_process,
+)
 from wearable_gaze.pipeline import batch_workers
 from wearable_gaze.pipeline.batch import BatchSettings, run_batch
 from wearable_gaze.pipeline.process import process_session
@@ -137,3 +149,110 @@ def test_a_batch_output_folder_inside_one_of_its_sessions_is_refused(session, ca
         err = capsys.readouterr().err
         assert rc == 2 and len(err.strip().splitlines()) == 1 and "session.json" in err and "Traceback" not in err, err
         assert sorted(p.relative_to(session.parent) for p in session.parent.rglob("*")) == before
+
+
+# --- a batch's workers and locks ---------------------------------------------------------------------
+
+def _children(pid: int) -> list[int]:
+    """The pids of ``pid``'s child processes (Linux /proc)."""
+    out = []
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                if int((p / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    out.append(int(p.name))
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
+def _snapshot(out: Path) -> dict:
+    return {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs Linux /proc to find the worker processes")
+def test_workers_end_with_a_killed_coordinator(session, tmp_path):
+    """SIGKILL the coordinator while a worker processes a session: the worker (and the rest of
+    the coordinator's children) end within seconds, and nothing more is written into OUT."""
+    shutil.copytree(session, session.parent / "s2")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "wearable_gaze", "batch", str(session.parent), "-o", str(out),
+                             "--workers", "1", "--no-overlay"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        t0, worker = time.monotonic(), None
+        while worker is None and time.monotonic() - t0 < 120 and proc.poll() is None:
+            for d in out.glob("s*"):
+                st = read_status(d)
+                if st and st["state"] == "running":
+                    worker = int(st["worker"].rsplit(":", 1)[1])
+            time.sleep(0.05)
+        assert worker is not None, "no session was seen running"
+        children = _children(proc.pid)
+        proc.kill()
+        proc.wait()
+        t0 = time.monotonic()
+        while any(process_start(p) for p in [worker, *children]) and time.monotonic() - t0 < 10:
+            time.sleep(0.1)
+        left = [p for p in [worker, *children] if process_start(p)]
+        assert not left, f"processes left running after their coordinator was killed: {left}"
+        before = _snapshot(out)
+        time.sleep(2.0)
+        assert _snapshot(out) == before
+    finally:
+        proc.kill()
+
+
+def test_a_session_locked_by_a_live_worker_is_not_processed_twice(session, tmp_path, monkeypatch):
+    _in_process(monkeypatch)
+    out = tmp_path / "out"
+    (out / "s1").mkdir(parents=True)
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        lock = out / "s1" / LOCK_FILE
+        lock.write_text(f"{socket.gethostname()}:{other.pid}:{process_start(other.pid)}")
+        res = run_batch([session.parent], out, SETTINGS)
+        st = res.statuses["s1"]
+        assert st["state"] == "running" and str(other.pid) in st["reason"], st
+        assert not (out / "s1" / "targets.json").exists() and lock.is_file()
+        # the owner is gone: its lock is stale, and the next batch does the session
+        other.kill()
+        other.wait()
+        res = run_batch([session.parent], out, SETTINGS)
+        assert res.done == ["s1"] and not lock.exists()
+    finally:
+        other.kill()
+    assert take_lock(out / "s1") is None and take_lock(out / "s1") == this_process()    # held: by this process
+    release_lock(out / "s1")
+    assert not (out / "s1" / LOCK_FILE).exists()
+
+
+# --- whatever a writer writes, its reader accepts ---------------------------------------------------
+
+def test_a_writer_refuses_what_its_reader_would_and_a_path_covariance_in_mm2_is_read_back(tmp_path):
+    """A still head's moving path has knots whose depth variance is 1e12 mm^2 (the second real G2
+    recording): written and read back. A value its reader would refuse (not finite, or beyond
+    the bound) is refused by the writer, with the file, column and row, and nothing written."""
+    import numpy as np
+
+    from wearable_gaze.formats.poses import read_poses_csv, write_poses_csv
+    from wearable_gaze.formats.targets import read_target_paths, write_target_paths
+
+    t = np.array([0.0, 0.1])
+    pos = np.array([[10.0, 20.0, 860.0], [11.0, 21.0, 866.0]])
+    cov = np.tile(np.diag([4.9e10, 1.6e11, 1.0e12]), (2, 1, 1))
+    write_target_paths(tmp_path / "target_paths.csv", {0: (t, pos, cov)})
+    back = read_target_paths(tmp_path / "target_paths.csv")[0]
+    assert np.allclose(back[2], cov, rtol=1e-5) and np.allclose(back[1], pos)
+    for bad, what in ((np.nan, "not a finite number"), (2e10, "beyond")):
+        p = pos.copy()
+        p[1, 2] = bad
+        with pytest.raises(UserError, match=rf"bad_paths.csv: the target-path CSV .* column z, row 2, which (is )?{what}"):
+            write_target_paths(tmp_path / "bad_paths.csv", {0: (t, p, cov)})
+        assert not (tmp_path / "bad_paths.csv").exists()
+    T = np.tile(np.eye(4), (2, 1, 1))
+    T[1, 0, 3] = 3e10
+    with pytest.raises(UserError, match="column tx, row 2"):
+        write_poses_csv(tmp_path / "poses.csv", t, [0, 1], T)
+    T[1, 0, 3] = np.nan                                   # no pose: an empty cell, as the reader allows
+    write_poses_csv(tmp_path / "poses.csv", t, [0, 1], T)
+    assert np.isnan(read_poses_csv(tmp_path / "poses.csv")[2][1]).all()

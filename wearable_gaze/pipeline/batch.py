@@ -27,7 +27,7 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..formats.atomic import remove_temporaries
-from ..formats.batch_status import STATUS_FILE, earlier_statuses, read_status, write_index, write_status
+from ..formats.batch_status import STATUS_FILE, earlier_statuses, lock_owner, read_status, write_index, write_status
 from ..formats.session import MANIFEST
 from .batch_report import write_batch_report
 from .batch_workers import DaskRunner, LocalRunner, SessionTask, WorkerLost, one_line
@@ -211,6 +211,12 @@ def _plan(paths, out: Path, settings: BatchSettings) -> tuple[dict, list, list]:
     statuses, tasks, skipped = {}, [], []
     for s in sessions:
         name, st = names[s], earlier.get(s)
+        owner = lock_owner(out / name)
+        if owner is not None:                                   # a worker of another batch holds it: not twice
+            log.warning("%s: being processed by %s (its lock file): left to it", name, owner)
+            statuses[name] = dict(st or {}, name=name, session=str(s), state="running",
+                                  reason=f"being processed by another batch's worker ({owner})")
+            continue
         remove_temporaries(out / name, [STATUS_FILE])          # left by a worker killed while writing it
         fp = session_fingerprint(s, settings, out)
         same = st is not None and st["state"] == "done" and st.get("fingerprint") == fp
@@ -243,10 +249,11 @@ def _lost(task: SessionTask, exc: BaseException) -> dict:
     return st
 
 
-def _interrupted(out: Path, statuses: dict, local: bool) -> None:
-    """After Ctrl-C: each session's status as its file has it; a local session whose worker was
-    stopped goes back to ``pending`` (a Dask worker finishes its session and writes it)."""
-    for name in statuses:
+def _interrupted(out: Path, statuses: dict, local: bool, ours) -> None:
+    """After Ctrl-C: each session of this run (``ours``: names) as its file has it; a local
+    session whose worker was stopped goes back to ``pending`` (a Dask worker finishes its session
+    and writes it)."""
+    for name in ours:
         st = read_status(out / name)
         if st is None:
             continue
@@ -301,7 +308,7 @@ def run_batch(paths, out, settings: BatchSettings = BatchSettings(), workers: in
         except KeyboardInterrupt:
             runner.stop()
             res.interrupted = True
-            _interrupted(out, statuses, isinstance(runner, LocalRunner))
+            _interrupted(out, statuses, isinstance(runner, LocalRunner), [t.name for t in tasks])
             write_index(out, statuses, settings.fingerprint_params())
         write_batch_report(out, statuses)
     finally:
