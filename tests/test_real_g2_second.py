@@ -52,3 +52,13 @@ def test_the_second_g2_targets_during_validation_are_at_the_poster(g2b, real_dat
     ok = [t["depth"]["distance_mm"] for t in read_targets(s / "processed" / "targets.json")
           if start <= t["t_start"] and t["t_end"] <= end and t["status"] == "ok"]
     assert len(ok) >= 5 and 450 < statistics.median(ok) < 750, ok
+
+
+def test_the_recordings_parent_folder_is_answered_with_the_subfolder_to_import(real_data, tmp_path, capsys):
+    lead = real_data / G2B / "data" / "lead"
+    if not lead.is_dir():
+        pytest.skip(f"{lead}: the second G2 recording (gazeMapper example 2) is not there")
+    assert main(["import", str(lead), "-o", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "subfolder ixinraw is a tobii-g2 recording" in err, err
+    assert not (tmp_path / "s").exists()
