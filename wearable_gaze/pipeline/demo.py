@@ -138,7 +138,7 @@ def run_demo(out=None, seed: int = 0, duration_s: float = 20.0, reuse: bool = Fa
         print(f"open the report in a browser: {report.as_uri()}")
     else:
         print(f"no report was written (see the problems above); the results are in {res.out}")
-    return res.exit_status                                    # 2 when no target could be estimated
+    return res.exit_status                                    # 2 no target could be estimated, 3 a step failed
 
 
 def _compare(res, truth: list) -> None:
