@@ -40,18 +40,21 @@ def cmd_batch(args) -> int:
     with progress_bar("sessions", 1) as cb:
         res = run_batch(args.sessions, args.out, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=cb)
-    for name in res.failed:
-        print(one_line(f"wearable-gaze batch: {name} failed: {res.statuses[name].get('reason')}"), file=sys.stderr)
+    for name in res.failed + res.partial:
+        st = res.statuses[name]
+        print(one_line(f"wearable-gaze batch: {name} {st['state']}: {st.get('reason')}"), file=sys.stderr)
     print(format_summary(res))
     if res.interrupted:
         print("wearable-gaze batch: interrupted", file=sys.stderr)
-    return res.exit_status            # 0 all done, 2 a session failed, 130 interrupted
+    return res.exit_status            # 0 all done, 2 a session failed, 3 one partial, 130 interrupted
 
 
 def add_batch(sub) -> None:
     """Declare the command and its arguments."""
     b = sub.add_parser("batch", help="many sessions processed as 'process' would, in parallel, here or on a Dask "
-                                     "cluster; resumable, with one report")
+                                     "cluster; resumable, with one report",
+                       epilog="exit status: 0 every session done; 2 a session failed (or a bad input); 3 a session "
+                              "partial (targets, but a step failed), none failed; 130 interrupted")
     b.add_argument("sessions", nargs="+", metavar="SESSIONS",
                    help="session folders, or folders containing them (at any depth); native and imported alike")
     b.add_argument("-o", "--out", required=True, metavar="OUT",

@@ -27,8 +27,14 @@ def check_rerun(args, inputs=()) -> None:
         check_output(where, [p for p in inputs if p is not None], "--rerun")
 
 
+EXIT_STATUS = ("exit status: 0 targets estimated and every step that ran succeeded; 2 no target could be estimated, "
+               "or a bad input; 3 targets estimated but a step failed (e.g. export or report: its files are "
+               "missing; the problems are on stderr and in summary.json)")
+
+
 def cmd_process(args) -> int:
-    from ..pipeline.process import format_result, process_session  # noqa: PLC0415
+    from ..pipeline.process import process_session  # noqa: PLC0415
+    from ..pipeline.steps import format_result  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
@@ -43,7 +49,7 @@ def cmd_process(args) -> int:
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
-    return res.exit_status                  # 2 when no target could be estimated
+    return res.exit_status                  # 0 ok, 2 no target, 3 targets but a step failed (EXIT_STATUS)
 
 
 def build_map_option(args) -> tuple | None:
@@ -67,7 +73,8 @@ def cmd_demo(args) -> int:
 
 def add_process(sub) -> None:
     """Declare the command and its arguments."""
-    pr = sub.add_parser("process", help="a recorded session -> fixated 3D targets, plots and a report")
+    pr = sub.add_parser("process", help="a recorded session -> fixated 3D targets, plots and a report",
+                        epilog=EXIT_STATUS)
     pr.add_argument("session", metavar="SESSION", help="session folder (docs/session.md)")
     pr.add_argument("-o", "--out", default=None, metavar="OUT", help="output folder (default SESSION/processed)")
     pr.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")

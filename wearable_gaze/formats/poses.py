@@ -15,11 +15,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import UserError
-from .tables import read_table, write_table
+from .tables import Checks, read_table, write_table
 
 POSE_COLUMNS = ["t", "frame", "qw", "qx", "qy", "qz", "tx", "ty", "tz"]
 POSE_FORMATS = {"t": ".6f", "qw": ".12f", "qx": ".12f", "qy": ".12f", "qz": ".12f",
                 "tx": ".6f", "ty": ".6f", "tz": ".6f"}
+POSE_CHECKS = Checks(tuple(POSE_COLUMNS), ("qw", "qx", "qy", "qz", "tx", "ty", "tz"), (), "pose CSV")
+"""What a pose CSV may hold, checked by its writer and its reader."""
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +45,7 @@ def write_poses_csv(path, t, frames, T_world_from_cam, extra: dict | None = None
     and ``frames`` (N,), then the ``extra`` columns, as a pose CSV, atomically."""
     cols = pose_columns(t, frames, T_world_from_cam)
     cols.update(extra or {})
-    write_table(path, cols, POSE_FORMATS)
+    write_table(path, cols, POSE_FORMATS, POSE_CHECKS)
 
 
 def read_poses_csv(path, text_columns=("status",)) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
@@ -53,8 +55,7 @@ def read_poses_csv(path, text_columns=("status",)) -> tuple[np.ndarray, np.ndarr
     Raises:
         UserError: a time that does not increase (rows swapped or repeated), naming its line.
     """
-    tab = read_table(path, POSE_COLUMNS, text_columns, "pose CSV",
-                     empty_ok=("qw", "qx", "qy", "qz", "tx", "ty", "tz"))
+    tab = read_table(path, POSE_COLUMNS, text_columns, checks=POSE_CHECKS)
     bad = np.flatnonzero(np.diff(tab["t"]) <= 0)
     if len(bad):
         i = bad[0]

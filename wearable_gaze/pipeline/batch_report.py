@@ -80,7 +80,7 @@ def _session_row(out: Path, st: dict) -> tuple[dict, list[dict]]:
     """A session's row of the report and its targets (rows of targets.json; none unless done)."""
     session = Path(st["session"])
     rows = []
-    if st["state"] == "done" and (out / st["name"] / "targets.json").is_file():
+    if st["state"] in ("done", "partial") and (out / st["name"] / "targets.json").is_file():
         try:
             rows = read_targets(out / st["name"] / "targets.json")
         except UserError as exc:
@@ -141,12 +141,13 @@ def _html(out: Path, table: list[dict]) -> str:
         truth = (f"<p>Against the simulator's truth ({len(found)} session(s)): {sum(r['truth_found'] for r in found)} "
                  f"of {sum(r['truth_targets'] for r in found)} true targets found; RMS error over sessions "
                  f"{np.sqrt(np.nanmean(err ** 2)):.1f} mm.</p>" if np.isfinite(err).any() else "")
-    summary = ", ".join(f"{counts.get(k, 0)} {k}" for k in ("done", "failed", "pending", "running") if counts.get(k))
+    summary = ", ".join(f"{counts.get(k, 0)} {k}" for k in ("done", "partial", "failed", "pending", "running")
+                        if counts.get(k))
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>wearable-gaze batch report</title>
 <style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px}}
-tr.failed{{background:#fdd}}tr.pending,tr.running{{background:#ffd}}</style>
+tr.failed{{background:#fdd}}tr.partial,tr.pending,tr.running{{background:#ffd}}</style>
 </head><body><h1>Batch: {len(table)} session(s)</h1>
 <p>{html.escape(summary)}. Each session's outputs are in its folder (its name links to its report). Errors are
 the distances from each found target to the true one it matches, world frame; the Cramér-Rao bound is the

@@ -21,7 +21,8 @@ from ..formats.truth import read_truth_targets
 from ..progress import progress_bar
 from ..sim.scenario import resolve
 from ..sim.simulate import simulate
-from .process import format_result, process_session
+from .process import process_session
+from .steps import format_result
 from .truth_match import TruthFrame, match_positions
 
 DEMO_PREFIX = "wearable-gaze-demo-"
@@ -139,7 +140,7 @@ def run_demo(out=None, seed: int = 0, duration_s: float = 20.0, reuse: bool = Fa
         print(f"open the report in a browser: {report.as_uri()}")
     else:
         print(f"no report was written (see the problems above); the results are in {res.out}")
-    return res.exit_status                                    # 2 when no target could be estimated
+    return res.exit_status                                    # 2 no target could be estimated, 3 a step failed
 
 
 def _compare(res, truth: list, frame: TruthFrame | None = None) -> None:

@@ -28,7 +28,7 @@ from ..formats.devices.common import read_import_report
 from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
-from ..formats.jsonio import write_json
+from ..formats.jsonio import load_json, write_json
 from ..formats.markermap import load_marker_map
 from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv, write_poses_csv
@@ -172,7 +172,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
-        failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated.
+        failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated, 3
+        when targets were but a step failed (``outcome`` 'partial').
 
     Raises:
         UserError: the session cannot be read; contradicting options, a bad map (``check_map_options``).
@@ -300,7 +301,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
     eye_inputs = [f.eye_rays] if f.eye_rays is not None else [f.eye_samples, eyes_path]
     person = {} if correction is None else {"person": correction.tolist()}
     if steps.run("viewlines", eye_inputs + [poses_path], person, do_viewlines):
-        res.summary["viewlines"] = json.loads(counts_path.read_text(encoding="utf-8"))
+        res.summary["viewlines"] = load_json(counts_path, "viewlines-counts")     # as written: steps.changed_output
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
@@ -461,7 +462,8 @@ def _report_notes(f: _SessionFiles, cfg: _Settings) -> list[str]:
 
 
 def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
-    summary = {"version": 1, "session": str(s.root), "method": method, "targets": res.targets,
+    summary = {"version": 1, "session": str(s.root), "method": method, "outcome": res.outcome,
+               "targets": res.targets,
                "problems": res.problems, "failed_steps": res.failed, "steps_not_done": res.not_done,
                "removed_outputs": res.removed, "steps_skipped": res.skipped,
                "timings_s": {k: round(v, 3) for k, v in res.timings.items()}}
@@ -471,29 +473,3 @@ def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
     res.summary = summary
     write_json(out / "summary.json", summary)
     return res
-
-
-def format_result(res: ProcessResult) -> str:
-    """The text ``process`` prints: this run's targets, and what failed or was not done."""
-    lines = [f"{len(res.found)} fixated target(s) in {res.out}:"]
-    lines.append(f"{'target':>6} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'95% semi-axes mm':>20} {'samples':>8} "
-                 f"{'time s':>12}  status")
-    for t in res.found:
-        x, y, z = t.position_mm
-        a1, a2, a3 = t.axes95_mm
-        lines.append(f"{t.index:>6} {x:>8.0f} {y:>8.0f} {z:>8.0f} {a1:>6.0f} {a2:>6.0f} {a3:>6.0f} {t.n_samples:>8} "
-                     f"{t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}")
-    if res.failed:
-        lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")
-    if res.not_done:
-        lines.append("not done, as they need a failed step: " + ", ".join(res.not_done))
-    if res.removed:
-        lines.append(f"removed {len(res.removed)} output(s) of an earlier run that this run invalidated (listed in "
-                     "summary.json)")
-    if res.skipped:
-        lines.append("unchanged, not redone: " + ", ".join(res.skipped) + " (--force redoes them)")
-    if "report" in res.summary:
-        lines.append(f"report: {res.summary['report']}")
-    if "rerun" in res.summary:
-        lines.append(f"rerun: {res.summary['rerun']}")
-    return "\n".join(lines)
