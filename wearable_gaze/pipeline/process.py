@@ -184,12 +184,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
     out = _output_folder(s.root, out, s.manifest["files"].values())
     res = ProcessResult(out)
-    files = s.manifest["files"]
-    # a live recording carries the calibrations it ran with
-    if camera is None and "camera" in files and "camera_views" not in files:
-        camera = s.root / files["camera"]
-    if eyes is None and "eyes" in files and "eye_calibration" not in files:
-        eyes = s.root / files["eyes"]
+    camera, eyes = _recorded_calibrations(s, camera, eyes)
     steps = Steps(out, force, res, progress_factory, [p for p in (camera, eyes, markers) if p is not None])
     for p in remove_temporaries(out, [f for fs in OUTPUTS.values() for f in fs] + list(OTHER_FILES)):
         log.warning("removed %s, a temporary file left by an earlier run that was stopped", p)
@@ -222,6 +217,17 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     if rerun is not None:
         _view_in_rerun(rerun, rerun_frames, res, s, f, out, cam_path)
     return _finish(res, s, out, method)
+
+
+def _recorded_calibrations(s, camera, eyes) -> tuple:
+    """(camera, eyes): the files given, else those a live recording carries (the calibrations it
+    ran with: a ``camera``/``eyes`` file without the recordings to calibrate from), else None."""
+    files = s.manifest["files"]
+    if camera is None and "camera" in files and "camera_views" not in files:
+        camera = s.root / files["camera"]
+    if eyes is None and "eyes" in files and "eye_calibration" not in files:
+        eyes = s.root / files["eyes"]
+    return camera, eyes
 
 
 def _cut_short(s) -> str:
