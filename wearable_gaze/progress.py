@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 
 log = logging.getLogger(__name__)
 
@@ -40,15 +41,23 @@ def line_interval_s() -> float:
         return LINE_INTERVAL_S
 
 
+@dataclass
+class LineClock:
+    """When the last progress line was printed (``time.monotonic()``, s): shared by the steps of
+    one command (``step_bars``), so that a run of short steps, each quiet, is not a long silence."""
+
+    last: float = field(default_factory=time.monotonic)
+
+
 class StepProgress:
     """The callback of ``progress_bar``: ``progress(done, total)`` like every progress callback,
     and also ``progress(done, total, stage)``, the stage (a short phrase, e.g. "matching") shown
     until the next call; ``total`` 0: a stage of unknown length (one blocking call)."""
 
-    def __init__(self, description: str, total: int, stream, tty: bool):
+    def __init__(self, description: str, total: int, stream, tty: bool, clock: LineClock | None = None):
         self.description, self.total, self.done, self.stage = description, total, 0, None
         self.stream, self.t0, self.lines = stream, time.monotonic(), 0
-        self.last_line = self.t0
+        self.clock = LineClock() if clock is None else clock
         self.lock = threading.Lock()
         self.bar = _bar(description, total, stream) if tty else None
 
@@ -79,9 +88,9 @@ class StepProgress:
         with self.lock:
             if self.bar is not None:
                 self.bar.refresh()
-            elif interval > 0 and time.monotonic() - self.last_line >= interval:
+            elif interval > 0 and time.monotonic() - self.clock.last >= interval:
                 self._write(self.line())
-                self.last_line, self.lines = time.monotonic(), self.lines + 1
+                self.clock.last, self.lines = time.monotonic(), self.lines + 1
 
     def close(self, failed: bool = False) -> None:
         """The step ended (``failed``: by an exception): the bar cleared, or, when the step printed
@@ -105,13 +114,14 @@ def _bar(description: str, total: int, stream):
 
 
 @contextmanager
-def progress_bar(description: str, total: int, stream=None):
+def progress_bar(description: str, total: int, stream=None, clock: LineClock | None = None):
     """Yield a ``StepProgress`` callback for the step ``description``: on a terminal a bar on
     ``stream`` (default stderr) that keeps its clock running; elsewhere a line every
-    ``line_interval_s()`` while the step runs, and one when it ends if it printed any."""
+    ``line_interval_s()`` while the step runs (counted from ``clock``'s last line, default the
+    step's start), and one when it ends if it printed any."""
     stream = sys.stderr if stream is None else stream
     isatty = getattr(stream, "isatty", None)
-    progress = StepProgress(description, total, stream, bool(isatty and isatty()))
+    progress = StepProgress(description, total, stream, bool(isatty and isatty()), clock)
     interval = line_interval_s()
     if progress.bar is None and interval <= 0:       # no bar and no lines: nothing to tick
         yield progress
@@ -132,6 +142,14 @@ def progress_bar(description: str, total: int, stream=None):
         stop.set()
         ticker.join()
         progress.close(failed)
+
+
+def step_bars(stream=None):
+    """A ``progress_factory`` for the steps of one command (``process``): ``name -> progress_bar``,
+    the bars sharing one ``LineClock`` from now on, so that a log has a line at least every
+    interval across steps too."""
+    clock = LineClock()
+    return lambda name: progress_bar(name, 1, stream, clock)
 
 
 @contextmanager

@@ -29,12 +29,12 @@ def check_rerun(args, inputs=()) -> None:
 
 def cmd_process(args) -> int:
     from ..pipeline.process import format_result, process_session  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..progress import step_bars  # noqa: PLC0415
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person])
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
-                          progress_factory=lambda name: progress_bar(name, 1), person=args.person,
+                          progress_factory=step_bars(), person=args.person,
                           build_map=None if args.build_map is None else (args.build_map, args.map_dict),
                           sfm_map=args.map, overlay_video=args.overlay_video, rerun=args.rerun,
                           rerun_frames=args.rerun_frames)
