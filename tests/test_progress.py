@@ -219,3 +219,26 @@ def test_process_build_map_names_the_maps_adjustment_in_its_lines(every, monkeyp
                     progress_factory=lambda name: progress_bar(name, 1, log))
     lines = log.getvalue().splitlines()
     assert sum(ln.startswith("tracking: adjusting the map: ") for ln in lines) >= 4, lines
+
+
+def test_estimate_prints_lines_while_it_estimates(every, monkeypatch, tmp_path):
+    """``estimate`` on a long view-line file printed nothing until its table; made slow here
+    (1 s), its log shows "estimating: still running" every interval, and the table on stdout."""
+    import wearable_gaze.pipeline.estimate as estimate_module  # noqa: PLC0415
+    from wearable_gaze.formats.viewlines import write_viewlines_csv  # noqa: PLC0415
+    from wearable_gaze.sim.protocol import simulate_lines  # noqa: PLC0415
+
+    path = tmp_path / "lines.csv"
+    write_viewlines_csv(path, simulate_lines([0, 0, 1500.0], np.random.default_rng(0)), segment=None)
+    real = estimate_module.estimate_file
+
+    def slow(*args, **kwargs):
+        time.sleep(1.0)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(estimate_module, "estimate_file", slow)
+    log = Log()
+    monkeypatch.setattr(sys, "stderr", log)
+    assert main(["estimate", str(path)]) == 0
+    lines = log.getvalue().splitlines()
+    assert sum(ln.startswith("estimating: still running, ") for ln in lines) >= 4, lines
+    assert lines[-1].startswith("estimating: done, ")
