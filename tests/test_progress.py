@@ -242,3 +242,35 @@ def test_estimate_prints_lines_while_it_estimates(every, monkeypatch, tmp_path):
     lines = log.getvalue().splitlines()
     assert sum(ln.startswith("estimating: still running, ") for ln in lines) >= 4, lines
     assert lines[-1].startswith("estimating: done, ")
+
+
+FIXATIONS = {"fixations": 1, "rows": 10, "unlabelled": 0, "rate_hz": None,
+             "config": {"window": 5, "jump_deg": 2.0, "min_fixation_s": 0.1, "max_gap_s": 0.1}}
+VIEWLINES = {"written": 10, "samples": 10, "no_pose": 0, "both_eyes_invalid": 0}
+
+
+@pytest.mark.parametrize("argv, module, name, result, line", [
+    (["fixations", "lines.csv", "-o", "fix.csv"], "wearable_gaze.pipeline.segmentation", "fixations_file",
+     FIXATIONS, "segmenting"),
+    (["viewlines", "eye.csv", "--eyes", "eyes.json", "--poses", "poses.csv", "-o", "out.csv"],
+     "wearable_gaze.pipeline.calibrate", "viewlines_files", VIEWLINES, "view lines"),
+    (["export-recording", "session", "-o", "rec", "--format", "tobii-g3"], "wearable_gaze.pipeline.importer",
+     "export_recording", "wearable-gaze import rec", "exporting"),
+])
+def test_commands_over_a_whole_recording_print_lines_while_they_run(every, monkeypatch, tmp_path, argv, module,
+                                                                     name, result, line):
+    """``fixations``, ``viewlines`` and ``export-recording`` work through a whole recording in one
+    call and printed nothing until their last line; made slow here (1 s), each prints a line
+    every interval while it runs."""
+    import importlib  # noqa: PLC0415
+
+    def slow(*args, **kwargs):
+        time.sleep(1.0)
+        return result
+    monkeypatch.setattr(importlib.import_module(module), name, slow)
+    monkeypatch.chdir(tmp_path)
+    log = Log()
+    monkeypatch.setattr(sys, "stderr", log)
+    assert main(argv) == 0
+    lines = log.getvalue().splitlines()
+    assert sum(ln.startswith(f"{line}: still running, ") for ln in lines) >= 4, lines
