@@ -266,7 +266,7 @@ def _calibrate_views(views, image_size, model, flags):
         img = [i.reshape(1, -1, 2) for i in img]
         rms, K, D, rv, tv = cv2.fisheye.calibrate(
             obj, img, tuple(image_size), np.zeros((3, 3)), np.zeros((4, 1)),
-            flags=flags | cv2.CALIB_RECOMPUTE_EXTRINSIC,
+            flags=flags | cvcompat.FISHEYE_RECOMPUTE_EXTRINSIC,
             criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10))
         std = None
     else:

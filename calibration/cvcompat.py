@@ -7,7 +7,9 @@ rest of the code calls the function here instead, which gives one behaviour on e
 - ``detect_markers``: ``ArucoDetector.detectMarkers`` returns ``ids`` as ``None`` when it finds
   nothing up to OpenCV 4.x, and as an empty array from 5.x (and may give candidates but no id);
   here it is always an (N,) int array with (N, 4, 2) corners.
-- ``detect_charuco``: the same for ``CharucoDetector.detectBoard``'s corner ids.
+- ``detect_charuco``: the same for ``CharucoDetector.detectBoard``'s corner ids; OpenCV 4's
+  ChArUco corners also sit +0.5 px from OpenCV's own pixel convention, which 5.x fixed.
+- ``FISHEYE_RECOMPUTE_EXTRINSIC`` and ``silence_logging``: names that moved between releases.
 - ``undistort_points`` / ``undistort_points_fisheye``: iterated undistortion to a given accuracy.
   OpenCV 5 takes ``criteria=`` on ``undistortPoints``; OpenCV 4 has ``undistortPointsIter`` for
   that and rejects the keyword.
@@ -60,14 +62,22 @@ def detect_markers(detector, image) -> tuple[np.ndarray, np.ndarray]:
     return c, ids
 
 
+#: What OpenCV 4.x's ChArUco corners carry beyond OpenCV's pixel convention (a pixel's centre at
+#: its integer coordinate), px: measured on the ChArUco tutorial photos, OpenCV 4.10's corners lie
+#: +0.50 px (median, both axes) from 5.1's, whose markers' corners agree to 0.0 px
+#: (tests/test_no_markers.py checks the correction at each end).
+CHARUCO_OFFSET_PX = 0.5 if opencv_version() < (5, 0) else 0.0
+
+
 def detect_charuco(detector, image) -> tuple[np.ndarray, np.ndarray]:
     """``detector.detectBoard(image)``'s ChArUco corners as ((N, 1, 2) float32 px, (N, 1) int32
-    ids), N = 0 (empty arrays of those shapes) when none is found, on every OpenCV release."""
+    ids) in OpenCV's pixel convention on every release (OpenCV 4's +0.5 px taken off); N = 0
+    (empty arrays of those shapes) when none is found."""
     ch_corners, ch_ids, _, _ = detector.detectBoard(image)
     if ch_ids is None or len(ch_ids) == 0 or ch_corners is None:
         return np.zeros((0, 1, 2), np.float32), np.zeros((0, 1), np.int32)
-    return (np.asarray(ch_corners, np.float32).reshape(-1, 1, 2),
-            np.asarray(ch_ids, np.int32).reshape(-1, 1))
+    corners = np.asarray(ch_corners, np.float32).reshape(-1, 1, 2) - np.float32(CHARUCO_OFFSET_PX)
+    return corners, np.asarray(ch_ids, np.int32).reshape(-1, 1)
 
 
 def _criteria(iterations: int, eps: float) -> tuple[int, int, float]:
@@ -96,3 +106,19 @@ def undistort_points_fisheye(px, camera_matrix, dist_coeffs, iterations: int = 5
     out = cv2.fisheye.undistortPoints(p, np.asarray(camera_matrix, np.float64),
                                       np.asarray(dist_coeffs, np.float64), criteria=_criteria(iterations, eps))
     return np.asarray(out, np.float64).reshape(-1, 2)
+
+
+#: ``cv2.fisheye.calibrate``'s flag to re-estimate the views' poses at each step: OpenCV 4 has it
+#: only as ``cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC`` (value 2), 5.0 only as
+#: ``cv2.CALIB_RECOMPUTE_EXTRINSIC`` (1 << 23), 5.1 as both (1 << 23).
+FISHEYE_RECOMPUTE_EXTRINSIC = getattr(cv2.fisheye, "CALIB_RECOMPUTE_EXTRINSIC", None) or cv2.CALIB_RECOMPUTE_EXTRINSIC
+
+
+def silence_logging() -> None:
+    """OpenCV's own log lines off (``cv2.utils.logging`` from 4.9 on and in 5.x; ``cv2.setLogLevel``
+    in 4.8, whose level 0 is silent)."""
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is not None:
+        log.setLogLevel(log.LOG_LEVEL_SILENT)
+    elif hasattr(cv2, "setLogLevel"):
+        cv2.setLogLevel(0)

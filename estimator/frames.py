@@ -94,3 +94,21 @@ def tangent_basis(directions) -> tuple[np.ndarray, np.ndarray]:
     b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
     b2 = np.cross(d, b1)
     return b1, b2
+
+
+def similarity_transform(A, B) -> np.ndarray:
+    """The similarity (4, 4) (scale times rotation, translation mm) that best maps points ``A``
+    (N, 3) onto ``B`` (N, 3), N >= 3 not on one line, in least squares (Umeyama 1991):
+    ``B ~ T[:3, :3] @ A + T[:3, 3]``; its scale is the cube root of the upper block's determinant.
+    The one fit between two frames of the same points: a built or markerless map placed by known
+    markers, a simulated truth moved into the world of the map a run used."""
+    A, B = np.asarray(A, float), np.asarray(B, float)
+    ma, mb = A.mean(0), B.mean(0)
+    Ac, Bc = A - ma, B - mb
+    U, S, Vt = np.linalg.svd(Bc.T @ Ac / len(A))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    s = np.trace(np.diag(S) @ D) / (Ac ** 2).sum(1).mean()
+    T = np.eye(4)
+    T[:3, :3] = s * (U @ D @ Vt)
+    T[:3, 3] = mb - T[:3, :3] @ ma
+    return T

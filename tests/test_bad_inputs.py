@@ -350,8 +350,7 @@ VL_REQ = ["t", "left_ox", "left_oy", "left_oz", "left_dx", "left_dy", "left_dz",
           "right_ox", "right_oy", "right_oz", "right_dx", "right_dy", "right_dz"]
 
 add_csv_cases("viewlines-eye", "viewlines", "eye", EYE_REQ, lambda e, d, p: argv_viewlines(e, d, eye=p))
-add_csv_cases("viewlines-poses", "viewlines", "poses", POSE_REQ, lambda e, d, p: argv_viewlines(e, d, poses=p),
-              time_col=None)
+add_csv_cases("viewlines-poses", "viewlines", "poses", POSE_REQ, lambda e, d, p: argv_viewlines(e, d, poses=p))
 add_csv_cases("estimate", "estimate", "viewlines", VL_REQ, lambda e, d, p: argv_estimate(e, p), time_col=None)
 add_csv_cases("fixations", "fixations", "viewlines", VL_REQ, lambda e, d, p: argv_fixations(e, d, p), time_col=None)
 add_csv_cases("track-timestamps", "track", "timestamps", ["frame", "t"],
@@ -1214,6 +1213,137 @@ def _symlink(target: Path, link: Path) -> str:
     return str(link)
 
 
+# 8. damaged inputs of the issue-25 run: internal errors, a silent exit 0, an input overwritten -------
+
+def _real(*parts) -> Path:
+    from conftest import real_data_root  # noqa: PLC0415
+
+    return real_data_root().joinpath(*parts)
+
+
+def _real_copy(d: Path, name: str) -> Path:
+    """A writable copy of a real recording in the case folder."""
+    dst = d / name
+    shutil.copytree(_real(name), dst)
+    for p in [dst, *dst.rglob("*")]:
+        os.chmod(p, 0o755 if p.is_dir() else 0o644)
+    return dst
+
+
+def _wrong_dict_map(e, d) -> str:
+    """The session's map (DICT_4X4_50 markers printed) saying DICT_APRILTAG_36h11."""
+    return write(d, "map36h11.json", edited_json(e.markers, lambda m: m.__setitem__("dictionary",
+                                                                                  "DICT_APRILTAG_36h11")))
+
+
+def _session_with(e, d, rel: str, content) -> str:
+    s = _session_copy_full(e, d)
+    write(Path(s), rel, content)
+    return s
+
+
+def _imported_swapped_poses(e, d) -> str:
+    """An imported session (simulated Aria MPS recording) whose head_poses.csv has rows 3 and 4 swapped."""
+    assert main(["export-recording", e["session"], "-o", str(d / "rec"), "--format", "aria-mps"]) == 0
+    assert main(["import", str(d / "rec"), "-o", str(d / "imp")]) == 0
+    p = d / "imp" / "head_poses.csv"
+    lines = p.read_text().splitlines()
+    lines[3], lines[4] = lines[4], lines[3]
+    p.write_text("\n".join(lines) + "\n")
+    return str(d / "imp")
+
+
+def _viewlines_rows(e, edit_row, n=None) -> str:
+    lines = e.viewlines.read_text().splitlines()
+    rows = lines[1:] if n is None else lines[1:1 + n]
+    return "\n".join([lines[0], *(",".join(edit_row(r.split(","))) for r in rows)]) + "\n"
+
+
+def _parallel(cells):
+    """Every view line of the row along +z (a monocular row's empty eye left empty)."""
+    for k in (4, 10):
+        if cells[k]:
+            cells[k:k + 3] = ["0", "0", "1"]
+    return cells
+
+
+def _neon_damaged(name, damage):
+    def b(e, d):
+        src = _real_copy(d, "pupil_labs_neon_demo_recording")
+        p = src / name
+        p.write_bytes(damage(p.read_bytes()))
+        return ["import", str(src), "-o", str(d / "s")]
+    return b
+
+
+def _aria_gaze(damage):
+    def b(e, d):
+        src = _real_copy(d, "aria_mps_sample_gen1")
+        p = src / "eye_gaze_vergence" / "generalized_gaze.csv"
+        p.write_bytes(damage(p.read_bytes()))
+        return ["import", str(src), "-o", str(d / "s")]
+    return b
+
+
+def _truncated_wall_jpeg(e, d) -> list:
+    import cv2  # noqa: PLC0415
+
+    eye = Path(_cptree(e.eye_cal, d))
+    ok, buf = cv2.imencode(".jpg", cv2.imread(str(eye / "wall_0.png")))
+    (eye / "wall_0.jpg").write_bytes(buf.tobytes()[:len(buf) // 2])
+    (eye / "walls.json").write_text((eye / "walls.json").read_text().replace("wall_0.png", "wall_0.jpg"))
+    return argv_calibrate_eyes(e, d, source=str(eye))
+
+
+add("track-map-other-dictionary", "track", lambda e, d: argv_track(e, d, markers=_wrong_dict_map(e, d)),
+    ("no marker of DICT_APRILTAG_36h11", "look like DICT_4X4_50"))
+add("map-dict-other-dictionary", "map", lambda e, d: ["map", e["video"], "--camera", e["camera"], "--dict",
+                                                      "DICT_APRILTAG_36h11", "--size-mm", "200",
+                                                      "-o", str(d / "m.json")],
+    ("no marker of DICT_APRILTAG_36h11", "--dict DICT_4X4_50"))
+add("map-extend-other-dictionary", "map", lambda e, d: ["map", e["video"], "--camera", e["camera"], "--extend",
+                                                        _wrong_dict_map(e, d), "-o", str(d / "m.json")],
+    ("no marker of DICT_APRILTAG_36h11", "DICT_4X4_50"))
+add("process-map-other-dictionary", "process", lambda e, d: argv_process(
+    e, d, _session_with(e, d, "markers.json", edited_json(e.markers, lambda m: m.__setitem__(
+        "dictionary", "DICT_APRILTAG_36h11"))), ["--camera", e["camera"], "--eyes", e["eyes"]]),
+    ("tracking", "look like DICT_4X4_50"), many=True)
+add("viewlines-poses-time-repeated", "viewlines", lambda e, d: argv_viewlines(e, d, poses=write(
+    d, "p.csv", "\n".join((ls := e.poses.read_text().splitlines())[:3] + [ls[2]] + ls[3:]) + "\n")),
+    ("line 4", "does not increase", "sort"))
+add("process-imported-poses-swapped", "process", lambda e, d: argv_process(e, d, _imported_swapped_poses(e, d)),
+    ("head_poses.csv line 5", "does not increase"), many=True)
+add("estimate-one-row-paper", "estimate", lambda e, d: argv_estimate(e, write(d, "v.csv", _viewlines_rows(
+    e, lambda c: c, 1)), ["--method", "paper"]), ("nothing could be estimated", "segment 0"))
+add("estimate-every-row-segment-minus-1", "estimate", lambda e, d: argv_estimate(e, write(d, "v.csv", _viewlines_rows(
+    e, lambda c: [*c[:-1], "-1"]))), ("nothing to estimate", "segment -1"))
+add("estimate-every-segment-parallel", "estimate", lambda e, d: argv_estimate(e, write(d, "v.csv", _viewlines_rows(
+    e, _parallel))), ("nothing could be estimated", "parallel"))
+add("estimate-targets-every-segment-parallel", "estimate", lambda e, d: argv_estimate(e, write(
+    d, "v.csv", _viewlines_rows(e, _parallel)), ["--targets"]), ("nothing could be estimated", "no fixation"))
+add("calibrate-eyes-camera-other-image-size", "calibrate-eyes", lambda e, d: argv_calibrate_eyes(e, d, camera=write(
+    d, "c.json", edited_json(e.camera, lambda c: c.__setitem__("image_size", [1920, 1080])))),
+    ("320x180", "1920x1080"))
+add("calibrate-eyes-wall-jpeg-truncated", "calibrate-eyes", _truncated_wall_jpeg, ("wall_0.jpg", "truncated"))
+add("learn-bias-truth-version-99", "learn-bias", lambda e, d: argv_learn_bias(e, d, write(
+    d, "t.json", edited_json(e.session / "truth" / "targets.json", lambda t: t.__setitem__("version", 99)))),
+    ("version 99", "version 1"))
+add("learn-bias-out-is-processed-eyes", "learn-bias", lambda e, d: argv_learn_bias(e, d, out=e["eyes"]),
+    ("is also an input", "eyes.json"))
+add("process-out-in-board-views", "process", lambda e, d: ["process", _session_copy_full(e, d), "-o",
+                                                           str(d / "sess" / "calibration" / "camera"), "--no-overlay"],
+    ("input folder", "calibration/camera"))
+add("import-neon-info-json-not-utf8", "import", _neon_damaged("info.json", lambda b: b.replace(
+    b"Neon Companion", b"Neon \xff\xfeCompanion")), ("info.json", "not utf-8"))
+add("import-neon-calibration-serial-not-utf8", "import", _neon_damaged(
+    "calibration.bin", lambda b: b[:1] + b"\xff\xfe" * 3 + b[7:]), ("calibration.bin", "serial", "not utf-8"))
+add("import-aria-per-eye-gaze-renamed", "import", _aria_gaze(lambda b: b.replace(
+    b"left_yaw_rads_cpf,right_yaw_rads_cpf,pitch_rads_cpf,", b"left_yaw,right_yaw,pitch,", 1)),
+    ("generalized_gaze.csv", "not an mps eye-gaze csv"))
+add("import-aria-per-eye-gaze-garbage", "import", _aria_gaze(lambda b: bytes(range(256)) * 8),
+    ("generalized_gaze.csv", "not an mps eye-gaze csv"))
+
+
 # --- the test ------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("c", CASES, ids=[c.id for c in CASES])
@@ -1282,3 +1412,49 @@ def test_untrusted_camera_calibration_warns_and_says_so(env, tmp_path, capsys):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == len(d["warnings"]) and all("cannot be trusted" in ln for ln in lines)
     assert any("RMS" in w for w in d["warnings"])
+
+
+# --- the issue-25 run's cases that are not one bad input -----------------------------------------
+
+def test_calibrate_camera_twice_into_its_photo_folder(env, tmp_path, capsys):
+    """``-o photos/cam.json`` writes cam_undistorted.png among the photos: the next calibration of
+    the folder leaves that preview out (it used to refuse to overwrite it as an input)."""
+    photos = tmp_path / "photos"
+    shutil.copytree(env.views, photos)
+    argv = ["calibrate-camera", str(photos), "--board", env.board, "-o", str(photos / "cam.json")]
+    assert _run(argv, capsys)[0] == 0
+    first = json.loads((photos / "cam.json").read_text())
+    assert (photos / "cam_undistorted.png").is_file()
+    code, err = _run(argv, capsys)
+    assert code == 0, err
+    assert json.loads((photos / "cam.json").read_text())["camera_matrix"] == first["camera_matrix"]
+
+
+def test_process_failed_eye_step_prints_its_error_only(env, tmp_path, capsys):
+    """A failed eye calibration is reported once; the targets step's error model, which will not
+    run, no longer warns that eyes.json has no leave-one-out errors ([Errno 2])."""
+    s = tmp_path / "sess"
+    shutil.copytree(env.session, s)
+    (s / "calibration" / "eye" / "walls.json").write_text("{")
+    code, err = _run(["process", str(s), "-o", str(tmp_path / "out"), "--no-overlay", "--camera", env["camera"]],
+                     capsys)
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "walls.json" in lines[0], err
+
+
+def test_image_reader_keeps_libjpeg_warnings_off_stderr(tmp_path, capfd):
+    """A JPEG libjpeg decodes with a warning (junk bytes before a marker) is read, and the
+    warning, which libjpeg prints on file descriptor 2 itself, does not reach the terminal."""
+    import cv2  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    from wearable_gaze.formats.images import read_grey_image  # noqa: PLC0415
+
+    img = (np.arange(64 * 48) % 251).astype(np.uint8).reshape(48, 64)
+    data = cv2.imencode(".jpg", img)[1].tobytes()
+    k = data.index(b"\xff\xdb")                          # the first quantisation table: junk before it
+    (tmp_path / "a.jpg").write_bytes(data[:k] + b"\x12\x34\x56" + data[k:])
+    capfd.readouterr()
+    assert read_grey_image(tmp_path / "a.jpg").shape == (48, 64)
+    assert capfd.readouterr().err == ""

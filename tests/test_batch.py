@@ -65,7 +65,7 @@ def _assert_batch_outputs(res, out, ref, sessions=tuple(LAYOUT)):
             assert (out / name / f).read_bytes() == (ref[LAYOUT[rel]] / f).read_bytes(), (name, f)
     assert res.failed == ["p03-s2"] and res.exit_status == 2
     index = json.loads((out / "batch.json").read_text())
-    assert index["counts"] == {"pending": 0, "running": 0, "done": len(sessions) - 1, "failed": 1}
+    assert index["counts"] == {"pending": 0, "running": 0, "done": len(sessions) - 1, "partial": 0, "failed": 1}
     assert len({res.statuses[n]["worker"] for n in res.done}) >= 2            # both workers took sessions
 
 
@@ -234,7 +234,8 @@ def test_interrupted_batch_resumes_without_redoing_finished_sessions(study, tmp_
     index = json.loads((out / "batch.json").read_text())
     done = [s["name"] for s in index["sessions"] if s["state"] == "done"]
     c = index["counts"]
-    assert 1 <= len(done) < 3 and c == {"pending": 3 - len(done), "running": 0, "done": len(done), "failed": 0}, (
+    assert 1 <= len(done) < 3 and c == {"pending": 3 - len(done), "running": 0, "done": len(done), "partial": 0,
+                                        "failed": 0}, (
         index, stdout, stderr)                                   # the stopped session is pending again
     assert all(read_status(out / s["name"])["state"] == s["state"] for s in index["sessions"])
     mtimes = {n: [(out / n / f).stat().st_mtime_ns for f in ("targets.json", "report.html")] for n in done}

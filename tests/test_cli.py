@@ -178,7 +178,7 @@ def test_every_schema_is_valid_and_shipped_as_package_data():
         Draft202012Validator.check_schema(schema(n))
         assert schema(n)["title"] and schema(n)["x-doc"]
     toml = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
-    assert '"wearable_gaze.formats" = ["schemas/*.schema.json"]' in toml and '"jsonschema>=4.18"' in toml
+    assert '"wearable_gaze.formats" = ["schemas/*.schema.json"]' in toml and '"jsonschema>=4.18.0"' in toml
 
 
 @pytest.fixture(scope="module")

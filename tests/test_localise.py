@@ -7,6 +7,7 @@ import contextlib
 import csv
 import io
 import json
+import shutil
 
 import cv2
 import numpy as np
@@ -146,6 +147,41 @@ def test_a_markerless_map_of_a_rendered_survey_localises_its_frames_within_a_few
     pos = [np.linalg.norm(T[:3, 3] - truth[k][:3, 3]) for T, k in zip(poses.T_world_from_cam[ok], poses.frame[ok],
                                                                       strict=True)]
     assert np.median(rot) < 0.2 and np.median(pos) < 8, (np.median(rot), np.median(pos))
+
+
+def test_a_markerless_map_records_its_markers_and_the_truth_is_moved_into_its_world(survey, tmp_path):
+    """sfm_map.json records the corners of the markers that placed the map (``scaled_by.corners_mm``):
+    ``process --map`` moves a simulated truth into the map's world through them. Placed by the
+    room's true map: nothing to move; placed by one marker (its frame the world), or a map of
+    before (no corners: its origin marker's square): the truth moved by that marker's inverse pose."""
+    from types import SimpleNamespace  # noqa: PLC0415
+
+    from tracking.markermap import square_corners  # noqa: PLC0415
+    from wearable_gaze.formats.markermap import load_marker_map  # noqa: PLC0415
+    from wearable_gaze.pipeline.process_options import truth_frame  # noqa: PLC0415
+
+    sess, sfm, _ = survey
+    meta = json.loads((sfm / "sfm_map.json").read_text())
+    true_map = load_marker_map(sess / "markers.json")
+    corners = meta["scaled_by"]["corners_mm"]
+    assert sorted(int(i) for i in corners) == meta["scaled_by"]["markers"]
+    for i, c in corners.items():
+        np.testing.assert_allclose(c, true_map.corners(int(i)), atol=1e-6)
+    f = SimpleNamespace(truth_targets=sess / "truth" / "targets.json", truth_map=sess / "truth" / "markers.json",
+                        truth_moved=None, markers=None)
+    assert truth_frame(f, SimpleNamespace(map_kind="markerless", sfm_map=sfm), None, None) is None
+    o = meta["scaled_by"]["markers"][0]
+    for scaled_by in ({"kind": "marker", "markers": [o], "size_mm": true_map.size_of(o),
+                       "corners_mm": {str(o): square_corners(true_map.size_of(o)).tolist()}},
+                      {"kind": "marker", "markers": [o], "size_mm": true_map.size_of(o)}):
+        shutil.copytree(sfm, tmp_path / "sfm", dirs_exist_ok=True)
+        (tmp_path / "sfm" / "sfm_map.json").write_text(json.dumps(meta | {"scaled_by": scaled_by}))
+        frame = truth_frame(f, SimpleNamespace(map_kind="markerless", sfm_map=tmp_path / "sfm"), None, None)
+        np.testing.assert_allclose(frame.T_map_from_truth, invert(true_map.poses[o]), atol=1e-6)
+        assert frame.markers == (o,) and frame.rms_mm < 1e-6 and "the markerless map (--map)" in frame.note()
+    (tmp_path / "sfm" / "sfm_map.json").write_text(json.dumps(meta | {"scaled_by": {"kind": "distance"}}))
+    frame = truth_frame(f, SimpleNamespace(map_kind="markerless", sfm_map=tmp_path / "sfm"), None, None)
+    assert frame.T_map_from_truth is None and "not compared" in frame.note()
 
 
 def test_a_distance_walked_scales_a_map_without_markers(survey, tmp_path, capsys):

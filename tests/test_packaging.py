@@ -65,3 +65,29 @@ def test_wheel_installs_the_console_script(wheel):
     # and nothing but our four packages at the top level (no tests/, benchmarks/ in site-packages)
     tops = {n.split("/")[0] for n in z.namelist() if not n.split("/")[0].endswith(".dist-info")}
     assert tops == set(PACKAGES), tops
+
+
+def _requirement_floors(lines) -> dict:
+    """{name: version} of 'name>=version' (pyproject) or 'name==version' (a constraints file)."""
+    import re  # noqa: PLC0415
+
+    out = {}
+    for line in lines:
+        m = re.match(r'\s*"?([A-Za-z0-9_.-]+)(?:\[[^\]]*\])?\s*(>=|==)\s*([0-9][0-9A-Za-z.]*)', line)
+        if m:
+            out[m.group(1).lower()] = m.group(3)
+    return out
+
+
+def test_the_floors_ci_installs_are_the_declared_minimum_versions():
+    """constraints/floors.txt pins each dependency at exactly pyproject.toml's floor, so that what
+    .ci/run tests at the low end is what the project declares; the lock file pins every
+    dependency of the newest run."""
+    tomllib = pytest.importorskip("tomllib", reason="tomllib is in the standard library from Python 3.11")
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    declared = _requirement_floors(d.split(";")[0] for d in deps if "sys_platform != 'linux'" not in d)
+    floors = _requirement_floors(ln for ln in (ROOT / "constraints" / "floors.txt").read_text().splitlines()
+                                 if not ln.startswith("#"))
+    assert declared == floors
+    lock = _requirement_floors((ROOT / "constraints" / "lock.txt").read_text().splitlines())
+    assert set(declared) <= set(lock) and lock["opencv-contrib-python-headless"].startswith("5.")

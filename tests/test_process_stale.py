@@ -128,7 +128,9 @@ def test_an_exception_in_a_step_removes_the_outputs_of_the_steps_after_it(proces
     assert "tracking" not in state and "targets" not in state
 
 
-@pytest.mark.parametrize("garbage", [b"{\"camera\": \"ab", b"", b"[1, 2]", b"\xff\xfe\x00garbage"])
+@pytest.mark.parametrize("garbage", [b"{\"camera\": \"ab", b"", b"[1, 2]", b"\xff\xfe\x00garbage",
+                                     b"{\"camera\": " + b"[" * 100000, b"{\"camera\": \"\xe9\"}",
+                                     b"{\"camera\": \"" + b"0" * 40 + b"\"}"])
 def test_a_corrupt_step_cache_is_redone_with_a_warning(processed, caplog, garbage):
     s, out = processed
     (out / ".steps.json").write_bytes(garbage)

@@ -25,6 +25,7 @@ from wearable_gaze.formats.markermap import load_marker_map
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.session import load_session
 from wearable_gaze.formats.truth import read_truth_moved_markers
+from wearable_gaze.formats.video import grey_frames
 from wearable_gaze.sim.motion import make_motion
 from wearable_gaze.sim.scenario import resolve
 from wearable_gaze.sim.simulate import build_world, make_targets, scene_camera, simulate_scenario
@@ -210,21 +211,34 @@ def test_moved_marker_is_refused_in_one_line_when_it_cannot_be(tmp_path, capsys)
     assert full == {"id": 3, "at_s": 1.0, "shift_mm": [0.0, 0.0, 0.0], "turn_deg": 90}
 
 
-# sha256 of a short survey's files written by the simulator before ``moved_marker`` existed
-# (commit eb5f249, this machine's numpy 2 / OpenCV wheels): a session without the option must stay
-# byte for byte what it was. If a deliberate change to the room, the path or the renderer (or a
-# new OpenCV) alters them, check that change and put the new digests here.
+# sha256 of a short survey's content as the simulator wrote it at 4a924f9 (this machine's numpy 2 /
+# OpenCV 5.1 wheels), the video's frames decoded from a lossless FFV1 file: a session without
+# ``moved_marker`` must stay what it was. The encoded bytes of a video are not compared: another
+# encoder build writes other bytes for the same frames (the digest of an mp4v file from OpenCV
+# 4.x failed on 5.1 for that reason alone). If a deliberate change to the room, the path or the
+# renderer alters the content, check that change and put the new digests here.
 BEFORE = {"markers.json": "7d84bf58e1d1476b715375ee1c4d8b230bdfec0eae0fcc94ee3b32d919b1ef05",
-          "scene.mp4": "212a1a272ac5c21f9d475ecea52ea707fd6ce149d8d1b5d15aeb18134627f8dd",
+          "scene.avi frames": "584c1f5be42da198b7032dd6c9b8156159d86769bf45783e2cf7e921eae5a2ae",
           "truth/head_poses.csv": "0e4f143815b72d002043d98088077d2f5a1b0647a85412f19e6656ecfb6933d4"}
+
+
+def _content_digests(root):
+    frames = hashlib.sha256()
+    n = 0
+    for grey in grey_frames(root / "scene.avi"):
+        frames.update(np.ascontiguousarray(grey).tobytes())
+        n += 1
+    assert n > 0, "no frame decoded from scene.avi"
+    return {"markers.json": hashlib.sha256((root / "markers.json").read_bytes()).hexdigest(),
+            "scene.avi frames": frames.hexdigest(),
+            "truth/head_poses.csv": hashlib.sha256((root / "truth/head_poses.csv").read_bytes()).hexdigest()}
 
 
 def test_a_survey_without_moved_marker_is_written_as_before_it_existed(tmp_path):
     root = tmp_path / "s"
-    simulate_scenario({"base": "survey", "duration_s": 0.2, "calibration": NO_CAL}, root, seed=4,
-                      resolution=(320, 180))
-    got = {name: hashlib.sha256((root / name).read_bytes()).hexdigest() for name in BEFORE}
-    assert got == BEFORE
+    simulate_scenario({"base": "survey", "duration_s": 0.2, "calibration": NO_CAL,
+                       "camera": {"codec": "FFV1"}}, root, seed=4, resolution=(320, 180))
+    assert _content_digests(root) == BEFORE
     assert "moved_marker" not in json.loads((root / "session.json").read_text())["scenario"]
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibration.camera import undistort_points
+from estimator.frames import similarity_transform
 
 from .mapadjust import (
     MIN_VIEWS,
@@ -142,22 +143,6 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     sides = {**{i: prior_map.size_of(i) for i in prior}, **size} if prior else size
     mm = MarkerMap(dictionary, common, dict(adj.markers), {}, {i: v for i, v in sides.items() if v != common})
     return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms, rms_unsplit)
-
-
-def similarity_transform(A, B) -> np.ndarray:
-    """The similarity (4, 4) (scale times rotation, translation) that best maps points ``A``
-    (N, 3) onto ``B`` (N, 3) in least squares (Umeyama 1991): ``B ~ T[:3, :3] @ A + T[:3, 3]``;
-    its scale is the cube root of the upper block's determinant."""
-    A, B = np.asarray(A, float), np.asarray(B, float)
-    ma, mb = A.mean(0), B.mean(0)
-    Ac, Bc = A - ma, B - mb
-    U, S, Vt = np.linalg.svd(Bc.T @ Ac / len(A))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    s = np.trace(np.diag(S) @ D) / (Ac ** 2).sum(1).mean()
-    T = np.eye(4)
-    T[:3, :3] = s * (U @ D @ Vt)
-    T[:3, 3] = mb - T[:3, :3] @ ma
-    return T
 
 
 def similarity_errors(A, B) -> tuple[np.ndarray, float]:

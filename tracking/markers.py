@@ -133,3 +133,27 @@ class MarkerDetector:
         """{id: (4, 2) corners px} of the markers in ``image`` whose id is seen exactly once
         (``unique_by_id``): for a board or a wall where each id is printed once."""
         return unique_by_id(self.detect(image))
+
+
+# Dictionaries tried, in this order, when no marker of the expected one is found (a map naming
+# another dictionary than the printed one): the smallest of each family first, so that a tie
+# names it; AprilTag 16h5 is left out (its few bits give false detections in texture).
+COMMON_DICTIONARIES = ("DICT_4X4_50", "DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000",
+                       "DICT_ARUCO_ORIGINAL", "DICT_APRILTAG_25h9", "DICT_APRILTAG_36h11", "DICT_ARUCO_MIP_36h12")
+
+
+def likely_dictionary(images, exclude: str | None = None) -> tuple[str, int] | None:
+    """The dictionary of ``COMMON_DICTIONARIES`` (other than ``exclude``) that finds the most
+    markers in ``images`` (a few (H, W) grey or (H, W, 3) BGR images), with that count; None
+    when none finds any. Ties go to the one listed first. Costs one detection per dictionary
+    and image (no corner refinement)."""
+    images = list(images)
+    best = None
+    for name in COMMON_DICTIONARIES:
+        if name == exclude:
+            continue
+        detector = MarkerDetector(name, refine="none")
+        n = sum(len(detector.detect(img)) for img in images)
+        if n and (best is None or n > best[1]):
+            best = (name, n)
+    return best

@@ -27,27 +27,34 @@ def scheduler_address(text):
 
 def cmd_batch(args) -> int:
     from ..pipeline.batch import BatchSettings, format_summary, run_batch  # noqa: PLC0415
+    from ..pipeline.process_options import check_map_options  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
+    from .process import build_map_option  # noqa: PLC0415
 
-    check_output(args.out, [*args.sessions, args.camera, args.eyes], "-o", folder=True)
-    camera, eyes = (None if p is None else str(Path(p).resolve()) for p in (args.camera, args.eyes))
+    check_output(args.out, [*args.sessions, args.camera, args.eyes, args.markers], "-o", folder=True)
+    check_map_options(args.markers, args.build_map, None, True, False)        # before any session
+    camera, eyes, markers = (None if p is None else str(Path(p).resolve()) for p in (args.camera, args.eyes,
+                                                                                    args.markers))
     settings = BatchSettings(args.method, camera, eyes, args.force, not args.no_overlay, True,
-                             args.track_every, None if args.build_map is None else (args.build_map, args.map_dict))
+                             args.track_every, build_map_option(args), markers)
     with progress_bar("sessions", 1) as cb:
         res = run_batch(args.sessions, args.out, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=cb)
-    for name in res.failed:
-        print(one_line(f"wearable-gaze batch: {name} failed: {res.statuses[name].get('reason')}"), file=sys.stderr)
+    for name in res.failed + res.partial:
+        st = res.statuses[name]
+        print(one_line(f"wearable-gaze batch: {name} {st['state']}: {st.get('reason')}"), file=sys.stderr)
     print(format_summary(res))
     if res.interrupted:
         print("wearable-gaze batch: interrupted", file=sys.stderr)
-    return res.exit_status            # 0 all done, 2 a session failed, 130 interrupted
+    return res.exit_status            # 0 all done, 2 a session failed, 3 one partial, 130 interrupted
 
 
 def add_batch(sub) -> None:
     """Declare the command and its arguments."""
     b = sub.add_parser("batch", help="many sessions processed as 'process' would, in parallel, here or on a Dask "
-                                     "cluster; resumable, with one report")
+                                     "cluster; resumable, with one report",
+                       epilog="exit status: 0 every session done; 2 a session failed (or a bad input); 3 a session "
+                              "partial (targets, but a step failed), none failed; 130 interrupted")
     b.add_argument("sessions", nargs="+", metavar="SESSIONS",
                    help="session folders, or folders containing them (at any depth); native and imported alike")
     b.add_argument("-o", "--out", required=True, metavar="OUT",
@@ -63,9 +70,12 @@ def add_batch(sub) -> None:
     b.add_argument("--eyes", metavar="eyes.json", help="use this eye calibration for every session")
     b.add_argument("--force", action="store_true", help="redo every session and step")
     b.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the reports")
+    b.add_argument("--markers", metavar="MAP.json",
+                   help="track every session's video in this marker map (from 'wearable-gaze map') instead of its own")
     b.add_argument("--build-map", type=A.positive_float, metavar="MM",
-                   help="a session without a marker map gets one built from its video, markers of this side (mm)")
-    b.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",
+                   help="each session gets a marker map built from its video, markers of this side (mm), in place "
+                        "of its own (as process --build-map)")
+    b.add_argument("--map-dict", type=A.marker_dictionary, default=None, metavar="DICT",
                    help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
     b.add_argument("--track-every", type=A.positive_int, default=2, metavar="N",
                    help="track one scene frame in N and interpolate the rest (default 2)")

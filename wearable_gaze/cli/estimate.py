@@ -14,6 +14,7 @@ from . import args as A
 
 
 def cmd_estimate(args) -> int:
+    from ..pipeline import estimate as est  # noqa: PLC0415
     from ..pipeline.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note  # noqa: PLC0415
     from ..progress import heartbeat  # noqa: PLC0415
 
@@ -24,6 +25,9 @@ def cmd_estimate(args) -> int:
     with heartbeat("estimating"):               # a long file: a line every few seconds in a log
         results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density, args.one_point,
                                 args.targets, None if args.no_error_model else model)
+    problem = est.nothing_estimated(args.viewlines, results)
+    if problem is not None:
+        raise problem
     if args.json:                               # the skipped rows are an entry of their own (status 'skipped')
         for r in results:
             print(json.dumps(r))

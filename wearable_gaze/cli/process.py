@@ -27,21 +27,42 @@ def check_rerun(args, inputs=()) -> None:
         check_output(where, [p for p in inputs if p is not None], "--rerun")
 
 
+EXIT_STATUS = ("exit status: 0 targets estimated and every step that ran succeeded; 2 no target could be estimated, "
+               "or a bad input; 3 targets estimated but a step failed (e.g. export or report: its files are "
+               "missing; the problems are on stderr and in summary.json)")
+
+
 def cmd_process(args) -> int:
-    from ..pipeline.process import format_result, process_session  # noqa: PLC0415
+    from ..pipeline.process import process_session  # noqa: PLC0415
+    from ..pipeline.steps import format_result  # noqa: PLC0415
     from ..progress import step_bars  # noqa: PLC0415
 
-    check_rerun(args, [args.session, args.camera, args.eyes, args.person])
+    check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=step_bars(), person=args.person,
-                          build_map=None if args.build_map is None else (args.build_map, args.map_dict),
+                          build_map=build_map_option(args),
                           sfm_map=args.map, overlay_video=args.overlay_video, rerun=args.rerun,
-                          rerun_frames=args.rerun_frames)
+                          rerun_frames=args.rerun_frames, markers=args.markers)
+    for note in res.summary.get("notes", []):
+        print(f"wearable-gaze process: {note}", file=sys.stderr)
     print(format_result(res))
     for p in res.problems:
         print(f"wearable-gaze process: {p}", file=sys.stderr)
-    return res.exit_status                  # 2 when no target could be estimated
+    return res.exit_status                  # 0 ok, 2 no target, 3 targets but a step failed (EXIT_STATUS)
+
+
+def build_map_option(args) -> tuple | None:
+    """``--build-map MM [--map-dict DICT]`` as (side mm, dictionary), or None; ``--map-dict``
+    alone, which nothing would use, refused."""
+    from ..pipeline.mapping import DEFAULT_DICT  # noqa: PLC0415
+
+    if args.build_map is None:
+        if args.map_dict is not None:
+            raise UserError("--map-dict names the dictionary of the markers --build-map MM builds a map of: give "
+                            "--build-map too, or leave --map-dict out")
+        return None
+    return args.build_map, args.map_dict or DEFAULT_DICT
 
 
 def cmd_demo(args) -> int:
@@ -52,7 +73,8 @@ def cmd_demo(args) -> int:
 
 def add_process(sub) -> None:
     """Declare the command and its arguments."""
-    pr = sub.add_parser("process", help="a recorded session -> fixated 3D targets, plots and a report")
+    pr = sub.add_parser("process", help="a recorded session -> fixated 3D targets, plots and a report",
+                        epilog=EXIT_STATUS)
     pr.add_argument("session", metavar="SESSION", help="session folder (docs/session.md)")
     pr.add_argument("-o", "--out", default=None, metavar="OUT", help="output folder (default SESSION/processed)")
     pr.add_argument("--method", choices=METHODS, default="voxel", help="estimator (default: voxel)")
@@ -64,9 +86,12 @@ def add_process(sub) -> None:
     pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
     pr.add_argument("--overlay-video", action="store_true",
                     help="also write the overlay at full resolution, every frame: OUT/overlay.mp4 (mp4v)")
+    pr.add_argument("--markers", metavar="MAP.json",
+                    help="track the video in this marker map (from 'wearable-gaze map') instead of the session's")
     pr.add_argument("--build-map", type=A.positive_float, metavar="MM",
-                    help="no marker map: build one from the session's video, markers of this side (mm)")
-    pr.add_argument("--map-dict", type=A.marker_dictionary, default="DICT_4X4_50", metavar="DICT",
+                    help="build a marker map from the session's video, markers of this side (mm), and track in it "
+                         "(in place of the session's map, if it has one)")
+    pr.add_argument("--map-dict", type=A.marker_dictionary, default=None, metavar="DICT",
                     help="the markers' cv2.aruco dictionary for --build-map (default DICT_4X4_50)")
     pr.add_argument("--map", metavar="SFM_FOLDER",
                     help="localise the scene video in this markerless map (map --markerless) instead of tracking "

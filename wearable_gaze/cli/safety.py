@@ -22,7 +22,7 @@ OUTPUTS = {
               ("overlay", False, ("video", "camera", "markers", "reference", "timestamps", "out"))],
     "map": [("out", lambda a: a.markerless, ("inputs", "camera", "extend", "markers"))],
     "simulate": [("out", True, ("scenario",))],
-    "process": [("out", True, ("session", "camera", "eyes", "person"))],
+    "process": [("out", True, ("session", "camera", "eyes", "person", "markers"))],
     "learn-bias": [("out", False, ("session", "validation", "processed", "eyes"))],
     "import": [("out", True, ("src", "markers", "camera", "kappa_recording"))],
     "export-recording": [("out", True, ("session",))],
@@ -84,9 +84,9 @@ def quiet_opencv() -> None:
     imported earlier in the same process."""
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")        # AV_LOG_QUIET
-    import cv2  # noqa: PLC0415
+    from calibration.cvcompat import silence_logging  # noqa: PLC0415
 
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    silence_logging()
 
 
 class LogFormatter(logging.Formatter):

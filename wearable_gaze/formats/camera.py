@@ -7,6 +7,7 @@ One reader, ``load_camera`` (both kinds, checked against schemas/camera.schema.j
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
@@ -18,8 +19,28 @@ from ..errors import UserError
 from .jsonio import load_json, validate, write_json
 
 FORMAT = "wearable-gaze-camera"
+PREVIEW_SUFFIX = "_undistorted.png"        # calibrate-camera's preview beside its camera JSON: NAME_undistorted.png
 
 log = logging.getLogger(__name__)
+
+
+def preview_path(camera_json) -> Path:
+    """The undistortion preview written beside a camera JSON: ``NAME.json`` -> ``NAME_undistorted.png``."""
+    camera_json = Path(camera_json)
+    return camera_json.with_name(camera_json.stem + PREVIEW_SUFFIX)
+
+
+def is_preview(path) -> bool:
+    """Whether ``path`` is the preview of a camera JSON beside it (``NAME_undistorted.png`` next to
+    a ``NAME.json`` whose format is ours): an output of ``calibrate-camera``, not a photo."""
+    path = Path(path)
+    if not path.name.endswith(PREVIEW_SUFFIX):
+        return False
+    try:
+        d = json.loads(path.with_name(path.name[:-len(PREVIEW_SUFFIX)] + ".json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(d, dict) and d.get("format") == FORMAT
 
 
 def camera_dict(camera_matrix, dist_coeffs, image_size, model: str = "pinhole", rms_px=None, **extra) -> dict:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .tables import read_table, write_table
+from .tables import Checks, read_table, write_table
 
 COV_COLUMNS = tuple(f"cov_{k}_mm2" for k in ("xx", "xy", "xz", "yy", "yz", "zz"))
 COV_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -32,6 +32,9 @@ FIXATION_FORMATS = {"start_s": ".4f", "end_s": ".4f", "duration_s": ".4f", "x_mm
                     "z_mm": ".1f"} | dict.fromkeys(COV_COLUMNS, ".6g")
 _TEXT = tuple(k for k, d in FIXATION_COLUMNS.items() if d == "str")
 _NUMBERS = [k for k in FIXATION_COLUMNS if k not in _TEXT]
+FIXATION_CHECKS = Checks(tuple(_NUMBERS), ("x_mm", "y_mm", "z_mm", *COV_COLUMNS), COV_COLUMNS,
+                         "fixations table (fixations.csv)")
+"""What fixations.csv may hold, checked by its writer and its reader (covariances in mm^2)."""
 
 
 def fixation_columns(rows: list[dict]) -> dict:
@@ -56,7 +59,7 @@ def fixation_columns(rows: list[dict]) -> dict:
 def write_fixations_csv(path, rows: list[dict]) -> None:
     """Write fixations.csv, atomically, from one dict per fixation (``fixation_columns``); a
     header alone when there is no fixation."""
-    write_table(path, fixation_columns(rows), FIXATION_FORMATS)
+    write_table(path, fixation_columns(rows), FIXATION_FORMATS, FIXATION_CHECKS)
 
 
 def read_fixations_csv(path) -> dict:
@@ -66,8 +69,7 @@ def read_fixations_csv(path) -> dict:
     Raises:
         UserError: a missing file or column, a cell that is not a number (one line).
     """
-    cols = read_table(path, _NUMBERS, text_columns=_TEXT, what="fixations table (fixations.csv)",
-                      empty_ok=("x_mm", "y_mm", "z_mm", *COV_COLUMNS), rows_required=False)
+    cols = read_table(path, _NUMBERS, text_columns=_TEXT, rows_required=False, checks=FIXATION_CHECKS)
     for k in _TEXT:
         cols.setdefault(k, np.zeros(0, object))
     return {k: cols[k].astype(np.int64) if d == "int64" else cols[k] for k, d in FIXATION_COLUMNS.items()}

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .tables import TableWriter, read_table
+from .tables import Checks, TableWriter, read_table
 
 NOMINAL_DEPTH_MM = 1000.0
 """The depth at which a sample's 2D gaze is projected when there is no 3D estimate."""
@@ -52,6 +52,8 @@ GAZE_FORMATS = ({"t_s": ".6f", "device_t_s": ".6f", "gaze_x_px": ".2f", "gaze_y_
                  "est_x_mm": ".1f", "est_y_mm": ".1f", "est_z_mm": ".1f", "est_radius95_mm": ".1f"}
                 | {k: ".3f" for k in _RAY if "origin" in k} | {k: ".7f" for k in _RAY if "_dir_" in k})
 _EMPTY_OK = tuple(k for k, d in GAZE_COLUMNS.items() if d == "float64" and k not in ("t_s", "device_t_s"))
+GAZE_CHECKS = Checks(tuple(GAZE_COLUMNS), _EMPTY_OK, (), "gaze export (gaze.csv)")
+"""What gaze.csv may hold, checked by its writer and its reader."""
 
 
 CHUNK_ROWS = 20000
@@ -66,7 +68,7 @@ def write_gaze_csv(path, columns: dict) -> None:
         v = np.asarray(columns[name])
         out[name] = v.astype(np.int64) if dtype == "int64" else v.astype(float)
     n = len(out["sample"])
-    with TableWriter(path, list(GAZE_COLUMNS), GAZE_FORMATS) as w:
+    with TableWriter(path, list(GAZE_COLUMNS), GAZE_FORMATS, GAZE_CHECKS) as w:
         for i in range(0, n, CHUNK_ROWS):
             w.write({k: v[i:i + CHUNK_ROWS] for k, v in out.items()})
 
@@ -78,6 +80,5 @@ def read_gaze_csv(path) -> dict:
     Raises:
         UserError: a missing file or column, a cell that is not a number (one line).
     """
-    cols = read_table(path, list(GAZE_COLUMNS), what="gaze export (gaze.csv)", empty_ok=_EMPTY_OK,
-                      rows_required=False)
+    cols = read_table(path, list(GAZE_COLUMNS), rows_required=False, checks=GAZE_CHECKS)
     return {k: cols[k].astype(np.int64) if d == "int64" else cols[k] for k, d in GAZE_COLUMNS.items()}

@@ -8,7 +8,10 @@ writes).
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import sys
 from pathlib import Path
 
 import cv2
@@ -18,6 +21,7 @@ from ..errors import UserError
 from .atomic import atomic_path
 
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
+JPEG_START, JPEG_END, JPEG_SCAN = b"\xff\xd8", b"\xff\xd9", b"\xff\xda"      # SOI, EOI, SOS markers
 
 log = logging.getLogger(__name__)
 
@@ -30,10 +34,40 @@ def read_grey_image(path, what: str = "image", fix: str = "pass a PNG, JPEG, BMP
             image); FIX`` (``what`` says which image, ``fix`` what to do).
     """
     path = Path(path)
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.is_file() else None
+    try:
+        data = path.read_bytes() if path.is_file() else b""
+    except OSError:
+        data = b""
+    if data[:2] == JPEG_START and not jpeg_complete(data):
+        raise UserError(f"{path}: truncated {what} (its JPEG data ends before the end-of-image marker: an incomplete "
+                        f"copy); copy it again, or {fix}")
+    with _quiet_stderr():                   # libjpeg and libpng print their warnings on fd 2 themselves
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
     if img is None:
         raise UserError(f"{path}: missing or unreadable {what} (no such file, or not a readable image); {fix}")
     return img
+
+
+def jpeg_complete(data: bytes) -> bool:
+    """Whether JPEG ``data`` has its end-of-image marker after the start of its last scan (a
+    truncated copy has not: libjpeg decodes it anyway, grey where the data ran out, with a
+    "Premature end of JPEG file" on stderr). Markers cannot occur inside a scan's data (a 0xFF
+    byte there is stuffed as FF 00), so bytes after the marker (some cameras' trailers) are fine."""
+    return data.rfind(JPEG_END) > data.rfind(JPEG_SCAN)
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """File descriptor 2 sent to the null device for the block (C libraries' own warnings)."""
+    sys.stderr.flush()
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
 
 
 def write_image(path, img: np.ndarray) -> None:

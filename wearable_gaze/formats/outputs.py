@@ -14,11 +14,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import UserError
-from .fixations_table import FIXATION_COLUMNS
-from .gaze_export import GAZE_COLUMNS
+from .fixations_table import FIXATION_CHECKS, FIXATION_COLUMNS
+from .gaze_export import GAZE_CHECKS, GAZE_COLUMNS
 from .jsonio import load_json
-from .tables import csv_header
-from .targets import DEVICE_COLUMNS, ESTIMATE_COLUMNS, PATH_COLUMNS, TARGET_CSV_COLUMNS
+from .poses import POSE_CHECKS
+from .tables import Checks, csv_header, read_table
+from .targets import (
+    DEVICE_CHECKS,
+    DEVICE_COLUMNS,
+    ESTIMATE_CHECKS,
+    ESTIMATE_COLUMNS,
+    PATH_CHECKS,
+    PATH_COLUMNS,
+    TARGET_CSV_CHECKS,
+    TARGET_CSV_COLUMNS,
+)
 
 _F, _I, _S = "float64", "int64", "str"
 _LINES = {"t": _F, **{f"{s}_{k}": _F for s in ("left", "right") for k in ("ox", "oy", "oz", "dx", "dy", "dz")}}
@@ -36,6 +46,7 @@ class OutputFile:
         columns: a CSV's columns always present, in order: name -> dtype ('int64', 'float64' or
             'str': a text column, pandas' object or str dtype).
         optional_columns: a CSV's columns present only in some sessions (name -> dtype).
+        checks: a CSV's values: the ``tables.Checks`` its writer applied, and its reader does.
     """
 
     name: str
@@ -44,6 +55,7 @@ class OutputFile:
     schema: str | None = None
     columns: dict = field(default_factory=dict)
     optional_columns: dict = field(default_factory=dict)
+    checks: Checks | None = None
 
 
 PROCESS_OUTPUTS = (
@@ -52,7 +64,8 @@ PROCESS_OUTPUTS = (
     OutputFile("eyes.json", "json", "eyes: the eye calibration", schema="eyes"),
     OutputFile("poses.csv", "csv", "tracking: the head pose of every scene-video frame",
                columns={"t": _F, "frame": _I, **dict.fromkeys(("qw", "qx", "qy", "qz", "tx", "ty", "tz"), _F)},
-               optional_columns={"n_markers": _I, "n_points": _I, "reproj_rms_px": _F, "status": _S}),
+               optional_columns={"n_markers": _I, "n_points": _I, "reproj_rms_px": _F, "status": _S},
+               checks=POSE_CHECKS),
     OutputFile("built_map.json", "json", "tracking (--build-map): the marker map built from the video",
                schema="marker-map"),
     OutputFile(".viewlines_unsegmented.csv", "csv", "viewlines: the world view lines before segmentation",
@@ -62,18 +75,21 @@ PROCESS_OUTPUTS = (
     OutputFile("viewlines.csv", "csv", "targets: the view lines with their fixation labels",
                columns=_LINES | {"segment": _I}),
     OutputFile("estimates.csv", "csv", "targets: the fixations' running estimates",
-               columns={k: _I if k == "segment" else _F for k in ESTIMATE_COLUMNS}),
+               columns={k: _I if k == "segment" else _F for k in ESTIMATE_COLUMNS}, checks=ESTIMATE_CHECKS),
     OutputFile("targets.json", "json", "targets: the target records", schema="targets"),
     OutputFile("targets.csv", "csv", "targets: the target records flattened",
                columns={k: _I if k in ("target", "n_samples", "moving") else
-                        _S if k in ("fixations", "method", "status") else _F for k in TARGET_CSV_COLUMNS}),
+                        _S if k in ("fixations", "method", "status") else _F for k in TARGET_CSV_COLUMNS},
+               checks=TARGET_CSV_CHECKS),
     OutputFile("target_labels.npy", "npy", "targets: the target index of every row of viewlines.csv, -1 none"),
     OutputFile("target_paths.csv", "csv", "targets: the moving targets' paths (a header alone: none)",
-               columns={k: _I if k == "target" else _F for k in PATH_COLUMNS}),
-    OutputFile("fixations.csv", "csv", "targets: one row per fixation", columns=FIXATION_COLUMNS),
+               columns={k: _I if k == "target" else _F for k in PATH_COLUMNS}, checks=PATH_CHECKS),
+    OutputFile("fixations.csv", "csv", "targets: one row per fixation", columns=FIXATION_COLUMNS,
+               checks=FIXATION_CHECKS),
     OutputFile("device_comparison.csv", "csv", "targets (an imported session): each target beside the device's "
-               "3D gaze", columns={k: _I if k in ("target", "n_samples") else _F for k in DEVICE_COLUMNS}),
-    OutputFile("gaze.csv", "csv", "export: one row per eye sample", columns=GAZE_COLUMNS),
+               "3D gaze", columns={k: _I if k in ("target", "n_samples") else _F for k in DEVICE_COLUMNS},
+               checks=DEVICE_CHECKS),
+    OutputFile("gaze.csv", "csv", "export: one row per eye sample", columns=GAZE_COLUMNS, checks=GAZE_CHECKS),
     OutputFile("targets.ply", "ply", "export: the targets, their 95 % ellipsoids and the head path, mm"),
     OutputFile("report.html", "html", "report: the report (docs/processing.md)"),
     *(OutputFile(n, "png", "report: a plot") for n in ("plot_depth_vs_observations.png", "plot_density_slices.png",
@@ -100,7 +116,8 @@ def output_spec(name: str) -> OutputFile:
 def check_output(path) -> OutputFile:
     """Check one file of an output folder against its entry: a JSON file against its schema
     (``jsonio.load_json``), a CSV's header against its columns (every column of ``columns``, in
-    order, then only ``optional_columns``). Returns the entry.
+    order, then only ``optional_columns``) and its values against its ``checks`` (what its writer
+    checked). Returns the entry.
 
     Raises:
         UserError: a file ``process`` does not write, or one not in its format (one line).
@@ -118,4 +135,7 @@ def check_output(path) -> OutputFile:
         if names[:len(want)] != want or extra:
             raise UserError(f"{path}: columns {names}, expected {want} then any of {list(spec.optional_columns)}; "
                             "run 'wearable-gaze process' again (--force)")
+        if spec.checks is not None:
+            text = [n for n, d in (spec.columns | spec.optional_columns).items() if d == _S]
+            read_table(path, spec.checks.required, text, rows_required=False, checks=spec.checks)
     return spec

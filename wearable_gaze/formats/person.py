@@ -22,7 +22,7 @@ import logging
 import numpy as np
 
 from ..errors import UserError
-from .jsonio import fail, read_json_text, validate, write_json
+from .jsonio import fail, read_json_text, short, validate, write_json
 
 log = logging.getLogger(__name__)
 
@@ -53,8 +53,11 @@ def read_validation(path) -> list[dict]:
     d = read_json_text(path, "validation file")
     source = path
     if isinstance(d, dict) and "format" not in d and isinstance(d.get("targets"), list):
-        d = _from_truth(d)                       # the simulator's truth/targets.json
         source = f"{path} (read as a simulator's truth targets)"
+        if d.get("version", 1) != 1:             # a truth file of another version may mean other things
+            raise UserError(f"{source}: version {short(d['version'])}, but this program reads version 1; give a "
+                            "validation.json (docs/calibration.md) or a truth/targets.json of this version")
+        d = _from_truth(d)                       # the simulator's truth/targets.json
         if not d["targets"]:
             raise UserError(f"{source}: no static target with a fixation; a validation needs fixated static targets")
     validate(d, "validation", source)

@@ -14,11 +14,14 @@ import logging
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .tables import read_table, write_table
+from ..errors import UserError
+from .tables import Checks, read_table, write_table
 
 POSE_COLUMNS = ["t", "frame", "qw", "qx", "qy", "qz", "tx", "ty", "tz"]
 POSE_FORMATS = {"t": ".6f", "qw": ".12f", "qx": ".12f", "qy": ".12f", "qz": ".12f",
                 "tx": ".6f", "ty": ".6f", "tz": ".6f"}
+POSE_CHECKS = Checks(tuple(POSE_COLUMNS), ("qw", "qx", "qy", "qz", "tx", "ty", "tz"), (), "pose CSV")
+"""What a pose CSV may hold, checked by its writer and its reader."""
 
 log = logging.getLogger(__name__)
 
@@ -42,14 +45,23 @@ def write_poses_csv(path, t, frames, T_world_from_cam, extra: dict | None = None
     and ``frames`` (N,), then the ``extra`` columns, as a pose CSV, atomically."""
     cols = pose_columns(t, frames, T_world_from_cam)
     cols.update(extra or {})
-    write_table(path, cols, POSE_FORMATS)
+    write_table(path, cols, POSE_FORMATS, POSE_CHECKS)
 
 
 def read_poses_csv(path, text_columns=("status",)) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """(t (N,), frame (N,), T_world_from_cam (N, 4, 4) with NaN where there is no pose, extra
-    columns)."""
-    tab = read_table(path, POSE_COLUMNS, text_columns, "pose CSV",
-                     empty_ok=("qw", "qx", "qy", "qz", "tx", "ty", "tz"))
+    columns). Times must increase strictly.
+
+    Raises:
+        UserError: a time that does not increase (rows swapped or repeated), naming its line.
+    """
+    tab = read_table(path, POSE_COLUMNS, text_columns, checks=POSE_CHECKS)
+    bad = np.flatnonzero(np.diff(tab["t"]) <= 0)
+    if len(bad):
+        i = bad[0]
+        raise UserError(f"{path} line {i + 3}: time {float(tab['t'][i + 1])!r} s does not increase after "
+                        f"{float(tab['t'][i])!r} s; poses must be sorted in time: sort the rows and remove "
+                        "repeated times")
     q = np.column_stack([tab["qx"], tab["qy"], tab["qz"], tab["qw"]])
     T = np.full((len(q), 4, 4), np.nan)
     ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0)

@@ -1,7 +1,10 @@
 """Numeric CSV tables (eye samples, timestamps, poses): a reader of whole files (``read_table``), a
 streaming one for long device files (``csv_header``, ``iter_csv_chunks``, ``chunk_numbers``: memory
 flat in the file's length, gzip aware), both naming the file, line and column of the first problem,
-and one atomic writer (``TableWriter``)."""
+and one atomic writer (``TableWriter``). A format's ``Checks`` (its required columns, those whose
+empty cells mean no value, those in squared units) are applied by its writer before a row is
+written and by its reader after: whatever a writer writes, its reader accepts.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +13,7 @@ import gzip
 import io
 import zlib
 from array import array
+from dataclasses import dataclass
 from operator import itemgetter
 from pathlib import Path
 
@@ -18,9 +22,76 @@ import numpy as np
 from ..errors import UserError
 from .atomic import atomic_path
 
+MAX_ABS = 1e10
+"""The largest plausible magnitude of a table's value (ten billion seconds, millimetres or sensor
+counts)."""
+MAX_ABS_SQUARED = MAX_ABS ** 2
+"""... of a value in squared units (a variance or covariance, mm^2): its standard deviation within
+``MAX_ABS``. A vergence-only depth whose view lines are nearly parallel has a variance of 1e12
+mm^2 (a 1 km standard deviation): honest, and far beyond ``MAX_ABS``."""
+
+
+@dataclass(frozen=True)
+class Checks:
+    """What the numeric columns of one CSV format may hold: the one check that its writer
+    applies to the values it is about to write (``write_table(checks=)``, ``TableWriter``) and
+    its reader to the cells it read (``read_table(checks=)``).
+
+    Attributes:
+        required: the numeric columns every file has.
+        empty_ok: columns whose empty cell (NaN when written) means "no value".
+        squared: columns in squared units (covariances, mm^2), bounded by ``MAX_ABS_SQUARED``;
+            the others by ``max_abs``.
+        what: what the file is, for messages ("pose CSV").
+        max_abs: the bound of the other columns.
+    """
+
+    required: tuple
+    empty_ok: tuple = ()
+    squared: tuple = ()
+    what: str = "table"
+    max_abs: float = MAX_ABS
+
+    def bound(self, name: str) -> float:
+        return MAX_ABS_SQUARED if name in self.squared else self.max_abs
+
+    def problem(self, name: str, values: np.ndarray, empty: np.ndarray) -> tuple[int, str] | None:
+        """The first value of column ``name`` this format does not allow, as (row index, why),
+        or None: not a finite number (NaN allowed where ``empty`` and the column is
+        ``empty_ok``), or beyond ``bound(name)``."""
+        if name not in self.required or not len(values):
+            return None
+        bad = np.flatnonzero(~np.isfinite(values) & ~(empty & (name in self.empty_ok)))
+        if len(bad):
+            return int(bad[0]), "is not a finite number"
+        huge = np.flatnonzero(np.abs(np.nan_to_num(values)) > self.bound(name))
+        if len(huge):
+            return int(huge[0]), f"is beyond +-{self.bound(name):g}, not a plausible value"
+        return None
+
+    def check_written(self, path, columns: dict, first_row: int = 0) -> None:
+        """Refuse values about to be written as ``path`` that its reader would refuse.
+
+        Raises:
+            UserError: one line naming the file, column, row and value.
+        """
+        for name in self.required:
+            if name not in columns:
+                continue
+            v = np.asarray(columns[name])
+            if v.dtype.kind not in "fiub":
+                continue
+            v = v.astype(float)
+            found = self.problem(name, v, np.isnan(v))
+            if found is not None:
+                i, why = found
+                raise UserError(f"{path}: the {self.what} would hold {v[i]:g} in column {name}, row "
+                                f"{first_row + i + 1}, which {why}; not written, as its reader would refuse it "
+                                "(a fault in the step that computed it: please report it)")
+
 
 def read_table(path, required, text_columns=(), what: str = "table", fix: str = "", empty_ok=(),
-               max_abs: float = 1e10, rows_required: bool = True) -> dict:
+               max_abs: float = MAX_ABS, rows_required: bool = True, checks: Checks | None = None) -> dict:
     """Read a CSV with a header into {column: (N,) array}.
 
     Args:
@@ -31,16 +102,20 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
         what: what the file is, for messages ("eye-sample CSV").
         fix: a hint appended to "missing file" messages.
         empty_ok: columns whose empty cells mean "no value" (NaN), e.g. a frame without a pose.
-        max_abs: largest plausible magnitude of a required column's values (1e10: ten billion
-            seconds, millimetres or sensor counts).
+        max_abs: largest plausible magnitude of a required column's values (``MAX_ABS``).
         rows_required: False where a header alone is a valid file (no records): then the
             required columns come back empty.
+        checks: the format's ``Checks``, the ones its writer applied (then ``required``,
+            ``empty_ok``, ``what`` and ``max_abs`` are taken from it).
 
     Raises:
         UserError: missing file or column, a repeated column, an empty file, a file that is not
             UTF-8 text, a cell that is not a finite number or beyond ``max_abs``.
     """
     path = Path(path)
+    if checks is None:
+        checks = Checks(tuple(required), tuple(empty_ok), (), what, max_abs)
+    required, what = list(checks.required), checks.what
     names, reader = open_csv(path, required, what, fix or f"pass a {what} (check the path)")
     rows = [r for r in reader if any(c.strip() for c in r)]
     if not rows:
@@ -62,7 +137,7 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
             out[name] = np.array(cells, dtype=object)
             continue
         try:
-            vals = np.array([float(c) if c or name not in empty_ok else np.nan for c in cells], float) \
+            vals = np.array([float(c) if c or name not in checks.empty_ok else np.nan for c in cells], float) \
                 if cells else np.zeros(0)
         except ValueError:
             if name not in required:
@@ -72,14 +147,11 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
                     float(c)
                 except ValueError:
                     raise not_a_number(path, i + 2, name, c) from None
-        bad = np.flatnonzero(~np.isfinite(vals) & ~(np.array([c == "" for c in cells], bool) & (name in empty_ok)))
-        if len(bad) and name in required:
-            raise UserError(f"{path} line {bad[0] + 2}, column {name}: '{printable(cells[bad[0]])}' is not a finite "
-                            "number; write a finite number there")
-        huge = np.flatnonzero(np.abs(np.nan_to_num(vals)) > max_abs)
-        if len(huge) and name in required:
-            raise UserError(f"{path} line {huge[0] + 2}, column {name}: {cells[huge[0]]} is beyond +-{max_abs:g}, "
-                            "not a plausible value; fix the cell")
+        found = checks.problem(name, vals, np.array([c == "" for c in cells], bool))
+        if found is not None:
+            i, why = found
+            raise UserError(f"{path} line {i + 2}, column {name}: '{printable(cells[i])}' {why}; "
+                            + ("write a finite number there" if "finite" in why else "fix the cell"))
         out[name] = vals
     return out
 
@@ -308,13 +380,16 @@ class TableWriter:
     under its name only when the ``with`` block ends without an error (memory stays flat in the
     table's length; a reader never sees half a table).
 
-    Use: ``with TableWriter(path, names, formats) as w: w.write({name: (n,) values}); ...``
+    Use: ``with TableWriter(path, names, formats) as w: w.write({name: (n,) values}); ...``;
+    with ``checks`` (the format's ``Checks``), a chunk holding a value its reader would refuse
+    raises ``UserError`` and no file is written.
     """
 
-    def __init__(self, path, names, formats: dict | None = None):
+    def __init__(self, path, names, formats: dict | None = None, checks: Checks | None = None):
         self.path = Path(path)
         self.names = list(names)
         self.formats = formats or {}
+        self.checks = checks
         self.n_rows = 0
         self._ctx = self._fh = self._w = None
 
@@ -331,6 +406,8 @@ class TableWriter:
         missing = [c for c in self.names if c not in columns]
         if missing:
             raise ValueError(f"{self.path.name}: chunk lacks column(s) {', '.join(missing)}")
+        if self.checks is not None:
+            self.checks.check_written(self.path, columns, self.n_rows)
         cols = _cells({k: columns[k] for k in self.names}, self.formats)
         n = len(cols[0]) if cols else 0
         if any(len(c) != n for c in cols):
@@ -343,9 +420,12 @@ class TableWriter:
         return self._ctx.__exit__(exc_type, exc, tb)
 
 
-def write_table(path, columns: dict, formats: dict | None = None) -> None:
+def write_table(path, columns: dict, formats: dict | None = None, checks: Checks | None = None) -> None:
     """Write {name: (N,) values} as a CSV, atomically. ``formats``: name -> format spec
-    ('.3f'); default ``repr`` for floats, ``str`` otherwise."""
+    ('.3f'); default ``repr`` for floats, ``str`` otherwise. ``checks``: the format's
+    ``Checks``: a value its reader would refuse raises ``UserError``, nothing written."""
+    if checks is not None:
+        checks.check_written(path, columns)
     with TableWriter(path, list(columns), formats) as w:
         if columns:
             w.write(columns)

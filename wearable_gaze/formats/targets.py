@@ -51,7 +51,7 @@ from estimator.errormodel import FAR_SIDE_K, Sight
 from ..errors import UserError
 from .atomic import atomic_path
 from .jsonio import validate, write_json
-from .tables import read_table, write_table
+from .tables import Checks, read_table, write_table
 
 TARGET_KEYS = ("target", "t_start", "t_end", "position_mm", "ellipsoid95_radii_mm", "n_samples", "method", "status",
                "covariance_mm2", "crb_mm", "fixations")
@@ -79,6 +79,14 @@ PATH_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f"} | {k: ".6g" for 
 _COV_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 ESTIMATE_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
 ESTIMATE_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
+TARGET_CSV_CHECKS = Checks(tuple(c for c in TARGET_CSV_COLUMNS if c not in ("fixations", "method", "status")),
+                           tuple(c for c in TARGET_CSV_COLUMNS if c.endswith("_mm") or c.endswith("_mm2")
+                                 or c in ("t_start", "t_end")),
+                           tuple(f"cov_{k}_mm2" for k in COV_TERMS), "targets table (targets.csv)")
+PATH_CHECKS = Checks(PATH_COLUMNS, (), PATH_COLUMNS[5:], "target-path CSV (target_paths.csv)")
+"""What target_paths.csv may hold, checked by its writer and its reader: the covariances in mm^2
+(a path's end seen by nearly parallel lines has a depth variance of 1e12 mm^2)."""
+ESTIMATE_CHECKS = Checks(ESTIMATE_COLUMNS, ("radius95_mm",), (), "running-estimate CSV (estimates.csv)")
 
 log = logging.getLogger(__name__)
 
@@ -193,7 +201,7 @@ def write_targets_csv(path, records: list[dict], sessions=None) -> None:
     cols = target_csv_columns(records)
     if sessions is not None:
         cols = {"session": np.array(list(sessions), object), **cols}
-    write_table(path, cols, TARGET_FORMATS)
+    write_table(path, cols, TARGET_FORMATS, TARGET_CSV_CHECKS)
 
 
 def write_targets(out, records: list[dict], method: str) -> None:
@@ -247,7 +255,7 @@ def write_target_paths(path, paths: dict) -> None:
         for name, (i, j) in zip(PATH_COLUMNS[5:], _COV_INDEX, strict=True):
             cols[name].append(cov[:, i, j])
     out = {k: np.concatenate(v) if v else np.zeros(0, int if k == "target" else float) for k, v in cols.items()}
-    write_table(path, out, PATH_FORMATS)
+    write_table(path, out, PATH_FORMATS, PATH_CHECKS)
 
 
 def read_target_paths(path) -> dict:
@@ -257,7 +265,7 @@ def read_target_paths(path) -> dict:
     Raises:
         UserError: a missing file or column, a cell that is not a number (one line).
     """
-    cols = read_table(path, list(PATH_COLUMNS), what="target-path CSV (target_paths.csv)", rows_required=False)
+    cols = read_table(path, list(PATH_COLUMNS), rows_required=False, checks=PATH_CHECKS)
     out = {}
     for index in dict.fromkeys(int(v) for v in cols["target"]):
         sel = cols["target"] == index
@@ -290,7 +298,7 @@ def read_target_labels(path) -> np.ndarray:
 
 def write_estimates(path, columns: dict) -> None:
     """Write the columns ``ESTIMATE_COLUMNS`` ((N,) each; N may be 0) as estimates.csv, atomically."""
-    write_table(path, {k: np.asarray(columns[k]) for k in ESTIMATE_COLUMNS}, ESTIMATE_FORMATS)
+    write_table(path, {k: np.asarray(columns[k]) for k in ESTIMATE_COLUMNS}, ESTIMATE_FORMATS, ESTIMATE_CHECKS)
 
 
 def read_estimates(path) -> dict:
@@ -300,21 +308,22 @@ def read_estimates(path) -> dict:
     Raises:
         UserError: a missing file, a missing column, a cell that is not a number (one line).
     """
-    return read_table(path, list(ESTIMATE_COLUMNS), what="running-estimate CSV (estimates.csv)", rows_required=False,
-                      empty_ok=("radius95_mm",))          # empty: an estimate without a covariance (lse)
+    return read_table(path, list(ESTIMATE_COLUMNS), rows_required=False,
+                      checks=ESTIMATE_CHECKS)          # radius95_mm empty: an estimate without a covariance (lse)
 
 
 DEVICE_COLUMNS = ("target", "n_samples", "ours_distance_mm", "device_depth_mm", "ours_x_mm", "ours_y_mm", "ours_z_mm")
+DEVICE_CHECKS = Checks(DEVICE_COLUMNS, tuple(k for k in DEVICE_COLUMNS if k.endswith("_mm")), (),
+                       "device-comparison CSV")
 
 
 def write_device_comparison(path, rows: list[dict]) -> None:
     """device_comparison.csv: one row per target with ``DEVICE_COLUMNS`` (mm; NaN: none)."""
     cols = {k: np.array([r[k] for r in rows], float if k.endswith("_mm") else int) for k in DEVICE_COLUMNS}
-    write_table(path, cols, {k: ".1f" for k in DEVICE_COLUMNS if k.endswith("_mm")})
+    write_table(path, cols, {k: ".1f" for k in DEVICE_COLUMNS if k.endswith("_mm")}, DEVICE_CHECKS)
 
 
 def read_device_comparison(path) -> dict:
     """device_comparison.csv -> {column: (N,) array} (``DEVICE_COLUMNS``; NaN where empty)."""
-    mm = tuple(k for k in DEVICE_COLUMNS if k.endswith("_mm"))
-    return read_table(path, list(DEVICE_COLUMNS), what="device-comparison CSV", empty_ok=mm, rows_required=False)
+    return read_table(path, list(DEVICE_COLUMNS), rows_required=False, checks=DEVICE_CHECKS)
 

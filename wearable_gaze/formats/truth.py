@@ -4,8 +4,9 @@ and its fixation intervals; ``demo`` and the accuracy tests compare the estimate
 ``eyes.json`` (the simulated eyes: rotation centres, noise, bias, sensor models) and, when a
 marker moved during the session, ``moved_markers.json`` (its time and both poses). The other truth
 files are in the program's formats and go through their modules: ``camera.json``
-(formats/camera.py), ``head_poses.csv`` (formats/poses.py), ``viewlines.csv``
-(formats/viewlines.py), ``gaze.csv`` (a table, formats/tables.py).
+(formats/camera.py), ``markers.json`` (the true map, formats/markermap.py), ``head_poses.csv``
+(formats/poses.py), ``viewlines.csv`` (formats/viewlines.py), ``gaze.csv`` (a table,
+formats/tables.py).
 
 One reader and one writer each: ``read_truth_targets`` / ``write_truth_targets``,
 ``read_truth_eyes`` / ``write_truth_eyes``, ``read_truth_moved_markers`` /

@@ -27,10 +27,11 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..formats.atomic import remove_temporaries
-from ..formats.batch_status import STATUS_FILE, earlier_statuses, read_status, write_index, write_status
+from ..formats.batch_status import STATUS_FILE, earlier_statuses, lock_owner, read_status, write_index, write_status
 from ..formats.session import MANIFEST
 from .batch_report import write_batch_report
 from .batch_workers import DaskRunner, LocalRunner, SessionTask, WorkerLost, one_line
+from .steps import EXIT_PARTIAL, missing_output
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,8 @@ _SKIP_DIRS = ("processed",)                    # process's default output folder
 class BatchSettings:
     """The ``process`` settings every session of a batch runs with (``process_session``'s
     arguments of the same names; ``camera``, ``eyes``: files used instead of calibrating each
-    session; ``build_map``: (marker side mm, dictionary))."""
+    session; ``build_map``: (marker side mm, dictionary); ``markers``: a marker map every session is
+    tracked in)."""
 
     method: str = "voxel"
     camera: str | None = None
@@ -51,12 +53,13 @@ class BatchSettings:
     report: bool = True
     track_every: int = 2
     build_map: tuple | None = None
+    markers: str | None = None
 
     def process_kwargs(self) -> dict:
         """The keyword arguments of ``process_session``."""
         return {"method": self.method, "camera": self.camera, "eyes": self.eyes, "force": self.force,
                 "overlay": self.overlay, "report": self.report, "track_every": self.track_every,
-                "build_map": self.build_map}
+                "build_map": self.build_map, "markers": self.markers}
 
     def fingerprint_params(self) -> dict:
         """What decides a session's results (``force`` only says to redo them)."""
@@ -93,10 +96,15 @@ class BatchResult:
         return [n for n, s in self.statuses.items() if s["state"] == "done"]
 
     @property
+    def partial(self) -> list:
+        return [n for n, s in self.statuses.items() if s["state"] == "partial"]
+
+    @property
     def exit_status(self) -> int:
-        """0 when every session is done, 2 when any failed (as ``process`` on that session), 130
-        when interrupted."""
-        return 130 if self.interrupted else 2 if self.failed else 0
+        """0 when every session is done, 2 when any failed (as ``process`` on that session), else
+        3 when any is partial (targets, but a step failed: ``process`` exits 3), 130 when
+        interrupted."""
+        return 130 if self.interrupted else 2 if self.failed else EXIT_PARTIAL if self.partial else 0
 
 
 # --- the sessions and their output folders ------------------------------------------------------
@@ -172,12 +180,26 @@ def session_fingerprint(root: Path, settings: BatchSettings, exclude=None) -> st
             if not f.startswith("."):
                 st = os.stat(os.path.join(dirpath, f))
                 h.update(f"{os.path.relpath(os.path.join(dirpath, f), root)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
-    for p in (settings.camera, settings.eyes):
+    for p in (settings.camera, settings.eyes, settings.markers):
         if p is not None:
             st = os.stat(p) if os.path.exists(p) else None
             h.update(f"{Path(p).resolve()}:{st and (st.st_size, st.st_mtime_ns)}\n".encode())
     h.update(json.dumps(settings.fingerprint_params(), sort_keys=True, default=str).encode())
     return h.hexdigest()
+
+
+def check_out_folder(out: Path) -> None:
+    """Refuse an output folder that is a session folder or inside one: the batch would write its
+    outputs into that session (and skip it, as a session is not searched inside).
+
+    Raises:
+        UserError: ``out`` or a folder above it holds a session manifest.
+    """
+    for d in (out, *out.parents):
+        if (d / MANIFEST).is_file():
+            raise UserError(f"-o {out}: is {'a session folder' if d == out else f'inside the session folder {d}'} "
+                            f"(it has {MANIFEST}); batch would write into that session: choose a folder outside "
+                            "every session")
 
 
 # --- the batch -------------------------------------------------------------------------------------
@@ -191,15 +213,23 @@ def _plan(paths, out: Path, settings: BatchSettings) -> tuple[dict, list, list]:
     statuses, tasks, skipped = {}, [], []
     for s in sessions:
         name, st = names[s], earlier.get(s)
+        owner = lock_owner(out / name)
+        if owner is not None:                                   # a worker of another batch holds it: not twice
+            log.warning("%s: being processed by %s (its lock file): left to it", name, owner)
+            statuses[name] = dict(st or {}, name=name, session=str(s), state="running",
+                                  reason=f"being processed by another batch's worker ({owner})")
+            continue
         remove_temporaries(out / name, [STATUS_FILE])          # left by a worker killed while writing it
         fp = session_fingerprint(s, settings, out)
-        if (not settings.force and st is not None and st["state"] == "done" and st.get("fingerprint") == fp
-                and (out / name / "summary.json").is_file()):
+        same = st is not None and st["state"] == "done" and st.get("fingerprint") == fp
+        lost = missing_output(out / name) if same else None
+        if not settings.force and same and lost is None:
             log.info("%s: done earlier and unchanged: skipped", name)
             statuses[name] = st
             skipped.append(name)
             continue
-        why = ("new" if st is None else "forced" if settings.force else "changed" if st["state"] == "done" else
+        why = ("new" if st is None else "forced" if settings.force else f"done earlier, but {lost}" if same else
+               "changed" if st["state"] == "done" else
                f"{st['state']} in the earlier run" + (f" ({st['reason']})" if st.get("reason") else ""))
         log.info("%s: %s: to do", name, why)
         statuses[name] = {"version": 1, "name": name, "session": str(s), "fingerprint": fp, "state": "pending",
@@ -221,10 +251,11 @@ def _lost(task: SessionTask, exc: BaseException) -> dict:
     return st
 
 
-def _interrupted(out: Path, statuses: dict, local: bool) -> None:
-    """After Ctrl-C: each session's status as its file has it; a local session whose worker was
-    stopped goes back to ``pending`` (a Dask worker finishes its session and writes it)."""
-    for name in statuses:
+def _interrupted(out: Path, statuses: dict, local: bool, ours) -> None:
+    """After Ctrl-C: each session of this run (``ours``: names) as its file has it; a local
+    session whose worker was stopped goes back to ``pending`` (a Dask worker finishes its session
+    and writes it)."""
+    for name in ours:
         st = read_status(out / name)
         if st is None:
             continue
@@ -250,10 +281,12 @@ def run_batch(paths, out, settings: BatchSettings = BatchSettings(), workers: in
         BatchResult; ``interrupted`` when Ctrl-C stopped it (the statuses on disk say where).
 
     Raises:
-        UserError: no session found, a Dask scheduler unreachable or Dask not installed.
+        UserError: no session found, ``out`` inside a session, a Dask scheduler unreachable or
+            Dask not installed.
     """
     t0 = time.perf_counter()
     out = Path(out).resolve()                   # workers may run elsewhere: absolute paths
+    check_out_folder(out)
     runner = DaskRunner(scheduler) if scheduler else LocalRunner(workers or os.cpu_count() or 1)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -277,7 +310,7 @@ def run_batch(paths, out, settings: BatchSettings = BatchSettings(), workers: in
         except KeyboardInterrupt:
             runner.stop()
             res.interrupted = True
-            _interrupted(out, statuses, isinstance(runner, LocalRunner))
+            _interrupted(out, statuses, isinstance(runner, LocalRunner), [t.name for t in tasks])
             write_index(out, statuses, settings.fingerprint_params())
         write_batch_report(out, statuses)
     finally:
@@ -292,9 +325,11 @@ def format_summary(res: BatchResult) -> str:
     counts = Counter(s["state"] for s in res.statuses.values())
     parts = [f"{counts.get('done', 0)} done" + (f" ({len(res.skipped)} unchanged, skipped)" if res.skipped else ""),
              f"{counts.get('failed', 0)} failed"]
+    if counts.get("partial"):
+        parts.insert(1, f"{counts['partial']} partial (a step failed)")
     left = counts.get("pending", 0) + counts.get("running", 0)
     if left:
         parts.append(f"{left} not finished (interrupted: run the same command again to resume)")
-    n_targets = sum(s.get("n_targets", 0) for s in res.statuses.values() if s["state"] == "done")
+    n_targets = sum(s.get("n_targets", 0) for s in res.statuses.values() if s["state"] in ("done", "partial"))
     return (f"batch: {len(res.statuses)} session(s): {', '.join(parts)}; {n_targets} target(s); "
             f"{res.seconds:.0f} s; report {res.out / 'batch_report.html'}")

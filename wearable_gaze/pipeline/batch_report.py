@@ -21,7 +21,7 @@ from ..formats.session import MANIFEST
 from ..formats.tables import write_table
 from ..formats.targets import read_targets, write_targets_csv
 from ..formats.truth import read_truth_targets
-from .truth_match import match_targets
+from .truth_match import TruthFrame, match_targets
 
 log = logging.getLogger(__name__)
 
@@ -50,19 +50,22 @@ def _recording_s(session: Path) -> float:
         return float("nan")
 
 
-def truth_errors(session: Path, rows: list[dict]) -> dict:
+def truth_errors(session: Path, rows: list[dict], frame: TruthFrame | None = None) -> dict:
     """The targets found (rows of targets.json) against a simulated session's truth
-    (``truth/targets.json``; ``truth_match.match_targets``): the static true targets, how many were
-    found, the RMS and largest distance of each found one to its truth (mm) and the RMS of their
-    Cramér-Rao bounds (mm). {} without a truth."""
+    (``truth/targets.json``; ``truth_match.match_targets``), moved into the world of the map the
+    session was processed with (``frame``, from its summary.json; None: the truth's own): the
+    static true targets, how many were found, the RMS and largest distance of each found one to
+    its truth (mm) and the RMS of their Cramér-Rao bounds (mm). {} without a truth, or one that
+    cannot be moved into that world."""
     path = session / "truth" / "targets.json"
-    if not path.is_file():
+    if not path.is_file() or (frame is not None and frame.T_map_from_truth is None):
         return {}
     try:
         truth = [t for t in read_truth_targets(path) if "position_mm" in t]
     except UserError as exc:
         log.warning("%s", exc)
         return {}
+    truth = frame.targets(truth) if frame is not None else truth
     pairs = [(tt, f) for tt, f in match_targets(rows, truth) if f is not None]
     err = np.array([np.linalg.norm(np.array(f["position_mm"]) - tt["position_mm"]) for tt, f in pairs])
     crb = np.array([np.nan if f["crb_mm"] is None else f["crb_mm"] for _, f in pairs], float)
@@ -77,7 +80,7 @@ def _session_row(out: Path, st: dict) -> tuple[dict, list[dict]]:
     """A session's row of the report and its targets (rows of targets.json; none unless done)."""
     session = Path(st["session"])
     rows = []
-    if st["state"] == "done" and (out / st["name"] / "targets.json").is_file():
+    if st["state"] in ("done", "partial") and (out / st["name"] / "targets.json").is_file():
         try:
             rows = read_targets(out / st["name"] / "targets.json")
         except UserError as exc:
@@ -88,8 +91,17 @@ def _session_row(out: Path, st: dict) -> tuple[dict, list[dict]]:
            "processing_s": float(st.get("duration_s", nan)), "n_problems": len(st.get("problems", [])),
            "truth_targets": "", "truth_found": "", "error_rms_mm": nan, "error_max_mm": nan, "crb_rms_mm": nan,
            "peak_rss_mb": float(st.get("peak_rss_mb") or nan), "worker": st.get("worker", ""), "path": str(session)}
-    row.update(truth_errors(session, rows) if rows else {})
+    row.update(truth_errors(session, rows, _truth_frame(out / st["name"])) if rows else {})
     return row, rows
+
+
+def _truth_frame(folder: Path) -> TruthFrame | None:
+    """The ``TruthFrame`` a session's summary.json records (None: none, or no readable summary)."""
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+        return TruthFrame.from_record(summary.get("truth_frame"))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
 
 
 def write_batch_report(out, statuses: dict) -> list[dict]:
@@ -129,12 +141,13 @@ def _html(out: Path, table: list[dict]) -> str:
         truth = (f"<p>Against the simulator's truth ({len(found)} session(s)): {sum(r['truth_found'] for r in found)} "
                  f"of {sum(r['truth_targets'] for r in found)} true targets found; RMS error over sessions "
                  f"{np.sqrt(np.nanmean(err ** 2)):.1f} mm.</p>" if np.isfinite(err).any() else "")
-    summary = ", ".join(f"{counts.get(k, 0)} {k}" for k in ("done", "failed", "pending", "running") if counts.get(k))
+    summary = ", ".join(f"{counts.get(k, 0)} {k}" for k in ("done", "partial", "failed", "pending", "running")
+                        if counts.get(k))
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>wearable-gaze batch report</title>
 <style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px}}
-tr.failed{{background:#fdd}}tr.pending,tr.running{{background:#ffd}}</style>
+tr.failed{{background:#fdd}}tr.partial,tr.pending,tr.running{{background:#ffd}}</style>
 </head><body><h1>Batch: {len(table)} session(s)</h1>
 <p>{html.escape(summary)}. Each session's outputs are in its folder (its name links to its report). Errors are
 the distances from each found target to the true one it matches, world frame; the Cramér-Rao bound is the

@@ -12,12 +12,22 @@ import logging
 import os
 import socket
 import time
+import traceback
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import UserError
-from ..formats.batch_status import read_status, write_status
+from ..formats.batch_status import (
+    LOCK_FILE,
+    STATUS_FILE,
+    is_alive,
+    read_status,
+    release_lock,
+    take_lock,
+    this_process,
+    write_status,
+)
 
 log = logging.getLogger(__name__)
 
@@ -62,14 +72,29 @@ def one_line(text: str, limit: int = 500) -> str:
 
 def run_session(task: SessionTask) -> dict:
     """Process one session into ``task.out`` as ``process`` would (in a worker process, local or
-    Dask); write its status there before (``running``) and after (``done``, or ``failed`` with
-    the reason: the session unreadable, or no target estimated, as ``process`` exits 2); return
-    the final status. Never raises for a bad session; Ctrl-C and a killed worker leave the
-    status ``running``."""
+    Dask); write its status there before (``running``) and after (``done``; ``partial`` with the
+    reason: targets, but a step failed, as ``process`` exits 3; or ``failed`` with the reason:
+    the session unreadable, or no target estimated, as ``process`` exits 2, or an internal error,
+    its traceback kept in the status as ``traceback``); return the final status. Never raises for
+    a bad session; Ctrl-C and a killed worker leave the status ``running``."""
     from .process import process_session  # noqa: PLC0415  (the worker's heavy import, once)
 
     out = Path(task.out)
     out.mkdir(parents=True, exist_ok=True)
+    owner = take_lock(out)
+    if owner is not None:                   # its status file is the owner's: left alone
+        return {"version": 1, "name": task.name, "session": task.session, "fingerprint": task.fingerprint,
+                "state": "failed", "attempt": task.attempt,
+                "reason": f"being processed by another worker ({owner}, {out / LOCK_FILE}): not done twice; run the "
+                          "batch again once that one has finished"}
+    try:
+        return _run_locked(task, out, process_session)
+    finally:
+        release_lock(out)
+
+
+def _run_locked(task: SessionTask, out: Path, process_session) -> dict:
+    """``run_session`` once this worker holds the session's lock."""
     status = {"version": 1, "name": task.name, "session": task.session, "fingerprint": task.fingerprint,
               "state": "running", "reason": None, "attempt": task.attempt, "worker": f"{socket.gethostname()}:"
               f"{os.getpid()}", "started": time.time()}
@@ -82,10 +107,11 @@ def run_session(task: SessionTask) -> dict:
     except Exception as exc:  # noqa: BLE001  (a bug on one session must not stop the others)
         log.exception("session %s: internal error", task.session)
         status.update(state="failed", reason=one_line(f"internal error ({type(exc).__name__}: {exc}); this is a "
-                                                      "bug: run 'wearable-gaze -v process' on it for the traceback"))
+                                                      f"bug: its traceback is in {STATUS_FILE}"),
+                      traceback=traceback.format_exc())
     else:
-        ok = res.exit_status == 0
-        status.update(state="done" if ok else "failed", reason=None if ok else one_line("; ".join(res.problems)),
+        state = {"ok": "done", "partial": "partial"}.get(res.outcome, "failed")
+        status.update(state=state, reason=None if state == "done" else one_line("; ".join(res.problems)),
                       n_targets=len(res.found), problems=res.problems, failed_steps=res.failed,
                       steps_skipped=res.skipped)
     status["duration_s"] = round(time.perf_counter() - t0, 3)
@@ -96,16 +122,29 @@ def run_session(task: SessionTask) -> dict:
     return status
 
 
-def _init_local_worker() -> None:
-    """A local worker: Ctrl-C is the coordinator's to handle (it stops the workers); one thread
-    for OpenCV (the batch runs one worker per core)."""
+def _init_local_worker(coordinator: str) -> None:
+    """A local worker: Ctrl-C is the coordinator's to handle (it stops the workers); the worker
+    ends when its ``coordinator`` (``HOST:PID:START``) does, killed or not (``_watch``); one
+    thread for OpenCV (the batch runs one worker per core)."""
     import signal  # noqa: PLC0415
+    import threading  # noqa: PLC0415
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_watch, args=(coordinator,), name="coordinator-watch", daemon=True).start()
     with contextlib.suppress(ImportError):
         import cv2  # noqa: PLC0415
 
         cv2.setNumThreads(1)
+
+
+def _watch(coordinator: str) -> None:
+    """End this worker process at once when the ``coordinator`` process is gone (a coordinator
+    killed outright cannot stop its workers: they would go on writing into OUT, and a restarted
+    batch would find the sessions they hold). Its session stays ``running``, its lock stale: the
+    next batch does it again."""
+    while is_alive(coordinator):
+        time.sleep(POLL_S)
+    os._exit(1)
 
 
 # --- the runners: local processes or a Dask cluster ------------------------------------------------
@@ -186,7 +225,8 @@ class LocalRunner:
         with _single_threaded_children():               # the workers are started on demand, and replaced
             while todo:
                 self.pool = ProcessPoolExecutor(min(self.workers, len(todo)), _context(),
-                                                initializer=_init_local_worker, max_tasks_per_child=1)
+                                                initializer=_init_local_worker, initargs=(this_process(),),
+                                                max_tasks_per_child=1)
                 futures = {self.pool.submit(run_session, t): t for t in todo}
                 todo = []
                 for fut in _as_completed(futures):

@@ -36,7 +36,7 @@ from tracking.markers import MarkerDetector
 from tracking.timeline import interpolate_poses
 
 from ..errors import UserError, check_output
-from ..formats.camera import calibration_dict, load_camera, write_camera
+from ..formats.camera import calibration_dict, is_preview, load_camera, preview_path, write_camera
 from ..formats.eye_samples import EyeSamples, read_eye_csv
 from ..formats.eyes import eyes_dict, load_eyes, write_eyes
 from ..formats.images import IMAGE_EXT, image_files, read_grey_image, write_image
@@ -55,12 +55,17 @@ log = logging.getLogger(__name__)
 # --- calibrate-camera --------------------------------------------------------------------------
 
 def input_files(inputs) -> list:
-    """The image and video files of the inputs (folders: their images, sorted)."""
+    """The image and video files of the inputs (folders: their images, sorted, but not the
+    undistortion preview ``calibrate-camera -o`` wrote beside its camera JSON there)."""
     files = []
     for p in inputs:
         p = Path(p)
         if p.is_dir():
-            files += image_files(p)
+            images = image_files(p)
+            own = [f for f in images if is_preview(f)]
+            if own:
+                log.info("left out, a preview calibrate-camera wrote: %s", ", ".join(f.name for f in own))
+            files += [f for f in images if f not in own]
         elif p.is_file():
             files.append(p)
         else:
@@ -82,6 +87,17 @@ def read_frames(files, max_video_frames: int, what: str = "the board"):
             yield f"{f.name}#{i}", grey
 
 
+def check_frame_size(name: str, grey, cam) -> None:
+    """Refuse a frame (H, W) of another size than the camera calibration's (``name``: which).
+
+    Raises:
+        UserError: naming the two sizes and the fix.
+    """
+    if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
+        raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
+                        f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
+
+
 def board_spec(board) -> BoardSpec:
     """The board of a ``--board`` text (``chessboard:9x6:25``, ``charuco:...``); a BoardSpec
     passes through."""
@@ -96,7 +112,7 @@ def board_spec(board) -> BoardSpec:
 def _camera_outputs(out, files) -> tuple[Path, Path]:
     """The camera JSON and its preview image, checked not to overwrite an input."""
     out = Path(out)
-    preview = out.with_name(out.stem + "_undistorted.png")
+    preview = preview_path(out)
     check_output(out, files, "-o")
     check_output(preview, files, "-o (its preview image)")
     return out, preview
@@ -314,6 +330,7 @@ def _wall_targets(img, walls_path: Path, wall: Wall, camera: CameraCalibration):
     grey image, or the error why it is missing or unreadable)."""
     if isinstance(img, UserError):
         raise img
+    check_frame_size(str(wall.image), img, camera)
     try:
         det = MarkerDetector(wall.dictionary)
     except ValueError as exc:

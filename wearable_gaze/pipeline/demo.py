@@ -21,8 +21,9 @@ from ..formats.truth import read_truth_targets
 from ..progress import progress_bar
 from ..sim.scenario import resolve
 from ..sim.simulate import simulate
-from .process import format_result, process_session
-from .truth_match import match_positions
+from .process import process_session
+from .steps import format_result
+from .truth_match import TruthFrame, match_positions
 
 DEMO_PREFIX = "wearable-gaze-demo-"
 
@@ -128,7 +129,8 @@ def run_demo(out=None, seed: int = 0, duration_s: float = 20.0, reuse: bool = Fa
     if res.skipped:
         print(f"demo: reused, not redone: {', '.join(res.skipped)}", file=err)
     print(format_result(res))
-    _compare(res, read_truth_targets(session / "truth" / "targets.json"))
+    _compare(res, read_truth_targets(session / "truth" / "targets.json"), TruthFrame.from_record(
+        res.summary.get("truth_frame")))
     for p in res.problems:
         print(f"problem: {p}")
     report = res.out / "report.html"
@@ -138,12 +140,18 @@ def run_demo(out=None, seed: int = 0, duration_s: float = 20.0, reuse: bool = Fa
         print(f"open the report in a browser: {report.as_uri()}")
     else:
         print(f"no report was written (see the problems above); the results are in {res.out}")
-    return res.exit_status                                    # 2 when no target could be estimated
+    return res.exit_status                                    # 2 no target could be estimated, 3 a step failed
 
 
-def _compare(res, truth: list) -> None:
-    """Each true target beside its estimate, the error and the Cramér-Rao bound."""
+def _compare(res, truth: list, frame: TruthFrame | None = None) -> None:
+    """Each true target beside its estimate, the error and the Cramér-Rao bound; the truth moved
+    into the world of the map used first (``frame``; None: the truth's own)."""
     print("\ncompared with the truth:")
+    if frame is not None:
+        print(frame.note())
+        if frame.T_map_from_truth is None:
+            return
+        truth = frame.targets(truth)
     print(f"{'true target':>11} {'true position mm':>24} {'estimate mm':>24} {'error mm':>9} {'CRB mm':>7}")
     found = res.found
     for tt, k in match_positions([t.position_mm for t in found], truth, [t.index for t in found]):

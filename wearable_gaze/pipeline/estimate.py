@@ -267,6 +267,26 @@ def targets_of_segments(path, method: str, sigma_deg: float, error_model: ErrorM
     return out
 
 
+def nothing_estimated(path, results: list[dict]) -> UserError | None:
+    """The error for an ``estimate_file`` result in which no segment (or target) got a position:
+    every row in segment -1, or every estimate failed (too few rows, parallel lines); None when
+    at least one has a position."""
+    tried = [r for r in results if r.get("status") != "skipped"]
+    if any(r.get("position_mm") is not None for r in tried):
+        return None
+    if not tried and not results:                 # --targets: no fixation gave a target
+        return UserError(f"{path}: nothing could be estimated: no fixation gave a target (too few rows, or view lines "
+                         "that do not converge); check the view lines, or estimate the segments without --targets")
+    if not tried:
+        return UserError(f"{path}: nothing to estimate: every row is in segment {NO_FIXATION} (saccades, blinks, "
+                         "gaps); segment the view lines again (wearable-gaze fixations, docs/processing.md)")
+    first = tried[0]
+    which = f"target {first['target']}" if "target" in first else f"segment {first.get('segment')}"
+    return UserError(f"{path}: nothing could be estimated: all {len(tried)} failed ({which}: {first['status']}, "
+                     f"{first['reason']}); check that the view lines converge on the gazed point and each segment "
+                     "has enough rows, or try another --method")
+
+
 def skipped_note(results: list[dict]) -> str | None:
     """The line saying how many rows of segment -1 were not estimated (None: none)."""
     n = sum(r["n_samples"] for r in results if r.get("status") == "skipped")

@@ -5,6 +5,7 @@ views, residual, covariance and flags."""
 
 from __future__ import annotations
 
+import itertools
 import logging
 from pathlib import Path
 
@@ -19,7 +20,8 @@ from ..formats.camera import load_camera
 from ..formats.images import IMAGE_EXT
 from ..formats.markermap import load_marker_map, marker_map_dict, write_marker_map
 from ..progress import staged
-from .calibrate import input_files, read_frames
+from .calibrate import check_frame_size, input_files, read_frames
+from .track import no_marker_error
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +93,11 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
         if progress:
             detecting(k + 1, max(k + 1, total))
     seen = sorted({i for v in views for i in v})
+    if views and not seen:
+        source, fix = (("the --extend map", 'write "dictionary": "{}" in it') if prior is not None
+                       else ("--dict", "pass --dict {}"))
+        sample = [g for _, g in itertools.islice(read_frames(files, 5), 5)]       # to name the dictionary
+        raise no_marker_error(dictionary, sample, "map", source, fix)
     size = {i: size_mm for i in seen if size_mm is not None}
     size.update({i: s for i, s in (sizes or {}).items() if i in seen})
     if progress:
@@ -109,17 +116,6 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
-
-
-def check_frame_size(name: str, grey, cam) -> None:
-    """Refuse a frame (H, W) of another size than the camera calibration's (``name``: which).
-
-    Raises:
-        UserError: naming the two sizes and the fix.
-    """
-    if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
-        raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
-                        f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
 
 
 def frames_total(files, max_frames: int) -> int:

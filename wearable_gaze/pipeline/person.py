@@ -20,7 +20,7 @@ import numpy as np
 from calibration.kappa import angular_errors_deg, apply_kappa, fit_kappa_targets
 from tracking.timeline import interpolate_poses
 
-from ..errors import UserError
+from ..errors import UserError, check_output
 from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes
@@ -132,7 +132,16 @@ def learn_bias(session, validation, processed=None, eyes=None, settle_s: float =
 
 
 def learn_bias_file(session, validation, out, processed=None, eyes=None) -> dict:
-    """``learn_bias`` written to ``out`` (person.json); returns the dict written."""
+    """``learn_bias`` written to ``out`` (person.json); returns the dict written.
+
+    Raises:
+        UserError: ``out`` is one of the files read, the defaulted ones too (PROCESSED/poses.csv,
+            PROCESSED/eyes.json, the session's files), before any work.
+    """
+    s = load_session(session)
+    done = Path(processed) if processed is not None else s.root / "processed"
+    check_output(out, [done / "poses.csv", done / "eyes.json", eyes, validation,
+                       *(s.root / rel for rel in s.manifest["files"].values())], "-o")
     person = learn_bias(session, validation, processed, eyes)
     write_person(out, person)
     return person

@@ -28,7 +28,7 @@ from ..formats.devices.common import read_import_report
 from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
-from ..formats.jsonio import write_json
+from ..formats.jsonio import load_json, write_json
 from ..formats.markermap import load_marker_map
 from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv, write_poses_csv
@@ -52,10 +52,12 @@ from .device import POSE_NOTES, device_comparison, device_poses, still_head_pose
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
+from .process_options import applicable, check_map_options, report_truth, truth_frame
 from .report import OverlayInputs, load_truth, write_report
 from .segmentation import segment_view_lines
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
 from .track import frame_times, track_video
+from .truth_match import TruthFrame
 from .types import Poses, Target
 
 log = logging.getLogger(__name__)
@@ -75,6 +77,7 @@ class _Settings:
     build_map: tuple | None = None      # (marker side mm, dictionary) to build a map from the video
     sfm_map: Path | None = None         # a markerless map folder to localise the video's frames in
     overlay_video: bool = False         # the report also writes the full-resolution overlay.mp4
+    map_kind: str = "session"           # the map tracked in: session, given, built, markerless
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,8 @@ class _SessionFiles:
     clock_offset_s: float = 0.0             # ... the device's clock at session time 0, s
     truth_targets: Path | None = None       # a simulated session's truth, shown in the report
     truth_head_poses: Path | None = None
+    truth_map: Path | None = None           # ... its true marker map (the truth's frame)
+    truth_moved: Path | None = None         # ... the markers moved during it
 
     @classmethod
     def of(cls, s) -> _SessionFiles:
@@ -108,7 +113,9 @@ class _SessionFiles:
                    s.path("eye_rays"), s.path("head_poses"), s.path("device_gaze"),
                    s.manifest.get("source", {}).get("pose_source"), s.manifest.get("eye_rate_hz"),
                    s.path("import_report"), float(s.manifest.get("source", {}).get("clock_offset_s", 0.0)),
-                   s.path("truth_targets"), s.path("truth_head_poses"))
+                   s.path("truth_targets"), s.path("truth_head_poses"),
+                   s.path("truth_markers") or (s.path("truth_targets") and s.path("marker_map")),
+                   s.path("truth_moved_markers"))
 
 
 class _Values:
@@ -138,7 +145,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
                     segment_config: SegmentConfig | None = None, progress_factory=None, person=None,
                     build_map: tuple | None = None, sfm_map=None, overlay_video: bool = False, rerun: str | None = None,
-                    rerun_frames: int = 0) -> ProcessResult:
+                    rerun_frames: int = 0, markers=None) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -153,28 +160,29 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         segment_config: fixation segmentation settings (default ``SegmentConfig()``).
         progress_factory: name -> context manager yielding a progress(done, total) callback.
         person: a person.json (``learn-bias``) whose per-eye correction the view lines get.
-        build_map: (marker side, mm; dictionary name): a session without a marker map gets one
-            built from its own scene video (``pipeline.mapping``, written as built_map.json)
-            before tracking; a session with one keeps it.
+        build_map: (marker side, mm; dictionary name): a map built from the session's own scene
+            video (``pipeline.mapping``, written as built_map.json) before tracking, used in place
+            of the session's map if it has one (a note says so).
         sfm_map: a markerless map folder (``map --markerless``): the scene video's frames are
             localised in it (``tracking.localise``) instead of tracked by the session's markers.
         overlay_video: the report also writes overlay.mp4, the overlay at full resolution.
+        markers: a marker map (``map``) to track the video in, in place of the session's.
         rerun: also log the results to rerun (``pipeline.rerun_view``): an .rrd file, a viewer's
             address, or 'spawn'; ``rerun_frames``: with it, one scene frame in this many (0: none).
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
-        failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated.
+        failed, ``status`` what ran; ``exit_status`` is 2 when no target could be estimated, 3
+        when targets were but a step failed (``outcome`` 'partial').
 
     Raises:
-        UserError: the session itself cannot be read.
+        UserError: the session cannot be read; contradicting options, a bad map (``check_map_options``).
     """
     s = load_session(session)
-    if sfm_map is not None:
-        load_sfm_map(sfm_map)                                   # checked before any step
+    markers = check_map_options(markers, build_map, sfm_map, overlay, overlay_video)       # before any step
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
-    out = _output_folder(s.root, out)
+    out = _output_folder(s.root, out, s.manifest["files"].values())
     res = ProcessResult(out)
     files = s.manifest["files"]
     # a live recording carries the calibrations it ran with
@@ -182,7 +190,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         camera = s.root / files["camera"]
     if eyes is None and "eyes" in files and "eye_calibration" not in files:
         eyes = s.root / files["eyes"]
-    steps = Steps(out, force, res, progress_factory, [p for p in (camera, eyes) if p is not None])
+    steps = Steps(out, force, res, progress_factory, [p for p in (camera, eyes, markers) if p is not None])
     for p in remove_temporaries(out, [f for fs in OUTPUTS.values() for f in fs] + list(OTHER_FILES)):
         log.warning("removed %s, a temporary file left by an earlier run that was stopped", p)
     if s.manifest.get("complete") is False:
@@ -193,6 +201,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person,
                     None if build_map is None else (float(build_map[0]), str(build_map[1])),
                     None if sfm_map is None else Path(sfm_map), overlay_video)
+    f, cfg, res.summary["notes"] = applicable(f, cfg, markers, eyes is not None, rerun_frames)
     if correction is not None:
         res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
     cam_path = Path(camera) if camera else out / "camera.json"
@@ -231,7 +240,7 @@ def _view_in_rerun(rerun: str, frames_every: int, res: ProcessResult, s, f: _Ses
     try:
         res.summary["rerun"] = view_processed(rerun, out, res.found or None, cam_path, f.markers or out / BUILT_MAP,
                                               s.path("truth_targets"), s.path("truth_head_poses"), f.video, f.stamps,
-                                              frames_every)
+                                              frames_every, TruthFrame.from_record(res.summary.get("truth_frame")))
     except UserError as exc:
         res.problems.append(f"rerun: {exc}")
 
@@ -276,6 +285,10 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
     and targets, 6. plots, overlay, report."""
     poses_path = out / "poses.csv"
     _tracking_step(f, steps, vals, cam_path, poses_path, cfg)
+    frame = truth_frame(f, cfg, out / BUILT_MAP, lambda: vals["marker_map"]) if (
+        steps.status.get("tracking") in GOOD) else None
+    if frame is not None:
+        res.summary["truth_frame"] = frame.record()
     raw_vl, counts_path = out / ".viewlines_unsegmented.csv", out / ".viewlines_counts.json"
 
     def do_viewlines(cb):
@@ -288,7 +301,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
     eye_inputs = [f.eye_rays] if f.eye_rays is not None else [f.eye_samples, eyes_path]
     person = {} if correction is None else {"person": correction.tolist()}
     if steps.run("viewlines", eye_inputs + [poses_path], person, do_viewlines):
-        res.summary["viewlines"] = json.loads(counts_path.read_text(encoding="utf-8"))
+        res.summary["viewlines"] = load_json(counts_path, "viewlines-counts")     # as written: steps.changed_output
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
@@ -311,7 +324,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
     _export_step(f, out, steps, vals, cam_path, eye_inputs, correction)
     if cfg.report:
-        _report_step(f, out, steps, vals, eyes_path, cfg)
+        _report_step(f, out, steps, vals, eyes_path, cfg, frame)
 
 
 def _export_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, cam_path: Path, eye_inputs: list,
@@ -339,7 +352,7 @@ def session_error_model(imported: bool, eyes_path: Path, tracked: bool = True) -
     video add the merge test's per-fixation pose offset (``estimator.merge.MERGE_POSE_DEG``); a
     device's own poses (SLAM) or a still head do not."""
     pose = MERGE_POSE_DEG if tracked else 0.0
-    if imported:
+    if imported or not eyes_path.is_file():       # none: the eye step failed and said so; nothing uses this
         return ErrorModel(pose_offset_deg=pose)
     try:
         eyes = json.loads(eyes_path.read_text(encoding="utf-8"))["eyes"]
@@ -389,7 +402,8 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
         steps.run("tracking", [f.video, cam_path, f.markers, f.stamps], {"every": cfg.track_every}, do_tracking)
 
 
-def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_path: Path, cfg: _Settings) -> None:
+def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_path: Path, cfg: _Settings,
+                 frame=None) -> None:
     has_map = f.markers is not None or (out / BUILT_MAP).is_file()
 
     def overlay_inputs() -> OverlayInputs:
@@ -402,26 +416,33 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
     extra += [cfg.sfm_map / SFM_FEATURES] if cfg.sfm_map is not None else []
 
     def do_report(cb):
-        notes = _report_notes(f, cfg)
+        truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
         points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else None
-        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb, notes,
-                     load_truth(f.truth_targets, f.truth_head_poses), vals["marker_map"] if has_map else None,
+        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb,
+                     _report_notes(f, cfg) + truth_notes, truth, vals["marker_map"] if has_map else None,
                      cfg.overlay_video, points)
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
-              | ({"overlay_video": True} if cfg.overlay_video else {}), do_report)
+              | ({"overlay_video": True} if cfg.overlay_video else {})
+              | ({"truth_frame": frame.record()} if frame else {}), do_report)
 
 
-def _output_folder(root: Path, out) -> Path:
-    """The output folder (``out``, default ROOT/processed), made; one that is a session is refused:
-    process would mix its outputs into that session.
+def _output_folder(root: Path, out, inputs=()) -> Path:
+    """The output folder (``out``, default ROOT/processed), made; one that is a session, or in one
+    of its input folders (the folder of a manifest's file, ``inputs``, below ``root``), is refused:
+    process would mix its outputs into that session, or into that folder's inputs.
 
     Raises:
-        UserError: ``out`` holds a session manifest.
+        UserError: ``out`` holds a session manifest, or is in a folder of the session's inputs.
     """
     out = Path(out) if out is not None else root / "processed"
     if (out / MANIFEST).is_file():
         raise UserError(f"-o {out}: is a session folder (it has {MANIFEST}); process would mix its outputs into that "
                         "session: choose a new folder (the default is SESSION/processed)")
+    for rel in inputs:
+        folder = (root / rel) if (root / rel).is_dir() else (root / rel).parent
+        if folder.resolve() != root.resolve() and out.resolve().is_relative_to(folder.resolve()):
+            raise UserError(f"-o {out}: is in the session's input folder {folder}; process would write among its "
+                            "inputs: choose a folder outside it (the default is SESSION/processed)")
     out.mkdir(parents=True, exist_ok=True)
     return out
 
@@ -442,7 +463,8 @@ def _report_notes(f: _SessionFiles, cfg: _Settings) -> list[str]:
 
 
 def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
-    summary = {"version": 1, "session": str(s.root), "method": method, "targets": res.targets,
+    summary = {"version": 1, "session": str(s.root), "method": method, "outcome": res.outcome,
+               "targets": res.targets,
                "problems": res.problems, "failed_steps": res.failed, "steps_not_done": res.not_done,
                "removed_outputs": res.removed, "steps_skipped": res.skipped,
                "timings_s": {k: round(v, 3) for k, v in res.timings.items()}}
@@ -452,29 +474,3 @@ def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
     res.summary = summary
     write_json(out / "summary.json", summary)
     return res
-
-
-def format_result(res: ProcessResult) -> str:
-    """The text ``process`` prints: this run's targets, and what failed or was not done."""
-    lines = [f"{len(res.found)} fixated target(s) in {res.out}:"]
-    lines.append(f"{'target':>6} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'95% semi-axes mm':>20} {'samples':>8} "
-                 f"{'time s':>12}  status")
-    for t in res.found:
-        x, y, z = t.position_mm
-        a1, a2, a3 = t.axes95_mm
-        lines.append(f"{t.index:>6} {x:>8.0f} {y:>8.0f} {z:>8.0f} {a1:>6.0f} {a2:>6.0f} {a3:>6.0f} {t.n_samples:>8} "
-                     f"{t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}")
-    if res.failed:
-        lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")
-    if res.not_done:
-        lines.append("not done, as they need a failed step: " + ", ".join(res.not_done))
-    if res.removed:
-        lines.append(f"removed {len(res.removed)} output(s) of an earlier run that this run invalidated (listed in "
-                     "summary.json)")
-    if res.skipped:
-        lines.append("unchanged, not redone: " + ", ".join(res.skipped) + " (--force redoes them)")
-    if "report" in res.summary:
-        lines.append(f"report: {res.summary['report']}")
-    if "rerun" in res.summary:
-        lines.append(f"rerun: {res.summary['rerun']}")
-    return "\n".join(lines)

@@ -354,7 +354,7 @@ def log_target(rec, target, lines=None, viewpoint_mm=None, path: str | None = No
 # --- a processed session ------------------------------------------------------------------------------
 
 def view_processed(dest: str | None, out, targets=None, camera=None, markers=None, truth_targets=None,
-                   truth_head=None, video=None, frame_stamps=None, frames_every: int = 0) -> str:
+                   truth_head=None, video=None, frame_stamps=None, frames_every: int = 0, truth_frame=None) -> str:
     """Log what ``process`` wrote into ``out`` to rerun (``open_recording(dest)``): the scene
     (camera, markers, truth), the head's pose per tracked frame and its path, the running
     estimates, each target with its ellipsoid and view lines; with ``frames_every`` > 0 one scene
@@ -365,7 +365,9 @@ def view_processed(dest: str | None, out, targets=None, camera=None, markers=Non
             targets.json; each used when present).
         targets: this run's ``Target`` list (with covariances); None: read targets.json.
         camera, markers, truth_targets, truth_head: the files (camera.json, markers.json,
-            truth/targets.json, truth/head_poses.csv), each None when there is none.
+            truth/targets.json, truth/head_poses.csv), each None when there is none;
+            ``truth_frame``: the ``truth_match.TruthFrame`` that moves the truth into the world of
+            the map the run used (None: the truth's own; without a fit the truth is not shown).
 
     Returns:
         what was written to: the file, the address, or 'a spawned viewer'.
@@ -382,6 +384,10 @@ def view_processed(dest: str | None, out, targets=None, camera=None, markers=Non
         mm = load_marker_map(markers) if markers is not None and Path(markers).is_file() else None
         truth_t = read_truth_targets(truth_targets) if truth_targets is not None else None
         truth_T = read_poses_csv(truth_head)[2] if truth_head is not None else None
+        if truth_frame is not None:             # the truth moved into the world of the map used (or none)
+            moved = truth_frame.T_map_from_truth is not None
+            truth_t = truth_frame.targets(truth_t) if moved and truth_t is not None else None
+            truth_T = truth_frame.poses(truth_T) if moved and truth_T is not None else None
         log_scene(rec, cam, mm, truth_t, truth_T)
         poses = read_poses_csv(out / "poses.csv") if (out / "poses.csv").is_file() else None
         if poses is not None:

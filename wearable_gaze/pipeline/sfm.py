@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.camera import CameraCalibration, aruco_dictionary
+from estimator.frames import similarity_transform
 from tracking.localise import (
     FEATURE_SCALE,
     MAX_FEATURES,
@@ -31,7 +32,6 @@ from tracking.localise import (
     image_features,
     triangulate,
 )
-from tracking.mapbuild import similarity_transform
 from tracking.markermap import MarkerMap, square_corners
 from tracking.markers import MarkerDetector, unique_by_id
 
@@ -43,8 +43,8 @@ from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import write_sfm_map
 from ..formats.video import grey_frames_at, video_fps
 from ..progress import staged
-from .calibrate import input_files, read_frames
-from .mapping import DEFAULT_DICT, check_frame_size, frames_total
+from .calibrate import check_frame_size, input_files, read_frames
+from .mapping import DEFAULT_DICT, frames_total
 
 log = logging.getLogger(__name__)
 
@@ -231,6 +231,7 @@ def _world(rec, frames: dict, cam: CameraCalibration, marker_map: MarkerMap | No
     res = np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1)
     return T, {"kind": kind, "markers": [int(i) for i in used], "views": {str(i): len(views[i]) for i in used},
                "residual_mm": round(float(np.sqrt(np.mean(res**2))), 3),
+               "corners_mm": {str(i): np.round(world[i], 6).tolist() for i in used},   # where the world has them
                **({"size_mm": float(size_mm)} if kind == "marker" else {})}
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..formats.atomic import write_text
+from ..formats.jsonio import load_json
 from .report import OPTIONAL_FILES as REPORT_OPTIONAL
 from .report import REPORT_FILES
 
@@ -38,6 +39,11 @@ NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines"
 OPTIONAL = (*REPORT_OPTIONAL, "device_comparison.csv", "target_paths.csv", "built_map.json")
 OTHER_FILES = ("summary.json", ".steps.json")
 GOOD = ("done", "cached", "external", "device")   # usable: outputs, a file given instead, or the device's own
+EXIT_NO_TARGET = 2
+"""``process``'s exit status when no target could be estimated (as for a bad input)."""
+EXIT_PARTIAL = 3
+"""... when targets were estimated but a step failed (or was not done as it needs a failed one):
+the output folder lacks that step's files, e.g. no gaze.csv or report.html (docs/processing.md)."""
 
 
 
@@ -81,9 +87,17 @@ class ProcessResult:
         return [s for s in STEPS if self.status.get(s) == "not_done"]
 
     @property
+    def outcome(self) -> str:
+        """'ok': targets, and every step that ran succeeded; 'partial': targets, but a step
+        failed or was not done (its outputs are missing); 'no_targets': none estimated."""
+        if not self.found:
+            return "no_targets"
+        return "partial" if self.failed or self.not_done else "ok"
+
+    @property
     def exit_status(self) -> int:
-        """2 when no target could be estimated (docs/processing.md), else 0."""
-        return 0 if self.found else 2
+        """0 ok, ``EXIT_NO_TARGET`` (2) no target, ``EXIT_PARTIAL`` (3) partial (docs/processing.md)."""
+        return {"ok": 0, "no_targets": EXIT_NO_TARGET, "partial": EXIT_PARTIAL}[self.outcome]
 
 
 def fingerprint(paths, params) -> str:
@@ -104,6 +118,45 @@ def fingerprint(paths, params) -> str:
     return h.hexdigest()
 
 
+def content_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def changed_output(out: Path, recorded: dict) -> str | None:
+    """The first output of a step whose content is no longer what the step wrote (``recorded``:
+    {file name: SHA-256}), with what happened to it, or None: all as written."""
+    for name, digest in recorded.items():
+        p = out / name
+        if not p.is_file():
+            return f"{name} is gone"
+        if content_digest(p) != digest:
+            return f"{name} changed"
+    return None
+
+
+def missing_output(out: Path) -> str | None:
+    """What an output folder lacks of a finished run, by name, or None: ``summary.json``, a
+    readable ``.steps.json``, ``targets.json``, or a file a step recorded there as written (its
+    presence only: a batch skips a finished session without reading its files)."""
+    for name in ("summary.json", ".steps.json", "targets.json"):
+        if not (out / name).is_file():
+            return f"{name} is gone"
+    try:
+        state = load_json(out / ".steps.json", "steps-state")
+    except UserError:
+        return ".steps.json is unreadable"
+    for entry in state.values():
+        for name in entry["outputs"]:
+            if not (out / name).is_file():
+                return f"{name} is gone"
+    return None
+
+
 class Steps:
     """Runs steps with caching and problem recording, and keeps the output folder consistent:
     a step being redone has no outputs until it succeeds, and the outputs of a step that failed
@@ -122,16 +175,16 @@ class Steps:
         self.state = {} if force else self._load_state()
 
     def _load_state(self) -> dict:
+        """{step: {"inputs": fingerprint, "outputs": {file: SHA-256}}} of ``.steps.json``; any
+        file that is not one (an older format, a crash, an edit, bytes that are not UTF-8, a
+        nesting too deep) is a warning and every step is redone."""
         if not self.state_path.is_file():
             return {}
         try:
-            state = json.loads(self.state_path.read_text(encoding="utf-8"))
-            if not isinstance(state, dict) or not all(isinstance(v, str) for v in state.values()):
-                raise ValueError("not a {step: fingerprint} object")
-        except (ValueError, UnicodeDecodeError) as exc:            # JSONDecodeError is a ValueError
+            return load_json(self.state_path, "steps-state")
+        except UserError as exc:
             log.warning("%s is unreadable (%s); redoing every step", self.state_path, exc)
             return {}
-        return state
 
     def run(self, name, inputs, params, fn) -> bool:
         """Run ``fn(progress)`` unless its fingerprint matches and its outputs exist. Returns
@@ -141,8 +194,7 @@ class Steps:
             self.status[name] = "not_done"
             return False
         fp = fingerprint(inputs, params)
-        needed = [self.out / o for o in OUTPUTS[name] if o not in OPTIONAL]
-        if not self.force and self.state.get(name) == fp and all(o.is_file() for o in needed):
+        if self._cached(name, fp):
             self.result.skipped.append(name)
             self.status[name] = "cached"
             return True
@@ -162,8 +214,23 @@ class Steps:
             self.current = None
         self.result.timings[name] = time.perf_counter() - t0
         self.status[name] = "done"
-        self.state[name] = fp
+        self.state[name] = {"inputs": fp, "outputs": {o: content_digest(self.out / o) for o in OUTPUTS[name]
+                                                      if (self.out / o).is_file()}}
         self._save()
+        return True
+
+    def _cached(self, name: str, fp: str) -> bool:
+        """The step's inputs and settings are unchanged (``fp``), and so is every output it
+        wrote, by content (a file cut short or edited since is not this step's result: the step
+        is redone, with a line saying why)."""
+        entry = self.state.get(name)
+        needed = [self.out / o for o in OUTPUTS[name] if o not in OPTIONAL]
+        if self.force or entry is None or entry["inputs"] != fp or not all(o.is_file() for o in needed):
+            return False
+        why = changed_output(self.out, entry["outputs"])
+        if why is not None:
+            log.warning("%s: %s since step '%s' wrote it; redoing the step", self.out, why, name)
+            return False
         return True
 
     def external(self, name, path: Path, load) -> bool:
@@ -217,3 +284,31 @@ class Steps:
 
     def _save(self):
         write_text(self.state_path, json.dumps(self.state, indent=1))
+
+
+def format_result(res: ProcessResult) -> str:
+    """The text ``process`` prints: this run's targets, and what failed or was not done."""
+    lines = [f"{len(res.found)} fixated target(s) in {res.out}:"]
+    lines.append(f"{'target':>6} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'95% semi-axes mm':>20} {'samples':>8} "
+                 f"{'time s':>12}  status")
+    for t in res.found:
+        x, y, z = t.position_mm
+        a1, a2, a3 = t.axes95_mm
+        lines.append(f"{t.index:>6} {x:>8.0f} {y:>8.0f} {z:>8.0f} {a1:>6.0f} {a2:>6.0f} {a3:>6.0f} {t.n_samples:>8} "
+                     f"{t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}")
+    if res.failed:
+        lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")
+    if res.outcome == "partial":
+        lines.append(f"PARTIAL: targets estimated, but not every step succeeded (exit status {res.exit_status})")
+    if res.not_done:
+        lines.append("not done, as they need a failed step: " + ", ".join(res.not_done))
+    if res.removed:
+        lines.append(f"removed {len(res.removed)} output(s) of an earlier run that this run invalidated (listed in "
+                     "summary.json)")
+    if res.skipped:
+        lines.append("unchanged, not redone: " + ", ".join(res.skipped) + " (--force redoes them)")
+    if "report" in res.summary:
+        lines.append(f"report: {res.summary['report']}")
+    if "rerun" in res.summary:
+        lines.append(f"rerun: {res.summary['rerun']}")
+    return "\n".join(lines)

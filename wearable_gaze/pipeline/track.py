@@ -18,7 +18,7 @@ from calibration.images import to_grey
 from tracking.homography import PlanarTracker
 from tracking.localise import FeatureLocaliser, FeatureMap
 from tracking.markermap import MarkerMap
-from tracking.markers import MarkerDetector
+from tracking.markers import MarkerDetector, likely_dictionary
 from tracking.pose import MarkerPoseEstimator
 from tracking.timeline import SPIKE_DEG, SPIKE_MM, interpolate_poses, pose_spikes, smooth_poses
 
@@ -29,7 +29,7 @@ from ..formats.images import read_grey_image
 from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.sfmmap import load_sfm_map
-from ..formats.video import open_video, open_video_writer, read_frame_times
+from ..formats.video import open_video, open_video_writer, read_frame_times, sampled_grey_frames
 from .types import Poses
 
 log = logging.getLogger(__name__)
@@ -82,6 +82,8 @@ def track_video_files(video, camera_path, out, markers=None, reference=None, ref
             stack.callback(writer.release)
             draw = functools.partial(_write_overlay_frame, writer, camera)
         poses = track_poses(cap, fps, n_total, locate, times, every, smooth_s, progress, draw, video)
+        if markers is not None:
+            check_markers_seen(poses, video, load_marker_map(markers).dictionary, "--markers")
         write_poses_csv(out, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
     return {"frames": len(poses.t), "posed": poses.n_posed}
 
@@ -92,10 +94,40 @@ def track_video(video: Path, camera: CameraCalibration, room: MarkerMap | Featur
     map (``room_locator``)."""
     cap, fps, n_total = open_video(Path(video), camera.image_size)
     try:
-        return track_poses(cap, fps, n_total, room_locator(room, camera), times, every, progress=progress,
-                           name=video)
+        poses = track_poses(cap, fps, n_total, room_locator(room, camera), times, every, progress=progress,
+                            name=video)
     finally:
         cap.release()
+    if isinstance(room, MarkerMap):
+        check_markers_seen(poses, video, room.dictionary, "the marker map")
+    return poses
+
+
+def check_markers_seen(poses: Poses, video, dictionary: str, source: str) -> None:
+    """Refuse a tracking in which no frame saw a marker of the map (``poses.columns['n_markers']``
+    all 0): most often a map naming another dictionary than the printed markers' (``source``: the
+    option or file that named it), so a few frames are tried with the common dictionaries.
+
+    Raises:
+        UserError: naming the dictionary the video's markers look like, when one is found.
+    """
+    if np.any(np.asarray(poses.columns.get("n_markers", [0])) > 0):
+        return
+    raise no_marker_error(dictionary, [g for _, g in sampled_grey_frames(video, 5)], f"{video}",
+                          f"the dictionary of {source}", 'write "dictionary": "{}" in the map')
+
+
+def no_marker_error(dictionary: str, images, where: str, source: str, fix: str) -> UserError:
+    """The one line for frames (``images``, a few grey images) in which no marker of
+    ``dictionary`` (named by ``source``) was found: the dictionary they look like instead
+    (``likely_dictionary``) with ``fix`` (a format string, ``{}`` the dictionary), or that none of
+    the common ones matches either."""
+    guess = likely_dictionary(images, exclude=dictionary)
+    if guess is None:
+        hint = "nor of any common dictionary: check that the markers are in view and sharp"
+    else:
+        hint = f"the markers look like {guess[0]} ({guess[1]} found in {len(images)} frames): {fix.format(guess[0])}"
+    return UserError(f"{where}: no marker of {dictionary} ({source}) was detected in any frame; {hint}")
 
 
 def track_poses(cap, fps: float, n_total: int, locate, times=None, every: int = 1, smooth_s: float = 0.0,

@@ -328,9 +328,11 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     files["eye_samples"] = "eye.csv"
     files["eye_serial"] = "eye_serial.bin"
     labels = {}
-    write_marker_map(root / "markers.json",
-                     marker_map_dict(world.dictionary, world.marker_size_mm, world.markers, labels))
+    true_map = marker_map_dict(world.dictionary, world.marker_size_mm, world.markers, labels)
+    write_marker_map(root / "markers.json", true_map)
+    write_marker_map(root / "truth" / "markers.json", true_map)     # kept when markers.json is replaced or removed
     files["marker_map"] = "markers.json"
+    files["truth_markers"] = "truth/markers.json"
 
     truth = root / "truth"
     _write_truth_lines(truth, t_eye, plan, gaze_w, T_eye, eye_model.centres, true_c, noisy_c, valid)

@@ -41,7 +41,9 @@ Dropped and counted: rows with missing cells (a truncated line); NaN or non-nume
 or eye positions; an angle >= 80 deg; an eye position > 50 mm from CPF's origin; a repeated time;
 eye samples with no pose within ``max_pose_gap_s`` (before, after, or in a gap of the trajectory);
 trajectory rows with NaN, a non-unit quaternion, a repeated time or another SLAM world (graph_uid)
-than the first. Refused (``UserError``): a missing file or column, times going back, gen2 gaze.
+than the first. Refused (``UserError``): a missing file or column, an ``eye_gaze*/*.csv`` with neither
+model's angle columns (garbage or renamed: not passed over for another file), times going back,
+gen2 gaze.
 
 Not given by the device: per-eye pitch, eye rotation centres, per-sample validity, a scene video.
 Not read by the import: online calibration, open-loop trajectory, summary.json. The semi-dense
@@ -153,6 +155,9 @@ def _gaze_file(src: Path):
         if part and not model:           # a damaged file must not silently give way to an older model's
             raise UserError(f"{p}: missing column(s) {', '.join(c for c in part if c not in names)} of an MPS "
                             "eye-gaze CSV (a damaged copy); copy it again from the MPS output, or remove it")
+        if not model:                    # garbage, or every angle column renamed: damaged too
+            raise UserError(f"{p}: not an MPS eye-gaze CSV (no {', '.join(PER_EYE)} nor {', '.join(LEGACY)} "
+                            "columns; a damaged copy?); copy it again from the MPS output, or remove it")
         if model:
             rank = (model == "per-eye", "personalized" in p.name, not p.name.startswith("eyegaze"))
             if best is None or rank > best[0]:

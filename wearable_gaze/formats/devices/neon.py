@@ -131,6 +131,9 @@ def _open(src: Path):
     except (FileNotFoundError, json.JSONDecodeError) as exc:
         raise UserError(f"{src}: not a readable Neon recording ({exc.__class__.__name__}: info.json); pass the "
                         "recording's folder") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{src / 'info.json'}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset "
+                        f"{exc.start}; a damaged copy); copy info.json again from the recording") from None
     return rec
 
 

@@ -163,8 +163,9 @@ def read_calibration(rec, src: Path):
     """calibration.bin by the vendor's reader ``rec`` (None: the folder ``src`` has none).
 
     Raises:
-        UserError: a file shorter than one record, or a scene camera matrix that is not finite
-            and positive (a damaged copy; the reader failed with an IndexError on a short one).
+        UserError: a file shorter than one record, a serial number that is not UTF-8, or a scene
+            camera matrix that is not finite and positive (a damaged copy; the reader failed with an
+            IndexError on a short one, a UnicodeDecodeError on a bad serial).
     """
     path = Path(src) / "calibration.bin"
     if not path.is_file():
@@ -175,6 +176,10 @@ def read_calibration(rec, src: Path):
         raise UserError(f"{path}: {size} bytes, shorter than Neon's {CALIBRATION_BYTES}-byte calibration record "
                         f"(a damaged copy); {fix}")
     cal = rec.calibration
+    try:
+        str(cal.serial)                          # the vendor's reader decodes it as UTF-8 when asked
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: the serial number is not UTF-8 text (a damaged copy); {fix}") from None
     K = np.asarray(cal.scene_camera_matrix, float)
     if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
         raise UserError(f"{path}: the scene camera matrix is not finite and positive (a damaged copy); {fix}")
