@@ -6,6 +6,10 @@ import pytest
 
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 
+# No timed progress lines off a terminal (wearable_gaze/progress.py) unless a test asks for them:
+# what a test reads on stderr must not hang on how fast this machine runs a step.
+os.environ["WEARABLE_GAZE_PROGRESS_S"] = "0"
+
 # The floor subset (``pytest -m floors``): what ``.ci/run`` also runs with the declared floor
 # versions (constraints/floors.txt) and with OpenCV 5.0: tracking, calibration, the Tobii importers
 # (and their round trips through ``process``) and one short ``process`` of a video with empty frames

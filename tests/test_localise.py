@@ -217,6 +217,43 @@ def test_track_with_a_markerless_map_writes_poses(survey, tmp_path, capsys):
     assert len(rows) == 180 and sum(r["status"] == "ok" for r in rows) > 150
 
 
+def test_markerless_map_prints_lines_while_pycolmap_matches(survey, tmp_path, monkeypatch):
+    """pycolmap's exhaustive matching is one call, and ``map --markerless`` printed nothing in a
+    log (stderr not a terminal) while it ran (144 s in all for 150 frames). Made slow here (1 s,
+    then stopped), it prints a line naming it at least every interval (0.2 s)."""
+    import sys
+    import time
+
+    import pycolmap
+
+    class Stop(Exception):                         # an internal error: the command ends there
+        pass
+
+    class Log(io.StringIO):
+        def __init__(self):
+            super().__init__()
+            self.times = []
+
+        def write(self, text):
+            self.times += [time.monotonic()] * text.count("\n")
+            return super().write(text)
+
+    def slow(*args, **kwargs):
+        time.sleep(1.0)
+        raise Stop
+    monkeypatch.setattr(pycolmap, "match_exhaustive", slow)
+    monkeypatch.setenv("WEARABLE_GAZE_PROGRESS_S", "0.2")
+    log = Log()
+    monkeypatch.setattr(sys, "stderr", log)
+    sess = survey[0]
+    assert main(["map", "--markerless", str(sess / "scene.mp4"), "--camera", str(sess / "truth" / "camera.json"),
+                 "--markers", str(sess / "markers.json"), "--max-frames", "8", "-o", str(tmp_path / "sfm")]) != 0
+    lines = log.getvalue().splitlines()
+    matching = [t for t, ln in zip(log.times, lines, strict=True) if ln.startswith("markerless map: matching: ")]
+    assert len(matching) >= 4 and np.diff(matching).max() < 0.35, lines
+    assert not (tmp_path / "sfm").exists()
+
+
 def test_markerless_bad_inputs_are_one_line(survey, tmp_path, capsys):
     sess, sfm, _ = survey
     cam = str(sess / "truth" / "camera.json")

@@ -104,11 +104,13 @@ def _schur_step(Hvv, Hvo, Hoo, gv, go, lam: float):
     return dv, do.reshape(M, 6)
 
 
-def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int = 100) -> BundleResult:
+def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int = 100,
+                  progress=None) -> BundleResult:
     """Minimise the Huber cost of ``fun(views (V, 6), objects (M, 6)) -> (N, R)`` residuals, where
     observation n depends on view ``view_of[n]`` and object ``obj_of[n]`` (-1: a fixed one).
 
-    Stops when a step lowers the cost by less than 1e-10 of it, or after ``max_iter`` steps."""
+    Stops when a step lowers the cost by less than 1e-10 of it, or after ``max_iter`` steps;
+    ``progress(steps taken, max_iter)`` is called after each."""
     views, objs = np.array(views, float), np.array(objs, float).reshape(-1, 6)
     V, M = len(views), len(objs)
     r = fun(views, objs)
@@ -133,6 +135,8 @@ def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int
             break
         small = cost - ncost <= 1e-10 * cost
         views, objs, r, cost, lam = nv, no, nr, ncost, max(lam / 10.0, 1e-9)
+        if progress is not None:
+            progress(it, max_iter)
         if small:
             converged = True
             break

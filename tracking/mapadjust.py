@@ -127,9 +127,55 @@ class Adjusted:
     converged: bool = True
 
 
-def _adjust(obs, size, origin, markers, cams, focal, T_origin, max_iter: int = MAX_ITER) -> Adjusted:
+@dataclass
+class StepTally:
+    """The adjustment's work for a ``progress(done, total)`` callback (None: no reports), in steps:
+    each bundle adjustment adds its step budget to the total when it starts and gives back what it
+    did not use when it ends (a trial's budget is ``TRIAL_ITER``, the others' ``MAX_ITER``); other
+    work (a search for moved markers: a step a marker; the map's first guesses refined) adds its
+    own steps."""
+
+    progress: object = None
+    done: int = 0
+    total: int = 0
+    base: int = 0                   # the steps done before the adjustment running now
+
+    def begin(self, max_iter: int):
+        """The ``progress(step, max_iter)`` callback of one adjustment (None without progress)."""
+        if self.progress is None:
+            return None
+        self.total += max_iter
+        self.base = self.done
+
+        def step(it: int, _max_iter: int) -> None:
+            self.done = self.base + it
+            self.progress(self.done, self.total)
+        return step
+
+    def work(self, n: int):
+        """The ``tick()`` callback of ``n`` more steps of other work, one a call (None without
+        progress)."""
+        if self.progress is None:
+            return None
+        self.total += n
+
+        def tick() -> None:
+            self.done += 1
+            self.progress(self.done, self.total)
+        return tick
+
+    def end(self, max_iter: int, iterations: int) -> None:
+        """The adjustment begun with ``max_iter`` ended after ``iterations`` steps."""
+        if self.progress is not None:
+            self.total -= max_iter - iterations
+            self.done = self.base + iterations
+            self.progress(self.done, self.total)
+
+
+def _adjust(obs, size, origin, markers, cams, focal, T_origin, max_iter: int = MAX_ITER,
+            tally: StepTally | None = None) -> Adjusted:
     """Bundle adjustment of every posed view and placed marker but the origin, which stays at
-    ``T_origin`` (Huber loss, ``HUBER_PX``; ``tracking.bundle``)."""
+    ``T_origin`` (Huber loss, ``HUBER_PX``; ``tracking.bundle``); its steps counted in ``tally``."""
     cam_keys = sorted(cams)
     marker_keys = sorted(i for i in markers if i != origin)
     pairs = [(k, i) for k in cam_keys for i in obs[k] if i in markers]
@@ -143,7 +189,9 @@ def _adjust(obs, size, origin, markers, cams, focal, T_origin, max_iter: int = M
         return _residuals(np.concatenate([v.ravel(), o.ravel()]), prob).reshape(-1, 8)
     fit = bundle_adjust(fun, np.array([_pack(cams[k]) for k in cam_keys]),
                         np.array([_pack(markers[i]) for i in marker_keys]).reshape(-1, 6), prob["cam"], prob["marker"],
-                        HUBER_PX, max_iter)
+                        HUBER_PX, max_iter, None if tally is None else tally.begin(max_iter))
+    if tally is not None:
+        tally.end(max_iter, fit.iterations)
     if not fit.converged and max_iter == MAX_ITER:
         log.warning("the map's bundle adjustment stopped after %d steps before converging", fit.iterations)
     cams, adjusted = _unpack(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
@@ -161,7 +209,8 @@ def marker_covariances(adj: Adjusted) -> dict:
     return {i: C[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j, i in enumerate(adj.marker_keys)}
 
 
-def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tuple[Adjusted, dict, float]:
+def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin, tally: StepTally | None = None
+                      ) -> tuple[Adjusted, dict, float]:
     """``_adjust``, and then while a marker (not the origin) moved during the survey (``_moved``),
     one marker becomes two for another adjustment: its views after the move see a second marker
     (id ``-1 - i``) where it went, so that its move does not drag the views and markers beside
@@ -171,12 +220,13 @@ def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tupl
     from the last adjustment's poses, and the split whose adjustment has the least robust cost
     is kept. Returns the last adjustment with each moved marker's pose after the move under its
     own id (the second marker dropped, its observations counted), {id: mm moved}, and the
-    reprojection RMS before any split, pixels."""
-    obs, size, moved = list(obs), dict(size), {}
-    adj = _adjust(obs, size, origin, markers, cams, focal, T_origin)
+    reprojection RMS before any split, pixels. ``tally``: where the adjustments' steps and the
+    markers checked for a move are counted, for a progress callback."""
+    obs, size, moved, tally = list(obs), dict(size), {}, tally or StepTally()
+    adj = _adjust(obs, size, origin, markers, cams, focal, T_origin, tally=tally)
     rms_unsplit = residual_rms(adj.residuals)
     while True:
-        found = {i: v for i, v in _moved(obs, size, adj.markers, adj.cams).items()
+        found = {i: v for i, v in _moved(obs, size, adj.markers, adj.cams, tally.work(len(adj.markers))).items()
                  if i >= 0 and i != origin and i not in moved}
         log.debug("moved markers found: %s", {i: (round(v[0]), round(v[1]), v[2]) for i, v in found.items()})
         if not found:
@@ -187,13 +237,13 @@ def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin) -> tupl
         trials = []
         for i, cut in _suspects(obs, size, adj, found, origin, moved):
             o, s, m = _split(obs, size, adj, i, cut)
-            trial = _adjust(o, s, origin, m, adj.cams, focal, T_origin, TRIAL_ITER)
+            trial = _adjust(o, s, origin, m, adj.cams, focal, T_origin, TRIAL_ITER, tally)
             log.debug("moved marker: split of %d at view %d, cost %.4g, RMS %.3f px (converged: %s)", i, cut,
                       huber_cost(trial.residuals, HUBER_PX), residual_rms(trial.residuals), trial.converged)
             trials.append((huber_cost(trial.residuals, HUBER_PX), i, o, s, trial))
         _, i, obs, size, adj = min(trials, key=lambda t: t[0])
         if not adj.converged:                             # the best split's adjustment, finished
-            adj = _adjust(obs, size, origin, adj.markers, adj.cams, focal, T_origin)
+            adj = _adjust(obs, size, origin, adj.markers, adj.cams, focal, T_origin, tally=tally)
         moved[i] = found.get(i, (0.0,))[0]
     for i in [j for j in moved if -1 - j in adj.markers]:
         moved[i] = float(np.linalg.norm(adj.markers[-1 - i][:3, 3] - adj.markers[i][:3, 3]))   # as adjusted
@@ -253,14 +303,16 @@ def residual_rms(r) -> float:
     return float(np.sqrt(np.mean(np.square(r)))) if len(r) else float("nan")
 
 
-def _moved(obs, size, markers, cams) -> dict:
+def _moved(obs, size, markers, cams, tick=None) -> dict:
     """{marker id: (mm, chi2, first view after the move)} of the markers that moved during the
     survey: split its views (in view order) where two poses fit them best (views fixed), those
     two poses' positions are more than ``MOVED_MM`` and 5 sd apart (chi2: the squared
-    Mahalanobis distance between them)."""
+    Mahalanobis distance between them). ``tick()``: called as each marker is checked."""
     out = {}
     order = sorted(cams)
     for i in markers:
+        if tick is not None:
+            tick()
         seen = [k for k in order if i in obs[k]]
         if len(seen) < 2 * MIN_VIEWS:
             continue

@@ -28,6 +28,7 @@ from estimator.frames import similarity_transform
 from .mapadjust import (
     MIN_VIEWS,
     Adjusted,
+    StepTally,
     adjust_with_moves,
     ippe,
     marker_covariances,
@@ -43,6 +44,8 @@ POOR_FIT = 3.0
 """After a moved marker's split, a map whose reprojection RMS is over this many times its markers'
 median RMS still fits its views poorly: which marker moved is then uncertain, and its flags say so
 (a clean fit's ratio is about 1)."""
+REFINE_ROUNDS = 2
+"""The chain's first guesses are refined this many times before the adjustment (``_refine_initial``)."""
 
 
 @dataclass
@@ -80,7 +83,7 @@ class BuiltMap:
 
 
 def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None = None,
-                     model: str = "pinhole", prior: MarkerMap | None = None) -> BuiltMap:
+                     model: str = "pinhole", prior: MarkerMap | None = None, progress=None) -> BuiltMap:
     """The marker map of ``views``.
 
     Args:
@@ -95,6 +98,10 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
             its world is kept (``origin``, by default the one of its markers seen most, stays
             where it was), new markers are added, and markers these views do not see are kept
             as they were, with their sizes (``n_views`` 0).
+        progress: ``progress(done, total)`` as the work goes (``tracking.mapadjust.StepTally``):
+            the chain's first guesses refined (a step per marker and view, each round), the
+            bundle adjustments' steps (the first, then each moved marker's trials), the markers
+            checked for a move.
 
     Raises:
         ValueError: no marker seen, the origin never seen (or not in ``prior``), a seen id
@@ -119,8 +126,10 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
                          f"the origin marker {origin} is not in the earlier map")
     start = {i: T for i, T in prior.items() if i in counts} if prior else {origin: np.eye(4)}
     markers, cams = _chain(obs, size, origin, start)
-    _refine_initial(obs, size, origin, markers, cams)
-    adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin])
+    tally = StepTally(progress)
+    _refine_initial(obs, size, origin, markers, cams, tick=tally.work(REFINE_ROUNDS * (len(markers) + len(cams))))
+    adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin],
+                                                 tally)
     rms = residual_rms(adj.residuals)
     info = _marker_info(obs, size, origin, adj, moved, rms)
     for i, T in prior.items():                       # not seen now: kept as the earlier map had it
@@ -165,20 +174,26 @@ def _reproj(T_world_from_marker, side: float, cams: dict, seen: dict) -> float:
     return float(np.sum((uv - np.array(list(seen.values()))) ** 2)) if np.all(z > 0) else np.inf
 
 
-def _refine_initial(obs: list, size: dict, origin: int, markers: dict, cams: dict, rounds: int = 2) -> None:
+def _refine_initial(obs: list, size: dict, origin: int, markers: dict, cams: dict, rounds: int = REFINE_ROUNDS,
+                    tick=None) -> None:
     """Before the adjustment, undo the chaining's worst guesses (in place): each marker is placed
     where one of its views' two IPPE solutions puts it that reprojects best in all its views,
     then each view is posed again from all its markers; ``rounds`` times. A small marker seen
     face-on has two IPPE solutions a few degrees apart, and the chain may have taken the wrong
-    one, a local minimum the adjustment cannot leave."""
+    one, a local minimum the adjustment cannot leave. ``tick()``: called for each marker and view,
+    each round."""
     for _ in range(rounds):
         for i in markers:
+            if tick is not None:
+                tick()
             if i == origin:
                 continue
             seen = {k: obs[k][i] for k in cams if i in obs[k]}
             cands = [np.linalg.inv(cams[k]) @ T for k, c in seen.items() for _, T in ippe(c, size[i])]
             markers[i] = min(cands + [markers[i]], key=lambda T: _reproj(T, size[i], cams, seen))
         for k in cams:
+            if tick is not None:
+                tick()
             cams[k] = pose_view(obs[k], size, markers)
 
 

@@ -37,8 +37,10 @@ def cmd_calibrate_eyes(args) -> int:
 
 def cmd_viewlines(args) -> int:
     from ..pipeline.calibrate import viewlines_files  # noqa: PLC0415
+    from ..progress import heartbeat  # noqa: PLC0415
 
-    counts = viewlines_files(args.eye, args.eyes, args.poses, args.out, args.max_gap, args.person)
+    with heartbeat("view lines"):               # a long recording: a line every few seconds in a log
+        counts = viewlines_files(args.eye, args.eyes, args.poses, args.out, args.max_gap, args.person)
     print(f"wrote {args.out}: {counts['written']} of {counts['samples']} samples "
           f"({counts['no_pose']} without a head pose within {args.max_gap} s, "
           f"{counts['both_eyes_invalid']} with both eyes invalid)")

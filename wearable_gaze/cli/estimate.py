@@ -16,13 +16,15 @@ from . import args as A
 def cmd_estimate(args) -> int:
     from ..pipeline import estimate as est  # noqa: PLC0415
     from ..pipeline.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note  # noqa: PLC0415
+    from ..progress import heartbeat  # noqa: PLC0415
 
     if args.export_density and args.method not in ("voxel", "paper"):
         raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no "
                         "density); add one of them or drop --export-density")
     model = replace(DEFAULT_ERROR_MODEL, pose_offset_deg=0.0) if args.device_poses else DEFAULT_ERROR_MODEL
-    results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density, args.one_point,
-                            args.targets, None if args.no_error_model else model)
+    with heartbeat("estimating"):               # a long file: a line every few seconds in a log
+        results = estimate_file(args.viewlines, args.method, args.sigma_deg, args.export_density, args.one_point,
+                                args.targets, None if args.no_error_model else model)
     problem = est.nothing_estimated(args.viewlines, results)
     if problem is not None:
         raise problem

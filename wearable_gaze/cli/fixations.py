@@ -10,9 +10,11 @@ SETTINGS = {"window": "window", "jump_deg": "jump_deg", "min_fixation_s": "min_f
 
 def cmd_fixations(args) -> int:
     from ..pipeline.segmentation import fixations_file  # noqa: PLC0415
+    from ..progress import heartbeat  # noqa: PLC0415
 
     settings = {field: getattr(args, attr) for attr, field in SETTINGS.items() if getattr(args, attr) is not None}
-    r = fixations_file(args.viewlines, args.out, settings, args.eye_rate_hz)
+    with heartbeat("segmenting"):               # a long recording: a line every few seconds in a log
+        r = fixations_file(args.viewlines, args.out, settings, args.eye_rate_hz)
     rate = "unknown rate" if r["rate_hz"] is None else f"{r['rate_hz']:.4g} Hz"
     c = r["config"]
     print(f"wrote {args.out}: {r['fixations']} fixation(s) in {r['rows']} rows; {r['unlabelled']} row(s) in no "

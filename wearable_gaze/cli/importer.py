@@ -27,8 +27,10 @@ def cmd_import(args) -> int:
 
 def cmd_export(args) -> int:
     from ..pipeline.importer import export_recording  # noqa: PLC0415
+    from ..progress import heartbeat  # noqa: PLC0415
 
-    command = export_recording(args.session, args.out, args.format)
+    with heartbeat("exporting"):                # a long session: a line every few seconds in a log
+        command = export_recording(args.session, args.out, args.format)
     print(f"wrote the simulated session {args.session} as a {args.format} recording in {args.out}; import it with: "
           f"{command}")
     return 0

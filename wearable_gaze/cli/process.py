@@ -35,12 +35,12 @@ EXIT_STATUS = ("exit status: 0 targets estimated and every step that ran succeed
 def cmd_process(args) -> int:
     from ..pipeline.process import process_session  # noqa: PLC0415
     from ..pipeline.steps import format_result  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..progress import step_bars  # noqa: PLC0415
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
-                          progress_factory=lambda name: progress_bar(name, 1), person=args.person,
+                          progress_factory=step_bars(), person=args.person,
                           build_map=build_map_option(args),
                           sfm_map=args.map, overlay_video=args.overlay_video, rerun=args.rerun,
                           rerun_frames=args.rerun_frames, markers=args.markers)

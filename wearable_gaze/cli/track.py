@@ -69,7 +69,7 @@ def cmd_map(args) -> int:
         raise UserError("map: --markers and --distance are for --markerless (what places and scales a markerless map)")
     if args.size_mm is None and not args.sizes and args.extend is None:
         raise UserError("map: give the printed marker side, --size-mm MM (or --sizes ID=MM,...)")
-    with progress_bar("detecting markers", 1) as cb:
+    with progress_bar("marker map", 1) as cb:
         built = build_map_files(args.inputs, args.camera, args.out, args.dict, args.size_mm, parse_sizes(args.sizes),
                                 args.origin_marker, args.max_frames or 300, cb, args.extend)
     for line in format_map_report(built):
@@ -85,7 +85,7 @@ def _cmd_markerless(args) -> int:
     if args.extend is not None or args.sizes:
         raise UserError("map --markerless: --extend and --sizes are for marker maps; a markerless map is fixed by "
                         "--origin-marker ID --size-mm MM or by --markers MAP.json")
-    with progress_bar("features, matching and reconstruction", 1) as cb:
+    with progress_bar("markerless map", 1) as cb:
         build = build_sfm_files(args.inputs, args.camera, args.out, args.max_frames or 150, args.dict,
                                 args.size_mm, args.origin_marker, args.markers, cb, args.distance)
     for line in format_sfm_report(build):

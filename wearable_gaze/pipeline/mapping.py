@@ -19,6 +19,7 @@ from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.images import IMAGE_EXT
 from ..formats.markermap import load_marker_map, marker_map_dict, write_marker_map
+from ..progress import staged
 from .calibrate import check_frame_size, input_files, read_frames
 from .track import no_marker_error
 
@@ -56,6 +57,8 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     or an OpenCV YAML/XML calibration), markers of ``dictionary`` printed ``size_mm`` wide or
     as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``. ``extend``: an
     earlier map to extend or refine (its world, markers, dictionary and size, unless given).
+    ``progress(done, total)``: over the frames read, then over the bundle adjustments' steps
+    (``tracking.mapbuild.build_marker_map``).
 
     Raises:
         UserError: unreadable inputs, an unknown dictionary, images of another size than the
@@ -79,6 +82,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     files = input_files(inputs)
     total = frames_total(files, max_frames)
     views, names, repeated = [], [], {}
+    detecting, adjusting = staged(progress, "detecting markers"), staged(progress, "adjusting the map")
     for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
         check_frame_size(name, grey, cam)
         unique, rep, _ = split_repeated(detector.detect(grey))
@@ -87,7 +91,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
         views.append(unique)
         names.append(name)
         if progress:
-            progress(k + 1, max(k + 1, total))
+            detecting(k + 1, max(k + 1, total))
     seen = sorted({i for v in views for i in v})
     if views and not seen:
         source, fix = (("the --extend map", 'write "dictionary": "{}" in it') if prior is not None
@@ -96,8 +100,11 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
         raise no_marker_error(dictionary, sample, "map", source, fix)
     size = {i: size_mm for i in seen if size_mm is not None}
     size.update({i: s for i, s in (sizes or {}).items() if i in seen})
+    if progress:
+        adjusting(0, 0)                           # chaining the views, before the first adjustment step
     try:
-        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model, prior)
+        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model, prior,
+                                 adjusting)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
     for i, n in repeated.items():

@@ -393,7 +393,8 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
                   {"every": cfg.track_every, "map": "markerless"}, localise)
     elif f.markers is None and cfg.build_map is not None and f.video is not None:
         def build_and_track(cb):                   # vals["marker_map"] then reads the map built here
-            build_map_files([f.video], cam_path, poses_path.parent / BUILT_MAP, cfg.build_map[1], cfg.build_map[0])
+            build_map_files([f.video], cam_path, poses_path.parent / BUILT_MAP, cfg.build_map[1], cfg.build_map[0],
+                            progress=cb)
             do_tracking(cb)
         steps.run("tracking", [f.video, cam_path, f.stamps], {"every": cfg.track_every, "build_map": cfg.build_map},
                   build_and_track)

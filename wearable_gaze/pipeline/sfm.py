@@ -42,6 +42,7 @@ from ..formats.images import IMAGE_EXT, write_image
 from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import write_sfm_map
 from ..formats.video import grey_frames_at, video_fps
+from ..progress import staged
 from .calibrate import check_frame_size, input_files, read_frames
 from .mapping import DEFAULT_DICT, frames_total
 
@@ -79,8 +80,9 @@ def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, diction
     (markers of ``dictionary``, default ``DEFAULT_DICT``); or with ``markers`` (a marker map), that map's world, fitted
     to all its markers seen or to ``origin`` alone; or, without markers, ``distance`` (t_a s,
     t_b s, mm): the camera moved that far between those two times of the (one) video, and the
-    world is the camera's frame at t_a. ``progress(done, total)``: over the frames, then over
-    the views registered.
+    world is the camera's frame at t_a. ``progress(done, total)``: over the frames (their
+    features), then (0, 0) while pycolmap matches them (one call), then over the views registered;
+    a ``progress_bar``'s callback also names each stage.
 
     Raises:
         UserError: unreadable inputs, images of another size than the camera's, no way to fix the
@@ -101,8 +103,11 @@ def build_sfm_files(inputs, camera_path, out_dir, max_frames: int = 150, diction
     except ValueError as exc:
         raise UserError(f"--dict: {exc}") from None
     with atomic_folder(out_dir) as tmp:
-        frames = _frames(files, cam, MarkerDetector(dictionary), max_frames, tmp / "images", progress)
+        frames = _frames(files, cam, MarkerDetector(dictionary), max_frames, tmp / "images",
+                         staged(progress, "features"))
         rec = _reconstruct(tmp, cam, frames, progress)
+        if progress:
+            staged(progress, "placing and writing the map")(0, 0)
         in_sfm = _feature_map(rec, frames)
         if distance is not None:
             T_world_from_sfm, scaled_by = _world_by_distance(in_sfm, cam, files[0], *distance)
@@ -167,18 +172,22 @@ def _reconstruct(tmp: Path, cam: CameraCalibration, frames: dict, progress):
                                                                           colmap_descriptors(desc)))
     mo = pycolmap.FeatureMatchingOptions()
     mo.num_threads, mo.use_gpu = 1, False
+    n, done, matching, mapping = len(frames["names"]), [0], staged(progress, "matching"), staged(progress, "mapping")
+    if progress:
+        matching(0, 0)                                    # one call of unknown length: the bar's clock runs
     pycolmap.match_exhaustive(str(db_path), matching_options=mo, device=pycolmap.Device.cpu)
     po = pycolmap.IncrementalPipelineOptions()
     po.num_threads, po.extract_colors, po.random_seed = 1, False, 0
     po.ba_refine_focal_length = po.ba_refine_principal_point = po.ba_refine_extra_params = False
-    n, done = len(frames["names"]), [0]
 
-    def registered():
-        done[0] += 1
+    def registered(views: int = 1):
+        done[0] += views
         if progress:
-            progress(min(done[0], n), n)
+            mapping(min(done[0], n), n)
+    registered(0)
     (tmp / "sparse").mkdir()
     recs = pycolmap.incremental_mapping(str(db_path), str(images), str(tmp / "sparse"), options=po,
+                                        initial_image_pair_callback=lambda: registered(2),
                                         next_image_callback=registered)
     shutil.rmtree(tmp / "sparse")
     if not recs:
