@@ -47,13 +47,15 @@ def parse_sizes(text: str | None) -> dict:
 
 def build_map_files(inputs, camera_path, out, dictionary: str | None = None, size_mm: float | None = None,
                     sizes=None, origin: int | None = None, max_frames: int = 300, progress=None,
-                    extend=None) -> BuiltMap:
+                    extend=None, refine: bool = True) -> BuiltMap:
     """Build and write the marker map of ``inputs`` (and its top view beside it, ``map_plot_path``)
     (images, folders of images, videos: at most
     ``max_frames`` evenly spaced frames of each) seen by the camera of ``camera_path`` (our JSON
     or an OpenCV YAML/XML calibration), markers of ``dictionary`` printed ``size_mm`` wide or
     as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``. ``extend``: an
     earlier map to extend or refine (its world, markers, dictionary and size, unless given).
+    ``refine``: refine the camera's intrinsics from the survey when it can
+    (``tracking.mapintrinsics``; the map's ``camera_intrinsics`` says what was done).
 
     Raises:
         UserError: unreadable inputs, an unknown dictionary, images of another size than the
@@ -90,7 +92,8 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     size = {i: size_mm for i in seen if size_mm is not None}
     size.update({i: s for i, s in (sizes or {}).items() if i in seen})
     try:
-        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model, prior)
+        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model, prior,
+                                 tuple(cam.image_size), refine)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
     for i, n in repeated.items():
@@ -98,7 +101,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
             built.info[i].flags.append(f"id detected twice in {n} view(s) (a duplicate print?)")
     write_marker_map(out, marker_map_dict(dictionary, built.marker_map.marker_size_mm, built.marker_map.poses,
                                           extra={i: _extra(inf) for i, inf in built.info.items()},
-                                          sizes=built.marker_map.sizes))
+                                          sizes=built.marker_map.sizes, camera=intrinsics_json(built.intrinsics)))
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
@@ -162,10 +165,49 @@ def _extra(info) -> dict:
             "covariance": np.round(info.covariance, 12).tolist(), "flags": list(info.flags)}
 
 
+def intrinsics_json(intr) -> dict | None:
+    """The map JSON's ``camera_intrinsics`` object of an ``IntrinsicsRefinement`` (docs/formats.md),
+    None for none."""
+    if intr is None:
+        return None
+    out = {"refined": bool(intr.refined), "model": intr.model, "n_views": int(intr.n_views),
+           "image_cells": int(intr.cells), "camera_matrix": np.round(intr.camera_matrix, 6).tolist(),
+           "dist_coeffs": np.round(intr.dist_coeffs, 9).tolist(),
+           "given_camera_matrix": np.round(intr.given_camera_matrix, 6).tolist(),
+           "given_dist_coeffs": np.round(intr.given_dist_coeffs, 9).tolist()}
+    if intr.refined:
+        out.update(change={k: round(v, 9) for k, v in intr.change().items()},
+                   sd={k: round(v, 9) for k, v in intr.sd.items()})
+    else:
+        out["reason"] = intr.reason
+    return out
+
+
+def format_intrinsics(intr) -> list[str]:
+    """Lines for the terminal: the intrinsics refined (each value and its change), and whether
+    the calibration's were off by more than the survey's uncertainty; or why they were not
+    refined, and that the map depends on them."""
+    if not intr.refined:
+        return [f"camera intrinsics as calibrated, not refined: {intr.reason}",
+                "  the map depends on them: a rough calibration (few board views) bends it and can flag markers "
+                "as moved (docs/tracking.md, Building a map)"]
+    new, d = intr.values(), intr.change()
+    parts = ", ".join(f"{k} {new[k]:.2f} ({d[k]:+.2f})" for k in ("fx", "fy", "cx", "cy"))
+    lines = [f"camera intrinsics refined from the survey's {intr.n_views} views: {parts} px; "
+             + ", ".join(f"{k} {new[k]:.4f} ({d[k]:+.4f})" for k in list(new)[4:])]
+    off = max(abs(d[k]) / max(intr.sd[k], 1e-12) for k in ("fx", "fy", "cx", "cy"))
+    if off > 5:
+        lines.append(f"  the calibration's were {off:.0f} sd off the survey's: a map built with them as they are "
+                     "would be bent; calibrate with more board views (docs/calibration.md) for tracking too")
+    return lines
+
+
 def format_map_report(built: BuiltMap) -> list[str]:
-    """Lines for the terminal: the map, then each flagged marker."""
+    """Lines for the terminal: the map, the intrinsics it used, then each flagged marker."""
     lines = [f"{len(built.marker_map.poses)} markers from {len(built.cameras)} views "
              f"({len(built.unposed)} without a marker of the map), reprojection RMS {built.rms_px:.2f} px"]
+    if built.intrinsics is not None:
+        lines += format_intrinsics(built.intrinsics)
     for i, inf in sorted(built.info.items()):
         sd = np.sqrt(np.clip(np.diag(inf.covariance)[3:], 0, None))
         if inf.flags:
