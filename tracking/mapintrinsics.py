@@ -57,6 +57,8 @@ class IntrinsicsRefinement:
         sd: {name (``refined_names``): standard deviation (px for fx, fy, cx, cy)} of the
             refined values, or {} when not refined.
         model: the lens model, 'pinhole' or 'fisheye'.
+        start: where the intrinsics the refinement started from came from ('calibration', or
+            the caller's word: 'extended map').
     """
 
     camera_matrix: np.ndarray
@@ -69,6 +71,7 @@ class IntrinsicsRefinement:
     cells: int
     sd: dict
     model: str = "pinhole"
+    start: str = "calibration"
 
     def values(self, given: bool = False) -> dict:
         """{name (``refined_names``): value} of the intrinsics used (``given``: the calibration's)."""

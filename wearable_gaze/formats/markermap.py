@@ -63,6 +63,12 @@ def load_marker_map(path) -> MarkerMap:
         raise UserError(f"{path}: {exc}; fix the marker map (see docs/session.md, marker map)") from None
 
 
+def read_map_intrinsics(path) -> dict | None:
+    """A built map's ``camera_intrinsics`` object (checked against the schema), None when it has
+    none (a measured map, or one built before it existed)."""
+    return load_json(path, "marker-map").get("camera_intrinsics")
+
+
 def marker_map_from_dict(d: dict) -> MarkerMap:
     """Check and load a parsed marker map. Each marker gives ``T_world_from_marker`` (4x4) or
     ``corners_mm`` (4x3, cv2.aruco order).

@@ -6,6 +6,7 @@ views, residual, covariance and flags."""
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from tracking.markers import MarkerDetector, split_repeated
 from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.images import IMAGE_EXT
-from ..formats.markermap import load_marker_map, marker_map_dict, write_marker_map
+from ..formats.markermap import load_marker_map, marker_map_dict, read_map_intrinsics, write_marker_map
 from .calibrate import input_files, read_frames
 
 log = logging.getLogger(__name__)
@@ -55,7 +56,9 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``. ``extend``: an
     earlier map to extend or refine (its world, markers, dictionary and size, unless given).
     ``refine``: refine the camera's intrinsics from the survey when it can
-    (``tracking.mapintrinsics``; the map's ``camera_intrinsics`` says what was done).
+    (``tracking.mapintrinsics``; the map's ``camera_intrinsics`` says what was done). An
+    ``extend`` map built with this calibration and refined gives its refined intrinsics as the
+    start (``start_intrinsics``).
 
     Raises:
         UserError: unreadable inputs, an unknown dictionary, images of another size than the
@@ -92,8 +95,11 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     size = {i: size_mm for i in seen if size_mm is not None}
     size.update({i: s for i, s in (sizes or {}).items() if i in seen})
     try:
-        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model, prior,
-                                 tuple(cam.image_size), refine)
+        K, dist, start = start_intrinsics(cam, extend if refine else None)
+        built = build_marker_map(views, K, dist, dictionary, size, origin, cam.model, prior, tuple(cam.image_size),
+                                 refine)
+        built.intrinsics = replace(built.intrinsics, given_camera_matrix=cam.camera_matrix,
+                                   given_dist_coeffs=cam.dist_coeffs, start=start)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
     for i, n in repeated.items():
@@ -105,6 +111,21 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
+
+
+def start_intrinsics(cam, extend=None) -> tuple[np.ndarray, np.ndarray, str]:
+    """The intrinsics a map starts from: (K (3, 3), dist, 'calibration'), the camera calibration's,
+    or (..., 'extended map') the refined ones of the map ``extend`` when it was built from this
+    calibration (its ``given_camera_matrix`` and ``given_dist_coeffs`` are the calibration's): a
+    few new views that cannot refine them alone then keep what the earlier survey found."""
+    intr = read_map_intrinsics(Path(extend)) if extend is not None else None
+    if intr and intr["refined"] and intr.get("model", "pinhole") == cam.model:
+        same = np.allclose(intr.get("given_camera_matrix", np.zeros((3, 3))), cam.camera_matrix, atol=1e-5) and \
+            len(intr.get("given_dist_coeffs", [])) == len(cam.dist_coeffs) and \
+            np.allclose(intr["given_dist_coeffs"], cam.dist_coeffs, atol=1e-8)
+        if same:
+            return np.asarray(intr["camera_matrix"], float), np.asarray(intr["dist_coeffs"], float), "extended map"
+    return cam.camera_matrix, cam.dist_coeffs, "calibration"
 
 
 def check_frame_size(name: str, grey, cam) -> None:
@@ -170,14 +191,14 @@ def intrinsics_json(intr) -> dict | None:
     None for none."""
     if intr is None:
         return None
-    out = {"refined": bool(intr.refined), "model": intr.model, "n_views": int(intr.n_views),
+    out = {"refined": bool(intr.refined), "start": intr.start, "model": intr.model, "n_views": int(intr.n_views),
            "image_cells": int(intr.cells), "camera_matrix": np.round(intr.camera_matrix, 6).tolist(),
            "dist_coeffs": np.round(intr.dist_coeffs, 9).tolist(),
            "given_camera_matrix": np.round(intr.given_camera_matrix, 6).tolist(),
            "given_dist_coeffs": np.round(intr.given_dist_coeffs, 9).tolist()}
+    out["change"] = {k: round(v, 9) for k, v in intr.change().items()}
     if intr.refined:
-        out.update(change={k: round(v, 9) for k, v in intr.change().items()},
-                   sd={k: round(v, 9) for k, v in intr.sd.items()})
+        out["sd"] = {k: round(v, 9) for k, v in intr.sd.items()}
     else:
         out["reason"] = intr.reason
     return out
@@ -187,6 +208,8 @@ def format_intrinsics(intr) -> list[str]:
     """Lines for the terminal: the intrinsics refined (each value and its change), and whether
     the calibration's were off by more than the survey's uncertainty; or why they were not
     refined, and that the map depends on them."""
+    if not intr.refined and intr.start != "calibration":
+        return [f"camera intrinsics of the extended map (refined by its survey), not refined again: {intr.reason}"]
     if not intr.refined:
         return [f"camera intrinsics as calibrated, not refined: {intr.reason}",
                 "  the map depends on them: a rough calibration (few board views) bends it and can flag markers "
