@@ -5,7 +5,7 @@ Accuracy: the built map's marker corners against the true map, after the transfo
 origin marker (its pose in both maps) and after the best similarity; and the time per run.
 
     python benchmarks/bench_map.py [--seconds 60] [--seed 0] [--frames 300] [--work DIR] [--walkabout N]
-                                   [--moved [ID]] [--resolution WxH] [--fps F]
+                                   [--moved [ID]] [--resolution WxH] [--fps F] [--rough N]
 
 With ``--walkabout N``: also N lab-walkabout sessions of the same room (seeds seed..seed+N-1, each
 with its own survey), each processed with its true map and with the map built from its survey
@@ -23,6 +23,12 @@ two of their views cannot be seen (the run prints how many views it had on each 
 With ``--resolution`` or ``--fps`` (e.g. ``--resolution 960x540 --fps 3``, the size
 tests/test_sim_survey.py renders): the surveys at that size and rate, rendered as the test does
 (no calibration recordings, eyes at 10 Hz); with --frames above the video's frame count, every frame.
+
+With ``--rough N`` (e.g. ``--resolution 960x540 --fps 3 --rough 8``): the survey rendered with N
+board views too, the camera calibrated from them (``calibrate_camera_views``, as
+``calibrate-camera``), its error against the true K printed, and the map built three ways: true
+intrinsics as they are, the rough ones as they are (``refine=False``), the rough ones refined with
+the map (the default); corner errors and flags of each (docs/tracking.md, "Building a map").
 
 Each survey is rendered once into --work (``survey-SEED-SECONDS``, ``...-movedID``) and reused;
 delete a folder there to render it again.
@@ -58,15 +64,19 @@ def survey_tag(seed: int, seconds: float, moved: int | None = None, camera=None)
     return f"{seed}-{seconds:g}{size}" + (f"-moved{moved}" if moved is not None else "")
 
 
-def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | None = None, camera=None):
+def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | None = None, camera=None,
+               board_views: int = 0, camera_path=None, refine: bool = True, name: str = ""):
     """(true map, built map, BuiltMap, seconds to build) of the survey of seed ``seed``;
     ``moved``: the marker moved ``MOVED_SHIFT_MM`` halfway through it; ``camera``: the scene
-    camera's {"resolution": [w, h], "fps": f} when not the scenario's (rendered as the tests do)."""
-    tag = survey_tag(seed, seconds, moved, camera)
+    camera's {"resolution": [w, h], "fps": f} when not the scenario's (rendered as the tests do),
+    with ``board_views`` board views; ``camera_path``: the calibration to map with (default the
+    true one), ``refine`` its refinement; ``name``: told apart in the built map's file name."""
+    tag = survey_tag(seed, seconds, moved, camera) + (f"-board{board_views}" if board_views else "")
     root = work / f"survey-{tag}"
     scn = {"base": "survey", "duration_s": seconds}
     if camera:
-        scn.update({"camera": camera, "eyes": {"rate_hz": 10.0}, "calibration": {"eye": False, "camera_views": 0}})
+        scn.update({"camera": camera, "eyes": {"rate_hz": 10.0},
+                    "calibration": {"eye": False, "camera_views": board_views}})
     if moved is not None:
         scn["moved_marker"] = {"id": moved, "at_s": seconds / 2, "shift_mm": MOVED_SHIFT_MM}
     if not (root / "session.json").is_file():
@@ -74,10 +84,10 @@ def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | 
         simulate_scenario(scn, root, seed=seed)
         print(f"simulated {root} in {time.perf_counter() - t0:.0f} s")
     true_map = load_marker_map(root / "markers.json")
-    out = work / f"built-{tag}-{frames}.json"
+    out = work / f"built-{tag}-{frames}{name}.json"
     t0 = time.perf_counter()
-    built = build_map_files([root / "scene.mp4"], root / "truth" / "camera.json", out, true_map.dictionary,
-                            true_map.marker_size_mm, max_frames=frames)
+    built = build_map_files([root / "scene.mp4"], camera_path or root / "truth" / "camera.json", out,
+                            true_map.dictionary, true_map.marker_size_mm, max_frames=frames, refine=refine)
     return true_map, out, built, time.perf_counter() - t0
 
 
@@ -184,6 +194,49 @@ def moved_survey(args, unmoved: tuple, unmoved_rms: float) -> None:
     print(f"time: {dt:.1f} s for {args.frames} frames on one core")
 
 
+def rough_survey(args) -> None:
+    """--rough N: the survey calibrated from its own N board views, mapped with the true intrinsics,
+    the rough ones as they are and the rough ones refined (docs/tracking.md, "Building a map")."""
+    from wearable_gaze.formats.board import read_board  # noqa: PLC0415
+    from wearable_gaze.formats.camera import (
+        load_camera,  # noqa: PLC0415
+        write_camera,  # noqa: PLC0415
+    )
+    from wearable_gaze.formats.images import read_grey_image  # noqa: PLC0415
+    from wearable_gaze.pipeline.calibrate import calibrate_camera_views, camera_json  # noqa: PLC0415
+
+    n = args.rough
+    true_map, _, _, _ = survey_map(args.work, args.seed, args.seconds, args.frames, camera=args.camera,
+                                   board_views=n, refine=False, name="-true")
+    root = args.work / f"survey-{survey_tag(args.seed, args.seconds, None, args.camera)}-board{n}"
+    rec = read_board(root / "calibration" / "camera")
+    cal = calibrate_camera_views(((f.name, read_grey_image(f)) for f in rec.views), rec.spec).calibration
+    rough = args.work / f"rough-{n}-views-{survey_tag(args.seed, args.seconds, None, args.camera)}.json"
+    write_camera(rough, camera_json(cal))
+    K, Kt = cal.camera_matrix, load_camera(root / "truth" / "camera.json").camera_matrix
+    print(f"\n{n}-view calibration ({sum(v['used'] for v in cal.views)} views used, RMS {cal.rms_px:.3f} px): "
+          f"fx {K[0, 0] - Kt[0, 0]:+.2f}, fy {K[1, 1] - Kt[1, 1]:+.2f}, cx {K[0, 2] - Kt[0, 2]:+.2f}, "
+          f"cy {K[1, 2] - Kt[1, 2]:+.2f} px off the true K; dist {np.round(cal.dist_coeffs, 4).tolist()}")
+    for label, path, refine in (("true intrinsics, as they are", None, False),
+                                (f"rough {n}-view intrinsics, as they are", rough, False),
+                                (f"rough {n}-view intrinsics, refined", rough, True)):
+        _, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, camera=args.camera,
+                                       board_views=n, camera_path=path, refine=refine,
+                                       name=f"-{'true' if path is None else 'rough'}{'-refined' if refine else ''}")
+        got = load_marker_map(out)
+        common = sorted(set(got.poses) & set(true_map.poses))
+        e_origin, e_sim, scale, origin = corner_errors(true_map, got, common)
+        flagged = {i: inf.flags for i, inf in built.info.items() if inf.flags}
+        intr = built.intrinsics
+        K1 = intr.camera_matrix
+        print(f"{label}: corners after the best similarity median {np.median(e_sim):.2f} mm, max {e_sim.max():.2f} mm;"
+              f" after the origin marker's transform {np.median(e_origin):.2f} / {e_origin.max():.2f} mm; RMS "
+              f"{built.rms_px:.3f} px; flagged {flagged or 'none'}; {dt:.1f} s")
+        print(f"    intrinsics used: fx {K1[0, 0] - Kt[0, 0]:+.2f}, fy {K1[1, 1] - Kt[1, 1]:+.2f}, cx "
+              f"{K1[0, 2] - Kt[0, 2]:+.2f}, cy {K1[1, 2] - Kt[1, 2]:+.2f} px off the true K"
+              + ("" if intr.refined else f" (not refined: {intr.reason})"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="survey length (default 60)")
@@ -195,11 +248,19 @@ def main() -> None:
                     help="also the survey with marker ID (default 15) moved halfway through")
     ap.add_argument("--resolution", type=str, default=None, metavar="WxH", help="scene camera size (default 1280x720)")
     ap.add_argument("--fps", type=float, default=None, help="scene camera rate (default 30)")
+    ap.add_argument("--rough", type=int, default=None, metavar="N",
+                    help="also: the survey calibrated from N board views of its own, mapped with and without "
+                         "refining the intrinsics (needs --resolution or --fps)")
     args = ap.parse_args()
     args.camera = None
     if args.resolution or args.fps:
         w, h = (int(v) for v in (args.resolution or "1280x720").lower().split("x"))
         args.camera = {"resolution": [w, h], "fps": args.fps or 30.0}
+    if args.rough is not None:
+        if args.camera is None:
+            ap.error("--rough needs --resolution or --fps (the surveys rendered as the tests render them)")
+        rough_survey(args)
+        return
     true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, camera=args.camera)
     got = load_marker_map(out)
     common = sorted(set(got.poses) & set(true_map.poses))

@@ -48,7 +48,12 @@ def test_map_rebuilds_the_charuco_boards_17_markers_from_four_real_photos(real_d
                  str(d / "tutorial_camera_charuco.yml"), "--dict", "DICT_6X6_250", "--size-mm", "20",
                  "--origin-marker", "0", "-o", str(out)])
     assert code == 0
-    assert "17 markers from 4 views" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "17 markers from 4 views" in printed
+    # 4 photos cannot refine the intrinsics (docs/tracking.md): kept as calibrated, and said so
+    assert "camera intrinsics as calibrated, not refined: 4 posed views" in printed and "depends on them" in printed
+    intr = json.loads(out.read_text())["camera_intrinsics"]
+    assert not intr["refined"] and intr["camera_matrix"] == intr["given_camera_matrix"]
     plot = cv2.imread(str(tmp_path / "map_top_view.png"))                  # the top view beside it
     assert plot is not None and plot.shape[0] > 300 and plot.shape[1] > 300
     mm = load_marker_map(out)                                     # a map `track` and `process` take

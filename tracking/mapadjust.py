@@ -80,7 +80,7 @@ def pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
     return T
 
 
-def _unpack(x, cam_keys, marker_keys) -> tuple[dict, dict]:
+def unpack_poses(x, cam_keys, marker_keys) -> tuple[dict, dict]:
     """Poses from the parameter vector: per view (rvec, tvec) of T_cam_from_world, then per
     marker (rvec, tvec) of T_world_from_marker."""
     p = x.reshape(-1, 6)
@@ -90,26 +90,40 @@ def _unpack(x, cam_keys, marker_keys) -> tuple[dict, dict]:
     return cams, markers
 
 
-def _pack(T) -> np.ndarray:
+def pack_pose(T) -> np.ndarray:
+    """(6,) (rvec, rad; tvec, mm) of a rigid transform (4, 4)."""
     rvec, _ = cv2.Rodrigues(np.ascontiguousarray(T[:3, :3]))
     return np.concatenate([rvec.ravel(), T[:3, 3]])
 
 
-def _residuals(x, prob: dict) -> np.ndarray:
-    """(8 per observation) corner reprojection errors, pixels (normalised times the focal length),
-    all observations at once: ``prob`` holds each observation's view row, marker row (-1: the
-    origin, whose pose is ``prob["origin"]``), marker-frame corners (n, 4, 3) and observed
-    corners (n, 4, 2)."""
-    p = x.reshape(-1, 6)
-    n_c = prob["n_cams"]
-    Rc, tc = Rotation.from_rotvec(p[:n_c, :3]).as_matrix(), p[:n_c, 3:]
+def adjustment_problem(obs, size, origin, markers, cams, T_origin) -> dict:
+    """The observations of every posed view (``cams``) of a placed marker (``markers``) as arrays:
+    ``cam_keys``, ``marker_keys`` (the origin left out: it stays at ``T_origin``), ``pairs``
+    [(view, marker)], and per pair its view row ``cam``, marker row ``marker`` (-1: the origin),
+    marker-frame corners ``local`` (n, 4, 3), mm, and observed corners ``seen`` (n, 4, 2) as
+    ``obs`` holds them; ``n_cams``, ``origin`` (T_origin)."""
+    cam_keys = sorted(cams)
+    marker_keys = sorted(i for i in markers if i != origin)
+    pairs = [(k, i) for k in cam_keys for i in obs[k] if i in markers]
+    return {"cam_keys": cam_keys, "marker_keys": marker_keys, "pairs": pairs, "n_cams": len(cam_keys),
+            "cam": np.array([cam_keys.index(k) for k, _ in pairs]),
+            "marker": np.array([marker_keys.index(i) if i != origin else -1 for _, i in pairs]),
+            "local": np.array([square_corners(size[i]) for _, i in pairs]).reshape(-1, 4, 3),
+            "seen": np.array([obs[k][i] for k, i in pairs]).reshape(-1, 4, 2), "origin": T_origin}
+
+
+def camera_corners(views, objs, prob: dict) -> np.ndarray:
+    """(n, 4, 3) every observation's marker corners in its view's camera frame, mm: views (V, 6)
+    (rvec, tvec) of their T_cam_from_world, markers (M, 6) of T_world_from_marker, the origin's
+    pose and the observations in ``prob`` (``adjustment_problem``)."""
+    Rc, tc = Rotation.from_rotvec(views[:, :3]).as_matrix(), views[:, 3:]
     To = prob["origin"]
-    Rm = np.concatenate([Rotation.from_rotvec(p[n_c:, :3]).as_matrix(), To[None, :3, :3]]) if len(p) > n_c else \
+    Rm = np.concatenate([Rotation.from_rotvec(objs[:, :3]).as_matrix(), To[None, :3, :3]]) if len(objs) else \
         To[None, :3, :3]
-    tm = np.concatenate([p[n_c:, 3:], To[None, :3, 3]])
+    tm = np.concatenate([objs[:, 3:], To[None, :3, 3]])
     m, c = prob["marker"], prob["cam"]
     Xw = prob["local"] @ np.swapaxes(Rm[m], 1, 2) + tm[m][:, None]
-    return prob["focal"] * (project(Rc[c], tc[c], Xw)[0] - prob["seen"]).ravel()
+    return Xw @ np.swapaxes(Rc[c], 1, 2) + tc[c][:, None]
 
 
 @dataclass
@@ -176,25 +190,20 @@ def _adjust(obs, size, origin, markers, cams, focal, T_origin, max_iter: int = M
             tally: StepTally | None = None) -> Adjusted:
     """Bundle adjustment of every posed view and placed marker but the origin, which stays at
     ``T_origin`` (Huber loss, ``HUBER_PX``; ``tracking.bundle``); its steps counted in ``tally``."""
-    cam_keys = sorted(cams)
-    marker_keys = sorted(i for i in markers if i != origin)
-    pairs = [(k, i) for k in cam_keys for i in obs[k] if i in markers]
-    prob = {"n_cams": len(cam_keys), "focal": focal,
-            "cam": np.array([cam_keys.index(k) for k, _ in pairs]),
-            "marker": np.array([marker_keys.index(i) if i != origin else -1 for _, i in pairs]),
-            "local": np.array([square_corners(size[i]) for _, i in pairs]),
-            "seen": np.array([obs[k][i] for k, i in pairs]), "origin": T_origin}
+    prob = adjustment_problem(obs, size, origin, markers, cams, T_origin)
+    cam_keys, marker_keys, pairs = prob["cam_keys"], prob["marker_keys"], prob["pairs"]
 
-    def fun(v, o):
-        return _residuals(np.concatenate([v.ravel(), o.ravel()]), prob).reshape(-1, 8)
-    fit = bundle_adjust(fun, np.array([_pack(cams[k]) for k in cam_keys]),
-                        np.array([_pack(markers[i]) for i in marker_keys]).reshape(-1, 6), prob["cam"], prob["marker"],
-                        HUBER_PX, max_iter, None if tally is None else tally.begin(max_iter))
+    def fun(v, o):          # corner reprojection errors, pixels (normalised times the focal length)
+        Xc = camera_corners(v, o, prob)
+        return focal * (Xc[..., :2] / Xc[..., 2:3] - prob["seen"]).reshape(-1, 8)
+    fit = bundle_adjust(fun, np.array([pack_pose(cams[k]) for k in cam_keys]),
+                        np.array([pack_pose(markers[i]) for i in marker_keys]).reshape(-1, 6), prob["cam"],
+                        prob["marker"], HUBER_PX, max_iter, None if tally is None else tally.begin(max_iter))
     if tally is not None:
         tally.end(max_iter, fit.iterations)
     if not fit.converged and max_iter == MAX_ITER:
         log.warning("the map's bundle adjustment stopped after %d steps before converging", fit.iterations)
-    cams, adjusted = _unpack(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
+    cams, adjusted = unpack_poses(np.concatenate([fit.views.ravel(), fit.objects.ravel()]), cam_keys, marker_keys)
     adjusted[origin] = T_origin
     return Adjusted(adjusted, cams, fit.residuals.ravel(), fit.information, pairs, marker_keys, fit.converged)
 
@@ -365,7 +374,7 @@ def fit_marker(obs, side, i, T0, cams, keys):
 
     def res(x):
         return (project(R, t, marker_corners_world(side, transform_from_rvec_tvec(x[:3], x[3:])))[0] - seen).ravel()
-    fit = least_squares(res, _pack(T0), method="lm")
+    fit = least_squares(res, pack_pose(T0), method="lm")
     J = fit.jac
     s2 = float(np.sum(fit.fun ** 2)) / max(len(fit.fun) - 6, 1)
     C = np.linalg.pinv(J.T @ J) * s2

@@ -4,7 +4,9 @@ the markers' poses in a world fixed by one of them, from their detected corners 
 
 Each view's markers are posed alone (IPPE for a square); views and markers are chained from the
 origin marker outward (a view posed by the markers already placed, then its new markers placed
-by it); then all view and marker poses are adjusted together, and moved markers split in two
+by it); then, when the survey holds enough views, the camera's intrinsics are refined with all
+view and marker poses (``tracking.mapintrinsics``), and the corners normalised again with them;
+then all view and marker poses are adjusted together, and moved markers split in two
 (``tracking.mapadjust``: bundle adjustment on the corners' reprojection, a robust Huber loss,
 Levenberg-Marquardt with the views eliminated, ``tracking.bundle``). The scale is the printed
 markers' sides, so the map is in millimetres. Then per marker: its pose covariance, how many views
@@ -36,6 +38,7 @@ from .mapadjust import (
     project,
     residual_rms,
 )
+from .mapintrinsics import IntrinsicsRefinement, refine_intrinsics
 from .markermap import MarkerMap, marker_corners_world
 
 log = logging.getLogger(__name__)
@@ -72,7 +75,7 @@ class BuiltMap:
     """A map built from views: the ``MarkerMap``, per marker a ``MarkerInfo``, the posed views'
     ``T_world_from_cam`` (view index -> (4, 4)), the views no marker of the map could pose, the
     overall reprojection RMS, pixels, after the moved markers were split, and before (the same
-    when none was)."""
+    when none was), and the intrinsics it was built with (refined or not, and why)."""
 
     marker_map: MarkerMap
     info: dict
@@ -80,10 +83,12 @@ class BuiltMap:
     unposed: list
     rms_px: float
     rms_unsplit_px: float = float("nan")
+    intrinsics: IntrinsicsRefinement | None = None
 
 
 def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None = None,
-                     model: str = "pinhole", prior: MarkerMap | None = None, progress=None) -> BuiltMap:
+                     model: str = "pinhole", prior: MarkerMap | None = None, image_size=None,
+                     refine: bool = True, progress=None) -> BuiltMap:
     """The marker map of ``views``.
 
     Args:
@@ -98,6 +103,9 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
             its world is kept (``origin``, by default the one of its markers seen most, stays
             where it was), new markers are added, and markers these views do not see are kept
             as they were, with their sizes (``n_views`` 0).
+        image_size: (width, height) of the images, px (default: twice the principal point).
+        refine: refine the intrinsics when the survey can (``tracking.mapintrinsics``): the map
+            is then built, and its moved markers sought, with the refined ones.
         progress: ``progress(done, total)`` as the work goes (``tracking.mapadjust.StepTally``):
             the chain's first guesses refined (a step per marker and view, each round), the
             bundle adjustments' steps (the first, then each moved marker's trials), the markers
@@ -128,6 +136,10 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     markers, cams = _chain(obs, size, origin, start)
     tally = StepTally(progress)
     _refine_initial(obs, size, origin, markers, cams, tick=tally.work(REFINE_ROUNDS * (len(markers) + len(cams))))
+    intr, markers, cams = _intrinsics(views, size, origin, markers, cams, K, dist, model, image_size, refine)
+    if intr.refined:
+        K, dist = intr.camera_matrix, intr.dist_coeffs
+        obs = _normalised(views, K, dist, model)
     adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin],
                                                  tally)
     rms = residual_rms(adj.residuals)
@@ -142,7 +154,18 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     common = float(max(set(size.values()), key=list(size.values()).count))            # the commonest size
     sides = {**{i: prior_map.size_of(i) for i in prior}, **size} if prior else size
     mm = MarkerMap(dictionary, common, dict(adj.markers), {}, {i: v for i, v in sides.items() if v != common})
-    return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms, rms_unsplit)
+    return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms, rms_unsplit, intr)
+
+
+def _intrinsics(views, size, origin, markers, cams, K, dist, model, image_size, refine: bool):
+    """``refine_intrinsics`` of the views' pixel corners (repeated ids left out by the caller),
+    or the given intrinsics kept when not ``refine``."""
+    if not refine:
+        K, dist = np.asarray(K, float), np.asarray(dist, float).ravel()
+        return IntrinsicsRefinement(K, dist, K, dist, False, "not asked to (refinement off)", len(cams), 0, {},
+                                    model=model), markers, cams
+    px = [{int(i): np.asarray(c, np.float64).reshape(4, 2) for i, c in v.items()} for v in views]
+    return refine_intrinsics(px, size, origin, markers, cams, K, dist, model, image_size)
 
 
 def similarity_errors(A, B) -> tuple[np.ndarray, float]:

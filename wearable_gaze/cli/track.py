@@ -71,7 +71,7 @@ def cmd_map(args) -> int:
         raise UserError("map: give the printed marker side, --size-mm MM (or --sizes ID=MM,...)")
     with progress_bar("marker map", 1) as cb:
         built = build_map_files(args.inputs, args.camera, args.out, args.dict, args.size_mm, parse_sizes(args.sizes),
-                                args.origin_marker, args.max_frames or 300, cb, args.extend)
+                                args.origin_marker, args.max_frames or 300, cb, args.extend, not args.fixed_intrinsics)
     for line in format_map_report(built):
         print(line)
     print(f"wrote {args.out} and its top view {map_plot_path(args.out)}")
@@ -82,9 +82,9 @@ def _cmd_markerless(args) -> int:
     from ..pipeline.sfm import build_sfm_files, format_sfm_report  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
 
-    if args.extend is not None or args.sizes:
-        raise UserError("map --markerless: --extend and --sizes are for marker maps; a markerless map is fixed by "
-                        "--origin-marker ID --size-mm MM or by --markers MAP.json")
+    if args.extend is not None or args.sizes or args.fixed_intrinsics:
+        raise UserError("map --markerless: --extend, --sizes and --fixed-intrinsics are for marker maps; a markerless "
+                        "map is fixed by --origin-marker ID --size-mm MM or by --markers MAP.json")
     with progress_bar("markerless map", 1) as cb:
         build = build_sfm_files(args.inputs, args.camera, args.out, args.max_frames or 150, args.dict,
                                 args.size_mm, args.origin_marker, args.markers, cb, args.distance)
@@ -115,6 +115,9 @@ def add_map(sub) -> None:
                     help="the marker whose frame is the world (default: the one seen most)")
     mp.add_argument("--max-frames", type=A.positive_int, default=None, metavar="N",
                     help="frames used from each video, evenly spaced (default 300; 150 with --markerless)")
+    mp.add_argument("--fixed-intrinsics", action="store_true",
+                    help="use the calibration's intrinsics as they are (by default a survey of enough views refines "
+                         "them with the map: docs/tracking.md)")
     mp.add_argument("--markerless", action="store_true",
                     help="reconstruct the textured room itself (pycolmap structure from motion) into the folder -o; "
                          "scaled by --origin-marker ID --size-mm MM or placed by --markers MAP.json")

@@ -27,15 +27,16 @@ log = logging.getLogger(__name__)
 
 
 def marker_map_dict(dictionary: str, marker_size_mm: float, poses: dict, labels: dict | None = None,
-                    extra: dict | None = None, sizes: dict | None = None) -> dict:
+                    extra: dict | None = None, sizes: dict | None = None, camera: dict | None = None) -> dict:
     """The marker map JSON object: per id (ascending) its ``T_world_from_marker`` (4, 4), mm,
     rounded to 1e-9, its ``size_mm`` when ``sizes`` gives it another than ``marker_size_mm``, its
     label when ``labels`` has one, and the fields ``extra[id]`` gives (a built map's
-    ``n_views``, ``rms_px``, ``covariance``, ``flags``; docs/formats.md)."""
+    ``n_views``, ``rms_px``, ``covariance``, ``flags``; docs/formats.md); ``camera``: a built
+    map's ``camera_intrinsics`` object (the intrinsics it was built with, refined or not)."""
     labels, extra = labels or {}, extra or {}
     other = {i: float(v) for i, v in (sizes or {}).items() if float(v) != float(marker_size_mm)}
     return {"format": FORMAT, "version": 1, "dictionary": dictionary,
-            "marker_size_mm": float(marker_size_mm),
+            "marker_size_mm": float(marker_size_mm), **({"camera_intrinsics": camera} if camera else {}),
             "markers": [{"id": int(i), "T_world_from_marker": np.round(np.asarray(T, float), 9).tolist(),
                          **({"size_mm": other[i]} if i in other else {}),
                          **({"label": labels[i]} if i in labels else {}), **extra.get(i, {})}
@@ -60,6 +61,12 @@ def load_marker_map(path) -> MarkerMap:
         return marker_map_from_dict(load_json(path, "marker-map"))
     except MarkerMapError as exc:
         raise UserError(f"{path}: {exc}; fix the marker map (see docs/session.md, marker map)") from None
+
+
+def read_map_intrinsics(path) -> dict | None:
+    """A built map's ``camera_intrinsics`` object (checked against the schema), None when it has
+    none (a measured map, or one built before it existed)."""
+    return load_json(path, "marker-map").get("camera_intrinsics")
 
 
 def marker_map_from_dict(d: dict) -> MarkerMap:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from tracking.markers import MarkerDetector, split_repeated
 from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.images import IMAGE_EXT
-from ..formats.markermap import load_marker_map, marker_map_dict, write_marker_map
+from ..formats.markermap import load_marker_map, marker_map_dict, read_map_intrinsics, write_marker_map
 from ..progress import staged
 from .calibrate import check_frame_size, input_files, read_frames
 from .track import no_marker_error
@@ -50,7 +51,7 @@ def parse_sizes(text: str | None) -> dict:
 
 def build_map_files(inputs, camera_path, out, dictionary: str | None = None, size_mm: float | None = None,
                     sizes=None, origin: int | None = None, max_frames: int = 300, progress=None,
-                    extend=None) -> BuiltMap:
+                    extend=None, refine: bool = True) -> BuiltMap:
     """Build and write the marker map of ``inputs`` (and its top view beside it, ``map_plot_path``)
     (images, folders of images, videos: at most
     ``max_frames`` evenly spaced frames of each) seen by the camera of ``camera_path`` (our JSON
@@ -58,7 +59,10 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     as ``sizes`` {id: mm} says (which wins), the world fixed by marker ``origin``. ``extend``: an
     earlier map to extend or refine (its world, markers, dictionary and size, unless given).
     ``progress(done, total)``: over the frames read, then over the bundle adjustments' steps
-    (``tracking.mapbuild.build_marker_map``).
+    (``tracking.mapbuild.build_marker_map``). ``refine``: refine the camera's intrinsics from the
+    survey when it can (``tracking.mapintrinsics``; the map's ``camera_intrinsics`` says what was
+    done). An ``extend`` map built with this calibration and refined gives its refined intrinsics
+    as the start (``start_intrinsics``).
 
     Raises:
         UserError: unreadable inputs, an unknown dictionary, images of another size than the
@@ -103,8 +107,11 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     if progress:
         adjusting(0, 0)                           # chaining the views, before the first adjustment step
     try:
-        built = build_marker_map(views, cam.camera_matrix, cam.dist_coeffs, dictionary, size, origin, cam.model, prior,
-                                 adjusting)
+        K, dist, start = start_intrinsics(cam, extend if refine else None)
+        built = build_marker_map(views, K, dist, dictionary, size, origin, cam.model, prior, tuple(cam.image_size),
+                                 refine, adjusting)
+        built.intrinsics = replace(built.intrinsics, given_camera_matrix=cam.camera_matrix,
+                                   given_dist_coeffs=cam.dist_coeffs, start=start)
     except ValueError as exc:
         raise UserError(f"map: {exc} (--size-mm, --sizes, --origin-marker, --dict)") from None
     for i, n in repeated.items():
@@ -112,10 +119,25 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
             built.info[i].flags.append(f"id detected twice in {n} view(s) (a duplicate print?)")
     write_marker_map(out, marker_map_dict(dictionary, built.marker_map.marker_size_mm, built.marker_map.poses,
                                           extra={i: _extra(inf) for i, inf in built.info.items()},
-                                          sizes=built.marker_map.sizes))
+                                          sizes=built.marker_map.sizes, camera=intrinsics_json(built.intrinsics)))
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
+
+
+def start_intrinsics(cam, extend=None) -> tuple[np.ndarray, np.ndarray, str]:
+    """The intrinsics a map starts from: (K (3, 3), dist, 'calibration'), the camera calibration's,
+    or (..., 'extended map') the refined ones of the map ``extend`` when it was built from this
+    calibration (its ``given_camera_matrix`` and ``given_dist_coeffs`` are the calibration's): a
+    few new views that cannot refine them alone then keep what the earlier survey found."""
+    intr = read_map_intrinsics(Path(extend)) if extend is not None else None
+    if intr and intr["refined"] and intr.get("model", "pinhole") == cam.model:
+        same = np.allclose(intr.get("given_camera_matrix", np.zeros((3, 3))), cam.camera_matrix, atol=1e-5) and \
+            len(intr.get("given_dist_coeffs", [])) == len(cam.dist_coeffs) and \
+            np.allclose(intr["given_dist_coeffs"], cam.dist_coeffs, atol=1e-8)
+        if same:
+            return np.asarray(intr["camera_matrix"], float), np.asarray(intr["dist_coeffs"], float), "extended map"
+    return cam.camera_matrix, cam.dist_coeffs, "calibration"
 
 
 def frames_total(files, max_frames: int) -> int:
@@ -165,10 +187,51 @@ def _extra(info) -> dict:
             "covariance": np.round(info.covariance, 12).tolist(), "flags": list(info.flags)}
 
 
+def intrinsics_json(intr) -> dict | None:
+    """The map JSON's ``camera_intrinsics`` object of an ``IntrinsicsRefinement`` (docs/formats.md),
+    None for none."""
+    if intr is None:
+        return None
+    out = {"refined": bool(intr.refined), "start": intr.start, "model": intr.model, "n_views": int(intr.n_views),
+           "image_cells": int(intr.cells), "camera_matrix": np.round(intr.camera_matrix, 6).tolist(),
+           "dist_coeffs": np.round(intr.dist_coeffs, 9).tolist(),
+           "given_camera_matrix": np.round(intr.given_camera_matrix, 6).tolist(),
+           "given_dist_coeffs": np.round(intr.given_dist_coeffs, 9).tolist()}
+    out["change"] = {k: round(v, 9) for k, v in intr.change().items()}
+    if intr.refined:
+        out["sd"] = {k: round(v, 9) for k, v in intr.sd.items()}
+    else:
+        out["reason"] = intr.reason
+    return out
+
+
+def format_intrinsics(intr) -> list[str]:
+    """Lines for the terminal: the intrinsics refined (each value and its change), and whether
+    the calibration's were off by more than the survey's uncertainty; or why they were not
+    refined, and that the map depends on them."""
+    if not intr.refined and intr.start != "calibration":
+        return [f"camera intrinsics of the extended map (refined by its survey), not refined again: {intr.reason}"]
+    if not intr.refined:
+        return [f"camera intrinsics as calibrated, not refined: {intr.reason}",
+                "  the map depends on them: a rough calibration (few board views) bends it and can flag markers "
+                "as moved (docs/tracking.md, Building a map)"]
+    new, d = intr.values(), intr.change()
+    parts = ", ".join(f"{k} {new[k]:.2f} ({d[k]:+.2f})" for k in ("fx", "fy", "cx", "cy"))
+    lines = [f"camera intrinsics refined from the survey's {intr.n_views} views: {parts} px; "
+             + ", ".join(f"{k} {new[k]:.4f} ({d[k]:+.4f})" for k in list(new)[4:])]
+    off = max(abs(d[k]) / max(intr.sd[k], 1e-12) for k in ("fx", "fy", "cx", "cy"))
+    if off > 5:
+        lines.append(f"  the calibration's were {off:.0f} sd off the survey's: a map built with them as they are "
+                     "would be bent; calibrate with more board views (docs/calibration.md) for tracking too")
+    return lines
+
+
 def format_map_report(built: BuiltMap) -> list[str]:
-    """Lines for the terminal: the map, then each flagged marker."""
+    """Lines for the terminal: the map, the intrinsics it used, then each flagged marker."""
     lines = [f"{len(built.marker_map.poses)} markers from {len(built.cameras)} views "
              f"({len(built.unposed)} without a marker of the map), reprojection RMS {built.rms_px:.2f} px"]
+    if built.intrinsics is not None:
+        lines += format_intrinsics(built.intrinsics)
     for i, inf in sorted(built.info.items()):
         sd = np.sqrt(np.clip(np.diag(inf.covariance)[3:], 0, None))
         if inf.flags:
