@@ -77,6 +77,9 @@ MOVING_COLUMN = "moving"
 PATH_COLUMNS = ("target", "t", "x", "y", "z", "cxx", "cxy", "cxz", "cyy", "cyz", "czz")
 PATH_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f"} | {k: ".6g" for k in PATH_COLUMNS[5:]}
 _COV_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+MAX_VARIANCE_MM2 = 1e20
+"""A covariance term is mm^2: its plausible bound is the square of the tables' 1e10 mm (a depth
+along near-parallel lines of a still head has a standard deviation of hundreds of metres)."""
 ESTIMATE_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
 ESTIMATE_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
 
@@ -257,7 +260,9 @@ def read_target_paths(path) -> dict:
     Raises:
         UserError: a missing file or column, a cell that is not a number (one line).
     """
-    cols = read_table(path, list(PATH_COLUMNS), what="target-path CSV (target_paths.csv)", rows_required=False)
+    what = "target-path CSV (target_paths.csv)"
+    cols = read_table(path, list(PATH_COLUMNS[:5]), what=what, rows_required=False)
+    cols |= read_table(path, list(PATH_COLUMNS[5:]), what=what, rows_required=False, max_abs=MAX_VARIANCE_MM2)
     out = {}
     for index in dict.fromkeys(int(v) for v in cols["target"]):
         sel = cols["target"] == index
