@@ -114,3 +114,20 @@ def test_gen2_damaged_file_is_one_line(sample, tmp_path):
     path.write_text(path.read_text().replace("right_pitch_rads_cpf", "right_pitch"))
     assert detect_format(src) == "aria-gen2"
     one_line_error(aria_gen2, src, tmp_path / "s", "right_pitch_rads_cpf", str(path))
+
+
+def test_gen2_real_goes_through_process_with_no_failed_step(sample, tmp_path):
+    """The sample spans 44 ms (5 rows at 90 Hz): process runs every step, and says why there is no
+    target (a fixation needs 0.3 s, SegmentConfig.min_fixation_s), rather than failing."""
+    import json
+
+    from wearable_gaze.pipeline.importer import import_recording
+    from wearable_gaze.pipeline.process import process_session
+
+    import_recording(sample, tmp_path / "s")
+    res = process_session(tmp_path / "s", tmp_path / "out")
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["failed_steps"] == [] and summary["steps_not_done"] == [] and res.targets == []
+    assert summary["problems"] == ["targets: no target could be estimated from 5 view lines (no fixation of 0.3 s "
+                                   "or more gave an estimate)"]
+    assert (tmp_path / "out" / "report.html").is_file()

@@ -99,7 +99,7 @@ def locate_recording(src, fmt: str | None = None) -> Located:
     if kids:
         (p, f), = kids
         return Located(_one(p, f), p, f"{src} holds one recording, {p.name}/: that folder was read")
-    for up, parent in enumerate(src.resolve().parents[:MAX_LEVELS_UP], 1):
+    for up, parent in enumerate(src.absolute().parents[:MAX_LEVELS_UP], 1):
         if f := _formats(parent, fmt):
             return Located(_one(parent, f), parent, f"{src} is inside the recording {parent} ({up} level"
                            f"{'s' if up > 1 else ''} up): that folder was read")
