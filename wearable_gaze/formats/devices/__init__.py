@@ -76,17 +76,17 @@ def locate_recording(src, fmt: str | None = None) -> Located:
     src = Path(src)
     if fmt is not None and fmt not in MODULES:
         device_module(fmt)                             # the one-line refusal
-    if src.is_file() and fmt is None:
-        raise UserError(f"{src}: a file, not a recording folder; pass the recording's folder, or name the format "
-                        "with --format (a Pupil Player gaze_positions CSV: --format pupil-core)")
-    if not src.exists() or (src.is_file() and fmt is not None):
-        if not src.exists():
-            raise UserError(f"{src}: no such folder; pass the recording's folder")
+    if not src.exists():
+        raise UserError(f"{src}: no such folder; pass the recording's folder")
+    if src.is_file():
+        if fmt is None:
+            raise UserError(f"{src}: a file, not a recording folder; pass the recording's folder, or name the "
+                            "format with --format (a Pupil Player gaze_positions CSV: --format pupil-core)")
         return Located(fmt, src)
     found = _formats(src, fmt)
     if found:
         return Located(_one(src, found), src)
-    if (src / "session.json").is_file():
+    if fmt is None and (src / "session.json").is_file():
         raise UserError(f"{src}: matches none of the known formats and is a session folder already (session.json): "
                         f"process it with 'wearable-gaze process {src}' (a recording's format is named with --format)")
     try:
