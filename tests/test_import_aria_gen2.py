@@ -104,6 +104,8 @@ def test_gen2_eye_gaze_folder_and_trajectory_give_device_poses(sample, tmp_path)
     T_dev[:3, 3] = [1000 + (1130889351 - t_us[0]) * 1e-3, 2000, 500]
     want = aria.T_WORLD_FROM_ARIAWORLD @ T_dev @ aria_gen2.T_DEVICE_FROM_HEAD
     np.testing.assert_allclose(T[0], want, atol=1e-3)
+    rep = run_import(aria_gen2, src / "eye_gaze", tmp_path / "s2")      # its eye_gaze/ given: the trajectory beside
+    assert rep["pose_source"] == "device" and rep["trajectory"]["poses_used"] > 0
     cam_in_cpf = np.linalg.inv(aria_gen2.T_DEVICE_FROM_CPF)[:3, 3]
     np.testing.assert_allclose(cam_in_cpf, [67.294194, 6.033819, 11.768852], atol=1e-6)   # the CAD row, mm
 
