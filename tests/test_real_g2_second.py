@@ -4,6 +4,7 @@ because target_paths.csv was written with a path covariance of 4.9e10 mm^2 that 
 refused (the reader's bound was one for mm, not mm^2); now every step succeeds, exit 0."""
 
 import csv
+import json
 import statistics
 from pathlib import Path
 
@@ -54,11 +55,14 @@ def test_the_second_g2_targets_during_validation_are_at_the_poster(g2b, real_dat
     assert len(ok) >= 5 and 450 < statistics.median(ok) < 750, ok
 
 
-def test_the_recordings_parent_folder_is_answered_with_the_subfolder_to_import(real_data, tmp_path, capsys):
+def test_the_recordings_parent_folder_imports_the_one_recording_in_it_and_says_so(real_data, tmp_path, capsys):
+    """Issue 26: data/lead/ holds the G2 project ixinraw/: that folder is read, and the import says
+    which."""
     lead = real_data / G2B / "data" / "lead"
     if not lead.is_dir():
         pytest.skip(f"{lead}: the second G2 recording (gazeMapper example 2) is not there")
-    assert main(["import", str(lead), "-o", str(tmp_path / "s")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "subfolder ixinraw is a tobii-g2 recording" in err, err
-    assert not (tmp_path / "s").exists()
+    assert main(["import", str(lead), "-o", str(tmp_path / "s")]) == 0
+    out = capsys.readouterr().out
+    assert "holds one recording, ixinraw/" in out, out
+    rep = json.loads((tmp_path / "s" / "import_report.json").read_text())
+    assert rep["device"] == "tobii-g2" and any("ixinraw" in n for n in rep["notes"])

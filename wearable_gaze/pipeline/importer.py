@@ -14,7 +14,7 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..formats.atomic import atomic_folder, check_new_folder
-from ..formats.devices import MODULES, detect_format, device_module
+from ..formats.devices import MODULES, device_module, locate_recording
 from ..formats.devices.common import REPORT, ImportOptions, SessionImport, read_simulated_recording
 from ..formats.markermap import load_marker_map
 
@@ -27,7 +27,8 @@ def import_recording(src, out, fmt: str | None = None, options: ImportOptions | 
 
     Args:
         fmt: the device format (``formats.devices.MODULES``); detected from the folder's files
-            when None.
+            when None. ``src`` may be the recording, its parent holding only it, or a folder
+            inside it (``formats.devices.locate_recording``; the report's notes say which).
         options: markers, camera, marker size, kappa recording, pose gap (``ImportOptions``).
         progress: a progress(done, total) callback.
 
@@ -40,10 +41,11 @@ def import_recording(src, out, fmt: str | None = None, options: ImportOptions | 
     src, out = Path(src), check_new_folder(out)
     if not src.exists():
         raise UserError(f"{src}: no such recording; pass the folder the device wrote")
+    located = locate_recording(src, fmt)
+    src, name = located.folder, located.format
     if src.is_dir() and src.resolve() in out.resolve().parents:
         raise UserError(f"-o {out}: is inside the recording {src}; writing there would change the recording: "
                         "choose a folder outside it")
-    name = fmt or detect_format(src)
     module = device_module(name)
     options = options or ImportOptions()
     for opt, p in (("--markers", options.markers), ("--camera", options.camera),
@@ -52,6 +54,8 @@ def import_recording(src, out, fmt: str | None = None, options: ImportOptions | 
             raise UserError(f"{opt} {p}: no such file; check the path")
     with atomic_folder(out) as tmp:
         with SessionImport(tmp, name, src.resolve()) as imp:
+            if located.how is not None:
+                imp.note(located.how)
             module.read_recording(src, imp, options, progress)
             if not (tmp / "session.json").is_file():
                 raise RuntimeError(f"the {name} importer did not finish the session")

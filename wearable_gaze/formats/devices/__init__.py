@@ -12,13 +12,17 @@ clock to ours explicitly (docs/importers.md). Each module has one reader and one
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 from pathlib import Path
 
 from ...errors import UserError
 
 # format name -> module (imported on demand: a vendor reader may be an optional extra)
 MODULES = {"pupil-core": "pupil_core", "pupil-neon": "neon", "tobii-g2": "tobii_g2", "tobii-g3": "tobii_g3",
-           "aria-mps": "aria", "pupil-cloud": "pupil_cloud"}
+           "aria-mps": "aria", "aria-gen2": "aria_gen2", "pupil-cloud": "pupil_cloud"}
+MAX_LEVELS_UP = 2
+"""How far up ``locate_recording`` looks for the recording a folder is inside (Tobii G2's
+``segments/1`` is two levels below its recording)."""
 
 
 def device_module(name: str):
@@ -28,27 +32,19 @@ def device_module(name: str):
     return importlib.import_module(f"{__name__}.{MODULES[name]}")
 
 
-def detect_format(src) -> str:
-    """The format of the recording folder ``src``, from the names of its files.
+def _formats(src: Path, fmt: str | None = None) -> list[str]:
+    """The formats whose ``detect`` accepts the folder ``src`` (only ``fmt`` when given), less
+    those another found format ``SUPERSEDES``."""
+    names = [fmt] if fmt else list(MODULES)
+    try:
+        found = [name for name in names if device_module(name).detect(src)]
+    except OSError:                                   # a folder we may not list
+        return []
+    beaten = {o for name in found for o in getattr(device_module(name), "SUPERSEDES", ())}
+    return [name for name in found if name not in beaten]
 
-    Raises:
-        UserError: no format, or more than one, matches.
-    """
-    src = Path(src)
-    if src.is_file():
-        raise UserError(f"{src}: a file, not a recording folder; pass the recording's folder, or name the format "
-                        "with --format (a Pupil Player gaze_positions CSV: --format pupil-core)")
-    if not src.is_dir():
-        raise UserError(f"{src}: no such folder; pass the recording's folder")
-    found = [name for name in MODULES if device_module(name).detect(src)]
-    if not found and (src / "session.json").is_file():
-        raise UserError(f"{src}: matches none of the known formats and is a session folder already (session.json): "
-                        f"process it with 'wearable-gaze process {src}' (a recording's format is named with --format)")
-    if not found:
-        inside = _recordings_inside(src)
-        if inside:
-            raise UserError(f"{src}: the folder matches none of the known formats, but its subfolder "
-                            f"{inside[0][0].name} is a {inside[0][1]} recording: import that folder")
+
+def _one(src: Path, found: list[str]) -> str:
     if len(found) != 1:
         what = "none of the known formats" if not found else f"more than one format ({', '.join(found)})"
         raise UserError(f"{src}: the folder matches {what}; pass --format {{{','.join(MODULES)}}} (docs/importers.md "
@@ -56,12 +52,71 @@ def detect_format(src) -> str:
     return found[0]
 
 
-def _recordings_inside(src: Path) -> list[tuple[Path, str]]:
-    """(subfolder, format) of each folder directly inside ``src`` that one format matches (a
-    recording given by its parent folder, e.g. gazeMapper's data/lead/ holding the G2 project)."""
-    out = []
-    for sub in sorted(p for p in src.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        names = [name for name in MODULES if device_module(name).detect(sub)]
-        if len(names) == 1:
-            out.append((sub, names[0]))
-    return out
+@dataclass(frozen=True)
+class Located:
+    """Where the recording is: its ``format``, its ``folder``, and ``how`` it was found when that
+    is not the folder given (one sentence for the import report; None: the folder given)."""
+
+    format: str
+    folder: Path
+    how: str | None = None
+
+
+def locate_recording(src, fmt: str | None = None) -> Located:
+    """The recording ``src`` points at, from any folder level: ``src`` itself, else the one
+    recording in one of its sub-folders, else the recording ``src`` is inside (up to
+    ``MAX_LEVELS_UP`` levels: a Tobii G2 ``segments/1`` folder). With ``fmt`` only that format
+    is looked for, and a path it is not found at is passed on as given (its reader says what is
+    missing; a Pupil Player CSV is a file).
+
+    Raises:
+        UserError: no folder; a file without ``fmt``; a session folder; several recordings
+            below ``src`` (listed: pass one); no format, or more than one, anywhere.
+    """
+    src = Path(src)
+    if fmt is not None and fmt not in MODULES:
+        device_module(fmt)                             # the one-line refusal
+    if not src.exists():
+        raise UserError(f"{src}: no such folder; pass the recording's folder")
+    if src.is_file():
+        if fmt is None:
+            raise UserError(f"{src}: a file, not a recording folder; pass the recording's folder, or name the "
+                            "format with --format (a Pupil Player gaze_positions CSV: --format pupil-core)")
+        return Located(fmt, src)
+    found = _formats(src, fmt)
+    if found:
+        return Located(_one(src, found), src)
+    if fmt is None and (src / "session.json").is_file():
+        raise UserError(f"{src}: matches none of the known formats and is a session folder already (session.json): "
+                        f"process it with 'wearable-gaze process {src}' (a recording's format is named with --format)")
+    try:
+        kids = [(p, f) for p in sorted(src.iterdir()) if p.is_dir() for f in [_formats(p, fmt)] if f]
+    except OSError:
+        kids = []
+    if len(kids) > 1:
+        listed = ", ".join(f"{p.name} ({'/'.join(f)})" for p, f in kids)
+        raise UserError(f"{src}: holds {len(kids)} recordings ({listed}); pass one of them")
+    if kids:
+        (p, f), = kids
+        return Located(_one(p, f), p, f"{src} holds one recording, {p.name}/: that folder was read")
+    for up, parent in enumerate(src.absolute().parents[:MAX_LEVELS_UP], 1):
+        if f := _formats(parent, fmt):
+            return Located(_one(parent, f), parent, f"{src} is inside the recording {parent} ({up} level"
+                           f"{'s' if up > 1 else ''} up): that folder was read")
+    if fmt is not None:
+        return Located(fmt, src)
+    return Located(_one(src, []), src)
+
+
+def detect_format(src) -> str:
+    """The format of the recording folder ``src`` itself, from the names of its files (see
+    ``locate_recording`` for other folder levels).
+
+    Raises:
+        UserError: no format, or more than one, matches.
+    """
+    src = Path(src)
+    located = locate_recording(src)
+    if located.how is not None:
+        _one(src, [])
+    return located.format

@@ -160,6 +160,25 @@ class SessionImport:
         self.files["scene_video"] = dst.name
         self.files["scene_timestamps"] = "scene_timestamps.csv"
 
+    def keep_device_file(self, path, key: str) -> None:
+        """Copy a device stream the session does not use (Tobii G3 ``imudata.gz``) in unchanged as
+        ``device/<name>``, named in the manifest's ``files.<key>``."""
+        path = Path(path)
+        (self.out / "device").mkdir(exist_ok=True)
+        shutil.copyfile(path, self.out / "device" / path.name)
+        self.files[key] = f"device/{path.name}"
+
+    def add_device_events(self, t, rows) -> None:
+        """The device's own events (sync-port pulses): t (n,) s on the session clock, in order,
+        and per event (type, direction, value) -> ``device_events.csv``."""
+        t = np.asarray(t, float).reshape(-1)
+        cols = {"t": t, "type": np.array([r[0] for r in rows], object),
+                "direction": np.array([r[1] for r in rows], object),
+                "value": np.array([str(r[2]) for r in rows], object)}
+        with TableWriter(self.out / "device_events.csv", tuple(cols), {"t": ".6f"}) as w:
+            w.write(cols)
+        self.files["device_events"] = "device_events.csv"
+
     def set_marker_map(self, path) -> None:
         """Copy a marker map (checked) in as ``markers.json``."""
         load_json(path, "marker-map")

@@ -2,7 +2,11 @@
 
 Files read: ``recording.g3`` (JSON: ``scenecamera.file``, ``scenecamera.camera-calibration``,
 ``gaze.file``), the gaze file it names (``gazedata.gz``: one JSON object per line) and the scene
-video it names (``scenevideo.mp4``) when present. Layout and fields: Tobii's G3 SDK
+video it names (``scenevideo.mp4``) when present. Without ``recording.g3`` (a copy of the data
+files only) ``gazedata.gz`` is read alone: the nominal glasses -> camera flip, no intrinsics, and
+a still head unless a video and ``--camera`` are given; the report lists what was missing.
+Kept, not used: ``imudata.gz`` (copied in as ``device/imudata.gz``) and ``eventdata.gz``'s
+sync-port events (``device_events.csv``, session clock). Layout and fields: Tobii's G3 SDK
 (``G3SDK/ParserHelpers.cs`` ``ParseGazeData``), glassesTools ``importing/tobii_G3.py``
 (docs/devices/tobii-pupil.md section 2).
 
@@ -73,8 +77,19 @@ convention)."""
 
 
 def detect(src: Path) -> bool:
-    """A G3 recording: ``recording.g3`` in the folder."""
-    return (Path(src) / "recording.g3").is_file()
+    """A G3 recording: ``recording.g3`` in the folder, or (its manifest lost) a ``gazedata.gz``
+    whose first line is a G3 gaze or sync object."""
+    src = Path(src)
+    if (src / "recording.g3").is_file():
+        return True
+    if not (src / "gazedata.gz").is_file():
+        return False
+    try:
+        with gzip.open(src / "gazedata.gz", "rt", encoding="utf-8", errors="replace") as fh:
+            first = json.loads(fh.readline())
+    except (OSError, EOFError, ValueError):
+        return False
+    return isinstance(first, dict) and first.get("type") in ("gaze", "syncport") and "timestamp" in first
 
 
 def read_camera(meta: dict, path: Path) -> GlassesCamera | None:
@@ -162,8 +177,14 @@ def _emit(rows: list, gaps: GapCounter, chunks: RayChunks) -> None:
     chunks.emit(t, eyes, np.array(cols[7], float))
 
 
-def _paths(src: Path) -> tuple[dict, Path, Path | None]:
+def _paths(src: Path) -> tuple[dict | None, Path, Path | None]:
+    """(recording.g3's object, None without one; the gaze file; the scene video or None)."""
     meta_path = src / "recording.g3"
+    if not meta_path.is_file():
+        gaze, video = src / "gazedata.gz", src / "scenevideo.mp4"
+        if not gaze.is_file():
+            raise UserError(f"{src}: no recording.g3 and no gazedata.gz; pass a Tobii Glasses 3 recording folder")
+        return None, gaze, video if video.is_file() else None
     meta = read_json_text(meta_path, "Tobii Glasses 3 recording.g3")
     if not isinstance(meta, dict):
         raise UserError(f"{meta_path}: not a recording.g3 object; copy it again from the recording")
@@ -174,14 +195,48 @@ def _paths(src: Path) -> tuple[dict, Path, Path | None]:
     return meta, gaze, video if video.is_file() else None
 
 
+def _side_files(src: Path, meta: dict | None, imp) -> dict:
+    """Keep the streams the session does not use yet: ``imudata.gz`` copied in unchanged
+    (``device/imudata.gz``) and ``eventdata.gz``'s sync-port events as ``device_events.csv``
+    (session clock). Returns what the report says of them."""
+    meta = meta or {}
+    out = {}
+    imu = src / str((meta.get("imu") or {}).get("file", "imudata.gz"))
+    if imu.is_file():
+        imp.keep_device_file(imu, "device_imu")
+        out["imu"] = {"file": imu.name, "kept_as": f"device/{imu.name}"}
+    events = src / str((meta.get("events") or {}).get("file", "eventdata.gz"))
+    if events.is_file():
+        drops, t, rows = Counter(), [], []
+        for obj in JsonLines(events, drops):
+            data, ts = obj.get("data"), obj.get("timestamp")
+            if not isinstance(data, dict) or not isinstance(ts, (int, float)) or isinstance(ts, bool):
+                drops["line: event without a timestamp or data"] += 1
+                continue
+            t.append(float(ts))
+            rows.append((str(obj.get("type", "")), str(data.get("direction", "")), data.get("value", "")))
+        order = np.argsort(t, kind="stable")
+        imp.add_device_events(np.asarray(t, float)[order], [rows[i] for i in order])
+        imp.count("eventdata events", len(t))
+        out["events"] = {"file": events.name, "kept_as": "device_events.csv", "events": len(t),
+                         "not_read": dict(drops)}
+    return out
+
+
 def read_recording(src: Path, imp, options, progress=None) -> None:
     """Stream a G3 recording into ``imp`` (see the module docstring)."""
     src = Path(src)
     meta, gaze, video = _paths(src)
-    cam = read_camera(meta, src / "recording.g3")
+    cam = read_camera(meta, src / "recording.g3") if meta is not None else None
     if cam is None and video is not None and options.camera is None:
-        raise UserError(f"{src}: a scene video but no scene-camera calibration in recording.g3; give --camera "
+        raise UserError(f"{src}: a scene video but no scene-camera calibration (recording.g3); give --camera "
                         "camera.json (calibrate-camera)")
+    if meta is None:
+        imp.note("no recording.g3 (the recording's manifest): no scene-camera calibration, so the glasses frame is "
+                 "turned to the camera's by the nominal flip and the view lines start where the device put the pupils; "
+                 + ("the head is taken as still (no scene video)" if video is None else
+                    "the scene video is read with --camera"))
+    side = _side_files(src, meta, imp)
     pre = prepass(gaze)
     T, convention = choose_convention(cam, pre["gaze3d"], pre["gaze2d"], imp)
     chunks, gaps, counts = RayChunks(imp, T), GapCounter(pre["rate_hz"]), Counter()
@@ -200,8 +255,10 @@ def read_recording(src: Path, imp, options, progress=None) -> None:
         imp.count(stream, n)
     chunks.flush_drops()
     frame_times = video_frame_times(video)[0] if video is not None else None
+    missing = [] if meta is not None else ["recording.g3"]
+    missing += [] if video is not None else ["scenevideo.mp4"]
     finish_import(imp, options, cam, video, frame_times, pre["rate_hz"], 0.0, frames_report(T, cam, convention),
-                  largest_gap_s=round(gaps.largest_s, 6), gazedata_lines=lines.n_lines)
+                  largest_gap_s=round(gaps.largest_s, 6), gazedata_lines=lines.n_lines, missing_files=missing, **side)
 
 
 # --- the writer ---------------------------------------------------------------------------------
