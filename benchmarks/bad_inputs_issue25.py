@@ -39,10 +39,12 @@ def run(args, inputs, env=None, timeout=900) -> dict:
     before = digest(inputs)
     p = subprocess.run(CLI + [str(a) for a in args], capture_output=True, text=True, timeout=timeout,
                        env={**os.environ, **(env or {})})
-    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip() and "still running" not in ln
+             and not ln.rstrip().endswith((" done", " s"))]          # progress lines off a terminal
     return {"status": p.returncode, "lines": len(lines), "traceback": "Traceback" in p.stderr,
             "changed": sorted(k for k, v in digest(inputs).items() if before.get(k) != v)
-            + sorted(set(before) - set(digest(inputs))), "first": lines[0][:150] if lines else p.stdout[-150:]}
+            + sorted(set(before) - set(digest(inputs))), "first": lines[0][:150] if lines else p.stdout[-150:],
+            "warning": next((ln for ln in lines if ": warning: " in ln), "")}
 
 
 def simulated(work: Path) -> tuple[Path, Path]:
@@ -53,6 +55,15 @@ def simulated(work: Path) -> tuple[Path, Path]:
     if not (out / "summary.json").is_file():
         subprocess.run(CLI + ["process", str(s), "-o", str(out), "--no-overlay"], capture_output=True)
     return s, out
+
+
+def processed(session: Path, out: Path) -> Path:
+    """``out``: ``session`` processed into it afresh (a cached run there is then valid: the
+    damage that follows is the only change)."""
+    if out.exists():
+        shutil.rmtree(out)
+    subprocess.run(CLI + ["process", str(session), "-o", str(out), "--no-overlay"], capture_output=True)
+    return out
 
 
 def cases(work: Path, real: Path):
@@ -132,7 +143,7 @@ def cases(work: Path, real: Path):
                                                         "--format", "pupil-neon"], [nd]
     # 11-12. OUT/.viewlines_counts.json not UTF-8, OUT/.steps.json deeply nested
     for name, text in ((".viewlines_counts.json", b"\xff\xfe{"), (".steps.json", b"[" * 100000 + b"]" * 100000)):
-        o = copy(out, f"OUT_{name}")
+        o = processed(s, c / f"OUT_{name}")
         (o / name).write_bytes(text)
         yield f"process, OUT/{name} damaged (warning, full redo)", ["process", s, "-o", o, "--no-overlay"], [s]
     # 13-15. estimate with nothing to estimate
@@ -187,7 +198,7 @@ def cases(work: Path, real: Path):
     sc = copy(s, "S_outinside")
     yield "process -o SESSION/calibration/camera", ["process", sc, "-o", sc / "calibration" / "camera"], [sc]
     # 24. a cached output cut short
-    oc = copy(out, "OUT_cut")
+    oc = processed(s, c / "OUT_cut")
     p = oc / "poses.csv"
     rows = p.read_text().splitlines()
     p.write_text("\n".join(rows[: len(rows) // 2]) + "\n")
@@ -206,12 +217,13 @@ def main() -> int:
         r = run(args, inputs)
         redo = "redone" in name or "full redo" in name
         ok = (not r["traceback"] and not r["changed"]
-              and ((r["status"] == 2 and r["lines"] == 1) or (redo and r["status"] in (0, 3)) or
+              and ((r["status"] == 2 and r["lines"] == 1) or (redo and r["status"] in (0, 3) and r["warning"]) or
                    ("again" in name and r["status"] == 0)))
         ok_all += ok
         rows.append((name, r))
         print(f"{'ok ' if ok else 'BAD'} {name}: exit {r['status']}, {r['lines']} stderr line(s), "
-              f"{'traceback, ' if r['traceback'] else ''}{len(r['changed'])} input(s) changed | {r['first']}",
+              f"{'traceback, ' if r['traceback'] else ''}{len(r['changed'])} input(s) changed | "
+              f"{r['warning'][:150] if redo else r['first']}",
               flush=True)
     print(f"{ok_all} of {len(rows)} cases pass")
     return 0 if ok_all == len(rows) else 1

@@ -1,14 +1,18 @@
 """The one place for OpenCV calls whose behaviour differs between the supported releases.
 
-The project supports OpenCV 4.8 to 5.1 (``pyproject.toml``; the floors are tested by ``.ci/run``
-with ``constraints/floors.txt``). Where a call's signature or result differs across that range, the
+The project supports OpenCV 4.14 to 5.1 (``pyproject.toml``; the floors are tested by ``.ci/run``
+with ``constraints/floors.txt``). Releases before 4.14 are not supported: they read a marker's
+cells differently (a cell about half white counts as black, where 4.14 and 5.x count it as a
+wrong bit; 5.x's ``validBitIdThreshold``), and on a simulated survey OpenCV 4.10 found a marker 17
+in two slivers of wall texture, which moved the whole built map by 350 mm; their ChArUco corners
+also lie +0.5 px from OpenCV's pixel convention (measured on 4.10; 4.14 and 5.x agree).
+Where a call's signature or result differs across that range, the
 rest of the code calls the function here instead, which gives one behaviour on every release:
 
 - ``detect_markers``: ``ArucoDetector.detectMarkers`` returns ``ids`` as ``None`` when it finds
-  nothing up to OpenCV 4.x, and as an empty array from 5.x (and may give candidates but no id);
+  nothing in OpenCV 4.14, and as an empty array in 5.1 (and may give candidates but no id);
   here it is always an (N,) int array with (N, 4, 2) corners.
-- ``detect_charuco``: the same for ``CharucoDetector.detectBoard``'s corner ids; OpenCV 4's
-  ChArUco corners also sit +0.5 px from OpenCV's own pixel convention, which 5.x fixed.
+- ``detect_charuco``: the same for ``CharucoDetector.detectBoard``'s corner ids.
 - ``FISHEYE_RECOMPUTE_EXTRINSIC`` and ``silence_logging``: names that moved between releases.
 - ``undistort_points`` / ``undistort_points_fisheye``: iterated undistortion to a given accuracy.
   OpenCV 5 takes ``criteria=`` on ``undistortPoints``; OpenCV 4 has ``undistortPointsIter`` for
@@ -62,22 +66,14 @@ def detect_markers(detector, image) -> tuple[np.ndarray, np.ndarray]:
     return c, ids
 
 
-#: What OpenCV 4.x's ChArUco corners carry beyond OpenCV's pixel convention (a pixel's centre at
-#: its integer coordinate), px: measured on the ChArUco tutorial photos, OpenCV 4.10's corners lie
-#: +0.50 px (median, both axes) from 5.1's, whose markers' corners agree to 0.0 px
-#: (tests/test_no_markers.py checks the correction at each end).
-CHARUCO_OFFSET_PX = 0.5 if opencv_version() < (5, 0) else 0.0
-
-
 def detect_charuco(detector, image) -> tuple[np.ndarray, np.ndarray]:
     """``detector.detectBoard(image)``'s ChArUco corners as ((N, 1, 2) float32 px, (N, 1) int32
-    ids) in OpenCV's pixel convention on every release (OpenCV 4's +0.5 px taken off); N = 0
-    (empty arrays of those shapes) when none is found."""
+    ids); N = 0 (empty arrays of those shapes) when none is found, on every supported release."""
     ch_corners, ch_ids, _, _ = detector.detectBoard(image)
     if ch_ids is None or len(ch_ids) == 0 or ch_corners is None:
         return np.zeros((0, 1, 2), np.float32), np.zeros((0, 1), np.int32)
-    corners = np.asarray(ch_corners, np.float32).reshape(-1, 1, 2) - np.float32(CHARUCO_OFFSET_PX)
-    return corners, np.asarray(ch_ids, np.int32).reshape(-1, 1)
+    return (np.asarray(ch_corners, np.float32).reshape(-1, 1, 2),
+            np.asarray(ch_ids, np.int32).reshape(-1, 1))
 
 
 def _criteria(iterations: int, eps: float) -> tuple[int, int, float]:
@@ -108,15 +104,15 @@ def undistort_points_fisheye(px, camera_matrix, dist_coeffs, iterations: int = 5
     return np.asarray(out, np.float64).reshape(-1, 2)
 
 
-#: ``cv2.fisheye.calibrate``'s flag to re-estimate the views' poses at each step: OpenCV 4 has it
+#: ``cv2.fisheye.calibrate``'s flag to re-estimate the views' poses at each step: OpenCV 4.14 has it
 #: only as ``cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC`` (value 2), 5.0 only as
 #: ``cv2.CALIB_RECOMPUTE_EXTRINSIC`` (1 << 23), 5.1 as both (1 << 23).
 FISHEYE_RECOMPUTE_EXTRINSIC = getattr(cv2.fisheye, "CALIB_RECOMPUTE_EXTRINSIC", None) or cv2.CALIB_RECOMPUTE_EXTRINSIC
 
 
 def silence_logging() -> None:
-    """OpenCV's own log lines off (``cv2.utils.logging`` from 4.9 on and in 5.x; ``cv2.setLogLevel``
-    in 4.8, whose level 0 is silent)."""
+    """OpenCV's own log lines off (``cv2.utils.logging``; ``cv2.setLogLevel``, whose level 0 is
+    silent, where a build lacks it)."""
     log = getattr(getattr(cv2, "utils", None), "logging", None)
     if log is not None:
         log.setLogLevel(log.LOG_LEVEL_SILENT)

@@ -31,7 +31,7 @@ class _Detector:
 
 def test_no_marker_ids_are_an_empty_array_whatever_the_release_returns():
     img = np.zeros((10, 10), np.uint8)
-    for corners, ids in (((), None),                                   # OpenCV 4.x
+    for corners, ids in (((), None),                                   # OpenCV 4.14
                          ((), np.zeros((0,), np.int32)),                # OpenCV 5.1
                          ((), np.zeros((0, 1), np.int32))):             # a (0, 1) array
         c, i = cvcompat.detect_markers(_Detector(corners, ids), img)
@@ -72,7 +72,8 @@ def test_iterated_undistortion_inverts_the_distortion_on_this_release():
 
 def test_charuco_corners_are_in_opencvs_pixel_convention_on_this_release():
     """A board drawn at 60 px a square: the corner between squares k-1 and k lies at 60 k - 0.5
-    px (a pixel's centre at its integer coordinate). OpenCV 4.x returns it +0.5 px from there."""
+    px (a pixel's centre at its integer coordinate), on each supported release (OpenCV 4.10, below
+    the floor, returned it +0.5 px from there)."""
     board = cv2.aruco.CharucoBoard((5, 7), 60.0, 40.0, aruco_dictionary("DICT_6X6_250"))
     img = np.pad(board.generateImage((300, 420), marginSize=0), 30, constant_values=255)
     corners, ids = cvcompat.detect_charuco(cv2.aruco.CharucoDetector(board), img)

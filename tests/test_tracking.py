@@ -404,7 +404,6 @@ def test_apriltag_rotation_sweep_yaw_matches_the_file_names(real_data):
     assert len(yaws) == 15 and np.abs(sign * yaws - angles).max() <= 7.0
 
 
-@pytest.mark.newest_opencv(reason="OpenCV 4.10's detector finds 21 of the 47 tags (5.1: 28 or more)")
 def test_apriltag_nasa_photos_detections_match_the_reference(real_data):
     d = real_data / "apriltag_test_photos_nasa"
     det = MarkerDetector("DICT_APRILTAG_36h11", refine="subpix")
