@@ -216,7 +216,7 @@ def main() -> int:
     for name, args, inputs in cases(a.work, a.real):
         r = run(args, inputs)
         redo = "redone" in name or "full redo" in name
-        ok = (not r["traceback"] and not r["changed"]
+        ok = bool(not r["traceback"] and not r["changed"]
               and ((r["status"] == 2 and r["lines"] == 1) or (redo and r["status"] in (0, 3) and r["warning"]) or
                    ("again" in name and r["status"] == 0)))
         ok_all += ok
