@@ -308,27 +308,46 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
                            "poses_used": trajectory.n_kept})
 
 
-def _import_chunk(g: _Gaze, imp: SessionImport, options: ImportOptions, trajectory: TrajectoryStream, swapped: bool,
-                  state: dict, path: Path) -> None:
-    """Drop and count the unusable rows of one gaze chunk, pose the rest, hand them to ``imp``."""
+def usable_rows(g, imp: SessionImport, state: dict, path: Path, what: str, eye: str) -> np.ndarray:
+    """The indices (k,) of a gaze chunk's usable rows (``g``: ``t_us``, ``whole``, ``finite``,
+    ``wild``, ``far_eye``, ``usable``), the others dropped and counted in ``imp``, a repeated time
+    too (``state['last_us']``: the last time kept, updated); ``what``, ``eye``: the file and its
+    eye field, in the messages. Raises if times go back (``in_order``)."""
     imp.count("eye gaze rows", len(g.t_us))
     imp.drop("gaze row truncated (missing cells)", int(np.sum(~g.whole)))
     imp.drop("gaze row with NaN or a non-number", int(np.sum(g.whole & ~g.finite)))
     imp.drop("gaze angle of 80 deg or more", int(g.wild.sum()))
-    imp.drop(f"eye position over {MAX_EYE_MM:g} mm from CPF", int(g.far_eye.sum()))
+    imp.drop(f"{eye} over {MAX_EYE_MM:g} mm from CPF", int(g.far_eye.sum()))
     sel = np.flatnonzero(g.usable)
-    dup = in_order(path, "eye-gaze CSV", g.t_us[sel], state["last_us"])
+    dup = in_order(path, what, g.t_us[sel], state["last_us"])
     imp.drop("gaze row with a repeated time", int(dup.sum()))
     sel = sel[~dup]
-    if not len(sel):
-        return
-    state["last_us"] = float(g.t_us[sel[-1]])
-    T, ok, why = trajectory.poses_at((g.t_us[sel] - trajectory.t_ref_us) / 1e6, options.max_pose_gap_s)
+    if len(sel):
+        state["last_us"] = float(g.t_us[sel[-1]])
+    return sel
+
+
+def posed_rows(trajectory, t_us, sel, imp: SessionImport, max_gap_s: float) -> tuple:
+    """(T_world_from_head (k, 4, 4), the rows ``sel`` kept) of the rows with a trajectory pose
+    within ``max_gap_s``, the others dropped and counted with the trajectory's reason; (None,
+    ``sel``) without a ``trajectory``."""
+    if trajectory is None or not len(sel):
+        return None, sel
+    T, ok, why = trajectory.poses_at((t_us[sel] - trajectory.t_ref_us) / 1e6, max_gap_s)
     for reason, n in zip(*np.unique(why[~ok], return_counts=True), strict=True):
         imp.drop(str(reason), int(n))
-    if not ok.any():
+    if not ok.any():                    # T is None when the trajectory has no pose left at all
+        return None, sel[:0]
+    return T[ok], sel[ok]
+
+
+def _import_chunk(g: _Gaze, imp: SessionImport, options: ImportOptions, trajectory: TrajectoryStream, swapped: bool,
+                  state: dict, path: Path) -> None:
+    """Drop and count the unusable rows of one gaze chunk, pose the rest, hand them to ``imp``."""
+    sel = usable_rows(g, imp, state, path, "eye-gaze CSV", "eye position")
+    T, sel = posed_rows(trajectory, g.t_us, sel, imp, options.max_pose_gap_s)
+    if not len(sel):
         return
-    T, sel = T[ok], sel[ok]
     if state["t0_us"] is None:
         state["t0_us"] = float(g.t_us[sel[0]])
     t = (g.t_us[sel] - state["t0_us"]) / 1e6

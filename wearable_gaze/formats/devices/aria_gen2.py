@@ -52,8 +52,10 @@ from .aria import (
     TRAJ_NAMES,
     _cad_T_cpf_from_sensor,
     cpf_to_head_mm,
+    posed_rows,
+    usable_rows,
 )
-from .aria_trajectory import TIME, TrajectoryStream, in_order, mps_header
+from .aria_trajectory import TIME, TrajectoryStream, mps_header
 from .common import ImportOptions, SessionImport
 
 NAME = "aria-gen2"
@@ -232,26 +234,10 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
 def _import_chunk(g: _Rows, imp: SessionImport, options: ImportOptions, trajectory, state: dict, path: Path) -> None:
     """Drop and count the unusable rows of one chunk, pose the rest (with a trajectory), hand
     them to ``imp``."""
-    imp.count("eye gaze rows", len(g.t_us))
-    imp.drop("gaze row truncated (missing cells)", int(np.sum(~g.whole)))
-    imp.drop("gaze row with NaN or a non-number", int(np.sum(g.whole & ~g.finite)))
-    imp.drop("gaze angle of 80 deg or more", int(g.wild.sum()))
-    imp.drop(f"eye origin over {MAX_EYE_MM:g} mm from CPF", int(g.far_eye.sum()))
-    sel = np.flatnonzero(g.usable)
-    dup = in_order(path, "Gen2 eye-gaze CSV", g.t_us[sel], state["last_us"])
-    imp.drop("gaze row with a repeated time", int(dup.sum()))
-    sel = sel[~dup]
+    sel = usable_rows(g, imp, state, path, "Gen2 eye-gaze CSV", "eye origin")
+    T, sel = posed_rows(trajectory, g.t_us, sel, imp, options.max_pose_gap_s)
     if not len(sel):
         return
-    state["last_us"] = float(g.t_us[sel[-1]])
-    T = None
-    if trajectory is not None:
-        T, ok, why = trajectory.poses_at((g.t_us[sel] - trajectory.t_ref_us) / 1e6, options.max_pose_gap_s)
-        for reason, n in zip(*np.unique(why[~ok], return_counts=True), strict=True):
-            imp.drop(str(reason), int(n))
-        if not ok.any():
-            return
-        T, sel = T[ok], sel[ok]
     if state["t0_us"] is None:
         state["t0_us"] = float(g.t_us[sel[0]])
     t = (g.t_us[sel] - state["t0_us"]) / 1e6
