@@ -27,11 +27,12 @@ import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV loa
 import numpy as np  # noqa: E402
 
 from estimator import MLConfig, estimate, ml_point  # noqa: E402
+from tracking.timeline import nearest_in_time  # noqa: E402
 from wearable_gaze.formats.devices import aria  # noqa: E402
 from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays  # noqa: E402
 from wearable_gaze.formats.poses import read_poses_csv  # noqa: E402
 from wearable_gaze.formats.viewlines import read_viewlines_csv  # noqa: E402
-from wearable_gaze.pipeline.device import device_gaze_at, surface_reference  # noqa: E402
+from wearable_gaze.pipeline.device import surface_reference  # noqa: E402
 from wearable_gaze.pipeline.importer import import_recording  # noqa: E402
 from wearable_gaze.pipeline.process import process_session  # noqa: E402
 from wearable_gaze.pipeline.types import Poses  # noqa: E402
@@ -41,7 +42,7 @@ REAL = Path(os.environ.get("WEARABLE_GAZE_REAL_DATA", Path(__file__).resolve().p
 
 def device_depths(gaze_csv: Path, t) -> np.ndarray:
     """The device's gaze depth (distance of its 3D gaze point from the head), mm, at times t."""
-    return np.linalg.norm(device_gaze_at(*read_device_gaze(gaze_csv), t, 1e-4), axis=1)
+    return np.linalg.norm(nearest_in_time(*read_device_gaze(gaze_csv), t, 1e-4), axis=1)
 
 
 def aria_rows(tmp: Path):

@@ -72,6 +72,34 @@ def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
     return out, ok
 
 
+def nearest_in_time(t_src, values, t_query, max_dt, inclusive: bool = False) -> np.ndarray:
+    """The value of the sample nearest each query time, or NaN where none is nearer than
+    ``max_dt`` (or as near, ``inclusive``).
+
+    Args:
+        t_src: (M,) sorted sample times (seconds, or integer nanoseconds: any one unit).
+        values: (M, K) the samples' values.
+        t_query: (N,) query times, the same unit.
+        max_dt: the largest time difference answered, the same unit.
+    Returns:
+        (N, K) float64; a tie between two neighbours goes to the later one.
+    """
+    t_src, t_query = np.asarray(t_src), np.asarray(t_query)
+    values = np.asarray(values, float)
+    out = np.full((len(t_query), values.shape[1]), np.nan)
+    if not len(t_src) or not len(t_query):
+        return out
+    if len(t_src) > 1:
+        j = np.searchsorted(t_src, t_query).clip(1, len(t_src) - 1)
+        near = np.where(np.abs(t_src[j - 1] - t_query) < np.abs(t_src[j] - t_query), j - 1, j)
+    else:
+        near = np.zeros(len(t_query), int)
+    dt = np.abs(t_src[near] - t_query)
+    close = dt <= max_dt if inclusive else dt < max_dt
+    out[close] = values[near[close]]
+    return out
+
+
 def extrapolate_pose(t_a: float, T_a, t_b: float, T_b, t: float) -> np.ndarray:
     """``T_world_from_cam`` (4, 4) at ``t`` >= ``t_b`` continued from two poses at ``t_a`` < ``t_b``
     (s) at their constant velocity: the rotation from ``T_a`` to ``T_b`` carried on at the same

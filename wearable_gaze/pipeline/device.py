@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from tracking.surface import first_surface
-from tracking.timeline import interpolate_poses
+from tracking.timeline import interpolate_poses, nearest_in_time
 
 from ..errors import UserError
 from ..formats.eye_rays import read_device_gaze
@@ -51,20 +51,6 @@ def still_head_poses(t, out: Path) -> None:
     write_poses_csv(out, grid, np.arange(len(grid)), T, {"status": np.full(len(grid), "still_head", object)})
 
 
-def device_gaze_at(t_g, p_g, t, max_dt_s: float) -> np.ndarray:
-    """The device's 3D gaze (``read_device_gaze``: times t_g (M,) s, points p_g (M, 3) mm, head
-    frame) at times t (N,): the nearest sample's point when it is nearer than ``max_dt_s``, else NaN."""
-    t = np.asarray(t, float)
-    out = np.full((len(t), 3), np.nan)
-    if len(t_g) == 0:
-        return out
-    j = np.searchsorted(t_g, t).clip(1, len(t_g) - 1) if len(t_g) > 1 else np.zeros(len(t), int)
-    near = np.where(np.abs(t_g[j - 1] - t) < np.abs(t_g[j] - t), j - 1, j) if len(t_g) > 1 else j
-    close = np.abs(t_g[near] - t) < max_dt_s
-    out[close] = p_g[near[close]]
-    return out
-
-
 def device_comparison(device_gaze: Path, samples, targets: list, poses: Poses, out: Path) -> list[dict]:
     """Each target beside the device's own 3D gaze over the target's samples: the distance of
     our estimate from the head and the device's gaze depth (median over the samples, mm). Written
@@ -78,7 +64,7 @@ def device_comparison(device_gaze: Path, samples, targets: list, poses: Poses, o
         T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, ts, 0.1)
         head = T[ok, :3, 3]
         ours = float(np.median(np.linalg.norm(tg.position_mm - head, axis=1))) if ok.any() else np.nan
-        depth = np.linalg.norm(device_gaze_at(t_g, p_g, ts, 0.1), axis=1)
+        depth = np.linalg.norm(nearest_in_time(t_g, p_g, ts, 0.1), axis=1)
         depth = depth[np.isfinite(depth)]
         dev = float(np.median(depth)) if len(depth) else np.nan
         rows.append({"target": tg.index, "n_samples": tg.n_samples, "ours_distance_mm": ours,
@@ -96,7 +82,7 @@ def surface_reference(points_mm, device_gaze: Path, poses: Poses, t) -> tuple[np
     t = np.asarray(t, float)
     t_g, p_g = read_device_gaze(device_gaze)
     T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, t, 0.1)
-    d_head = np.where(ok[:, None], device_gaze_at(t_g, p_g, t, 1e-4), np.nan)     # the same samples' gaze
+    d_head = np.where(ok[:, None], nearest_in_time(t_g, p_g, t, 1e-4), np.nan)     # the same samples' gaze
     with np.errstate(invalid="ignore", divide="ignore"):
         d_head = d_head / np.linalg.norm(d_head, axis=1, keepdims=True)
     origin = np.where(ok[:, None], T[:, :3, 3], np.nan)

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.cvcompat import undistort_points
+from tracking.timeline import nearest_in_time
 
 from ...errors import UserError
 from ..camera import load_camera
@@ -216,7 +217,7 @@ def _binocular(src: Path, imp, chunks: _GazeChunks, progress) -> dict:
     t_ns, centres, axes = eyes.read_eye_states(src / eyes.EYE_STATES)
     imp.count(f"{eyes.EYE_STATES} rows", len(t_ns))
     ok = eyes.eye_validity(centres, axes, chunks.drops)
-    gaze = eyes.gaze_at(t_ns, g_t, g_d)
+    gaze = nearest_in_time(g_t, g_d, t_ns, eyes.MATCH_NS, inclusive=True)
     j = np.clip(np.searchsorted(g_t, t_ns), 0, max(len(g_t) - 1, 0))
     if len(g_t):
         for reason in ("not worn (worn 0)", "inside a blink (blink id)"):

@@ -80,21 +80,6 @@ def eye_validity(centres, axes, drops) -> np.ndarray:
     return ok
 
 
-def gaze_at(t_ns, gaze_t_ns, gaze_dirs) -> np.ndarray:
-    """The gaze directions (n, 3) of the gaze samples nearest the times ``t_ns`` within
-    ``MATCH_NS`` (NaN where none)."""
-    out = np.full((len(t_ns), 3), np.nan)
-    if not len(gaze_t_ns) or not len(t_ns):
-        return out
-    j = np.searchsorted(gaze_t_ns, t_ns).clip(1, len(gaze_t_ns) - 1) if len(gaze_t_ns) > 1 else np.zeros(len(t_ns),
-                                                                                                          int)
-    near = np.where(np.abs(gaze_t_ns[j - 1] - t_ns) < np.abs(gaze_t_ns[j] - t_ns), j - 1, j) \
-        if len(gaze_t_ns) > 1 else j
-    close = np.abs(gaze_t_ns[near] - t_ns) <= MATCH_NS
-    out[close] = gaze_dirs[near[close]]
-    return out
-
-
 def visual_axes(src: Path, centres, axes, ok, gaze_dirs) -> tuple[np.ndarray, dict]:
     """Kappa (b) on at most ``MAX_FIT_SAMPLES`` binocular samples: (visual axes (2, n, 3), the
     report's ``kappa`` entry)."""
