@@ -539,10 +539,10 @@ def test_nearest_in_time_answers_the_nearest_sample_within_the_gap():
 
     t = np.array([0.0, 1.0, 2.0])
     v = np.array([[10.0], [11.0], [12.0]])
-    got = nearest_in_time(t, v, [0.2, 0.5, 1.9, 2.4, 2.5, -0.6], 0.5)
-    assert np.allclose(got[:3, 0], [10.0, 11.0, 12.0])        # a tie (0.5) goes to the later sample
-    assert np.isfinite(got[3, 0]) and np.isnan(got[4:, 0]).all()   # 0.5 away is not nearer than 0.5
-    assert nearest_in_time(t, v, [2.5], 0.5, inclusive=True)[0, 0] == 12.0
+    got = nearest_in_time(t, v, [0.25, 0.5, 1.75, 2.25, 2.75, -0.75], 0.75)
+    assert np.allclose(got[:4, 0], [10.0, 11.0, 12.0, 12.0])   # a tie (0.5) goes to the later sample
+    assert np.isnan(got[4:, 0]).all()                           # 0.75 away is not nearer than 0.75
+    assert np.allclose(nearest_in_time(t, v, [2.75, -0.75], 0.75, inclusive=True)[:, 0], [12.0, 10.0])
     ns = np.array([1_000_000_000, 1_005_000_000], np.int64)     # integer nanoseconds: no rounding
     assert nearest_in_time(ns, v[:2], np.array([1_010_000_000]), 5_000_000, inclusive=True)[0, 0] == 11.0
     assert nearest_in_time(t[:1], v[:1], [0.05], 0.1)[0, 0] == 10.0
