@@ -111,15 +111,6 @@ def read_scene_camera(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return K, D
 
 
-def _int_times(cells, path: Path, lines) -> np.ndarray:
-    try:
-        return np.array([int(c) for c in cells], np.int64)
-    except ValueError:
-        bad = next(i for i, c in enumerate(cells) if not c.strip().lstrip("-").isdigit())
-        raise UserError(f"{path} line {lines[bad]}: '{T_COL}' is {cells[bad][:30]!r}, not integer nanoseconds; "
-                        "download the export again") from None
-
-
 def _start_ns(src: Path) -> tuple[int, str]:
     """The session's time 0 (ns) and where it came from."""
     if (src / INFO).is_file():
@@ -129,14 +120,14 @@ def _start_ns(src: Path) -> tuple[int, str]:
     for name in (WORLD, GAZE):
         head = csv_header(src / name, name, "download the export again", [T_COL])
         for rows, lines in iter_csv_chunks(src / name, name, 1):
-            return int(_int_times([rows[0][head.index(T_COL)]], src / name, lines)[0]), f"the first {name} row"
+            return int(eyes.int_times([rows[0][head.index(T_COL)]], src / name, lines)[0]), f"the first {name} row"
     raise UserError(f"{src / GAZE}: no gaze samples; download the export again")
 
 
 def _world_times(src: Path, start_ns: int) -> np.ndarray:
     path = src / WORLD
     head = csv_header(path, "world timestamps CSV", "download the export again", [T_COL])
-    out = [(_int_times([r[head.index(T_COL)] for r in rows], path, lines) - start_ns) / 1e9
+    out = [(eyes.int_times([r[head.index(T_COL)] for r in rows], path, lines) - start_ns) / 1e9
            for rows, lines in iter_csv_chunks(path, "world timestamps CSV", CHUNK)]
     return np.concatenate(out) if out else np.zeros(0)
 
@@ -165,7 +156,7 @@ class _GazeChunks:
     def parse(self, rows, lines) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_ns (n,) int64, directions (n, 3) in the scene camera's frame, the reason each row
         is dropped (n,) object, '': kept) of a chunk of gaze.csv rows; the gaps counted."""
-        t_ns = _int_times([r[self.index[T_COL]] for r in rows], self.path, lines)
+        t_ns = eyes.int_times([r[self.index[T_COL]] for r in rows], self.path, lines)
         t = (t_ns - self.start_ns) / 1e9
         if self.gaps is None:
             steps = np.diff(t[:2000])

@@ -34,6 +34,21 @@ AXIS_COLS = {s: [f"optical axis {s} {a}" for a in "xyz"] for s in SIDES}
 MATCH_NS = 5_000_000        # a gaze sample within 5 ms of an eye state is the same eye frame's
 
 
+def int_times(cells, path: Path, lines) -> np.ndarray:
+    """(n,) int64 nanoseconds of a column's ``cells`` (Cloud's ``timestamp [ns]``), exact.
+
+    Raises:
+        UserError: naming the file line (``lines``, one per cell) of the first cell that is not
+            an integer.
+    """
+    try:
+        return np.array([int(c) for c in cells], np.int64)
+    except ValueError:
+        bad = next(i for i, c in enumerate(cells) if not c.strip().lstrip("-").isdigit())
+        raise UserError(f"{path} line {lines[bad]}: '{T_COL}' is {cells[bad][:30]!r}, not integer nanoseconds; "
+                        "download the export again") from None
+
+
 def read_eye_states(path: Path, chunk: int = 20000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t_ns (n,) int64, centres (2, n, 3) mm, optical axes (2, n, 3)), left then right; NaN where
     a cell is empty or not a number.
@@ -46,12 +61,9 @@ def read_eye_states(path: Path, chunk: int = 20000) -> tuple[np.ndarray, np.ndar
     idx = [head.index(c) for c in cols]
     ts, vals = [], []
     for rows, lines in iter_csv_chunks(path, "Pupil Cloud 3d_eye_states CSV", chunk):
-        whole = [r for r in rows if len(r) > max(idx)]
-        try:
-            ts.append(np.array([int(r[idx[0]]) for r in whole], np.int64))
-        except ValueError:
-            raise UserError(f"{path} near line {lines[0]}: '{T_COL}' is not integer nanoseconds; download the "
-                            "export again") from None
+        whole = [(r, ln) for r, ln in zip(rows, lines, strict=True) if len(r) > max(idx)]
+        ts.append(int_times([r[idx[0]] for r, _ in whole], path, [ln for _, ln in whole]))
+        whole = [r for r, _ in whole]
         vals.append(np.array([[float(r[k]) if r[k].strip() else np.nan for k in idx[1:]] for r in whole], float))
     t = np.concatenate(ts) if ts else np.zeros(0, np.int64)
     v = np.concatenate(vals).reshape(-1, 12) if vals else np.zeros((0, 12))
