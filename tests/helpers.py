@@ -1,5 +1,7 @@
 """Synthetic ground truth shared by the tests."""
 
+import io
+
 import numpy as np
 
 from estimator import BinocularSamples, ViewLines, perturb_directions
@@ -130,3 +132,33 @@ def walkabout_recording(root):
 
     simulate_scenario({"base": "lab-walkabout", "duration_s": 4.0, "calibration": {"camera_views": 4}}, root, seed=1)
     return read_simulated_recording(root)
+
+
+class TimedLog(io.StringIO):
+    """A stream that is not a terminal and keeps when each line was written (``times``). Used in
+    place of sys.stderr to test progress lines."""
+
+    def __init__(self):
+        super().__init__()
+        self.times = []
+
+    def write(self, text):
+        import time
+
+        self.times += [time.monotonic()] * text.count("\n")
+        return super().write(text)
+
+
+def slow_down(monkeypatch, owner, name: str, seconds: float = 1.0, result=None, raises=None):
+    """Make ``owner.name`` (a module's function) take ``seconds`` first: then it returns what the
+    real one returns, or ``result`` when given, or raises ``raises`` when given."""
+    import time
+
+    real = getattr(owner, name)
+
+    def slow(*args, **kwargs):
+        time.sleep(seconds)
+        if raises is not None:
+            raise raises
+        return result if result is not None else real(*args, **kwargs)
+    monkeypatch.setattr(owner, name, slow)

@@ -12,6 +12,7 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+from helpers import TimedLog, slow_down
 from scipy.spatial.transform import Rotation
 
 from calibration.camera import CameraCalibration
@@ -222,28 +223,15 @@ def test_markerless_map_prints_lines_while_pycolmap_matches(survey, tmp_path, mo
     log (stderr not a terminal) while it ran (144 s in all for 150 frames). Made slow here (1 s,
     then stopped), it prints a line naming it at least every interval (0.2 s)."""
     import sys
-    import time
 
     import pycolmap
 
     class Stop(Exception):                         # an internal error: the command ends there
         pass
 
-    class Log(io.StringIO):
-        def __init__(self):
-            super().__init__()
-            self.times = []
-
-        def write(self, text):
-            self.times += [time.monotonic()] * text.count("\n")
-            return super().write(text)
-
-    def slow(*args, **kwargs):
-        time.sleep(1.0)
-        raise Stop
-    monkeypatch.setattr(pycolmap, "match_exhaustive", slow)
+    slow_down(monkeypatch, pycolmap, "match_exhaustive", raises=Stop)
     monkeypatch.setenv("WEARABLE_GAZE_PROGRESS_S", "0.2")
-    log = Log()
+    log = TimedLog()
     monkeypatch.setattr(sys, "stderr", log)
     sess = survey[0]
     assert main(["map", "--markerless", str(sess / "scene.mp4"), "--camera", str(sess / "truth" / "camera.json"),

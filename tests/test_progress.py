@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers import TimedLog, slow_down
 
 import tracking.mapadjust as mapadjust
 import tracking.mapbuild as mapbuild
@@ -21,16 +22,7 @@ from wearable_gaze.progress import LINE_INTERVAL_S, heartbeat, progress_bar, sta
 INTERVAL = 0.2
 
 
-class Log(io.StringIO):
-    """A stream that is not a terminal and keeps when each line was written."""
-
-    def __init__(self):
-        super().__init__()
-        self.times = []
-
-    def write(self, text):
-        self.times += [time.monotonic()] * text.count("\n")
-        return super().write(text)
+Log = TimedLog
 
 
 class Tty(io.StringIO):
@@ -172,12 +164,7 @@ def test_map_building_reports_during_its_bundle_adjustments(monkeypatch):
 def test_map_command_prints_lines_while_the_map_is_adjusted(real_data, every, monkeypatch, tmp_path):
     """``map`` (four real ChArUco photos) with its adjustment made slow (1 s): lines on stderr,
     not a terminal, name the stage at least every interval while it runs."""
-    real = mapping.build_marker_map
-
-    def slow(*args, **kwargs):
-        time.sleep(1.0)
-        return real(*args, **kwargs)
-    monkeypatch.setattr(mapping, "build_marker_map", slow)
+    slow_down(monkeypatch, mapping, "build_marker_map")
     log = Log()
     monkeypatch.setattr(sys, "stderr", log)
     d = real_data / "opencv_aruco_charuco_tutorial"
@@ -207,12 +194,7 @@ def test_process_build_map_names_the_maps_adjustment_in_its_lines(every, monkeyp
     del man["files"]["marker_map"]
     (root / "session.json").write_text(json.dumps(man))
     (root / "markers.json").unlink()
-    real = mapping.build_marker_map
-
-    def slow(*args, **kwargs):
-        time.sleep(1.0)
-        return real(*args, **kwargs)
-    monkeypatch.setattr(mapping, "build_marker_map", slow)
+    slow_down(monkeypatch, mapping, "build_marker_map")
     log = Log()
     process_session(root, tmp_path / "out", camera=root / "truth" / "camera.json", eyes=root / "truth" / "eyes.json",
                     report=False, build_map=(200.0, "DICT_4X4_50"),
@@ -230,12 +212,7 @@ def test_estimate_prints_lines_while_it_estimates(every, monkeypatch, tmp_path):
 
     path = tmp_path / "lines.csv"
     write_viewlines_csv(path, simulate_lines([0, 0, 1500.0], np.random.default_rng(0)), segment=None)
-    real = estimate_module.estimate_file
-
-    def slow(*args, **kwargs):
-        time.sleep(1.0)
-        return real(*args, **kwargs)
-    monkeypatch.setattr(estimate_module, "estimate_file", slow)
+    slow_down(monkeypatch, estimate_module, "estimate_file")
     log = Log()
     monkeypatch.setattr(sys, "stderr", log)
     assert main(["estimate", str(path)]) == 0
@@ -264,10 +241,7 @@ def test_commands_over_a_whole_recording_print_lines_while_they_run(every, monke
     every interval while it runs."""
     import importlib  # noqa: PLC0415
 
-    def slow(*args, **kwargs):
-        time.sleep(1.0)
-        return result
-    monkeypatch.setattr(importlib.import_module(module), name, slow)
+    slow_down(monkeypatch, importlib.import_module(module), name, result=result)
     monkeypatch.chdir(tmp_path)
     log = Log()
     monkeypatch.setattr(sys, "stderr", log)
