@@ -1146,6 +1146,12 @@ add("export-recording-format-missing", "export-recording",
     lambda e, d: ["export-recording", e["session"], "-o", str(d / "r")], ("--format",))
 add("export-recording-format-unknown", "export-recording",
     lambda e, d: ["export-recording", e["session"], "-o", str(d / "r"), "--format", "emr8"], ("--format",))
+add("export-recording-eye-states-not-cloud", "export-recording",
+    lambda e, d: ["export-recording", e["session"], "-o", str(d / "r"), "--format", "tobii-g2", "--eye-states"],
+    ("--eye-states", "pupil-cloud", "leave --eye-states out"))
+add("export-recording-aria-gen2", "export-recording",
+    lambda e, d: ["export-recording", e["session"], "-o", str(d / "r"), "--format", "aria-gen2"],
+    ("aria-gen2 is not available", "--format aria-mps"))
 
 # -o equal to an input (the four, and their neighbours)
 SAME = [

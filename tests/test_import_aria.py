@@ -253,7 +253,7 @@ def test_a_per_eye_file_with_a_column_deleted_is_refused_not_replaced(copy, tmp_
 def test_gen2_and_wrong_units_are_refused(copy, tmp_path):
     gen2 = ",yaw_rads_cpf,left_pitch_rads_cpf,right_pitch_rads_cpf"
     edit(copy / GAZE, lambda ls: [ls[0] + gen2] + [ln + ",0,0,0" for ln in ls[1:]])
-    one_line_error(aria, copy, tmp_path / "bad", "gen2")
+    one_line_error(aria, copy, tmp_path / "bad", "Gen2", "--format aria-gen2")
     edit(copy / GAZE, lambda ls: [ln.rsplit(",", 3)[0] for ln in ls])
     edit(copy / GAZE, lambda ls: ls[:1] + [set_cell(ln, 0, str(int(ln.split(",")[0]) / 1e6)) for ln in ls[1:]])
     one_line_error(aria, copy, tmp_path / "bad", "microseconds")

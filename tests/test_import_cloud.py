@@ -120,3 +120,20 @@ def test_an_export_with_neon_eye_states_gives_per_eye_visual_axes(tmp_path):
     assert np.allclose(got.left_origin_mm[got.left_valid], sim.rays.left_origin_mm[np.isin(sim.t, got.t_s)][
         got.left_valid], atol=1e-3)
     assert any("kappa offset" in n for n in rep["notes"])
+
+
+def test_export_recording_eye_states_writes_a_neon_export_that_imports_per_eye(tmp_path, capsys):
+    """``export-recording --format pupil-cloud --eye-states`` (the CLI) writes the Neon layout
+    with ``3d_eye_states.csv``; without the option, Invisible's (2D gaze only): each imports
+    as what it is, binocular or cyclopean."""
+    from helpers import walkabout_recording  # noqa: PLC0415
+
+    from wearable_gaze.cli import main  # noqa: PLC0415
+
+    walkabout_recording(tmp_path / "sim")
+    for extra, rays in (([], "cyclopean"), (["--eye-states"], "binocular")):
+        rec = tmp_path / f"rec{len(extra)}"
+        assert main(["export-recording", str(tmp_path / "sim"), "-o", str(rec), "--format", "pupil-cloud",
+                     *extra]) == 0
+        assert (rec / "3d_eye_states.csv").is_file() == bool(extra)
+        assert run_import(pupil_cloud, rec, tmp_path / f"out{len(extra)}")["rays"] == rays

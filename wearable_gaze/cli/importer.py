@@ -30,7 +30,7 @@ def cmd_export(args) -> int:
     from ..progress import heartbeat  # noqa: PLC0415
 
     with heartbeat("exporting"):                # a long session: a line every few seconds in a log
-        command = export_recording(args.session, args.out, args.format)
+        command = export_recording(args.session, args.out, args.format, args.eye_states)
     print(f"wrote the simulated session {args.session} as a {args.format} recording in {args.out}; import it with: "
           f"{command}")
     return 0
@@ -62,4 +62,7 @@ def add_export(sub) -> None:
     ex.add_argument("session", metavar="SESSION", help="a session written by 'wearable-gaze simulate'")
     ex.add_argument("-o", "--out", required=True, metavar="DIR", help="new recording folder")
     ex.add_argument("--format", choices=FORMATS, required=True, help="the device format to write")
+    ex.add_argument("--eye-states", action="store_true",
+                    help="pupil-cloud: also write 3d_eye_states.csv, as a Neon export has (default: 2D gaze only, "
+                         "as an Invisible export)")
     ex.set_defaults(func=cmd_export)

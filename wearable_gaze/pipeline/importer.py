@@ -64,16 +64,28 @@ def import_recording(src, out, fmt: str | None = None, options: ImportOptions | 
     return manifest, report
 
 
-def export_recording(session, out, fmt: str) -> str:
+EYE_STATE_FORMATS = ("pupil-cloud",)
+"""The formats ``export-recording --eye-states`` applies to (a Neon Cloud export's
+``3d_eye_states.csv``; without it the export is Invisible's: 2D gaze only)."""
+
+
+def export_recording(session, out, fmt: str, eye_states: bool = False) -> str:
     """Write the simulated session ``session`` as a ``fmt`` recording in the new folder ``out``
-    (documented fields only): what the round-trip tests import again. Returns the command that
-    imports it (with ``--marker-size-mm`` when the recording's head poses are in marker sides,
-    as Pupil Player's head-pose tracker writes them)."""
+    (documented fields only): what the round-trip tests import again; ``eye_states``: with the
+    per-eye eyeball centres and optical axes (``EYE_STATE_FORMATS`` only). Returns the command
+    that imports it (with ``--marker-size-mm`` when the recording's head poses are in marker
+    sides, as Pupil Player's head-pose tracker writes them)."""
     if fmt not in MODULES:
         raise UserError(f"unknown recording format '{fmt}'; use one of {', '.join(MODULES)}")
+    if eye_states and fmt not in EYE_STATE_FORMATS:
+        raise UserError(f"--eye-states applies to --format {' or '.join(EYE_STATE_FORMATS)} only; "
+                        f"a {fmt} recording always has its own eye data: leave --eye-states out")
     sim = read_simulated_recording(session)
     with atomic_folder(out) as tmp:
-        device_module(fmt).write_recording(sim, tmp)
+        if eye_states:
+            device_module(fmt).write_recording(sim, tmp, eye_states=True)
+        else:
+            device_module(fmt).write_recording(sim, tmp)
     command = f"wearable-gaze import {out} -o SESSION --format {fmt}"
     if sim.marker_map is not None and any(Path(out).glob("exports/*/head_pose_tracker_poses.csv")):
         size = load_marker_map(sim.marker_map).marker_size_mm

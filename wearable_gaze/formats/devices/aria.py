@@ -149,7 +149,8 @@ def _gaze_file(src: Path):
     for p in sorted(src.glob("eye_gaze*/*.csv")):
         names = mps_header(p, "eye-gaze CSV", "pass an MPS output folder")
         if "yaw_rads_cpf" in names and "left_pitch_rads_cpf" in names and "right_pitch_rads_cpf" in names:
-            raise UserError(f"{p}: an Aria gen2 eye-gaze file (per-eye pitch); only gen1 MPS output is supported")
+            raise UserError(f"{p}: an Aria Gen2 eye-gaze file (per-eye pitch), which --format aria-mps (gen1) "
+                            "does not read; import it with --format aria-gen2, or leave --format out")
         model = "per-eye" if all(c in names for c in PER_EYE) else "pre-2024" if all(c in names for c in LEGACY) else ""
         part = PER_EYE if any(c in names for c in PER_EYE[:2]) else LEGACY if LEGACY[0] in names else ()
         if part and not model:           # a damaged file must not silently give way to an older model's

@@ -267,4 +267,5 @@ def _frames(graph_uid) -> dict:
 
 def write_recording(sim, dst: Path) -> None:
     """Not written: the round trip of Aria's MPS files is ``aria-mps``'s (gen1 schema)."""
-    raise UserError("export-recording --format aria-gen2 is not available; use --format aria-mps")
+    raise UserError("export-recording --format aria-gen2 is not available (the simulator writes Aria's gen1 MPS "
+                    "files only); use --format aria-mps (Aria gen1 MPS files) for a round trip")
