@@ -1153,6 +1153,26 @@ add("export-recording-aria-gen2", "export-recording",
     lambda e, d: ["export-recording", e["session"], "-o", str(d / "r"), "--format", "aria-gen2"],
     ("aria-gen2 is not available", "--format aria-mps"))
 
+# aoi (issue 28): the AOI file, the processed folder, the options
+def argv_aoi(e, d, aois=None, processed=None, out=None, extra=()):
+    if aois is None:
+        aois = write(d, "aois.json", json.dumps({"aois": [{"name": "a", "sphere": {"center_mm": [0, 0, 1000],
+                                                                                  "radius_mm": 100}}]}))
+    return ["aoi", processed or str(e.base), "--aois", aois, "-o", out or str(d / "o"), *extra]
+
+
+add("aoi-file-missing", "aoi", lambda e, d: argv_aoi(e, d, str(d / "none.json")), ("no such file",))
+add("aoi-file-not-json", "aoi", lambda e, d: argv_aoi(e, d, write(d, "a.json", "{not json")), ("a.json",))
+add("aoi-no-shape", "aoi", lambda e, d: argv_aoi(e, d, write(d, "a.json", '{"aois": [{"name": "x"}]}')),
+    ("needs one of the keys",))
+add("aoi-name-twice", "aoi", lambda e, d: argv_aoi(e, d, write(d, "a.json", json.dumps({"aois": [
+    {"name": "x", "sphere": {"center_mm": [0, 0, 1], "radius_mm": 1}}] * 2}))), ("used twice",))
+add("aoi-marker-not-in-map", "aoi", lambda e, d: argv_aoi(e, d, write(d, "a.json", json.dumps({"aois": [
+    {"name": "m", "marker": {"id": 999}}]})), extra=["--markers", e["markers"]]), ("not in the marker map",))
+add("aoi-not-processed", "aoi", lambda e, d: argv_aoi(e, d, processed=str(d)), ("viewlines.csv",))
+add("aoi-out-is-file", "aoi", lambda e, d: argv_aoi(e, d, out=write(d, "afile", "keep")), ("-o", "is a file"))
+opt_cases("aoi", lambda e, d, x: argv_aoi(e, d, extra=x), "--assign-probability", ["0", "1", "1.5", "nan", "abc"])
+
 # -o equal to an input (the issue's four, and their neighbours)
 SAME = [
     ("fixations-out-is-viewlines", "fixations", lambda e, d: argv_fixations(e, d, _cp(e.viewlines, d),
@@ -1371,7 +1391,7 @@ def test_bad_input(c: Case, env, case_dir, capsys):
 def test_matrix_covers_every_command_with_enough_cases():
     commands = {"estimate", "fixations", "reproduce", "calibrate-camera", "calibrate-eyes", "viewlines", "track",
                 "markers", "simulate", "process", "live", "emulate", "demo", "import", "export-recording",
-                "learn-bias"}
+                "learn-bias", "aoi"}
     per = {k: sum(c.command == k for c in CASES) for k in commands}
     assert all(n >= 5 for n in per.values()), per
     assert len(CASES) >= 250, len(CASES)

@@ -1,6 +1,6 @@
 """The ``wearable-gaze`` command line: each command parses its arguments, calls one library
 function and prints (one module per command group: estimate, paper, calibrate, fixations, track,
-sim, process, batch, person, live, importer). Bad input at any boundary gets one line on stderr and exit status 2,
+sim, process, aoi, batch, person, live, importer). Bad input at any boundary gets one line on stderr and exit status 2,
 never a traceback (``safety``).
 """
 
@@ -12,7 +12,7 @@ import os
 import sys
 
 from ..errors import UserError
-from . import batch, calibrate, estimate, fixations, importer, live, paper, person, process, safety, sim, track
+from . import aoi, batch, calibrate, estimate, fixations, importer, live, paper, person, process, safety, sim, track
 from .args import Parser, one_line
 
 
@@ -27,8 +27,8 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (estimate.add_estimate, paper.add_reproduce, calibrate.add_calibrate_camera,
                 calibrate.add_calibrate_eyes, calibrate.add_viewlines, fixations.add_fixations, track.add_track,
                 track.add_markers, track.add_map, sim.add_simulate, importer.add_import, importer.add_export,
-                process.add_process, batch.add_batch, person.add_learn_bias, live.add_live, sim.add_emulate,
-                process.add_demo):
+                process.add_process, aoi.add_aoi, batch.add_batch, person.add_learn_bias, live.add_live,
+                sim.add_emulate, process.add_demo):
         add(sub)
     return p
 

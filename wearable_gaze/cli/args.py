@@ -37,6 +37,14 @@ def positive_float(text):
     return v
 
 
+def probability(text):
+    """A probability strictly between 0 and 1."""
+    v = finite_float(text)
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"must lie between 0 and 1, got {ascii(text)}")
+    return v
+
+
 def non_negative_float(text):
     v = finite_float(text)
     if v < 0:

@@ -26,17 +26,20 @@ def scheduler_address(text):
 
 
 def cmd_batch(args) -> int:
+    from ..formats.aois import read_aois  # noqa: PLC0415
     from ..pipeline.batch import BatchSettings, format_summary, run_batch  # noqa: PLC0415
     from ..pipeline.process_options import check_map_options  # noqa: PLC0415
     from ..progress import progress_bar  # noqa: PLC0415
     from .process import build_map_option  # noqa: PLC0415
 
-    check_output(args.out, [*args.sessions, args.camera, args.eyes, args.markers], "-o", folder=True)
+    check_output(args.out, [*args.sessions, args.camera, args.eyes, args.markers, args.aois], "-o", folder=True)
     check_map_options(args.markers, args.build_map, None, True, False)        # before any session
-    camera, eyes, markers = (None if p is None else str(Path(p).resolve()) for p in (args.camera, args.eyes,
-                                                                                    args.markers))
+    if args.aois is not None:
+        read_aois(args.aois)                                                  # a bad file: before any session
+    camera, eyes, markers, aois = (None if p is None else str(Path(p).resolve())
+                                   for p in (args.camera, args.eyes, args.markers, args.aois))
     settings = BatchSettings(args.method, camera, eyes, args.force, not args.no_overlay, True,
-                             args.track_every, build_map_option(args), markers)
+                             args.track_every, build_map_option(args), markers, aois)
     with progress_bar("sessions", 1) as cb:
         res = run_batch(args.sessions, args.out, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=cb)
@@ -72,6 +75,9 @@ def add_batch(sub) -> None:
     b.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the reports")
     b.add_argument("--markers", metavar="MAP.json",
                    help="track every session's video in this marker map (from 'wearable-gaze map') instead of its own")
+    b.add_argument("--aois", metavar="aois.json",
+                   help="areas of interest (docs/aois.md): each session's AOI tables, and one table of sessions x "
+                        "areas (batch_aoi_metrics.csv) with a plot per measure")
     b.add_argument("--build-map", type=A.positive_float, metavar="MM",
                    help="each session gets a marker map built from its video, markers of this side (mm), in place "
                         "of its own (as process --build-map)")

@@ -38,12 +38,16 @@ def cmd_process(args) -> int:
     from ..progress import step_bars  # noqa: PLC0415
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
+    if args.aois is not None:
+        from ..formats.aois import read_aois  # noqa: PLC0415
+
+        read_aois(args.aois)                    # a bad AOI file: one line before OUT is made
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=step_bars(), person=args.person,
                           build_map=build_map_option(args),
                           sfm_map=args.map, overlay_video=args.overlay_video, rerun=args.rerun,
-                          rerun_frames=args.rerun_frames, markers=args.markers)
+                          rerun_frames=args.rerun_frames, markers=args.markers, aois=args.aois)
     for note in res.summary.get("notes", []):
         print(f"wearable-gaze process: {note}", file=sys.stderr)
     print(format_result(res))
@@ -88,6 +92,8 @@ def add_process(sub) -> None:
                     help="also write the overlay at full resolution, every frame: OUT/overlay.mp4 (mp4v)")
     pr.add_argument("--markers", metavar="MAP.json",
                     help="track the video in this marker map (from 'wearable-gaze map') instead of the session's")
+    pr.add_argument("--aois", metavar="aois.json",
+                    help="areas of interest in the room (docs/aois.md): also write the AOI tables and plot")
     pr.add_argument("--build-map", type=A.positive_float, metavar="MM",
                     help="build a marker map from the session's video, markers of this side (mm), and track in it "
                          "(in place of the session's map, if it has one)")

@@ -24,7 +24,8 @@ from .atomic import write_text
 log = logging.getLogger(__name__)
 
 SCHEMA_NAMES = ("session", "camera", "eyes", "marker-map", "board", "walls", "scenario", "validation", "person",
-                "targets", "summary", "viewlines-counts", "steps-state", "live-message", "estimate-line", "sfm-map")
+                "targets", "summary", "viewlines-counts", "steps-state", "live-message", "estimate-line", "sfm-map",
+                "aois")
 
 
 @cache

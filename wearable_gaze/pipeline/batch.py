@@ -43,7 +43,7 @@ class BatchSettings:
     """The ``process`` settings every session of a batch runs with (``process_session``'s
     arguments of the same names; ``camera``, ``eyes``: files used instead of calibrating each
     session; ``build_map``: (marker side mm, dictionary); ``markers``: a marker map every session is
-    tracked in)."""
+    tracked in; ``aois``: an AOI file every session's AOI step reads)."""
 
     method: str = "voxel"
     camera: str | None = None
@@ -54,12 +54,13 @@ class BatchSettings:
     track_every: int = 2
     build_map: tuple | None = None
     markers: str | None = None
+    aois: str | None = None
 
     def process_kwargs(self) -> dict:
         """The keyword arguments of ``process_session``."""
         return {"method": self.method, "camera": self.camera, "eyes": self.eyes, "force": self.force,
                 "overlay": self.overlay, "report": self.report, "track_every": self.track_every,
-                "build_map": self.build_map, "markers": self.markers}
+                "build_map": self.build_map, "markers": self.markers, "aois": self.aois}
 
     def fingerprint_params(self) -> dict:
         """What decides a session's results (``force`` only says to redo them)."""
@@ -180,7 +181,7 @@ def session_fingerprint(root: Path, settings: BatchSettings, exclude=None) -> st
             if not f.startswith("."):
                 st = os.stat(os.path.join(dirpath, f))
                 h.update(f"{os.path.relpath(os.path.join(dirpath, f), root)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
-    for p in (settings.camera, settings.eyes, settings.markers):
+    for p in (settings.camera, settings.eyes, settings.markers, settings.aois):
         if p is not None:
             st = os.stat(p) if os.path.exists(p) else None
             h.update(f"{Path(p).resolve()}:{st and (st.st_size, st.st_mtime_ns)}\n".encode())

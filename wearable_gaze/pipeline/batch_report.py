@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..formats.aoi_tables import read_aoi_metrics
 from ..formats.atomic import write_text
 from ..formats.session import MANIFEST
 from ..formats.tables import write_table
@@ -118,7 +119,57 @@ def write_batch_report(out, statuses: dict) -> list[dict]:
                                                           else float) for k, _ in COLUMNS}, FORMATS)
     write_targets_csv(out / "all_targets.csv", targets, sessions)           # targets.csv's columns after session
     write_text(out / "batch_report.html", _html(out, table))
+    write_batch_aois(out, [st["name"] for st in statuses.values()])
     return table
+
+
+AOI_MEASURES = ("dwell_s", "dwell_weighted_s", "visits", "fixations", "first_fixation_s", "share")
+"""The measures of the batch's sessions x areas table plotted one figure each."""
+
+
+def write_batch_aois(out: Path, names: list[str]) -> bool:
+    """``batch_aoi_metrics.csv`` (one row per session and area: ``session`` then aoi_metrics.csv's
+    columns) and ``batch_aoi_MEASURE.png`` for each of ``AOI_MEASURES`` (grouped bars, one group
+    per area, one bar per session), from the sessions' ``OUT/NAME/aoi_metrics.csv``; nothing when
+    no session has one. Returns whether it wrote them."""
+    rows = {}
+    for name in names:
+        f = out / name / "aoi_metrics.csv"
+        if f.is_file():
+            rows[name] = read_aoi_metrics(f)
+    if not rows:
+        return False
+    cols = {"session": np.array([n for n, m in rows.items() for _ in m["aoi"]], object)}
+    first = next(iter(rows.values()))
+    for k in first:
+        cols[k] = np.concatenate([m[k] for m in rows.values()])
+    write_table(out / "batch_aoi_metrics.csv", cols, {k: ".4f" for k in AOI_MEASURES if k in cols})
+    for k in AOI_MEASURES:
+        plot_grouped(rows, k, out / f"batch_aoi_{k}.png")
+    return True
+
+
+def plot_grouped(rows: dict, measure: str, path: Path) -> None:
+    """Grouped bars of ``measure``: one group per area, one bar per session (``rows``: session ->
+    its aoi_metrics.csv columns)."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    areas = list(dict.fromkeys(a for m in rows.values() for a in m["aoi"]))
+    width = 0.8 / max(len(rows), 1)
+    fig, ax = plt.subplots(figsize=(max(4.0, 0.9 * len(areas) + 2), 3.2))
+    for j, (name, m) in enumerate(rows.items()):
+        vals = {a: v for a, v in zip(m["aoi"], m[measure], strict=True)}
+        ax.bar(np.arange(len(areas)) + (j - (len(rows) - 1) / 2) * width,
+               [vals.get(a, np.nan) for a in areas], width, label=name)
+    ax.set_xticks(np.arange(len(areas)), areas, rotation=30, ha="right")
+    ax.set_ylabel(measure)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def _cell(key: str, value, out: Path) -> str:

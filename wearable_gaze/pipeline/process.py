@@ -39,6 +39,7 @@ from ..formats.sfmmap import load_sfm_map
 from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
+from .aoi import aoi_folder, mesh_paths
 from .calibrate import (
     calibrate_camera_files,
     calibrate_eyes,
@@ -78,6 +79,7 @@ class _Settings:
     sfm_map: Path | None = None         # a markerless map folder to localise the video's frames in
     overlay_video: bool = False         # the report also writes the full-resolution overlay.mp4
     map_kind: str = "session"           # the map tracked in: session, given, built, markerless
+    aois: Path | None = None            # an AOI file (docs/aois.md): the AOI step runs
 
 
 @dataclass(frozen=True)
@@ -145,7 +147,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
                     sigma_deg: float = 1.0, overlay: bool = True, report: bool = True, track_every: int = 2,
                     segment_config: SegmentConfig | None = None, progress_factory=None, person=None,
                     build_map: tuple | None = None, sfm_map=None, overlay_video: bool = False, rerun: str | None = None,
-                    rerun_frames: int = 0, markers=None) -> ProcessResult:
+                    rerun_frames: int = 0, markers=None, aois=None) -> ProcessResult:
     """Process one session folder (docs/session.md) into ``out`` (default SESSION/processed).
 
     Args:
@@ -169,6 +171,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         markers: a marker map (``map``) to track the video in, in place of the session's.
         rerun: also log the results to rerun (``pipeline.rerun_view``): an .rrd file, a viewer's
             address, or 'spawn'; ``rerun_frames``: with it, one scene frame in this many (0: none).
+        aois: an AOI file (docs/aois.md): the AOI step writes its tables (``pipeline.aoi``).
 
     Returns:
         ProcessResult: ``targets`` holds only what this run estimated; ``problems`` says what
@@ -195,7 +198,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person,
                     None if build_map is None else (float(build_map[0]), str(build_map[1])),
-                    None if sfm_map is None else Path(sfm_map), overlay_video)
+                    None if sfm_map is None else Path(sfm_map), overlay_video, aois=aois and Path(aois))
     f, cfg, res.summary["notes"] = applicable(f, cfg, markers, eyes is not None, rerun_frames)
     if correction is not None:
         res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
@@ -329,8 +332,20 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
             res.problems.append(f"targets: no target could be estimated from {n} view lines (no fixation of "
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
     _export_step(f, out, steps, vals, cam_path, eye_inputs, correction)
+    if cfg.aois is not None:
+        _aoi_step(f, out, steps, vals, cfg.aois)
     if cfg.report:
         _report_step(f, out, steps, vals, eyes_path, cfg, frame)
+
+
+def _aoi_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, aois: Path) -> None:
+    """7. the areas of interest (``pipeline.aoi``): their tables and plot, marker areas placed by
+    the map the video was tracked in."""
+    built = out / BUILT_MAP
+    marker_map = f.markers if f.markers is not None else built if built.is_file() else None
+    inputs = [aois, *mesh_paths(aois), *(out / n for n in ("fixations.csv", "viewlines.csv", "targets.json"))]
+    steps.run("aoi", inputs + ([marker_map] if marker_map else []), {},
+              lambda cb: aoi_folder(out, aois, out, marker_map))
 
 
 def _export_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, cam_path: Path, eye_inputs: list,

@@ -17,6 +17,7 @@ from ..errors import UserError
 from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import load_sfm_map
 from ..formats.truth import read_truth_moved_markers
+from .aoi import check_aois
 from .report import ReportTruth
 from .truth_match import TruthFrame, fit_truth_frame
 
@@ -87,6 +88,8 @@ def applicable(f, cfg, markers: Path | None, eyes_given: bool, rerun_frames: int
         notes.append("--eyes: not used: the device calibrated an imported session's eyes (its eye rays are used)")
     if rerun_frames and not video:
         notes.append("--rerun-frames: no scene frames to show: the session has no scene video")
+    if cfg.aois is not None:                # a bad AOI file stops the run before any step
+        check_aois(cfg.aois, has_marker_map=f.markers is not None or kind == "built")
     cfg = dataclasses.replace(cfg, build_map=build_map, sfm_map=sfm_map, overlay=overlay, overlay_video=overlay_video,
                               map_kind=kind)
     return f, cfg, notes

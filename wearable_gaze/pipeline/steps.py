@@ -15,12 +15,13 @@ from pathlib import Path
 from ..errors import UserError
 from ..formats.atomic import write_text
 from ..formats.jsonio import load_json
+from .aoi import AOI_OUTPUTS
 from .report import OPTIONAL_FILES as REPORT_OPTIONAL
 from .report import REPORT_FILES
 
 log = logging.getLogger(__name__)
 
-STEPS = ("camera", "eyes", "tracking", "viewlines", "targets", "export", "report")
+STEPS = ("camera", "eyes", "tracking", "viewlines", "targets", "export", "aoi", "report")
 # the files each step writes into the output folder ...
 OUTPUTS = {
     "camera": ("camera.json", "camera_undistorted.png"),
@@ -30,11 +31,12 @@ OUTPUTS = {
     "targets": ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy",
                 "device_comparison.csv", "target_paths.csv", "fixations.csv"),
     "export": ("gaze.csv", "targets.ply"),
+    "aoi": AOI_OUTPUTS,
     "report": REPORT_FILES,
 }
 # ... and the steps whose outputs it reads
 NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines": ("eyes", "tracking"),
-         "targets": ("viewlines",), "export": ("targets",), "report": ("targets",)}
+         "targets": ("viewlines",), "export": ("targets",), "aoi": ("targets",), "report": ("targets",)}
 # written or not: not needed to skip a step
 OPTIONAL = (*REPORT_OPTIONAL, "device_comparison.csv", "target_paths.csv", "built_map.json")
 OTHER_FILES = ("summary.json", ".steps.json")
