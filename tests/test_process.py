@@ -36,7 +36,7 @@ def test_outputs_are_written_in_their_formats(processed):
     _, out, res = processed
     for name in ("camera.json", "eyes.json", "poses.csv", "viewlines.csv", "estimates.csv", "targets.csv",
                  "summary.json", "report.html", "plot_depth_vs_observations.png", "plot_density_slices.png",
-                 "plot_3d.png", "plot_top_view.png", "overlay.webp"):
+                 "plot_3d.png", "plot_top_view.png", "overlay.mp4"):
         assert (out / name).is_file(), name
     vl = read_table(out / "viewlines.csv", ["t", "segment"])
     assert set(np.unique(vl["segment"])) >= {0, 1, 2}
@@ -65,7 +65,8 @@ def _near_colour(img, hex_colour: str, tol: int = 40) -> int:
 def test_report_in_headless_chromium_loads_shows_the_truth_and_a_3d_view_that_turns(processed):
     """The report in Debian's chromium (driven by playwright, never its own browsers): every
     image loads, no console error, no request leaves the machine, the truth columns are there,
-    and the 3D view draws the targets in their legend's colours and turns when dragged."""
+    the 3D view draws the targets in their legend's colours and turns when dragged, and the
+    overlay video (H.264) plays: its readyState reaches 4 and its time advances."""
     browser = shutil.which("chromium") or shutil.which("chromium-browser")
     if browser is None:
         pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
@@ -101,10 +102,16 @@ def test_report_in_headless_chromium_loads_shows_the_truth_and_a_3d_view_that_tu
             page.mouse.move(box["x"] + 450, box["y"] + 260, steps=5)
             page.mouse.up()
             turned = cv2.imdecode(np.frombuffer(canvas.screenshot(), np.uint8), cv2.IMREAD_COLOR)
+            page.evaluate("document.getElementById('overlay').play()")
+            page.wait_for_function("(() => { const v = document.getElementById('overlay'); "
+                                   "return v.readyState === 4 && v.currentTime > 0.5; })()", timeout=20000)
+            video = page.evaluate("(() => { const v = document.getElementById('overlay'); "
+                                  "return [v.duration, v.videoWidth]; })()")
         finally:
             b.close()
     assert errors == [] and remote == []
-    assert loaded == total and total >= 5                                     # 4 plots and the overlay
+    assert loaded == total and total >= 5                                     # the plots
+    assert video[0] > 10.0 and video[1] == 640                  # the whole 12 s session (PROCESS_SCENARIO), 640 px
     for h in ("true position x, y, z (mm)", "error (mm)", "error / bound", "Cramér-Rao bound (mm)"):
         assert h in headers
     assert len(errs) == len(res.targets) and all(re.fullmatch(r"\d+\.\d", e) for e in errs), errs

@@ -53,7 +53,7 @@ def test_each_input_is_read_once_and_handed_to_the_steps(small_session, tmp_path
         monkeypatch.setattr(mod, name, wrapper_called)
     calls = _count_loads(monkeypatch)
     res = process_session(s, s / "processed")                    # with the overlay: it reads camera, eyes,
-    assert res.found and res.problems == [] and (s / "processed" / "overlay.webp").is_file()   # samples, map
+    assert res.found and res.problems == [] and (s / "processed" / "overlay.mp4").is_file()   # samples, map
     # camera.json: eyes, tracking and overlay; eye.csv: view lines and overlay; the map: tracking and overlay
     assert calls == {"load_session": 1, "load_camera": 1, "load_eyes": 1, "read_eye_csv": 1, "load_marker_map": 1,
                      "read_poses_csv": 1}, calls

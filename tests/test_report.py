@@ -9,7 +9,6 @@ import re
 import cv2
 import numpy as np
 import pytest
-from PIL import Image
 
 from calibration.camera import CameraCalibration
 from tracking.markermap import MarkerMap
@@ -143,7 +142,22 @@ def test_nothing_is_drawn_outside_the_calibrated_field():
     assert np.all(np.isfinite(ov.project_in_view(fisheyeish, [[0.0, 0.0, 1000.0]], r)))
 
 
+def _read_all(path):
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f)
+    cap.release()
+    return frames
+
+
 def test_overlay_video_is_full_resolution_and_the_preview_small(tmp_path):
+    """Both videos H.264 (browsers play it): the full one every frame at full size, the report's
+    every third frame (10 fps of 30) at 640 px, the whole video long."""
+    import av
     video = tmp_path / "scene.mp4"
     n = 8
     wr = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (W, H))
@@ -158,20 +172,17 @@ def test_overlay_video_is_full_resolution_and_the_preview_small(tmp_path):
     names = ov.write_overlays(tmp_path, inp, targets, t, np.arange(n), np.repeat(np.eye(4)[None], n, axis=0),
                               video=True)
     assert names == (ov.PREVIEW_NAME, ov.VIDEO_NAME)
-    cap = cv2.VideoCapture(str(tmp_path / ov.VIDEO_NAME))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(f)
+    for name in names:
+        with av.open(str(tmp_path / name)) as c:
+            assert c.streams.video[0].codec_context.name == "h264"
+    frames = _read_all(tmp_path / ov.VIDEO_NAME)
     assert len(frames) == n and frames[0].shape == (H, W, 3)
     u, v = 320 + 50, 240 + 25                                          # the target (100, 50, 1000) mm
     patch = frames[0][v - 3:v + 4, u - 3:u + 4].reshape(-1, 3).astype(int)
     assert any(LOOKS["red"](r, g, b) for b, g, r in patch), "no red cross at the target"
-    with Image.open(tmp_path / ov.PREVIEW_NAME) as im:
-        assert im.size == (ov.PREVIEW_WIDTH, ov.PREVIEW_WIDTH * H // W)
-        assert im.n_frames == len(range(0, n, round(30.0 / ov.PREVIEW_FPS)))
+    small = _read_all(tmp_path / ov.PREVIEW_NAME)
+    assert small[0].shape == (ov.PREVIEW_WIDTH * H // W, ov.PREVIEW_WIDTH, 3)
+    assert len(small) == len(range(0, n, round(30.0 / ov.PREVIEW_FPS)))
 
 
 def test_the_3d_views_data_survives_its_embedding():

@@ -89,7 +89,7 @@ def add_process(sub) -> None:
     pr.add_argument("--force", action="store_true", help="redo every step")
     pr.add_argument("--no-overlay", action="store_true", help="skip the overlay animation in the report")
     pr.add_argument("--overlay-video", action="store_true",
-                    help="also write the overlay at full resolution, every frame: OUT/overlay.mp4 (mp4v)")
+                    help="also write the overlay at full resolution, every frame: OUT/overlay_full.mp4 (H.264)")
     pr.add_argument("--markers", metavar="MAP.json",
                     help="track the video in this marker map (from 'wearable-gaze map') instead of the session's")
     pr.add_argument("--aois", metavar="aois.json",

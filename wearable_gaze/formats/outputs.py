@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import UserError
+from .aoi_tables import METRIC_CHECKS, METRIC_NUMBERS, TRANSITION_CHECKS, read_aoi_fixations
 from .fixations_table import FIXATION_CHECKS, FIXATION_COLUMNS
 from .gaze_export import GAZE_CHECKS, GAZE_COLUMNS
 from .jsonio import load_json
@@ -47,6 +48,8 @@ class OutputFile:
             'str': a text column, pandas' object or str dtype).
         optional_columns: a CSV's columns present only in some sessions (name -> dtype).
         checks: a CSV's values: the ``tables.Checks`` its writer applied, and its reader does.
+        read: a CSV whose columns depend on its contents (aoi_fixations.csv's ``p_NAME``): its
+            reader, which checks them, in place of ``checks``.
     """
 
     name: str
@@ -56,6 +59,7 @@ class OutputFile:
     columns: dict = field(default_factory=dict)
     optional_columns: dict = field(default_factory=dict)
     checks: Checks | None = None
+    read: object = None
 
 
 PROCESS_OUTPUTS = (
@@ -91,11 +95,21 @@ PROCESS_OUTPUTS = (
                checks=DEVICE_CHECKS),
     OutputFile("gaze.csv", "csv", "export: one row per eye sample", columns=GAZE_COLUMNS, checks=GAZE_CHECKS),
     OutputFile("targets.ply", "ply", "export: the targets, their 95 % ellipsoids and the head path, mm"),
+    OutputFile("aoi_fixations.csv", "csv", "aoi (--aois): each fixation's probability of each area",
+               read=read_aoi_fixations),
+    OutputFile("aoi_metrics.csv", "csv", "aoi (--aois): the per-area measures",
+               columns={"aoi": _S, "group": _S} | {k: _I if k in ("visits", "revisits", "fixations") else _F
+                                                   for k in METRIC_NUMBERS}, checks=METRIC_CHECKS),
+    OutputFile("aoi_transitions.csv", "csv", "aoi (--aois): transitions between areas",
+               columns={"from": _S, "to": _S, "count": _I, "weighted": _F}, checks=TRANSITION_CHECKS),
+    OutputFile("aoi_dwell.png", "png", "aoi (--aois): each area's dwell time"),
+    OutputFile("aoi_timeline.png", "png", "aoi (--aois): which area when"),
     OutputFile("report.html", "html", "report: the report (docs/processing.md)"),
     *(OutputFile(n, "png", "report: a plot") for n in ("plot_depth_vs_observations.png", "plot_density_slices.png",
-                                                         "plot_3d.png", "plot_top_view.png")),
-    OutputFile("overlay.webp", "webp", "report: the overlay video"),
-    OutputFile("overlay.mp4", "mp4", "report (--overlay-video): the overlay at full resolution, every frame"),
+                                                         "plot_3d.png", "plot_top_view.png",
+                                                         "plot_depth_over_time.png")),
+    OutputFile("overlay.mp4", "mp4", "report: the overlay video (H.264, the whole session at 10 fps, 640 px)"),
+    OutputFile("overlay_full.mp4", "mp4", "report (--overlay-video): the overlay at full resolution, every frame"),
     OutputFile("overlay_error.txt", "txt", "report: why the overlay could not be made"),
     OutputFile("summary.json", "json", "process: what ran, failed and was found", schema="summary"),
     OutputFile(".steps.json", "json", "process: the steps' cache fingerprints", schema="steps-state"),
@@ -128,6 +142,8 @@ def check_output(path) -> OutputFile:
         raise UserError(f"{path}: not a file 'wearable-gaze process' writes (docs/formats.md, Outputs of process)")
     if spec.kind == "json":
         load_json(path, spec.schema)
+    elif spec.read is not None:
+        spec.read(path)
     elif spec.kind == "csv":
         names = csv_header(path, spec.name, "run 'wearable-gaze process' again")
         want = list(spec.columns)

@@ -3,7 +3,8 @@
 
 Video frames are read as grey images (``grey_frames``, every k-th: ``sampled_grey_frames``; ``open_video``
 for a capture to step through) and written
-through ``open_video_writer`` (OpenCV's FFMPEG backend). The frame-timestamp CSV (columns
+through ``open_video_writer`` (OpenCV's FFMPEG backend: mp4v, MJPG, FFV1, which browsers do not
+play) or, for a browser, ``BrowserVideoWriter`` (H.264 in MP4 through PyAV). The frame-timestamp CSV (columns
 ``frame, t``; ``t`` in s on the session clock) has one reader, ``read_frame_times``, and one
 writer, ``write_frame_times``; a recorder that streams it writes ``FRAME_TIME_HEADER`` and one
 ``frame_time_line`` per frame, the same text.
@@ -139,6 +140,58 @@ def open_video_writer(path, codec: str, fps: float, size, is_color: bool = True,
         writer.release()
         raise UserError(refused or f"cannot write {codec} video {path}: OpenCV's FFMPEG backend refused it")
     return writer
+
+
+BROWSER_CODEC = "libx264"
+"""The browser video's encoder: H.264 (High profile, yuv420p), which every browser plays in MP4."""
+BROWSER_CRF = 28
+"""... its constant quality (x264's CRF: 23 is its default, higher is smaller; 28 keeps drawn
+lines and labels sharp at a few hundred kB a minute at 640 px)."""
+
+
+class BrowserVideoWriter:
+    """An H.264 MP4 video that browsers play (``<video>``), written frame by frame through PyAV
+    (libx264, yuv420p, the index at the front: it starts playing before it is all loaded).
+
+    Args:
+        path: the file to write (.mp4).
+        fps: frames per second.
+        size: (width, height) of the frames given, px; odd sizes lose their last row or column
+            (yuv420p needs even ones).
+
+    Raises:
+        UserError: PyAV is missing or its FFmpeg has no H.264 encoder (the fix named).
+    """
+
+    def __init__(self, path, fps: float, size):
+        from fractions import Fraction  # noqa: PLC0415
+
+        try:
+            import av  # noqa: PLC0415
+        except ImportError:
+            raise UserError("the overlay video needs PyAV: pip install av") from None
+        if BROWSER_CODEC not in av.codecs_available:
+            raise UserError(f"PyAV's FFmpeg has no {BROWSER_CODEC} encoder: pip install --force-reinstall av "
+                            "(its wheels carry one)")
+        self._av = av
+        self.width, self.height = int(size[0]) // 2 * 2, int(size[1]) // 2 * 2
+        self.container = av.open(str(path), mode="w", format="mp4", options={"movflags": "+faststart"})
+        self.stream = self.container.add_stream(BROWSER_CODEC, rate=Fraction(float(fps)).limit_denominator(1001))
+        self.stream.width, self.stream.height, self.stream.pix_fmt = self.width, self.height, "yuv420p"
+        self.stream.options = {"crf": str(BROWSER_CRF), "preset": "veryfast"}
+        self.frames = 0
+
+    def write(self, frame_bgr: np.ndarray) -> None:
+        """Append one frame, (H, W, 3) uint8 BGR."""
+        f = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(frame_bgr[:self.height, :self.width]),
+                                             format="bgr24")
+        self.container.mux(self.stream.encode(f))
+        self.frames += 1
+
+    def close(self) -> None:
+        """Flush the encoder and close the file."""
+        self.container.mux(self.stream.encode(None))
+        self.container.close()
 
 
 def frame_time_line(frame: int, t: float) -> str:

@@ -270,7 +270,12 @@ def _own_covariance(fixations: dict, i: int) -> np.ndarray:
     return np.array([[c[0], c[1], c[2]], [c[1], c[3], c[4]], [c[2], c[4], c[5]]])
 
 
-AOI_OUTPUTS = ("aoi_fixations.csv", "aoi_metrics.csv", "aoi_transitions.csv", "aoi_dwell.png")
+AOI_PLOTS = {"aoi_dwell.png": "Dwell time per area of interest: over the fixations assigned to it, and weighted "
+                              "by each fixation's probability of it (docs/aois.md)",
+             "aoi_timeline.png": "Which area of interest when: each fixation in the row of each area it may lie in, "
+                                 "as dark as its probability of it; outlined where it is assigned"}
+"""The AOI step's plots, with the captions the report gives them."""
+AOI_OUTPUTS = ("aoi_fixations.csv", "aoi_metrics.csv", "aoi_transitions.csv", *AOI_PLOTS)
 """What ``aoi_folder`` writes."""
 
 
@@ -334,6 +339,7 @@ def aoi_folder(processed, aois_path, out=None, markers=None, conf: AoiConfig = A
     write_aoi_metrics(out / "aoi_metrics.csv", res.metrics)
     write_aoi_transitions(out / "aoi_transitions.csv", res.transitions)
     plot_dwell(res.metrics, out / "aoi_dwell.png")
+    plot_timeline(res, fixations, out / "aoi_timeline.png")
     return res
 
 
@@ -352,6 +358,30 @@ def plot_dwell(metrics: list[dict], path: Path) -> None:
     ax.set_xticks(x, names, rotation=30, ha="right")
     ax.set_ylabel("s")
     ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_timeline(res: AoiResult, fixations: tuple, path: Path) -> None:
+    """Rows of areas (and none) against session time: each fixation drawn in each row as dark as
+    its probability of that area, outlined in the row it is assigned to."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    rows = [*res.names, NONE]
+    fig, ax = plt.subplots(figsize=(9.0, 0.45 * len(rows) + 1.2))
+    for f, p, a in zip(fixations, res.probabilities, res.assigned, strict=True):
+        for j in range(len(rows)):
+            if np.isfinite(p[j]) and p[j] > 0.01:
+                ax.barh(j, f.duration_s, left=f.start_s, height=0.7, color="#0067a5", alpha=float(p[j]), lw=0)
+        j = a if a >= 0 else len(rows) - 1
+        ax.barh(j, f.duration_s, left=f.start_s, height=0.7, fill=False, edgecolor="black", lw=0.8)
+    ax.set_yticks(range(len(rows)), rows)
+    ax.invert_yaxis()
+    ax.set_xlabel("session time (s)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -2,9 +2,10 @@
 frame, the markers detected in it, each eye's gaze point (eq. 1-2) and the target being looked at
 (its estimate projected at the frame's head pose, with its distance).
 
-Two outputs: ``overlay.webp``, a small animated preview that any browser plays (``PREVIEW_*``),
-and, on request (``process --overlay-video``), ``overlay.mp4``, every frame at full resolution
-(MPEG-4 Part 2, 'mp4v': OpenCV 5 writes no H.264; VLC or mpv play it, browsers do not).
+Two outputs, both H.264 in MP4 (``formats.video.BrowserVideoWriter``, PyAV: OpenCV 5's writer has
+no codec browsers play): ``overlay.mp4``, the whole session at ``PREVIEW_FPS`` and
+``PREVIEW_WIDTH`` px, which the report's video element plays, and, on request (``process
+--overlay-video``), ``overlay_full.mp4``, every frame at full resolution.
 
 What is drawn is what was seen: markers only where the detector found them in that frame (never
 projected from the map, which puts markers far outside the view on lines across the frame);
@@ -30,13 +31,12 @@ from tracking.markers import MarkerDetector
 
 from ..formats.atomic import atomic_path
 from ..formats.eye_samples import EyeSamples
-from ..formats.video import open_video, open_video_writer
+from ..formats.video import BrowserVideoWriter, open_video
 
-PREVIEW_NAME = "overlay.webp"
-VIDEO_NAME = "overlay.mp4"
+PREVIEW_NAME = "overlay.mp4"
+VIDEO_NAME = "overlay_full.mp4"
 PREVIEW_FPS = 10.0
 PREVIEW_WIDTH = 640          # px; the report shows it at this size
-PREVIEW_MAX_S = 60.0         # the preview's length, from the first posed frame
 MIN_DEPTH_MM = 100.0         # a point nearer the camera than this is not drawn
 EYE_TIME_S = 0.05            # the eye sample drawn on a frame is at most this far from its time
 TARGET_TIME_S = 0.15         # the target of the view line nearest the frame, if this near
@@ -244,14 +244,12 @@ def _pt(px) -> tuple[int, int]:
 
 def write_overlays(out: Path, inp: OverlayInputs, targets: OverlayTargets, t_p, frame_p, T_p, video: bool = False,
                    progress=None) -> tuple[str | None, str | None]:
-    """The preview (``PREVIEW_NAME``: ``PREVIEW_FPS``, ``PREVIEW_WIDTH`` px, the first
-    ``PREVIEW_MAX_S``) and, with ``video``, the full-resolution video (``VIDEO_NAME``, every
-    frame) in ``out``. ``t_p``, ``frame_p``, ``T_p``: poses.csv's times (N,) s, frame numbers
-    (N,) and T_world_from_cam (N, 4, 4) (a frame without a row is written undrawn to the video).
+    """The report's video (``PREVIEW_NAME``: the whole session at ``PREVIEW_FPS``, ``PREVIEW_WIDTH``
+    px) and, with ``video``, the full-resolution one (``VIDEO_NAME``, every frame) in ``out``.
+    ``t_p``, ``frame_p``, ``T_p``: poses.csv's times (N,) s, frame numbers (N,) and
+    T_world_from_cam (N, 4, 4) (a frame without a row is written undrawn to the full video).
     ``progress(done, total)``: called after each frame read. Returns the names written (None:
     not written)."""
-    from PIL import Image  # noqa: PLC0415  (Pillow comes with matplotlib)
-
     cap, fps, n_total = open_video(Path(inp.video), inp.camera.image_size)
     row = {int(f): k for k, f in enumerate(frame_p)}
     step = max(int(round(fps / PREVIEW_FPS)), 1)
@@ -259,41 +257,62 @@ def write_overlays(out: Path, inp: OverlayInputs, targets: OverlayTargets, t_p, 
     size = (PREVIEW_WIDTH, int(round(h * PREVIEW_WIDTH / w)))
     detector = MarkerDetector(inp.marker_map.dictionary) if inp.marker_map is not None else None
     r_max = field_radius(inp.camera)
-    t0 = float(t_p[0]) if len(t_p) else 0.0
-    frames, i = [], 0
-    name = VIDEO_NAME if video else None
-    with atomic_path(out / VIDEO_NAME) if video else contextlib.nullcontext() as tmp:
-        writer = open_video_writer(tmp, "mp4v", fps, (w, h)) if video else None
+    try:
+        _write_videos(out, cap, fps, row, step, size, (w, h), video,
+                      (inp, detector, targets, r_max, t_p, T_p), progress, n_total)
+    except _NoFrames:
+        return None, None
+    return PREVIEW_NAME, VIDEO_NAME if video else None
+
+
+def _write_videos(out, cap, fps, row, step, size, full_size, video, drawing, progress, n_total) -> None:
+    """Both videos, each written to a temporary name and moved into place when whole (none when no
+    frame had a pose: ``_NoFrames``)."""
+    with contextlib.ExitStack() as stack:
+        small = BrowserVideoWriter(stack.enter_context(atomic_path(out / PREVIEW_NAME)), fps / step, size)
+        full = BrowserVideoWriter(stack.enter_context(atomic_path(out / VIDEO_NAME)), fps, full_size) if video \
+            else None
         try:
-            while True:
-                k = row.get(i)
-                preview = k is not None and i % step == 0 and t_p[k] - t0 <= PREVIEW_MAX_S
-                if not video and not preview:
-                    if (k is not None and t_p[k] - t0 > PREVIEW_MAX_S) or not cap.grab():
-                        break
-                    i += 1
-                    continue
-                ok, frame = cap.read()
-                if not ok:
-                    break
-                if k is not None:
-                    found = detector.detect(to_grey(frame)) if detector is not None else []
-                    frame = draw_marks(frame, frame_marks(inp, found, targets, T_p[k], float(t_p[k]), r_max))
-                if writer is not None:
-                    writer.write(frame)
-                if preview:
-                    small = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
-                    frames.append(Image.fromarray(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)))
-                if progress:
-                    progress(i + 1, max(n_total, i + 1))
-                i += 1
+            shown = _write_frames(cap, row, step, (small, full, size), drawing, progress, n_total)
         finally:
-            if writer is not None:
-                writer.release()
             cap.release()
-    if not frames:
-        return None, name
-    with atomic_path(out / PREVIEW_NAME) as tmp:
-        frames[0].save(tmp, format="WEBP", save_all=True, append_images=frames[1:],
-                       duration=int(round(1000 * step / fps)), loop=0, method=0, quality=55)
-    return PREVIEW_NAME, name
+            small.close()
+            if full is not None:
+                full.close()
+        if not shown:
+            raise _NoFrames
+
+
+class _NoFrames(Exception):
+    """No frame of the video had a pose: nothing to show (the files are not kept)."""
+
+
+def _write_frames(cap, row: dict, step: int, writers, drawing, progress, n_total: int) -> int:
+    """Read the video once: every ``step``-th posed frame drawn into the small video, every frame
+    (drawn where posed) into the full one; the number of frames in the small one."""
+    small, full, size = writers
+    inp, detector, targets, r_max, t_p, T_p = drawing
+    i = shown = 0
+    while True:
+        k = row.get(i)
+        preview = k is not None and i % step == 0
+        if full is None and not preview:
+            if not cap.grab():
+                break
+            i += 1
+            continue
+        ok, frame = cap.read()
+        if not ok:
+            break
+        if k is not None:
+            found = detector.detect(to_grey(frame)) if detector is not None else []
+            frame = draw_marks(frame, frame_marks(inp, found, targets, T_p[k], float(t_p[k]), r_max))
+        if full is not None:
+            full.write(frame)
+        if preview:
+            small.write(cv2.resize(frame, size, interpolation=cv2.INTER_AREA))
+            shown += 1
+        if progress:
+            progress(i + 1, max(n_total, i + 1))
+        i += 1
+    return shown

@@ -54,7 +54,7 @@ from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
 from .process_options import applicable, check_map_options, report_truth, truth_frame
-from .report import OverlayInputs, load_truth, write_report
+from .report import OverlayInputs, load_truth, session_title, write_report
 from .segmentation import segment_view_lines
 from .steps import GOOD, OTHER_FILES, OUTPUTS, ProcessResult, Steps
 from .track import frame_times, track_video
@@ -77,7 +77,7 @@ class _Settings:
     person: Path | None = None
     build_map: tuple | None = None      # (marker side mm, dictionary) to build a map from the video
     sfm_map: Path | None = None         # a markerless map folder to localise the video's frames in
-    overlay_video: bool = False         # the report also writes the full-resolution overlay.mp4
+    overlay_video: bool = False         # the report also writes the full-resolution overlay_full.mp4
     map_kind: str = "session"           # the map tracked in: session, given, built, markerless
     aois: Path | None = None            # an AOI file (docs/aois.md): the AOI step runs
 
@@ -167,7 +167,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
             of the session's map if it has one (a note says so).
         sfm_map: a markerless map folder (``map --markerless``): the scene video's frames are
             localised in it (``tracking.localise``) instead of tracked by the session's markers.
-        overlay_video: the report also writes overlay.mp4, the overlay at full resolution.
+        overlay_video: the report also writes overlay_full.mp4, the overlay at full resolution.
         markers: a marker map (``map``) to track the video in, in place of the session's.
         rerun: also log the results to rerun (``pipeline.rerun_view``): an .rrd file, a viewer's
             address, or 'spawn'; ``rerun_frames``: with it, one scene frame in this many (0: none).
@@ -439,7 +439,7 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
     def do_report(cb):
         truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
         points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else None
-        write_report(out, f.root.name, overlay_inputs if cfg.overlay and cam_ok else None, cb,
+        write_report(out, session_title(f.root), overlay_inputs if cfg.overlay and cam_ok else None, cb,
                      _report_notes(f, cfg) + truth_notes, truth, vals["marker_map"] if has_map else None,
                      cfg.overlay_video, points)
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}

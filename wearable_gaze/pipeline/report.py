@@ -31,8 +31,19 @@ from ..formats.targets import (
 from ..formats.truth import read_truth_targets
 from ..formats.viewlines import read_viewlines_csv
 from . import report_plots, view3d
-from .overlay import PREVIEW_NAME, PREVIEW_WIDTH, VIDEO_NAME, OverlayInputs, OverlayTargets, caption, write_overlays
+from .aoi import AOI_PLOTS
+from .overlay import (
+    PREVIEW_FPS,
+    PREVIEW_NAME,
+    PREVIEW_WIDTH,
+    VIDEO_NAME,
+    OverlayInputs,
+    OverlayTargets,
+    caption,
+    write_overlays,
+)
 from .report_plots import _plt, _save  # noqa: F401  (mapping.py's map plot uses them)
+from .report_time import plot_depth_over_time
 from .truth_match import match_positions
 from .types import Target
 
@@ -45,6 +56,12 @@ COLOURS = report_plots.COLOURS
 K95 = float(np.sqrt(chi2.ppf(0.95, 3)))       # the 95 % ellipsoid's semi-axes over the standard deviations
 
 __all__ = ["OverlayInputs", "ReportTruth", "write_report", "load_truth", "REPORT_FILES", "PLOTS"]
+
+
+def session_title(root: Path) -> str:
+    """The report's name of a session: its folder with its parent's ('study/P01', 'demo-.../session'),
+    as a folder named 'session' or 's1' alone names nothing."""
+    return "/".join(Path(root).resolve().parts[-2:])
 
 
 def colour(index: int) -> str:
@@ -207,14 +224,15 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
     earlier steps there. ``title``: the session's name. ``overlay``: None (no overlay),
     or a function returning its ``OverlayInputs`` (called here: a failure to load them, like any
     failure of the overlay, is written to overlay_error.txt and the report made without it);
-    ``overlay_video``: also the full-resolution overlay.mp4. ``notes``: sentences the reader
+    ``overlay_video``: also the full-resolution overlay_full.mp4. ``notes``: sentences the reader
     must see first (where the head poses came from, ...). ``truth``: a simulated session's
     truth, shown beside every estimate. ``marker_map``: the room's markers for the 3D view;
     ``room_points_mm``: (P, 3) its points (a markerless map's, world mm), or None."""
     out = Path(out)
     t_p, frame_p, T_p, _ = read_poses_csv(out / "poses.csv")
     d = report_data(out, T_p, truth)
-    images = report_plots.write_plots(d, out, colour, truth)
+    images = report_plots.write_plots(d, out, colour, truth) + [plot_depth_over_time(d, out, colour)]
+    images += [(n, c) for n, c in AOI_PLOTS.items() if (out / n).is_file()]
     if progress:
         progress(3, 5)
     names = (None, None)
@@ -350,10 +368,10 @@ def _html(out: Path, name: str, d: ReportData, images, names, notes, device_tabl
     imgs = "".join(f'<figure><img src="{html.escape(n)}" alt="{html.escape(c)}"><figcaption>{html.escape(c)}'
                    f"</figcaption></figure>" for n, c in images)
     preview, video = names
-    link = (f'<p>Full resolution, every frame: <a href="{video}">{video}</a> (MPEG-4 Part 2: plays in VLC or mpv, '
-            "not in a browser).</p>" if video else "")
-    overlay = (f'<h2>Overlay</h2><img src="{preview}" alt="overlay video" width="{PREVIEW_WIDTH}"><p>{caption()} '
-               "Animated preview, the first minute.</p>" + link if preview else "<p>No overlay video.</p>" + link)
+    link = f'<p>Full resolution, every frame: <a href="{video}">{video}</a> (H.264).</p>' if video else ""
+    overlay = (f'<h2>Overlay</h2><video id="overlay" src="{preview}" controls muted playsinline preload="auto" '
+               f'width="{PREVIEW_WIDTH}"></video><p>{caption()} The whole session, {PREVIEW_FPS:g} frames a second '
+               "(H.264).</p>" + link if preview else "<p>No overlay video.</p>" + link)
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>wearable-gaze report: {html.escape(str(name))}</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em}}img{{max-width:100%}}

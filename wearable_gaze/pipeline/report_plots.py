@@ -12,8 +12,14 @@ from estimator import angular_log_likelihood
 
 from ..formats.atomic import atomic_path
 
-PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png")
-COLOURS = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"]
+PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png",
+         "plot_depth_over_time.png")
+COLOURS = ["#be0032", "#0067a5", "#008856", "#f38400", "#875692", "#882d17", "#e68fac", "#2b3d26", "#f3c300",
+           "#a1caf1", "#8db600", "#604e97", "#f99379", "#654522", "#dcd300", "#b3446c", "#e25822", "#c2b280",
+           "#848482", "#f6a600"]
+"""The targets' colours: Kelly's 20 colours of maximum contrast (K. L. Kelly, "Twenty-two colors of
+maximum contrast", Color Engineering 3(6), 1965; without his white and black), the strongest first;
+distinct for 20 targets, repeated after."""
 TRUTH_STYLE = {"marker": "s", "mfc": "none", "mew": 1.5, "ms": 8, "ls": "none"}
 
 
@@ -31,7 +37,8 @@ def _save(fig, path: Path):
 
 
 def write_plots(d, out: Path, colour, truth) -> list:
-    """Write ``PLOTS`` into ``out``; [(file name, caption)]. ``colour(index)``: a target's colour."""
+    """Write the first four ``PLOTS`` into ``out``; [(file name, caption)]. ``colour(index)``: a
+    target's colour."""
     return [_plot_depth(d, out, colour), _plot_density(d, out), _plot_3d(d, out, colour),
             _plot_top(d, out, colour)]
 
@@ -50,44 +57,68 @@ def _empty(ax, text: str) -> None:
     ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9, color="#555555")
 
 
+PANELS_PER_ROW = 4
+"""The running-estimate and likelihood plots draw one small panel per target, this many a row."""
+MAX_PANELS = 24
+"""... and at most this many (the first, by number); the caption says when some are left out."""
+
+
+def _grid(plt, n: int, w: float, h: float):
+    """A figure of ``n`` panels (at least one), ``PANELS_PER_ROW`` a row; (fig, flat axes)."""
+    cols = min(max(n, 1), PANELS_PER_ROW)
+    rows = -(-max(n, 1) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(w * cols, h * rows), squeeze=False, layout="constrained")
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(n == 0 and ax is axes.ravel()[0])
+    return fig, axes.ravel()
+
+
+def _left_out(shown: int, total: int, what: str) -> str:
+    return f" ({shown} of {total} {what} shown: the first by number)" if shown < total else ""
+
+
 def _plot_depth(d, out: Path, colour) -> tuple[str, str]:
-    """Distance from the head against the view lines fed in, per fixation, in its target's
-    colour (95 % band, clipped at 0); the true distance dashed."""
+    """Distance from the head against the view lines fed in: one panel per target (its fixations,
+    in its colour, 95 % band clipped at 0; the true distance dashed), then one for the fixations
+    merged into no target."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2), layout="constrained")
-    target_of = {f: tg for tg in d.targets for f in tg.fixations}
-    top, labelled = 0.0, set()
-    for k in np.unique(d.est["segment"]).astype(int):
-        sel = d.est["segment"] == k
-        tg = target_of.get(k)
-        c = colour(tg.index) if tg is not None else "#888888"
-        mine = d.flabels == k
-        eye = d.orig[mine].mean(axis=0) if mine.any() else d.centre
-        P = np.column_stack([d.est["x"][sel], d.est["y"][sel], d.est["z"][sel]])
-        depth = np.linalg.norm(P - eye, axis=1) / 1000
-        n = np.searchsorted(np.sort(d.samples.t_s[mine]), d.est["t"][sel], side="right")
-        name = f"target {tg.index}" if tg is not None else f"fixation {k} (no target)"
-        ax.plot(n, depth, "-o", ms=2.5, color=c, label=None if name in labelled else name)
-        labelled.add(name)
-        r = d.est["radius95_mm"][sel] / 1000
-        ax.fill_between(n, np.maximum(depth - r, 0), depth + r, color=c, alpha=0.12)
-        top = max(top, float(depth[-1]))
-        X = _truth_point(d, tg) if tg is not None else None
-        if X is not None:
-            true = np.linalg.norm(X - eye) / 1000
-            ax.plot([n[0], n[-1]], [true, true], "--", color=c, lw=1)
-            top = max(top, true)
-    ax.set_ylim(0, max(2.0 * top, 0.5))
-    ax.set_xlabel("view lines of the fixation fed in (binocular samples)")
-    ax.set_ylabel("distance from the head (m)")
-    ax.set_title("Running estimate per fixation, in its target's colour (band: 95 % radius"
-                 + ("; dashed: the truth)" if d.truth else ")"), fontsize=10)
-    if len(d.est["t"]):
-        ax.legend(fontsize=8, ncol=2)
-    else:
-        _empty(ax, "no running estimate (a moving target's fixation has none)")
+    groups = [(f"target {tg.index}", colour(tg.index), tg, list(tg.fixations)) for tg in d.targets]
+    merged = {f for tg in d.targets for f in tg.fixations}
+    alone = [int(k) for k in np.unique(d.est["segment"]).astype(int) if int(k) not in merged]
+    if alone:
+        groups.append(("fixations in no target", "#888888", None, alone))
+    shown = groups[:MAX_PANELS]
+    fig, axes = _grid(plt, len(shown), 2.6, 2.1)
+    for ax, (name, c, tg, fixations) in zip(axes, shown, strict=False):
+        top = 0.0
+        for k in fixations:
+            sel = d.est["segment"] == k
+            if not sel.any():
+                continue
+            mine = d.flabels == k
+            eye = d.orig[mine].mean(axis=0) if mine.any() else d.centre
+            P = np.column_stack([d.est["x"][sel], d.est["y"][sel], d.est["z"][sel]])
+            depth = np.linalg.norm(P - eye, axis=1) / 1000
+            n = np.searchsorted(np.sort(d.samples.t_s[mine]), d.est["t"][sel], side="right")
+            ax.plot(n, depth, "-", lw=1.2, color=c)
+            r = d.est["radius95_mm"][sel] / 1000
+            ax.fill_between(n, np.maximum(depth - r, 0), depth + r, color=c, alpha=0.15, lw=0)
+            top = max(top, float(depth[-1]))
+            X = _truth_point(d, tg) if tg is not None else None
+            if X is not None:
+                true = np.linalg.norm(X - eye) / 1000
+                ax.plot([n[0], n[-1]], [true, true], "--", color="black", lw=0.8)
+                top = max(top, true)
+        if top == 0.0:
+            _empty(ax, "no running estimate\n(a moving target)")
+        ax.set_ylim(0, max(2.0 * top, 0.5))
+        ax.set_title(name, fontsize=9, color=c)
+        ax.tick_params(labelsize=7)
+    fig.supxlabel("view lines of the fixation fed in (binocular samples)", fontsize=9)
+    fig.supylabel("distance from the head (m)", fontsize=9)
     _save(fig, out / PLOTS[0])
-    return (PLOTS[0], "Depth against the number of view lines fed in, each fixation in its target's colour")
+    return (PLOTS[0], "Running estimate per fixation, one panel per target in its colour (band: 95 % radius"
+            + ("; dashed: the truth" if d.truth else "") + ")" + _left_out(len(shown), len(groups), "panels"))
 
 
 def _slice_axes(d, tg) -> tuple[np.ndarray, np.ndarray]:
@@ -102,14 +133,14 @@ def _slice_axes(d, tg) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _plot_density(d, out: Path) -> tuple[str, str]:
-    """Log-likelihood slices through each of the first four static targets, in the plane of its
-    view lines (a moving one's lines meet no one point); the truth as a white square."""
+    """Log-likelihood slices through each static target (up to ``MAX_PANELS``), in the plane of
+    its view lines (a moving one's lines meet no one point); the truth as a white square."""
     plt = _plt()
-    static = [tg for tg in d.targets if not tg.moving and np.all(np.isfinite(tg.position_mm))][:4]
-    n_t = max(len(static), 1)
-    fig, axes = plt.subplots(1, n_t, figsize=(3.4 * n_t, 3.6), squeeze=False, layout="constrained")
+    every = [tg for tg in d.targets if not tg.moving and np.all(np.isfinite(tg.position_mm))]
+    static = every[:MAX_PANELS]
+    fig, axes = _grid(plt, len(static), 2.9, 3.0)
     for i, tg in enumerate(static):
-        ax = axes[0, i]
+        ax = axes[i]
         X = tg.position_mm
         h, u = _slice_axes(d, tg)
         lines = d.samples.select(np.flatnonzero(d.tlabels == tg.index)).lines()
@@ -131,13 +162,14 @@ def _plot_density(d, out: Path) -> tuple[str, str]:
             ax.set_ylim(-along, along)
         ax.set_title(f"target {tg.index}", fontsize=9)
         ax.set_xlabel("across the view lines (mm)", fontsize=8)
-        ax.set_ylabel("along the view lines (mm)" if i == 0 else "", fontsize=8)
+        ax.set_ylabel("along the view lines (mm)" if i % PANELS_PER_ROW == 0 else "", fontsize=8)
         ax.tick_params(labelsize=7)
     if not static:
-        _empty(axes[0, 0], "no static target")
+        _empty(axes[0], "no static target")
     _save(fig, out / PLOTS[1])
     return (PLOTS[1], "Log-likelihood of the gazed point (to -30) in the plane through each target along its view "
-            "lines: narrow across them, long along them" + (" (white square: the truth)" if d.truth else ""))
+            "lines: narrow across them, long along them" + (" (white square: the truth)" if d.truth else "")
+            + _left_out(len(static), len(every), "static targets"))
 
 
 def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
