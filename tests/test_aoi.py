@@ -224,6 +224,11 @@ def test_process_and_batch_with_aois(tmp_path, capsys):
     assert len(fx["fixation_id"]) == len(read_fixations_csv(tmp_path / "p" / "fixations.csv")["fixation_id"]) > 0
     summary = json.loads((tmp_path / "p" / "summary.json").read_text())
     assert "aoi" not in summary["failed_steps"]
+    from wearable_gaze.formats.outputs import check_output
+
+    for f in sorted((tmp_path / "p").iterdir()):
+        if f.suffix in (".csv", ".json"):
+            check_output(f)                     # the AOI tables as their writers checked them
     assert main(["process", str(session), "-o", str(tmp_path / "p"), "--no-overlay", "--aois", str(aois)]) == 0
     assert "aoi" in json.loads((tmp_path / "p" / "summary.json").read_text())["steps_skipped"]
     capsys.readouterr()

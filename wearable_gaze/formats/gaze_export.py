@@ -11,8 +11,9 @@ Columns (``GAZE_COLUMNS``: name -> the dtype pandas reads it as, with no options
 - ``gaze_x_px, gaze_y_px`` (float64): the 2D gaze in the scene video, pixels (distorted, as in the
   video; OpenCV's origin, the top-left pixel's centre at 0, 0): the cyclopean view line (from
   the mean of the valid eyes' centres along the mean of their directions, head frame) projected
-  at ``gaze_depth_mm`` (float64) along it: the running 3D estimate's depth on that line where
-  there is one, else ``NOMINAL_DEPTH_MM``. Empty without a valid eye or a camera calibration.
+  at the running 3D estimate's depth on that line where there is one (``gaze_depth_mm``, float64;
+  empty where there is none), else at ``NOMINAL_DEPTH_MM``. Empty without a valid eye or a camera
+  calibration.
 - ``left_origin_x_mm .. _z_mm``, ``left_dir_x .. _z`` (float64) and the same for ``right``:
   each eye's view line in the world frame (the marker map's; centre mm, unit direction), empty
   for an invalid eye or a sample without a head pose.

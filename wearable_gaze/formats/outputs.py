@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import UserError
-from .aoi_tables import METRIC_CHECKS, METRIC_NUMBERS, TRANSITION_CHECKS, read_aoi_fixations
+from .aoi_tables import FIXATION_NUMBERS, METRIC_CHECKS, METRIC_NUMBERS, TRANSITION_CHECKS, read_aoi_fixations
 from .fixations_table import FIXATION_CHECKS, FIXATION_COLUMNS
 from .gaze_export import GAZE_CHECKS, GAZE_COLUMNS
 from .jsonio import load_json
@@ -96,6 +96,7 @@ PROCESS_OUTPUTS = (
     OutputFile("gaze.csv", "csv", "export: one row per eye sample", columns=GAZE_COLUMNS, checks=GAZE_CHECKS),
     OutputFile("targets.ply", "ply", "export: the targets, their 95 % ellipsoids and the head path, mm"),
     OutputFile("aoi_fixations.csv", "csv", "aoi (--aois): each fixation's probability of each area",
+               columns={k: _F if k.endswith("_s") else _I for k in FIXATION_NUMBERS} | {"aoi": _S},
                read=read_aoi_fixations),
     OutputFile("aoi_metrics.csv", "csv", "aoi (--aois): the per-area measures",
                columns={"aoi": _S, "group": _S} | {k: _I if k in ("visits", "revisits", "fixations") else _F

@@ -132,7 +132,8 @@ def _running(t: np.ndarray, fix: np.ndarray, running: dict) -> np.ndarray:
 
 def _gaze_px(head: BinocularSamples, T_wc: np.ndarray, est_world: np.ndarray, camera) -> dict:
     """The 2D gaze columns: the cyclopean view line (head frame) projected at the running
-    estimate's depth on it, or at ``NOMINAL_DEPTH_MM``; NaN without a valid eye or a camera."""
+    estimate's depth on it, or at ``NOMINAL_DEPTH_MM``; NaN without a valid eye or a camera. The
+    depth column holds the estimate's depth only (empty where there is none: no placeholder)."""
     n = len(head)
     valid = np.column_stack([head.left_valid, head.right_valid]).astype(float)
     w = np.where(valid.sum(1) > 0, valid.sum(1), np.nan)[:, None]
@@ -143,11 +144,10 @@ def _gaze_px(head: BinocularSamples, T_wc: np.ndarray, est_world: np.ndarray, ca
         T_cw = np.linalg.inv(np.where(np.isfinite(T_wc), T_wc, np.eye(4)))
         est_cam = transform_points(T_cw, np.nan_to_num(est_world))
         depth = np.einsum("ij,ij->i", est_cam - o, d)
-    depth = np.where(np.all(np.isfinite(est_world), axis=1) & np.isfinite(depth) & (depth > 0), depth,
-                     NOMINAL_DEPTH_MM)
-    depth = np.where(np.all(np.isfinite(d), axis=1), depth, np.nan)
+    have = np.all(np.isfinite(est_world), axis=1) & np.isfinite(depth) & (depth > 0)
+    depth = np.where(have & np.all(np.isfinite(d), axis=1), depth, np.nan)
     px = np.full((n, 2), np.nan)
-    p = o + depth[:, None] * d
+    p = o + np.where(have, depth, NOMINAL_DEPTH_MM)[:, None] * d
     front = np.all(np.isfinite(p), axis=1) & (np.nan_to_num(p[:, 2]) > 1.0)
     if camera is not None and front.any():
         px[front] = camera.project(p[front])
