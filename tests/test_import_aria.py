@@ -424,3 +424,27 @@ def test_real_sample_through_process_beats_the_devices_own_depth_where_the_head_
         assert abs(ml_depth - ref_depth) < 0.25 * ref_depth, (ml_depth, ref_depth)
         assert abs(ml_depth - ref_depth) < abs(dev_depth - ref_depth), (ml_depth, dev_depth, ref_depth)
     assert moved >= 1
+
+
+def test_real_sample_keeps_its_point_cloud_and_the_report_draws_it(sample, tmp_path):
+    """Issue 28: the import keeps MPS's well-placed semi-dense points (device_points.ply, our world
+    frame), and the report's 3D view draws them: they surround the walk."""
+    import json
+    import re
+
+    from wearable_gaze.formats.ply import read_ply
+    from wearable_gaze.pipeline.process import process_session
+
+    run(sample, tmp_path / "s")
+    pts = read_ply(tmp_path / "s" / "device_points.ply").vertices_mm
+    cloud = aria.read_point_cloud(sample)
+    assert 1000 < len(pts) <= min(len(cloud), aria.MAX_KEPT_POINTS)
+    assert np.all(np.isin(pts[:, 0].round(3), cloud[:, 0].round(3)))                 # the cloud's own points
+    process_session(tmp_path / "s", tmp_path / "out", overlay=False)
+    page = (tmp_path / "out" / "report.html").read_text()
+    scene = json.loads(re.search(r'<script type="application/json" id="view3d-data">(.*?)</script>', page,
+                                 re.S).group(1))
+    drawn = np.asarray(scene["points"], float)
+    head = np.asarray(scene["head"], float)
+    assert len(drawn) > 1000
+    assert np.all(np.abs(np.median(drawn, axis=0) - np.median(head, axis=0)) < 10000)   # around the walk

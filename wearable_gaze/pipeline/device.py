@@ -6,6 +6,7 @@ is set beside the device's own 3D gaze over the same samples (``device_compariso
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
@@ -16,7 +17,9 @@ from tracking.timeline import interpolate_poses, nearest_in_time
 
 from ..errors import UserError
 from ..formats.eye_rays import read_device_gaze
+from ..formats.ply import read_ply
 from ..formats.poses import read_poses_csv, write_poses_csv
+from ..formats.session import MANIFEST
 from ..formats.targets import write_device_comparison
 from .types import Poses
 
@@ -91,3 +94,13 @@ def surface_reference(points_mm, device_gaze: Path, poses: Poses, t) -> tuple[np
     depth = first_surface(points_mm, np.nan_to_num(origin), np.where(np.isfinite(d_world), d_world, 0.0))
     depth[~(ok & np.all(np.isfinite(d_world), axis=1))] = np.nan
     return origin + depth[:, None] * d_world, origin
+
+
+def device_points(root: Path) -> np.ndarray | None:
+    """An imported session's device map points (``device_points.ply``, Aria's SLAM points):
+    (P, 3) world frame, mm; None when it has none."""
+    manifest = json.loads((Path(root) / MANIFEST).read_text(encoding="utf-8"))
+    rel = manifest.get("files", {}).get("device_points")
+    if rel is None or not (Path(root) / rel).is_file():
+        return None
+    return read_ply(Path(root) / rel).vertices_mm

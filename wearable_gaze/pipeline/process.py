@@ -49,7 +49,7 @@ from .calibrate import (
     read_eye_recordings,
     view_lines,
 )
-from .device import POSE_NOTES, device_comparison, device_poses, still_head_poses
+from .device import POSE_NOTES, device_comparison, device_points, device_poses, still_head_poses
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
@@ -438,7 +438,7 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
 
     def do_report(cb):
         truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
-        points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else None
+        points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else device_points(f.root)
         write_report(out, session_title(f.root), overlay_inputs if cfg.overlay and cam_ok else None, cb,
                      _report_notes(f, cfg) + truth_notes, truth, vals["marker_map"] if has_map else None,
                      cfg.overlay_video, points)

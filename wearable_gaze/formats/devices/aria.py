@@ -261,6 +261,22 @@ def read_point_cloud(src: Path, max_dist_std_m: float = 0.02) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
+MAX_KEPT_POINTS = 50_000
+"""The most semi-dense points kept in the session for the report's 3D view (evenly thinned)."""
+
+
+def _keep_points(src: Path, imp: SessionImport) -> None:
+    """MPS's point cloud, where the folder has one (``read_point_cloud``'s well-placed points,
+    thinned to ``MAX_KEPT_POINTS``), kept as the session's device points."""
+    if not any((src / n).is_file() for n in POINTS_NAMES):
+        return
+    pts = read_point_cloud(src)
+    if len(pts) > MAX_KEPT_POINTS:
+        pts = pts[np.linspace(0, len(pts) - 1, MAX_KEPT_POINTS).astype(int)]
+    imp.add_device_points(pts)
+    imp.note(f"the SLAM point cloud kept for the 3D view: {len(pts)} points with dist_std <= 20 mm")
+
+
 def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progress=None) -> None:
     """Stream an Aria gen1 MPS folder into ``imp`` (see the module docstring); ``progress(bytes,
     total)`` follows the trajectory file."""
@@ -299,6 +315,7 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
         imp.note(f"{trajectory.n_low_quality} trajectory rows have quality_score < 1 (kept: MPS gives no threshold)")
     if state["capped"]:
         imp.note(f"{state['capped']} samples have depth_m at MPS's {DEPTH_CAP_M:g} m cap (censored, not a measurement)")
+    _keep_points(src, imp)
     t0 = state["t0_us"] if state["t0_us"] is not None else info["t_first_us"]
     imp.finish(info["rate_hz"], t0 / 1e6, "device", _frames(trajectory.graph_uid),
                eye_labels={"swapped": bool(swapped), "rows_diverging_as_labelled": info["diverging"],

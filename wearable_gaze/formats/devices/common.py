@@ -168,6 +168,16 @@ class SessionImport:
         shutil.copyfile(path, self.out / "device" / path.name)
         self.files[key] = f"device/{path.name}"
 
+    def add_device_points(self, points_mm) -> None:
+        """The device's own map of the room (Aria's semi-dense SLAM points): (P, 3) world frame,
+        mm -> ``device_points.ply`` (vertices only), drawn in the report's 3D view."""
+        from ..ply import PlyMesh, write_ply  # noqa: PLC0415
+
+        pts = np.asarray(points_mm, float).reshape(-1, 3)
+        write_ply(self.out / "device_points.ply", PlyMesh(pts, np.full((len(pts), 3), 128, np.uint8),
+                                                          comments=["the device's map points (its SLAM)"]))
+        self.files["device_points"] = "device_points.ply"
+
     def add_device_events(self, t, rows) -> None:
         """The device's own events (sync-port pulses): t (n,) s on the session clock, in order,
         and per event (type, direction, value) -> ``device_events.csv``."""
