@@ -194,3 +194,23 @@ def test_device_url_and_an_absent_device_are_one_line():
     with pytest.raises(UserError, match="did not answer"):
         open_link("pupil-core://127.0.0.1:9")
     assert PupilCoreLink("h", 1).where == "pupil-core://h:1"
+
+
+@pytest.mark.parametrize(("extra", "says"), [
+    (["--device", "neon://127.0.0.1:8080"], "expected pupil-core://HOST:PORT"),
+    (["--device", "pupil-core://127.0.0.1:9"], "did not answer"),
+    (["--device", "pupil-core://127.0.0.1:9", "--eyes", "eyes.json"], "drop --eyes"),
+    (["--serial", "socket://127.0.0.1:9"], "--serial needs --camera and --eyes"),
+])
+def test_live_device_options_are_checked_in_one_line(tmp_path, capsys, extra, says):
+    from wearable_gaze.cli import main  # noqa: PLC0415
+    from wearable_gaze.formats.camera import camera_dict, write_camera  # noqa: PLC0415
+    from wearable_gaze.formats.markermap import marker_map_dict, write_marker_map  # noqa: PLC0415
+
+    K = np.array([[300.0, 0, 32], [0, 300, 24], [0, 0, 1]])
+    write_camera(tmp_path / "camera.json", camera_dict(K, np.zeros(5), (W, H)))
+    write_marker_map(tmp_path / "map.json", marker_map_dict("DICT_4X4_50", 100.0, {0: np.eye(4)}))
+    code = main(["live", *extra, "--camera-calib", str(tmp_path / "camera.json"), "--markers",
+                 str(tmp_path / "map.json"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and says in err[0], err
