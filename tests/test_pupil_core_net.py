@@ -214,3 +214,22 @@ def test_live_device_options_are_checked_in_one_line(tmp_path, capsys, extra, sa
                  str(tmp_path / "map.json"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and says in err[0], err
+
+
+def test_emulate_as_pupil_core_refuses_a_session_without_eye_rays_in_one_line(tmp_path, capsys):
+    import json  # noqa: PLC0415
+
+    from wearable_gaze.cli import main  # noqa: PLC0415
+
+    s = _stream(tmp_path)                                # writes tmp_path/scene.avi
+    (tmp_path / "scene_timestamps.csv").write_text("frame,t\n" + "".join(f"{i},{t:.6f}\n"
+                                                                         for i, t in enumerate(s.frame_times)))
+    (tmp_path / "eye.csv").write_text("t,counter,left_x,left_y,right_x,right_y,left_valid,right_valid\n")
+    (tmp_path / "session.json").write_text(json.dumps({
+        "format": "wearable-gaze-session", "version": 1, "has_recording": True,
+        "files": {"scene_video": "scene.avi", "scene_timestamps": "scene_timestamps.csv", "eye_samples": "eye.csv"}}))
+    assert main(["emulate", str(tmp_path), "--as", "pupil-core", "--listen", "127.0.0.1:0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no eye rays (eye_rays.csv) and not a simulated session" in err[0], err
+    assert main(["emulate", str(tmp_path), "--as", "pupil-core", "--pty"]) == 2
+    assert "drop --pty" in capsys.readouterr().err
