@@ -233,3 +233,33 @@ def test_emulate_as_pupil_core_refuses_a_session_without_eye_rays_in_one_line(tm
     assert len(err) == 1 and "no eye rays (eye_rays.csv) and not a simulated session" in err[0], err
     assert main(["emulate", str(tmp_path), "--as", "pupil-core", "--pty"]) == 2
     assert "drop --pty" in capsys.readouterr().err
+
+
+def test_a_device_clock_set_mid_session_is_synced_again(tmp_path, caplog):
+    """Pupil time set back by 5000 s mid-stream (another program's ``T``): the clock is synced
+    again and the session times run on at the sample rate (without it they would all be stamped
+    a microsecond after the last one before the jump)."""
+    emu = PupilCoreEmulator(_stream(tmp_path, n=400))                  # 2 s at 200 Hz
+    link = open_link(emu.listen())
+    seen = []
+    reader = GazeReader(link, on_record=lambda t, rec: seen.append(t))
+    ctx = zmq.Context()
+    try:
+        with caplog.at_level(logging.WARNING, logger="wearable_gaze.live.pupil_core_in"):
+            reader.start()
+            time.sleep(0.8)
+            req = ctx.socket(zmq.REQ)
+            req.connect(f"tcp://127.0.0.1:{emu.port}")
+            assert _req(req, f"T {emu.pupil_time() - 5000.0}") == "Timesync successful."
+            emu.finished.wait(5)
+            reader.stop()
+            reader.join(2)
+    finally:
+        ctx.destroy(linger=0)
+        link.close()
+        emu.stop()
+    t = np.array(seen)
+    assert link.resyncs == 1 and len([r for r in caplog.records if "jumped by" in r.getMessage()]) == 1
+    assert len(t) > 300 and np.all(np.diff(t) > 0)
+    assert np.sum(np.diff(t) < 1e-3) <= 5                  # only messages in flight across the jump
+    assert t[-1] - t[0] == pytest.approx(399 / 200.0, abs=0.1)

@@ -51,6 +51,9 @@ log = logging.getLogger(__name__)
 STALL_S = 1.0            # a device silent this long is reconnected
 REQUEST_TIMEOUT_S = 0.5  # a Pupil Remote request unanswered this long has failed
 SYNC_ROUND_TRIPS = 20
+CLOCK_AHEAD_S = 0.05     # a message stamped this far in the local future, or ...
+CLOCK_BEHIND_S = 5.0     # ... this far in the past (beyond any transport delay): the device's clock was set
+RESYNC_EVERY_S = 1.0     # at most one clock sync a second for that
 
 
 class DeviceUnreachable(ConnectionError):
@@ -111,6 +114,8 @@ class PupilCoreLink:
         self.sync: ClockSync | None = None
         self.generation = 0
         self.t0 = time.monotonic()        # the session clock's origin
+        self.resyncs = 0                  # clock syncs after a jump of the device's clock
+        self._last_resync = -np.inf
 
     @property
     def where(self) -> str:
@@ -173,6 +178,26 @@ class PupilCoreLink:
             return True
         except DeviceUnreachable:
             return False
+
+    def resync(self) -> bool:
+        """Sync the clock again (the device's clock was set: Pupil Remote's ``T``, or another
+        program's time sync), at most once every ``RESYNC_EVERY_S``; False if not done."""
+        with self.lock:
+            if time.monotonic() - self._last_resync < RESYNC_EVERY_S:
+                return False
+            self._last_resync = time.monotonic()
+            try:
+                sync = self.time_sync()
+            except DeviceUnreachable:
+                return False
+            jump = self.sync.offset_s - sync.offset_s
+            self.sync = sync
+            if abs(jump) < CLOCK_AHEAD_S:          # no jump: the messages were late (a reader behind)
+                return False
+            log.warning("%s: Pupil time jumped by %+.3f s (the device's clock was set); clock synced again",
+                        self.where, jump)
+            self.resyncs += 1
+            return True
 
     def local_time(self, t_pupil: float) -> float:
         """``time.monotonic()`` at Pupil time ``t_pupil``, s."""
@@ -254,9 +279,14 @@ class _Subscriber(InputThread):
                 self._bad_run = True
 
     def _session_time(self, t_pupil: float) -> tuple[float, float]:
-        """(local time, session time) of a message stamped ``t_pupil``; session times kept
-        increasing (a re-synced clock may step back by its error)."""
+        """(local time, session time) of a message stamped ``t_pupil``; a stamp in the local
+        future or far in the past means the device's clock was set: the clock is synced again
+        (``PupilCoreLink.resync``). Session times are kept increasing (a re-synced clock may step
+        back by its error; messages in flight across a jump are stamped just after the last)."""
         local = self.link.local_time(t_pupil)
+        now = time.monotonic()
+        if not now - CLOCK_BEHIND_S <= local <= now + CLOCK_AHEAD_S and self.link.resync():
+            local = self.link.local_time(t_pupil)
         t_s = max(local - self.link.t0, self.last_t + 1e-6)
         self.last_t = t_s
         return local, t_s
