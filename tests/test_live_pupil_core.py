@@ -100,6 +100,9 @@ def test_the_recording_holds_every_sample_received_and_process_finds_the_same_ta
     t, rows = _recorded_rays(rec)
     assert np.all(np.diff(t) > 0) and man["n_eye_samples"] == len(rows)
     _assert_every_sample_from_the_first_kept(_sent_rays(emu), rows)
+    again = device_stream(rec)                       # a device recording plays again through the emulator
+    assert np.allclose(np.hstack([again.left, again.right]), rows, equal_nan=True)
+    assert len(again.frame_times) == man["n_frames"]
     res = process_session(rec, rec / "processed", report=False)
     live = {}
     for m in msgs:

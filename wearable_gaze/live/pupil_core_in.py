@@ -49,6 +49,7 @@ from .serial_in import SerialStats
 log = logging.getLogger(__name__)
 
 STALL_S = 1.0            # a device silent this long is reconnected
+RETRY_S = 0.25           # then Pupil Remote is asked again this often until it answers
 REQUEST_TIMEOUT_S = 0.5  # a Pupil Remote request unanswered this long has failed
 SYNC_ROUND_TRIPS = 20
 CLOCK_AHEAD_S = 0.05     # a message stamped this far in the local future, or ...
@@ -108,7 +109,7 @@ class PupilCoreLink:
     def __init__(self, host: str, port: int):
         self.host, self.port = host, port
         self.ctx = zmq.Context()
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()
         self.req = None
         self.sub_url: str | None = None
         self.sync: ClockSync | None = None
@@ -171,13 +172,14 @@ class PupilCoreLink:
     def reconnect(self, generation: int) -> bool:
         """A new handshake unless one has been done since ``generation``; False while Pupil
         Remote does not answer."""
-        if self.generation != generation:
-            return True
-        try:
-            self.handshake()
-            return True
-        except DeviceUnreachable:
-            return False
+        with self.lock:
+            if self.generation != generation:
+                return True
+            try:
+                self.handshake()
+                return True
+            except DeviceUnreachable:
+                return False
 
     def resync(self) -> bool:
         """Sync the clock again (the device's clock was set: Pupil Remote's ``T``, or another
@@ -250,7 +252,9 @@ class _Subscriber(InputThread):
                         outage_said = True
                     if self.link.reconnect(gen):
                         self._reconnected()
-                    last = time.monotonic()
+                        last = time.monotonic()
+                    else:
+                        last = time.monotonic() - STALL_S + RETRY_S
         finally:
             if sub is not None:
                 sub.close()
