@@ -162,7 +162,7 @@ def test_clock_sync_maps_pupil_time_to_the_local_clock(tmp_path):
     try:
         assert link.sync.offset_s == pytest.approx(12345.678, abs=link.sync.rtt_s + 1e-3)
         assert link.local_time(time.monotonic() - 12345.678) == pytest.approx(time.monotonic(), abs=0.01)
-        assert probe_frames(link)[0] == (W, H)
+        assert probe_frames(link)[0] == (W, H) and emu.frame_format == "bgr"
     finally:
         link.close()
         emu.stop()
@@ -188,7 +188,10 @@ def test_bad_gaze_messages_are_counted_with_one_log_line(tmp_path, caplog):
 
 
 def test_device_url_and_an_absent_device_are_one_line():
-    assert parse_device_url("pupil-core://10.0.0.2") == ("10.0.0.2", 50020)
+    assert parse_device_url("pupil-core://10.0.0.2") == ("10.0.0.2", 50020, "bgr")
+    assert parse_device_url("pupil-core://10.0.0.2:5?frames=jpeg") == ("10.0.0.2", 5, "jpeg")
+    with pytest.raises(UserError, match=r"optionally \?frames=jpeg"):
+        parse_device_url("pupil-core://10.0.0.2:5?frames=yuv")
     with pytest.raises(UserError, match="expected pupil-core://HOST:PORT"):
         parse_device_url("neon://10.0.0.2:8080")
     with pytest.raises(UserError, match="did not answer"):
@@ -263,3 +266,13 @@ def test_a_device_clock_set_mid_session_is_synced_again(tmp_path, caplog):
     assert len(t) > 300 and np.all(np.diff(t) > 0)
     assert np.sum(np.diff(t) < 1e-3) <= 5                  # only messages in flight across the jump
     assert t[-1] - t[0] == pytest.approx(399 / 200.0, abs=0.1)
+
+
+def test_jpeg_frames_on_request(tmp_path):
+    emu = PupilCoreEmulator(_stream(tmp_path))
+    link = open_link(emu.listen() + "?frames=jpeg")
+    try:
+        assert probe_frames(link)[0] == (W, H) and emu.frame_format == "jpeg"
+    finally:
+        link.close()
+        emu.stop()

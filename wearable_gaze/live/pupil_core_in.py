@@ -24,7 +24,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
-from urllib.parse import urlparse
+from urllib.parse import parse_qsl, urlparse
 
 import numpy as np
 import zmq
@@ -61,21 +61,25 @@ class DeviceUnreachable(ConnectionError):
     """Pupil Remote did not answer (the message says what was asked)."""
 
 
-def parse_device_url(url: str) -> tuple[str, int]:
-    """``pupil-core://HOST[:PORT]`` -> (host, port); the port defaults to Capture's 50020.
+def parse_device_url(url: str) -> tuple[str, int, str]:
+    """``pupil-core://HOST[:PORT][?frames=bgr|jpeg]`` -> (host, port, frame format); the port
+    defaults to Capture's 50020, the frames to raw BGR (JPEG: a tenth of the bytes, for a slow
+    network, at the cost of decoding them here).
 
     Raises:
-        UserError: another scheme, no host, a bad port.
+        UserError: another scheme, no host, a bad port, another query.
     """
     u = urlparse(url)
     try:
         port = u.port or DEFAULT_PORT
     except ValueError:
         port = None
-    if u.scheme != "pupil-core" or not u.hostname or port is None:
+    query = dict(parse_qsl(u.query, keep_blank_values=True))
+    fmt = query.pop("frames", "bgr")
+    if u.scheme != "pupil-core" or not u.hostname or port is None or query or fmt not in ("bgr", "jpeg"):
         raise UserError(f"--device {url}: expected pupil-core://HOST:PORT (Pupil Remote's address, shown in "
-                        f"Capture's Pupil Remote menu; port {DEFAULT_PORT} by default)")
-    return u.hostname, port
+                        f"Capture's Pupil Remote menu; port {DEFAULT_PORT} by default), optionally ?frames=jpeg")
+    return u.hostname, port, fmt
 
 
 class RayEyes:
@@ -103,11 +107,11 @@ class PupilCoreLink:
     at most once per stall (``generation`` counts the handshakes done).
 
     Args:
-        host, port: Pupil Remote's address.
+        host, port: Pupil Remote's address; frame_format: the Frame Publisher's ('bgr', 'jpeg').
     """
 
-    def __init__(self, host: str, port: int):
-        self.host, self.port = host, port
+    def __init__(self, host: str, port: int, frame_format: str = "bgr"):
+        self.host, self.port, self.frame_format = host, port, frame_format
         self.ctx = zmq.Context()
         self.lock = threading.RLock()
         self.req = None
@@ -155,7 +159,7 @@ class PupilCoreLink:
         return best
 
     def handshake(self) -> None:
-        """Ask for the SUB port, sync the clock, start the Frame Publisher (BGR).
+        """Ask for the SUB port, sync the clock, start the Frame Publisher (``frame_format``).
 
         Raises:
             DeviceUnreachable: Pupil Remote did not answer, or answered nonsense.
@@ -165,7 +169,7 @@ class PupilCoreLink:
             if not sub_port.isdigit():
                 raise DeviceUnreachable(f"Pupil Remote answered SUB_PORT with {sub_port[:40]!r}, not a port")
             sync = self.time_sync()
-            self.request(start_frame_publisher("bgr"))
+            self.request(start_frame_publisher(self.frame_format))
             self.sub_url, self.sync = f"tcp://{self.host}:{sub_port}", sync
             self.generation += 1
 
@@ -415,8 +419,7 @@ def open_link(url: str) -> PupilCoreLink:
     Raises:
         UserError: a bad URL, or Pupil Remote does not answer.
     """
-    host, port = parse_device_url(url)
-    link = PupilCoreLink(host, port)
+    link = PupilCoreLink(*parse_device_url(url))
     try:
         link.handshake()
     except DeviceUnreachable as exc:
