@@ -302,7 +302,7 @@ class _Subscriber(InputThread):
 
 class GazeReader(_Subscriber):
     """Pupil Core's 3D gaze as the live loop's eye reader: ``(sample_local_s, t_s, RaySample)``
-    on ``queue``; ``on_record(sample_local_s, t_s, record)`` sees every intact sample first, in
+    on ``queue``; ``on_record(t_s, record)`` sees every intact sample first, in
     this thread (the recorder)."""
 
     topic = GAZE_TOPIC
