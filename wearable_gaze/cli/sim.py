@@ -7,6 +7,8 @@ import sys
 from ..errors import UserError
 from . import args as A
 
+DEFAULT_LISTEN = ("127.0.0.1", 5555)
+
 
 def cmd_simulate(args) -> int:
     from ..progress import progress_bar  # noqa: PLC0415
@@ -22,6 +24,8 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_emulate(args) -> int:
+    if args.device == "pupil-core":
+        return _emulate_pupil_core(args)
     from ..formats.session import load_session  # noqa: PLC0415
     from ..sim.emulate import RecorderEmulator  # noqa: PLC0415
 
@@ -31,7 +35,7 @@ def cmd_emulate(args) -> int:
         raise UserError(f"{args.session}: no recorder byte stream (eye_serial.bin); simulated sessions and "
                         f"'live --record' recordings have one")
     emu = RecorderEmulator(path.read_bytes(), loop=args.loop, duration_s=args.duration)
-    where = emu.open_pty() if args.pty else emu.listen_tcp(*args.listen)
+    where = emu.open_pty() if args.pty else emu.listen_tcp(*(args.listen or DEFAULT_LISTEN))
     video = sess.path("scene_video")
     print(f"emulating the eye recorder of {args.session} on {where} ({len(emu.records)} records, "
           f"{emu.period_s:.1f} s{', looped' if args.loop else ''}); Ctrl-C stops. Try (docs/live.md):\n"
@@ -43,6 +47,28 @@ def cmd_emulate(args) -> int:
     finally:
         emu.stop()
     print(f"emulate: {emu.sent} records sent", file=sys.stderr)
+    return 0
+
+
+def _emulate_pupil_core(args) -> int:
+    from ..sim.pupil_core_emu import PupilCoreEmulator, device_stream  # noqa: PLC0415
+
+    if args.pty or args.loop:
+        raise UserError(f"--as pupil-core serves Pupil Capture's network API over TCP: drop "
+                        f"{'--pty' if args.pty else '--loop'}")
+    emu = PupilCoreEmulator(device_stream(args.session), duration_s=args.duration)
+    host, port = args.listen or ("127.0.0.1", 50020)
+    where = emu.listen(host, port)
+    print(f"emulating Pupil Capture's network API of {args.session} on {where} ({len(emu.stream.t)} gaze samples, "
+          f"{len(emu.stream.frame_times)} frames; the stream starts at the first request); Ctrl-C stops. Try "
+          f"(docs/live.md):\n  wearable-gaze live --device {where} --camera-calib CAL/camera.json --markers "
+          f"{args.session}/markers.json", file=sys.stderr, flush=True)
+    try:
+        while not emu.finished.wait(0.2):
+            pass
+    finally:
+        emu.stop()
+    print(f"emulate: {emu.sent} gaze messages, {emu.frames_sent} frames sent", file=sys.stderr)
     return 0
 
 
@@ -67,9 +93,13 @@ def add_emulate(sub) -> None:
                                         "without the hardware")
     em.add_argument("session", metavar="SESSION", help="session folder with eye_serial.bin (simulated or recorded)")
     where = em.add_mutually_exclusive_group()
-    where.add_argument("--listen", type=A.host_port, default=("127.0.0.1", 5555), metavar="HOST:PORT",
-                       help="serve one reader over TCP (default 127.0.0.1:5555); 'live --serial socket://HOST:PORT'")
+    where.add_argument("--listen", type=A.host_port, default=None, metavar="HOST:PORT",
+                       help="serve one reader over TCP (default 127.0.0.1:5555; --as pupil-core: Pupil Remote's "
+                            "address, default 127.0.0.1:50020); 'live --serial socket://HOST:PORT'")
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal, read as a serial port")
+    em.add_argument("--as", dest="device", choices=("serial", "pupil-core"), default="serial",
+                    help="the eye tracker to be: 'serial' (the EMR-8-style recorder, default) or 'pupil-core' (Pupil "
+                         "Capture's network API: Pupil Remote, 3D gaze, Frame Publisher; 'live --device')")
     em.add_argument("--loop", action="store_true", help="start again at the end, clock and counter running on")
     em.add_argument("--duration", type=A.positive_float, default=None, metavar="S", help="stop after S seconds")
     em.set_defaults(func=cmd_emulate)

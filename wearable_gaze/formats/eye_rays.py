@@ -22,7 +22,7 @@ import numpy as np
 from estimator.lines import BinocularSamples
 
 from ..errors import UserError
-from .tables import TableWriter, read_table
+from .tables import TableWriter, _cells, read_table
 
 SIDES = ("left", "right")
 RAY_COLUMNS = ["t"] + [f"{s}_{k}" for s in SIDES for k in ("ox", "oy", "oz", "dx", "dy", "dz", "valid")]
@@ -51,6 +51,18 @@ def ray_columns(t, left_origin_mm, left_direction, left_valid, right_origin_mm, 
             cols[f"{side}_{k}"] = c
         cols[f"{side}_valid"] = v
     return cols
+
+
+RAY_HEADER = ",".join(RAY_COLUMNS) + "\n"
+"""The header line of ``eye_rays.csv`` (for a writer that streams lines: the live recorder)."""
+
+
+def ray_csv_line(t: float, left, left_valid: bool, right, right_valid: bool) -> str:
+    """One ``eye_rays.csv`` row, newline included: ``t`` s; ``left``, ``right`` (6,) each eye's
+    centre (mm) then direction, head frame (an invalid eye's cells are written empty)."""
+    lo, ro = np.asarray(left, float).reshape(1, 6), np.asarray(right, float).reshape(1, 6)
+    cols = ray_columns([t], lo[:, :3], lo[:, 3:], [left_valid], ro[:, :3], ro[:, 3:], [right_valid])
+    return ",".join(c[0] for c in _cells(cols, RAY_FORMATS)) + "\n"
 
 
 class EyeRaysWriter(TableWriter):

@@ -33,7 +33,7 @@ from .viewer import RerunViewer
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LiveSession", "LiveStats", "open_session", "run_live"]
+__all__ = ["LiveSession", "LiveStats", "open_session", "run_live", "run_session"]
 
 
 def _stamp_and_record(clock: SessionClock, recorder: Recorder | None):
@@ -129,6 +129,12 @@ def run_live(serial_port, camera_source, camera_calib, eyes_path, markers_path, 
     SIGTERM; everything recorded stays complete."""
     session = open_session(serial_port, camera_source, camera_calib, eyes_path, markers_path, record, publish, baud,
                            status_stream=status_stream, rerun=rerun)
+    return run_session(session, duration_s)
+
+
+def run_session(session: LiveSession, duration_s=None) -> LiveStats:
+    """Run an opened session until it ends, ``duration_s`` passes, Ctrl-C or SIGTERM (caught
+    while it runs, in the main thread)."""
     old = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):

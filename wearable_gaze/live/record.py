@@ -10,12 +10,14 @@ reads it; ``complete`` is true in the manifest only once the session was closed 
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import shutil
 import threading
 from pathlib import Path
 
 from ..errors import UserError
+from ..formats.eye_rays import RAY_HEADER, ray_csv_line
 from ..formats.eye_samples import EYE_HEADER, eye_csv_line
 from ..formats.markermap import marker_map_dict, write_marker_map
 from ..formats.session import FORMAT, VERSION, write_manifest
@@ -26,6 +28,10 @@ log = logging.getLogger(__name__)
 FILES = {"scene_video": "scene.avi", "scene_timestamps": "scene_timestamps.csv", "eye_samples": "eye.csv",
          "eye_serial": "eye_serial.bin", "marker_map": "markers.json", "camera": "camera.json", "eyes": "eyes.json",
          "live_messages": "live.jsonl"}
+DEVICE_FILES = {"scene_video": "scene.avi", "scene_timestamps": "scene_timestamps.csv", "eye_rays": "eye_rays.csv",
+                "marker_map": "markers.json", "camera": "camera.json", "live_messages": "live.jsonl"}
+"""A device that gives eye rays (``live --device``): its rays, head frame, in place of the raw
+readings, the serial bytes and the eye calibration; ``process`` reads it as an imported session."""
 _BUFFER = 1 << 20      # large enough that only the flush schedule writes (whole lines) to the files
 
 
@@ -41,20 +47,27 @@ class Recorder:
         size: (width, height) of the frames, px; fps: their rate.
         camera_path, eyes_path: calibrations copied into the folder; marker_map: the map used.
         flush_s: the flush period, s (<= 1).
+        device: the name of a device giving eye rays (``live --device``; ``eyes_path`` is then
+            unused): ``eye_sample`` takes its ``RaySample``s and writes ``eye_rays.csv``; None:
+            the serial recorder's raw readings (``eye.csv``) and bytes (``eye_serial.bin``).
 
     Raises:
         UserError: ``root`` exists and is not empty.
     """
 
-    def __init__(self, root: Path, size, fps: float, camera_path, eyes_path, marker_map, flush_s: float = 0.5):
+    def __init__(self, root: Path, size, fps: float, camera_path, eyes_path, marker_map, flush_s: float = 0.5,
+                 device: str | None = None):
         if not 0 < flush_s <= 1.0:
             raise ValueError(f"flush_s must be in (0, 1] s, got {flush_s!r}")
         self.root = Path(root)
         if self.root.exists() and any(self.root.iterdir()):
             raise UserError(f"--record {self.root}: already exists and is not empty; choose a new folder")
         self.root.mkdir(parents=True, exist_ok=True)
+        self.device = device
+        self.files = dict(FILES if device is None else DEVICE_FILES)
         shutil.copy(camera_path, self.root / FILES["camera"])
-        shutil.copy(eyes_path, self.root / FILES["eyes"])
+        if device is None:
+            shutil.copy(eyes_path, self.root / FILES["eyes"])
         write_marker_map(self.root / FILES["marker_map"], marker_map_dict(
             marker_map.dictionary, marker_map.marker_size_mm, marker_map.poses, marker_map.labels,
             sizes=marker_map.sizes))
@@ -67,9 +80,10 @@ class Recorder:
         self.video_thread.start()
         self.ts = open(self.root / FILES["scene_timestamps"], "w", encoding="utf-8", buffering=_BUFFER)
         self.ts.write(FRAME_TIME_HEADER)
-        self.eye = open(self.root / FILES["eye_samples"], "w", encoding="utf-8", buffering=_BUFFER)
-        self.eye.write(EYE_HEADER)
-        self.raw = open(self.root / FILES["eye_serial"], "wb", buffering=_BUFFER)
+        eye_file = FILES["eye_samples"] if device is None else DEVICE_FILES["eye_rays"]
+        self.eye = open(self.root / eye_file, "w", encoding="utf-8", buffering=_BUFFER)
+        self.eye.write(EYE_HEADER if device is None else RAY_HEADER)
+        self.raw = open(self.root / FILES["eye_serial"] if device is None else os.devnull, "wb", buffering=_BUFFER)
         self.messages = open(self.root / FILES["live_messages"], "wb", buffering=_BUFFER)
         self.n_frames = self.n_eye = self.n_messages = 0
         self.lock = threading.Lock()
@@ -94,7 +108,10 @@ class Recorder:
 
     def eye_sample(self, t: float, rec) -> None:
         """One intact record at session time ``t``, s."""
-        line = eye_csv_line(t, rec.counter, rec.left, rec.right, rec.left_valid, rec.right_valid)
+        if self.device is None:
+            line = eye_csv_line(t, rec.counter, rec.left, rec.right, rec.left_valid, rec.right_valid)
+        else:
+            line = ray_csv_line(t, rec.left, rec.left_valid, rec.right, rec.right_valid)
         with self.lock:
             if not self.closed:
                 self.eye.write(line)
@@ -152,8 +169,10 @@ class Recorder:
     def _write_manifest(self, complete: bool) -> None:
         man = {"format": FORMAT, "version": VERSION, "producer": "wearable-gaze live", "image_size": list(self.size),
                "fps": self.fps, "has_recording": True, "complete": complete,
-               "files": dict(FILES), "n_frames": self.n_frames, "n_eye_samples": self.n_eye,
+               "files": dict(self.files), "n_frames": self.n_frames, "n_eye_samples": self.n_eye,
                "n_messages": self.n_messages}
+        if self.device is not None:      # read as an imported session: poses tracked in the scene video
+            man["source"] = {"device": self.device, "clock_offset_s": 0.0, "pose_source": "scene_video"}
         write_manifest(self.root, man)
 
     def close(self, complete: bool = True) -> None:

@@ -1,0 +1,152 @@
+"""``live --device pupil-core://`` end to end (issue 29): a simulated session served by the Pupil
+Core emulator on loopback, the live session's targets, its recording (every sample received,
+read by ``process`` as an imported session: the same targets), a garbage message, and a device
+killed and started again mid-session."""
+
+import contextlib
+import io
+import json
+import re
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from wearable_gaze.cli import main
+from wearable_gaze.formats.eye_rays import read_eye_rays
+from wearable_gaze.live.device_app import open_device_session
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.truth_match import match_targets
+from wearable_gaze.sim.pupil_core_emu import PupilCoreEmulator, device_stream
+from wearable_gaze.sim.simulate import simulate_scenario
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("pupil") / "session"
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 7.0, "targets": {"random_count": 2},
+                       "camera": {"resolution": [640, 360]}, "calibration": {"camera_views": 0}}, root, seed=77)
+    return root          # test_live.py's scenario, at 640x360: at 320x180 marker poses are too coarse for its targets
+
+
+def _sent_rays(emu, until=np.inf):
+    """(k, (12,) both eyes' lines as sent) of every gaze message the emulator sent before ``until``
+    (``time.monotonic()``)."""
+    s = emu.stream
+    nan = np.full(6, np.nan)
+    return [(k, np.concatenate([s.left[k] if s.left_valid[k] else nan, s.right[k] if s.right_valid[k] else nan]))
+            for t, k in emu.sent_log if t <= until]
+
+
+def _recorded_rays(rec):
+    r = read_eye_rays(rec / "eye_rays.csv")
+    return r.t_s, np.hstack([r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction])
+
+
+def _assert_every_sample_from_the_first_kept(sent, rows, n_sent_before_end=None):
+    """``rows`` are ``sent`` from the one matching ``rows[0]`` on, in order; none of the first
+    ``n_sent_before_end`` sent (default all; those sent once the session had ended cannot be
+    there) missing."""
+    first = next(i for i, (_, v) in enumerate(sent) if np.allclose(v, rows[0], atol=2e-4, equal_nan=True))
+    kept = np.array([v for _, v in sent[first:first + len(rows)]])
+    assert len(kept) == len(rows) >= (len(sent) if n_sent_before_end is None else n_sent_before_end) - first
+    assert np.allclose(kept, rows, atol=2e-4, equal_nan=True)
+
+
+@pytest.fixture(scope="module")
+def live_run(session, tmp_path_factory):
+    base = tmp_path_factory.mktemp("pupil-live")
+    junk = {90: [[b"gaze.3d.01.", b"\xc1 not msgpack"], [b"gaze.3d.01."]]}
+    emu = PupilCoreEmulator(device_stream(session), inject=junk, log_sent=True)
+    url = emu.listen()
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["live", "--device", url, "--camera-calib", str(session / "truth" / "camera.json"),
+                     "--markers", str(session / "markers.json"), "--record", str(base / "rec"), "--duration", "7.5",
+                     "--quiet"])
+    emu.stop()
+    msgs = [json.loads(x) for x in out.getvalue().splitlines()]
+    return base / "rec", msgs, code, err.getvalue(), emu
+
+
+def test_live_from_pupil_core_finds_the_targets(session, live_run):
+    _, msgs, code, err, _ = live_run
+    assert code == 0, err
+    est = [m for m in msgs if m["type"] == "estimate"]
+    assert len(est) > 150
+    lat = np.array([m["latency_ms"] for m in est])
+    assert np.all(lat > 0) and np.median(lat) < 100        # from the device's sample time, on the local clock
+    targets = [m for m in msgs if m["type"] == "target"]
+    truth = json.loads((session / "truth" / "targets.json").read_text())["targets"]
+    pairs = match_targets(targets, [t for t in truth if sum(b - a for a, b in t["fixations_s"]) >= 1.0])
+    assert pairs and all(f is not None for _, f in pairs)
+    for tt, f in pairs:
+        m = next(x for x in targets if x["target"] == f["target"])
+        assert np.linalg.norm(np.array(m["position_mm"]) - tt["position_mm"]) < 2.0 * max(m["ellipsoid95_radii_mm"])
+
+
+def test_a_bad_message_is_one_line_and_counted(live_run):
+    _, _, code, err, _ = live_run
+    assert code == 0
+    assert len([ln for ln in err.splitlines() if "bad gaze.3d.01. message" in ln]) == 1
+    assert re.search(r"eye \d+ \(corrupt 2,", err)
+
+
+def test_the_recording_holds_every_sample_received_and_process_finds_the_same_targets(live_run):
+    rec, msgs, _, _, emu = live_run
+    man = json.loads((rec / "session.json").read_text())
+    assert man["complete"] and man["source"]["device"] == "pupil-core" and "eye_rays" in man["files"]
+    t, rows = _recorded_rays(rec)
+    assert np.all(np.diff(t) > 0) and man["n_eye_samples"] == len(rows)
+    _assert_every_sample_from_the_first_kept(_sent_rays(emu), rows)
+    again = device_stream(rec)                       # a device recording plays again through the emulator
+    assert np.allclose(np.hstack([again.left, again.right]), rows, equal_nan=True)
+    assert len(again.frame_times) == man["n_frames"]
+    res = process_session(rec, rec / "processed", report=False)
+    live = {}
+    for m in msgs:
+        if m["type"] == "target":
+            live[m["target"]] = m
+    live = [m for m in live.values() if m["n_samples"] >= 60]
+    offline = [x for x in res.targets if x["n_samples"] >= 60]
+    assert live and offline
+    for m in live:
+        d = [np.linalg.norm(np.subtract(m["position_mm"], x["position_mm"])) for x in offline]
+        j = int(np.argmin(d))
+        assert d[j] < max(m["ellipsoid95_radii_mm"]) + max(offline[j]["ellipsoid95_radii_mm"])
+
+
+def test_a_device_killed_and_started_again_is_reconnected_and_nothing_received_is_lost(session, tmp_path):
+    stream = device_stream(session)
+    first = PupilCoreEmulator(stream, log_sent=True)
+    url = first.listen()
+    port = first.port
+    live, link = open_device_session(url, session / "truth" / "camera.json", session / "markers.json",
+                                     record=tmp_path / "rec", stdout=False)
+    done = {}
+    def run():
+        done["stats"] = live.run(5.5)
+        done["end"] = time.monotonic()
+    th = threading.Thread(target=run)
+    th.start()
+    time.sleep(2.0)
+    first.stop()                                              # the device goes away ...
+    killed = time.monotonic()
+    time.sleep(0.5)
+    second = PupilCoreEmulator(stream, log_sent=True)         # ... and comes back on the same address
+    second.listen("127.0.0.1", port)
+    back = time.monotonic()
+    th.join(15)
+    link.close()
+    second.stop()
+    stats = done["stats"]
+    assert stats.reconnects >= 1
+    t, rows = _recorded_rays(tmp_path / "rec")
+    local = t + link.t0
+    before, after = rows[local < killed], rows[local > back]
+    assert len(before) + len(after) == len(rows)
+    _assert_every_sample_from_the_first_kept(_sent_rays(first), before)
+    _assert_every_sample_from_the_first_kept(_sent_rays(second), after, len(_sent_rays(second, done["end"] - 0.5)))
+    assert local[local > back][0] - back < 2.0                  # reconnected within 2 s
+    assert len(after) > 100
