@@ -49,6 +49,14 @@ def _data(records, head=HEAD) -> ReportData:
                       {k: r for k, r in regions.items() if r is not None})
 
 
+def _direction_only(index, unit, cone95_deg, depth95_mm) -> dict:
+    """A ``direction-only`` record as process writes it: no point, no covariance, its
+    ``direction`` (seen from, unit, 95 % cone, 95 % depth interval with a null far end: none)."""
+    rec = target_record(index, 0.0, 1.0, np.full(3, np.nan), np.full(3, np.nan), 50, "voxel", "direction-only")
+    return rec | {"direction": {"seen_from_mm": SEEN_FROM.tolist(), "unit": list(unit), "cone95_deg": cone95_deg,
+                                "depth95_mm": list(depth95_mm), "spread_deg": 0.5, "n_samples": 50}}
+
+
 def _poses(head=HEAD) -> Poses:
     T = np.tile(np.eye(4), (len(head), 1, 1))
     T[:, :3, 3] = head
@@ -125,9 +133,7 @@ def test_an_open_interval_is_drawn_as_a_ray_to_the_edge_of_the_axes():
     dashed, to the box's edge, with an arrow; so is a direction without a point."""
     rec = _record(1, FAR, rel_sd=0.6717)
     assert rec["depth"]["interval95_mm"][1] is None
-    direction = _record(3, FAR) | {"position_mm": None, "covariance_mm2": None, "direction": [0.6, 0.0, 0.8],
-                                   "cone95_deg": 1.5, "depth": {"seen_from_mm": SEEN_FROM.tolist(),
-                                                                "interval95_mm": [800.0, None]}}
+    direction = _direction_only(3, [0.6, 0.0, 0.8], 1.5, [800.0, None])
     d = _data([rec, direction])
     lo, hi = d.box()
     scene = report._scene(d, None, None)
@@ -159,9 +165,10 @@ def test_targets_ply_holds_each_region_closed_or_open():
     end (capped both ends), an open one reaches the box's edge and stays open; a direction
     without a point has its region too; the comments say which vertices are which."""
     closed, open_ = _record(0, FAR), _record(1, [-300.0, 100.0, 1500.0], rel_sd=0.6717)
-    direction = _record(2, FAR) | {"position_mm": None, "covariance_mm2": None, "direction": [0.0, 0.0, 1.0],
-                                   "cone95_deg": 2.0, "depth": {"seen_from_mm": SEEN_FROM.tolist(),
-                                                                "interval95_mm": [500.0, None]}}
+    # a direction-only record in other words (read tolerantly): flat keys, an infinite far end
+    direction = {"target": 2, "position_mm": None, "covariance_mm2": None, "direction_world": [0.0, 0.0, 1.0],
+                 "cone_half_angle_deg": 2.0, "seen_from_mm": SEEN_FROM.tolist(),
+                 "depth_interval_mm": [500.0, float("inf")]}
     targets = [Target.from_row(r) for r in (closed, open_)]
     mesh = targets_mesh(targets, _poses())
     n = 24

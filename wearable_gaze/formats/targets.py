@@ -330,14 +330,16 @@ def read_device_comparison(path) -> dict:
 
 
 
-DIRECTION_KEYS = ("direction", "direction_world", "gaze_direction", "sight_direction", "direction_unit")
+DIRECTION_KEYS = ("unit", "direction_unit", "direction", "direction_world", "gaze_direction", "sight_direction")
 """Where a record without a point may keep its line of sight (a unit [x, y, z], world frame):
-read in this order, at the top level, in ``depth`` or in a ``direction`` object (``record_region``)."""
+read in this order, at the top level, in ``depth`` or in a ``direction`` object (``record_region``;
+a direction-only target's ``direction``: ``seen_from_mm``, ``unit``, ``cone95_deg``,
+``depth95_mm``)."""
 CONE_KEYS = ("cone95_deg", "cone95_half_angle_deg", "cone_half_angle95_deg", "half_angle95_deg", "direction95_deg",
              "cone_half_angle_deg", "cone_deg")
 """... and the 95 % cone's half-angle about it, degrees (then any key with 'cone' or 'half_angle'
 ending in ``_deg``; ``_rad`` keys are read as radians)."""
-INTERVAL_KEYS = ("interval95_mm", "depth_interval95_mm", "depth_interval_mm", "interval_mm")
+INTERVAL_KEYS = ("interval95_mm", "depth95_mm", "depth_interval95_mm", "depth_interval_mm", "interval_mm")
 ORIGIN_KEYS = ("seen_from_mm", "origin_mm", "sight_origin_mm", "apex_mm", "head_mm")
 
 
@@ -352,8 +354,8 @@ def _vector(places: list[dict], keys) -> np.ndarray | None:
     for k in keys:
         for d in places:
             v = d.get(k)
-            if isinstance(v, dict):
-                v = next((x for x in v.values() if isinstance(x, list | tuple) and len(x) == 3), None)
+            if isinstance(v, dict):           # an object: its own keys are among the places
+                continue
             try:
                 a = np.asarray(v, float).reshape(3) if v is not None else None
             except (TypeError, ValueError):
