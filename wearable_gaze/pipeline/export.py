@@ -194,15 +194,16 @@ def _midpoint(verts: list, cache: dict, i: int, j: int) -> int:
 
 
 def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None) -> PlyMesh:
-    """targets.ply's mesh: per static target, a lone vertex at its point (when it has one) and
-    its 95 % credible region (``formats.targets.record_region``: its distance interval along the
-    line of sight by its lateral extent, a frustum of the cone of sight, ``estimator.region.
-    region_mesh``; one with no far end reaches the edge of the box of the head path and the
-    targets, ``regions.scene_box``, and stays open there), or, without one, its 95 % ellipsoid
-    (``estimator.result.covariance_ellipsoid``: the unit icosphere scaled by the semi-axes
-    along the covariance's eigenvectors), in the target's colour; then each moving target's path
-    (``paths``: target_paths.csv's, {index: (t, (K, 3) positions, covariances)}) as edges in its
-    colour; then the head path, the scene camera's positions at its posed frames, as edges."""
+    """targets.ply's mesh: per static target, a lone vertex at its point (without one, its line of
+    sight over its region as an edge) and its 95 % credible region (``formats.targets.
+    record_region``: its distance interval along the line of sight by its lateral extent, a
+    frustum of the cone of sight, ``estimator.region.region_mesh``; one with no far end reaches
+    the edge of the box of the head path and the targets, ``regions.scene_box``, and stays open
+    there), or, without one, its 95 % ellipsoid (``estimator.result.covariance_ellipsoid``: the
+    unit icosphere scaled by the semi-axes along the covariance's eigenvectors), in the target's
+    colour; then each moving target's path (``paths``: target_paths.csv's, {index: (t, (K, 3)
+    positions, covariances)}) as edges in its colour; then the head path, the scene camera's
+    positions at its posed frames, as edges."""
     sphere, faces = icosphere()
     V, C, F, E, notes = [], [], [], [], []
     n = 0
@@ -217,12 +218,19 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
         if not np.all(np.isfinite(tg.position_mm)) and region is None:
             continue
         colour = COLOURS[tg.index % len(COLOURS)]
-        text = f"target {tg.index}:"
+        text = f"target {tg.index} ({tg.status}):"
         if np.all(np.isfinite(tg.position_mm)):
             V.append(np.asarray(tg.position_mm, float)[None])
             C.append(colour[None])
             text += f" vertex {n} (its point)"
             n += 1
+        elif region is not None:                      # no point: its line of sight as an edge
+            reach = region.far_mm if region.closed else ray_exit(region.origin_mm, region.direction, lo, hi)
+            V.append(np.stack([region.point_at(region.near_mm), region.point_at(max(reach, region.near_mm))]))
+            C.append(np.repeat(colour[None], 2, 0))
+            E.append(np.array([[n, n + 1]]))
+            text += f" vertices {n}-{n + 1} (its line of sight over the region, the edge)"
+            n += 2
         if region is not None:
             rv, rf, _ = region_mesh(region, ray_exit(region.origin_mm, region.direction, lo, hi))
             V.append(rv)
