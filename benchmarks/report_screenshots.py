@@ -93,8 +93,11 @@ def shoot(report: Path, name: str, out: Path) -> list[Path]:
     print(f"  3D view's box (mm): {scene.get('box')}")
     for t in scene["targets"]:
         r = t.get("region") or {}
-        print(f"  {t['label']}: position {t['position']}, region {r.get('kind', '-')}, depth "
-              f"{r.get('near_mm')}-{r.get('far_mm') if r.get('far_mm') is not None else 'open'} mm")
+        what = ("none" if not r else "open (a ray)" if r["open"] else "closed, cut at the box" if r["cut"]
+                else "closed")
+        far = r.get("far_mm") if r.get("far_mm") is not None else "no far end"
+        print(f"  {t['label']}: position {t['position']}, region {what}"
+              + (f", distance {r['near_mm']}-{far} mm, drawn to {r['end_mm']} mm" if r else ""))
     return shots
 
 

@@ -231,8 +231,11 @@ def figure_top(d, colour):
     fig, ax = plt.subplots(figsize=(6.5, 6.5), layout="constrained")
     ax.plot(d.head[:, 0], d.head[:, 2], "k-", lw=1, label="head")
     lo, hi = top_limits(d)
-    for k, region in d.regions.items():
-        _region_top(ax, region_lines(region, lo, hi), colour(k), hi[0] - lo[0])
+    drawn = [(k, region_lines(region, lo, hi)) for k, region in d.regions.items()]
+    for k, r in drawn:
+        _region_top(ax, r, colour(k), hi[0] - lo[0])
+    if any(r.open for _, r in drawn):
+        ax.plot([], [], "--", color="#555555", label="dashed: no far end (95 %)")
     for tg in d.targets:
         X, c = tg.position_mm, colour(tg.index)
         for a, b in line_segments(tg, d):
@@ -269,7 +272,7 @@ def figure_top(d, colour):
 def _region_top(ax, r, c: str, span_mm: float) -> None:
     """A region's lines (``regions.RegionLines``) seen from above: the outline of its x-z shadow
     (the convex hull of its end rings) shaded, its line of sight; where cut, an arrow at the
-    axes' edge and its far end ('no far end' when open)."""
+    axes' edge and, when it has one, its far end beside it."""
     from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415
 
     P = r.hull[:, [0, 2]]
@@ -286,8 +289,10 @@ def _region_top(ax, r, c: str, span_mm: float) -> None:
     step = b - a
     if r.cut and np.linalg.norm(step) > 1e-6 * span_mm:
         tail = b - step / np.linalg.norm(step) * 0.06 * span_mm
-        text = "no far end" if r.open else f"far end {r.far_mm / 1000:.2f} m"
         ax.annotate("", xy=tuple(b), xytext=tuple(tail), arrowprops={"arrowstyle": "-|>", "color": c, "lw": 1.3})
+        if r.open:                                    # the legend says it (many rays would bury their texts)
+            return
+        text = f"far end {r.far_mm / 1000:.2f} m"
         right, up = step[0] > 0, step[1] > 0          # the text beside the arrow's tail, inside the axes
         ax.annotate(text, xy=tuple(tail), xytext=(-5 if right else 5, -5 if up else 5), textcoords="offset points",
                     fontsize=7, color=c, ha="right" if right else "left", va="top" if up else "bottom")
