@@ -229,7 +229,7 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
             V.append(np.stack([region.point_at(region.near_mm), region.point_at(max(reach, region.near_mm))]))
             C.append(np.repeat(colour[None], 2, 0))
             E.append(np.array([[n, n + 1]]))
-            text += f" vertices {n}-{n + 1} (its line of sight over the region, the edge)"
+            text += f" vertices {n}-{n + 1} (its line of sight over its region, the edge)"
             n += 2
         if region is not None:
             rv, rf, _ = region_mesh(region, ray_exit(region.origin_mm, region.direction, lo, hi))
@@ -238,7 +238,7 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
             F.append(rf + n)
             what = (f"{region.near_mm:.0f}-{region.far_mm:.0f} mm" if region.closed else
                     f"{region.near_mm:.0f} mm on, no far end: open, cut at the box's edge")
-            text += (f" its 95 % credible region (distance from {_xyz(region.origin_mm)} {what}) vertices "
+            text += (f", its 95 % credible region (distance from {_xyz(region.origin_mm)} {what}) vertices "
                      f"{n}-{n + len(rv) - 1}")
             n += len(rv)
         elif tg.covariance_mm2 is not None and np.all(np.isfinite(tg.covariance_mm2)):
@@ -246,7 +246,7 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
             V.append(tg.position_mm + (sphere * ell.radii_mm) @ ell.axes.T)
             C.append(np.repeat(colour[None], len(sphere), 0))
             F.append(faces + n)
-            text += f" its 95 % ellipsoid vertices {n}-{n + len(sphere) - 1}"
+            text += f", its 95 % ellipsoid vertices {n}-{n + len(sphere) - 1}"
             n += len(sphere)
         notes.append(text)
     for index, (_, pos, _) in sorted((paths or {}).items()):
