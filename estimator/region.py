@@ -12,7 +12,9 @@ and ``v`` a unit direction inside an elliptic cone about the line of sight ``u``
 semi-axes ``half_angles_rad`` along the two unit vectors ``across`` (orthogonal to ``u``).
 From a point estimate (``region_of_point``): the depth interval of the error model and the
 covariance's lateral marginal (the 2x2 block across ``u``) at the same level, as angles at
-the point's distance. From a direction alone (``region_of_direction``): a circular cone.
+the point's distance (each at the level asked: the two together hold about its square, depth
+and lateral errors being nearly independent). From a direction alone (``region_of_direction``):
+a circular cone.
 
 Frames: whatever frame the inputs share (world, mm). Pure numpy; no I/O.
 """
