@@ -1,7 +1,7 @@
 """The exports and schemas of issue 17: every file ``process`` writes is documented with its
 format (``formats.outputs``, docs/formats.md) and validates against it; gaze.csv and
 fixations.csv load into pandas with their documented dtypes; targets.ply loads in Open3D with
-the targets' 95 % ellipsoids; one target record for targets.json, estimate --json and the live
+the targets' 95 % credible regions; one target record for targets.json, estimate --json and the live
 messages. Uses the session ``processed`` once for the whole run (tests/conftest.py)."""
 
 import json
@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
 
+from estimator.region import RING_POINTS
 from wearable_gaze.cli import main
 from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.jsonio import validate
@@ -19,8 +19,7 @@ from wearable_gaze.formats.outputs import PROCESS_OUTPUTS, check_output, output_
 from wearable_gaze.formats.ply import read_ply
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.tables import read_table
-from wearable_gaze.formats.targets import read_estimates, read_target_labels, read_targets
-from wearable_gaze.pipeline.export import icosphere
+from wearable_gaze.formats.targets import read_estimates, read_target_labels, read_targets, record_region
 from wearable_gaze.pipeline.steps import OTHER_FILES, OUTPUTS
 
 pd = pytest.importorskip("pandas", reason="pandas comes with the neon extra (pip install -e '.[test]')")
@@ -173,7 +172,7 @@ def test_fixations_csv_loads_in_pandas_with_one_row_per_fixation(processed):
             np.testing.assert_allclose([r.x_mm, r.y_mm, r.z_mm], t["position_mm"], atol=0.051)
 
 
-def test_targets_ply_loads_in_open3d_with_the_95_percent_ellipsoids_and_the_head_path(processed):
+def test_targets_ply_loads_in_open3d_with_the_95_percent_regions_and_the_head_path(processed):
     from estimator._open3d import Open3DUnavailable, import_open3d
     try:
         o3d = import_open3d()
@@ -186,25 +185,22 @@ def test_targets_ply_loads_in_open3d_with_the_95_percent_ellipsoids_and_the_head
     np.testing.assert_allclose(V, ours.vertices_mm, atol=1e-9)
     assert mesh.has_vertex_colors() and ours.comments[0].startswith("wearable-gaze targets.ply")
     assert (out / "targets.ply").read_text().splitlines()[2].startswith("comment units: mm")
-    sphere, faces = icosphere()
     targets = read_targets(out / "targets.json")
-    with_cov = [t for t in targets if t["covariance_mm2"] is not None]
-    assert len(np.asarray(mesh.triangles)) == len(faces) * len(with_cov) >= 3 * len(faces)
-    k2 = chi2.ppf(0.95, 3)
+    regions = [record_region(t) for t in targets]
+    n_ring = RING_POINTS
+    assert all(r is not None and r.closed for r in regions) and len(regions) >= 3
+    assert len(np.asarray(mesh.triangles)) == 4 * n_ring * len(regions)      # frustums capped at both ends
     n = 0
     for t in targets:
-        c, C = np.array(t["position_mm"]), np.array(t["covariance_mm2"])
-        np.testing.assert_allclose(V[n], c, atol=1e-3)                     # the target's point
-        ell = V[n + 1:n + 1 + len(sphere)]
-        n += 1 + len(sphere)
-        # every ellipsoid vertex is on the 95 % surface: Mahalanobis distance sqrt(chi2(0.95, 3))
-        d2 = np.einsum("ij,ij->i", ell - c, np.linalg.solve(C, (ell - c).T).T)
-        np.testing.assert_allclose(d2, k2, rtol=1e-4)
-        # and its extent along each axis is the record's semi-axis
-        w, U = np.linalg.eigh(C)
-        extent = np.abs((ell - c) @ U).max(axis=0)
-        np.testing.assert_allclose(extent, t["ellipsoid95_radii_mm"], rtol=2e-3)
-        assert np.all(np.asarray(mesh.vertex_colors)[n - len(sphere):n] == np.asarray(mesh.vertex_colors)[n - 1])
+        np.testing.assert_allclose(V[n], t["position_mm"], atol=1e-3)     # the target's point
+        k = 2 + 2 * n_ring
+        region = V[n + 1:n + 1 + k]
+        n += 1 + k
+        # its 95 % region: from the near to the far end of its interval, seen from where it was
+        near, far = t["depth"]["interval95_mm"]
+        dist = np.linalg.norm(region - t["depth"]["seen_from_mm"], axis=1)
+        assert dist.min() == pytest.approx(near, abs=2e-3) and dist.max() == pytest.approx(far, abs=2e-3)
+        assert np.all(np.asarray(mesh.vertex_colors)[n - k:n] == np.asarray(mesh.vertex_colors)[n - k - 1])
     t, _, T, _ = read_poses_csv(out / "poses.csv")
     posed = np.isfinite(T[:, 0, 3])
     np.testing.assert_allclose(V[n:], T[posed, :3, 3], atol=1e-3)

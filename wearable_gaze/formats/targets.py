@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.errormodel import FAR_SIDE_K, Sight
+from estimator.region import CredibleRegion, region_of_direction, region_of_point
 
 from ..errors import UserError
 from .atomic import atomic_path
@@ -327,3 +328,94 @@ def read_device_comparison(path) -> dict:
     """device_comparison.csv -> {column: (N,) array} (``DEVICE_COLUMNS``; NaN where empty)."""
     return read_table(path, list(DEVICE_COLUMNS), rows_required=False, checks=DEVICE_CHECKS)
 
+
+
+DIRECTION_KEYS = ("unit", "direction_unit", "direction", "direction_world", "gaze_direction", "sight_direction")
+"""Where a record without a point may keep its line of sight (a unit [x, y, z], world frame):
+read in this order, at the top level, in ``depth`` or in a ``direction`` object (``record_region``;
+a direction-only target's ``direction``: ``seen_from_mm``, ``unit``, ``cone95_deg``,
+``depth95_mm``)."""
+CONE_KEYS = ("cone95_deg", "cone95_half_angle_deg", "cone_half_angle95_deg", "half_angle95_deg", "direction95_deg",
+             "cone_half_angle_deg", "cone_deg")
+"""... and the 95 % cone's half-angle about it, degrees (then any key with 'cone' or 'half_angle'
+ending in ``_deg``; ``_rad`` keys are read as radians)."""
+INTERVAL_KEYS = ("interval95_mm", "depth95_mm", "depth_interval95_mm", "depth_interval_mm", "interval_mm")
+ORIGIN_KEYS = ("seen_from_mm", "origin_mm", "sight_origin_mm", "apex_mm", "head_mm")
+
+
+def _places(rec: dict) -> list[dict]:
+    """The record and the objects in it where a region's values may be: ``depth``, ``direction``."""
+    inner = [rec.get(k) for k in (DEPTH_COLUMN, "direction", "cone", "region")]
+    return [rec, *(d for d in inner if isinstance(d, dict))]
+
+
+def _vector(places: list[dict], keys) -> np.ndarray | None:
+    """The first finite 3-vector under one of ``keys`` in ``places``, or None."""
+    for k in keys:
+        for d in places:
+            v = d.get(k)
+            if isinstance(v, dict):           # an object: its own keys are among the places
+                continue
+            try:
+                a = np.asarray(v, float).reshape(3) if v is not None else None
+            except (TypeError, ValueError):
+                continue
+            if a is not None and np.all(np.isfinite(a)):
+                return a
+    return None
+
+
+def _cone_rad(places: list[dict]) -> float:
+    """The 95 % cone's half-angle, radians, from ``CONE_KEYS`` or a key like them; NaN: none."""
+    for d in places:
+        named = [k for k in CONE_KEYS if k in d]
+        named += [k for k in d if ("cone" in k or "half_angle" in k) and k.endswith(("_deg", "_rad"))]
+        for k in named:
+            try:
+                v = float(d[k])
+            except (TypeError, ValueError):
+                continue
+            if np.isfinite(v) and v >= 0:
+                return v if k.endswith("_rad") else float(np.deg2rad(v))
+    return float("nan")
+
+
+def _interval(places: list[dict]) -> tuple[float, float]:
+    """(near, far) mm of the first interval of ``INTERVAL_KEYS``; None or a missing far end is
+    inf, a missing near end NaN; (NaN, inf) without one."""
+    for k in INTERVAL_KEYS:
+        for d in places:
+            v = d.get(k)
+            if isinstance(v, list | tuple) and len(v) == 2:
+                near = np.nan if v[0] is None else float(v[0])
+                far = np.inf if v[1] is None or not np.isfinite(float(v[1])) else float(v[1])
+                return near, far
+    return float("nan"), float("inf")
+
+
+def record_region(rec: dict) -> CredibleRegion | None:
+    """The 95 % credible region of a target record (``estimator.region``), or None (no sight:
+    e.g. ``lse``, no error model, a version-1 file). A record with a point, a covariance and
+    ``depth``: the point's interval along its line of sight and its lateral extent
+    (``region_of_point``). A record without a point (or without a covariance) but with a
+    direction (``DIRECTION_KEYS``), where it was seen from (``ORIGIN_KEYS``) and perhaps a
+    cone (``CONE_KEYS``, 0 without) and an interval (``INTERVAL_KEYS``: a null or missing far
+    end is open, a missing near end 0): a cone (``region_of_direction``). Read tolerantly: keys
+    it does not know are left alone, a value that is not a number is no value."""
+    places = _places(rec)
+    origin = _vector(places, ORIGIN_KEYS)
+    if origin is None:
+        return None
+    near, far = _interval(places)
+    pos, cov = rec.get("position_mm"), rec.get("covariance_mm2")
+    if pos is not None and cov is not None and np.isfinite(near):
+        region = region_of_point(pos, cov, origin, near, far, 0.95)
+        if region is not None:
+            return region
+    direction = _vector(places, DIRECTION_KEYS)
+    if direction is None and pos is not None:
+        direction = np.asarray(pos, float) - origin
+    if direction is None:
+        return None
+    cone = _cone_rad(places)
+    return region_of_direction(origin, direction, cone if np.isfinite(cone) else 0.0, near, far, 0.95)

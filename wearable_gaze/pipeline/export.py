@@ -12,6 +12,7 @@ import numpy as np
 
 from estimator import BinocularSamples
 from estimator.frames import rotate_directions, transform_points
+from estimator.region import ray_exit, region_mesh
 from estimator.result import covariance_ellipsoid
 from tracking.timeline import interpolate_poses
 
@@ -20,7 +21,8 @@ from ..formats.fixations_table import write_fixations_csv
 from ..formats.gaze_export import GAZE_COLUMNS, NOMINAL_DEPTH_MM, write_gaze_csv
 from ..formats.ply import PlyMesh, write_ply
 from ..formats.tables import read_table
-from ..formats.targets import read_estimates, read_target_labels, read_target_paths
+from ..formats.targets import read_estimates, read_target_labels, read_target_paths, record_region
+from .regions import anchor_points, scene_box
 from .types import Poses, Target, TargetsResult
 
 log = logging.getLogger(__name__)
@@ -192,24 +194,54 @@ def _midpoint(verts: list, cache: dict, i: int, j: int) -> int:
 
 
 def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None) -> PlyMesh:
-    """targets.ply's mesh: per target with a point, a lone vertex at the point and, with a
-    covariance, its 95 % ellipsoid (``estimator.result.covariance_ellipsoid``: the unit
-    icosphere scaled by the semi-axes along the covariance's eigenvectors), in the target's
+    """targets.ply's mesh: per static target, a lone vertex at its point (without one, its line of
+    sight over its region as an edge) and its 95 % credible region (``formats.targets.
+    record_region``: its distance interval along the line of sight by its lateral extent, a
+    frustum of the cone of sight, ``estimator.region.region_mesh``; one with no far end reaches
+    the edge of the box of the head path and the targets, ``regions.scene_box``, and stays open
+    there), or, without one, its 95 % ellipsoid (``estimator.result.covariance_ellipsoid``: the
+    unit icosphere scaled by the semi-axes along the covariance's eigenvectors), in the target's
     colour; then each moving target's path (``paths``: target_paths.csv's, {index: (t, (K, 3)
     positions, covariances)}) as edges in its colour; then the head path, the scene camera's
     positions at its posed frames, as edges."""
     sphere, faces = icosphere()
     V, C, F, E, notes = [], [], [], [], []
     n = 0
+    head = poses.T_world_from_cam[:, :3, 3]
+    regions = {tg.index: record_region(tg.row()) for tg in targets if not tg.moving and tg.index not in (paths or {})}
+    lo, hi = scene_box(head, np.reshape([t.position_mm for t in targets], (-1, 3)),
+                       *(np.asarray(p[1], float) for p in (paths or {}).values()),
+                       anchor_points([r for t in targets if not np.all(np.isfinite(t.position_mm))
+                                      and (r := regions.get(t.index)) is not None]))
     for tg in targets:
-        if not np.all(np.isfinite(tg.position_mm)):
+        region = regions.get(tg.index)
+        if not np.all(np.isfinite(tg.position_mm)) and region is None:
             continue
         colour = COLOURS[tg.index % len(COLOURS)]
-        V.append(np.asarray(tg.position_mm, float)[None])
-        C.append(colour[None])
-        text = f"target {tg.index}: vertex {n} (its point)"
-        n += 1
-        if tg.covariance_mm2 is not None and np.all(np.isfinite(tg.covariance_mm2)):
+        text = f"target {tg.index} ({tg.status}):"
+        if np.all(np.isfinite(tg.position_mm)):
+            V.append(np.asarray(tg.position_mm, float)[None])
+            C.append(colour[None])
+            text += f" vertex {n} (its point)"
+            n += 1
+        elif region is not None:                      # no point: its line of sight as an edge
+            reach = region.far_mm if region.closed else ray_exit(region.origin_mm, region.direction, lo, hi)
+            V.append(np.stack([region.point_at(region.near_mm), region.point_at(max(reach, region.near_mm))]))
+            C.append(np.repeat(colour[None], 2, 0))
+            E.append(np.array([[n, n + 1]]))
+            text += f" vertices {n}-{n + 1} (its line of sight over its region, the edge)"
+            n += 2
+        if region is not None:
+            rv, rf, _ = region_mesh(region, ray_exit(region.origin_mm, region.direction, lo, hi))
+            V.append(rv)
+            C.append(np.repeat(colour[None], len(rv), 0))
+            F.append(rf + n)
+            what = (f"{region.near_mm:.0f}-{region.far_mm:.0f} mm" if region.closed else
+                    f"{region.near_mm:.0f} mm on, no far end: open, cut at the box's edge")
+            text += (f", its 95 % credible region (distance from {_xyz(region.origin_mm)} {what}) vertices "
+                     f"{n}-{n + len(rv) - 1}")
+            n += len(rv)
+        elif tg.covariance_mm2 is not None and np.all(np.isfinite(tg.covariance_mm2)):
             ell = covariance_ellipsoid(tg.position_mm, tg.covariance_mm2, 0.95)
             V.append(tg.position_mm + (sphere * ell.radii_mm) @ ell.axes.T)
             C.append(np.repeat(colour[None], len(sphere), 0))
@@ -232,6 +264,10 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
                      "the edges")
     return PlyMesh(_cat(V, (0, 3), float), _cat(C, (0, 3), np.uint8), _cat(F, (0, 3), int), _cat(E, (0, 2), int),
                    ["wearable-gaze targets.ply (docs/formats.md)", *notes])
+
+
+def _xyz(p) -> str:
+    return "(" + ", ".join(f"{v:.0f}" for v in p) + ")"
 
 
 def _cat(parts: list, shape: tuple, dtype) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import html
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from ..formats.targets import (
     read_target_labels,
     read_target_paths,
     read_targets,
+    record_region,
 )
 from ..formats.truth import read_truth_targets
 from ..formats.viewlines import read_viewlines_csv
@@ -42,6 +43,7 @@ from .overlay import (
     caption,
     write_overlays,
 )
+from .regions import anchor_points, region_lines, scene_box
 from .report_plots import _plt, _save  # noqa: F401  (mapping.py's map plot uses them)
 from .report_time import plot_depth_over_time
 from .truth_match import match_positions
@@ -110,6 +112,9 @@ class ReportData:
             covariances (K, 3, 3))}; {} without the file.
         truth: {target index: its truth entry} for the targets matched with a true one.
         unmatched: the true targets no estimate matched.
+        regions: {target index: its 95 % credible region (``estimator.region.CredibleRegion``,
+            from its record: ``formats.targets.record_region``)} for the static targets that
+            have one.
     """
 
     targets: list
@@ -124,6 +129,19 @@ class ReportData:
     paths: dict
     truth: dict
     unmatched: list
+    regions: dict = field(default_factory=dict)
+
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo (3,), hi (3,)) mm, the box the views are scaled to (``regions.scene_box``): the
+        head path, the static targets' points, the moving ones' paths, the truth, and the near
+        end of each region that has no point; never the regions' far ends nor the ellipsoids."""
+        static = [t.position_mm for t in self.targets if t.index not in self.paths]
+        truth = [np.asarray(tt[k], float) for tt in [*self.truth.values(), *self.unmatched]
+                 for k in ("position_mm", "path_mm") if k in tt]
+        pointless = [r for k, r in self.regions.items()
+                     if not any(t.index == k and np.all(np.isfinite(t.position_mm)) for t in self.targets)]
+        return scene_box(self.head, np.reshape(static, (-1, 3)), *(p[1] for p in self.paths.values()), *truth,
+                         anchor_points(pointless))
 
     def distance_m(self, tg) -> float:
         """Target ``tg``'s distance from the eyes while it was looked at, m: the median over its own
@@ -156,7 +174,8 @@ def report_data(out: Path, T_p: np.ndarray, truth: ReportTruth | None = None) ->
     """The outputs in ``out`` read for the report; ``T_p`` (M, 4, 4) the head poses."""
     from estimator import BinocularSamples  # noqa: PLC0415
 
-    targets = [Target.from_row(r) for r in read_targets(out / "targets.json")]
+    records = read_targets(out / "targets.json")
+    targets = [Target.from_row(r) for r in records]
     segments = read_viewlines_csv(out / "viewlines.csv")
     samples = BinocularSamples.concatenate([s.samples for s in segments])
     flabels = np.concatenate([np.full(len(s.samples), s.key if isinstance(s.key, int) else -1) for s in segments])
@@ -171,8 +190,9 @@ def report_data(out: Path, T_p: np.ndarray, truth: ReportTruth | None = None) ->
     orig = np.where(samples.left_valid[:, None], samples.left_origin_mm, samples.right_origin_mm)
     paths = read_target_paths(out / "target_paths.csv") if (out / "target_paths.csv").is_file() else {}
     matched, unmatched = match_truth(targets, paths, truth)
+    regions = {t.index: record_region(r) for t, r in zip(targets, records, strict=True) if t.index not in paths}
     return ReportData(targets, samples, tlabels, flabels, head, head.mean(axis=0) if len(head) else np.zeros(3), est,
-                      orig, cyc, paths, matched, unmatched)
+                      orig, cyc, paths, matched, unmatched, {k: r for k, r in regions.items() if r is not None})
 
 
 def match_truth(targets: list, paths: dict, truth: ReportTruth | None) -> tuple[dict, list]:
@@ -252,24 +272,28 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
 
 def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | None, points_mm=None) -> dict:
     """The 3D view's scene: the map's markers (and a markerless map's points), the head path, per
-    target its lines, estimate, ellipsoid, path and truth."""
+    target its lines, estimate, credible region (its ellipsoid when it has none), path and truth,
+    and the box the view is scaled to."""
     from .report_plots import line_segments  # noqa: PLC0415
 
-    targets = []
+    targets, (lo, hi) = [], d.box()
     for tg in d.targets:
         tt = d.truth.get(tg.index, {})
         lines = np.array([[a, b] for a, b in line_segments(tg, d, every=1)]).reshape(-1, 2, 3)
         if len(lines) > view3d.MAX_LINES:
             lines = lines[np.linspace(0, len(lines) - 1, view3d.MAX_LINES).round().astype(int)]
         targets.append(view3d.SceneTarget(
-            tg.index, colour(tg.index), tg.position_mm, None if tg.index in d.paths else d.ellipsoid(tg), lines,
+            tg.index, colour(tg.index), tg.position_mm,
+            None if tg.index in d.paths or tg.index in d.regions else d.ellipsoid(tg), lines,
             d.paths[tg.index][1] if tg.index in d.paths else None,
             np.asarray(tt["position_mm"], float) if "position_mm" in tt else None,
-            np.asarray(tt["path_mm"], float) if "path_mm" in tt else None))
+            np.asarray(tt["path_mm"], float) if "path_mm" in tt else None,
+            region_lines(d.regions[tg.index], lo, hi) if tg.index in d.regions else None))
     corners = [marker_map.corners(i) for i in marker_map.poses] if marker_map is not None else None
     others = [(f"true target {tt['index']} (not found)", tt["position_mm"]) for tt in d.unmatched
               if "position_mm" in tt]
-    return view3d.scene(targets, d.head, corners, truth.head_mm if truth is not None else None, others, points_mm)
+    return view3d.scene(targets, d.head, corners, truth.head_mm if truth is not None else None, others, points_mm,
+                        (lo, hi))
 
 
 def _device_rows(out: Path) -> str:

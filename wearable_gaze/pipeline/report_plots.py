@@ -11,6 +11,7 @@ import numpy as np
 from estimator import angular_log_likelihood
 
 from ..formats.atomic import atomic_path
+from .regions import region_lines
 
 PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png",
          "plot_depth_over_time.png")
@@ -175,13 +176,23 @@ def _plot_density(d, out: Path) -> tuple[str, str]:
 
 
 def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
-    """3D view: head path, every 10th view line of each target, the targets (a moving one as its
-    path), the truth; equal scales on the three axes."""
+    """The still 3D view (``figure_3d``) saved."""
+    _save(figure_3d(d, colour), out / PLOTS[2])
+    return (PLOTS[2], "3D view (still): head path, view lines, targets and their 95 % credible regions (dashed: "
+            "no far end; an arrow: running on past the axes); the view above can be turned")
+
+
+def figure_3d(d, colour):
+    """3D view (a matplotlib figure): head path, every 10th view line of each target, the targets
+    (a moving one as its path) with their credible regions, the truth; equal scales on the three
+    axes (x, z, up: -y), which hold the head path and the targets (``ReportData.box``)."""
     plt = _plt()
     fig = plt.figure(figsize=(7, 6), layout="constrained")
     ax = fig.add_subplot(projection="3d")
     ax.plot(d.head[:, 0], d.head[:, 2], -d.head[:, 1], "k-", lw=1, label="head")
-    pts = [d.head]
+    lo, hi = d.box()
+    for k, region in d.regions.items():
+        _region_3d(ax, region_lines(region, lo, hi), colour(k))
     for tg in d.targets:
         X, c = tg.position_mm, colour(tg.index)
         for a, b in line_segments(tg, d):
@@ -189,10 +200,10 @@ def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
         if tg.index in d.paths:
             P = d.paths[tg.index][1]
             ax.plot(P[:, 0], P[:, 2], -P[:, 1], "-", color=c, lw=2, label=f"target {tg.index} (moving: its path)")
-            pts.append(P)
         elif np.all(np.isfinite(X)):
             ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {tg.index}")
-            pts.append(X[None])
+        elif tg.index in d.regions:
+            ax.plot([], [], "--", color=c, label=f"target {tg.index} (a direction)")
         T, Tp = _truth_point(d, tg), _truth_path(d, tg)
         if T is not None:
             ax.plot([T[0]], [T[2]], [-T[1]], color=c, **TRUTH_STYLE)
@@ -200,26 +211,65 @@ def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
             ax.plot(Tp[:, 0], Tp[:, 2], -Tp[:, 1], "--", color=c, lw=1)
     if d.truth:
         ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
-    P = np.concatenate([p for p in pts if len(p)]) if any(len(p) for p in pts) else np.zeros((1, 3))
-    ax.set_box_aspect(np.maximum(np.ptp(P[:, [0, 2, 1]], axis=0), 1.0))
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[2], hi[2])
+    ax.set_zlim(-hi[1], -lo[1])
+    ax.set_box_aspect((hi - lo)[[0, 2, 1]])
     ax.set_xlabel("x (mm)", labelpad=8)
     ax.set_ylabel("z (mm)", labelpad=8)
     ax.set_zlabel("up, -y (mm)", labelpad=8)
     ax.tick_params(labelsize=7)
     ax.legend(fontsize=7, loc="upper left")
-    ax.set_title("Head path, view lines and targets (equal scales)")
-    _save(fig, out / PLOTS[2])
-    return (PLOTS[2], "3D view (still): head path, view lines, targets; the view above can be turned")
+    ax.set_title("Head path, view lines, targets and their 95 % regions (equal scales)", fontsize=10)
+    return fig
+
+
+def _region_3d(ax, r, c: str) -> None:
+    """A region's lines (``regions.RegionLines``) on a 3D axes (x, z, -y), an arrow where cut."""
+    ls = "--" if r.open else "-"
+    for ring in r.rings:
+        q = np.vstack([ring, ring[:1]])
+        ax.plot(q[:, 0], q[:, 2], -q[:, 1], ls, color=c, lw=0.9)
+    for a, b in [*r.sides, r.axis]:
+        ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], ls, color=c, lw=0.9)
+    if r.cut:
+        a, b = r.axis
+        v = 0.15 * (b - a)
+        ax.quiver(b[0] - v[0], b[2] - v[2], -(b[1] - v[1]), v[0], v[2], -v[1], color=c, arrow_length_ratio=0.6, lw=1.5)
+
+
+def top_limits(d) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (3,) mm: the top view's square x-z limits about the box of the head path and the
+    targets (``ReportData.box``; y unbounded, the height is not seen from above)."""
+    lo, hi = d.box()
+    mid, half = 0.5 * (lo + hi), 0.5 * float(max(hi[0] - lo[0], hi[2] - lo[2]))
+    return (np.array([mid[0] - half, -np.inf, mid[2] - half]), np.array([mid[0] + half, np.inf, mid[2] + half]))
 
 
 def _plot_top(d, out: Path, colour) -> tuple[str, str]:
-    """Top view: head path, view lines, each target's 95 % ellipsoid's shadow on the floor (a
-    moving target: its path, with its 95 % ellipsoid's shadow at every 10th knot); the truth."""
+    """The top view (``figure_top``) saved."""
+    _save(figure_top(d, colour), out / PLOTS[3])
+    return (PLOTS[3], "Top view: each target's 95 % credible region seen from above, its distance interval along "
+            "the line of sight by its lateral extent (dashed: no far end; an arrow: it runs on past the axes, "
+            "to the far end written beside it)")
+
+
+def figure_top(d, colour):
+    """Top view (a matplotlib figure, x-z): head path, view lines, each target's 95 % credible
+    region seen from above (a target without one: its 95 % ellipsoid's shadow; a moving target:
+    its path, with its 95 % ellipsoid's shadow at every 10th knot); the truth. The axes hold the
+    head path and the targets (``top_limits``), not the regions' far ends."""
     from matplotlib.patches import Ellipse  # noqa: PLC0415
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.5, 6.5), layout="constrained")
     ax.plot(d.head[:, 0], d.head[:, 2], "k-", lw=1, label="head")
+    lo, hi = top_limits(d)
+    drawn = [(k, region_lines(region, lo, hi)) for k, region in d.regions.items()]
+    for k, r in drawn:
+        _region_top(ax, r, colour(k), hi[0] - lo[0])
+    if any(r.open for _, r in drawn):
+        ax.plot([], [], "--", color="#555555", label="dashed: no far end (95 %)")
     for tg in d.targets:
         X, c = tg.position_mm, colour(tg.index)
         for a, b in line_segments(tg, d):
@@ -230,10 +280,12 @@ def _plot_top(d, out: Path, colour) -> tuple[str, str]:
             for k in range(0, len(P), 10):
                 ax.add_patch(_shadow(Ellipse, P[k], 7.8147 * cov[k], c, 0.5))
         elif np.all(np.isfinite(X)):
-            E = d.ellipsoid(tg)
+            E = d.ellipsoid(tg) if tg.index not in d.regions else None
             if E is not None:
                 ax.add_patch(_shadow(Ellipse, X, E.T @ E, c, 1.0))
             ax.plot(X[0], X[2], "o", color=c, label=f"target {tg.index} ({d.distance_m(tg):.2f} m)")
+        elif tg.index in d.regions:
+            ax.plot([], [], "--", color=c, label=f"target {tg.index} (a direction)")
         T, Tp = _truth_point(d, tg), _truth_path(d, tg)
         if T is not None:
             ax.plot(T[0], T[2], color=c, **TRUTH_STYLE)
@@ -241,13 +293,43 @@ def _plot_top(d, out: Path, colour) -> tuple[str, str]:
             ax.plot(Tp[:, 0], Tp[:, 2], "--", color=c, lw=1)
     if d.truth:
         ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[2], hi[2])
+    ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("z (mm)")
     ax.legend(fontsize=7)
-    ax.set_title("Top view (ellipses: the 95 % ellipsoid's shadow on the floor)", fontsize=10)
-    _save(fig, out / PLOTS[3])
-    return (PLOTS[3], "Top view: each target's 95 % ellipsoid seen from above")
+    ax.set_title("Top view (shaded: each target's 95 % credible region seen from above)", fontsize=10)
+    return fig
+
+
+def _region_top(ax, r, c: str, span_mm: float) -> None:
+    """A region's lines (``regions.RegionLines``) seen from above: the outline of its x-z shadow
+    (the convex hull of its end rings) shaded, its line of sight; where cut, an arrow at the
+    axes' edge and, when it has one, its far end beside it."""
+    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415
+
+    P = r.hull[:, [0, 2]]
+    try:
+        P = P[ConvexHull(P).vertices]
+    except QhullError:                    # seen end on: a line or a point
+        pass
+    ls = "--" if r.open else "-"
+    ax.fill(P[:, 0], P[:, 1], color=c, alpha=0.12, lw=0)
+    Q = np.vstack([P, P[:1]])
+    ax.plot(Q[:, 0], Q[:, 1], ls, color=c, lw=1)
+    a, b = r.axis[:, [0, 2]]
+    ax.plot([a[0], b[0]], [a[1], b[1]], ls, color=c, lw=0.8)
+    step = b - a
+    if r.cut and np.linalg.norm(step) > 1e-6 * span_mm:
+        tail = b - step / np.linalg.norm(step) * 0.06 * span_mm
+        ax.annotate("", xy=tuple(b), xytext=tuple(tail), arrowprops={"arrowstyle": "-|>", "color": c, "lw": 1.3})
+        if r.open:                                    # the legend says it (many rays would bury their texts)
+            return
+        text = f"far end {r.far_mm / 1000:.2f} m"
+        right, up = step[0] > 0, step[1] > 0          # the text beside the arrow's tail, inside the axes
+        ax.annotate(text, xy=tuple(tail), xytext=(-5 if right else 5, -5 if up else 5), textcoords="offset points",
+                    fontsize=7, color=c, ha="right" if right else "left", va="top" if up else "bottom")
 
 
 def _shadow(Ellipse, X, M, colour: str, lw: float):

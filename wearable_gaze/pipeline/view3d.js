@@ -7,12 +7,15 @@
   const canvas = document.getElementById("view3d");
   const scene = JSON.parse(document.getElementById("view3d-data").textContent);
   const ctx = canvas.getContext("2d");
-  const show = {markers: true, head: true, lines: true, ellipsoids: true, truth: true};
+  const show = {markers: true, head: true, lines: true, regions: true, truth: true};
   const home = {yaw: -0.35, pitch: 0.55, zoom: 1.0};   // from behind the head, above
   let view = Object.assign({}, home);
 
-  // the centre and size of what is looked at: head path and targets (the room may be far larger)
+  // the centre and size of what is looked at: the box of the head path and the targets (the room
+  // may be far larger, a region's far end too)
   const focus = [];
+  if (scene.box) [0, 1].forEach(i => [0, 1].forEach(j => [0, 1].forEach(k =>
+    focus.push([scene.box[i][0], scene.box[j][1], scene.box[k][2]]))));
   scene.head.forEach(p => focus.push(p));
   scene.targets.forEach(t => {
     if (t.position) focus.push(t.position);
@@ -23,7 +26,9 @@
   const lo = [0, 1, 2].map(k => Math.min(...focus.map(p => p[k])));
   const hi = [0, 1, 2].map(k => Math.max(...focus.map(p => p[k])));
   const centre = focus.length ? lo.map((v, k) => (v + hi[k]) / 2) : [0, 0, 0];
-  const radius = focus.length ? Math.max(300, 0.5 * Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])) : 1000;
+  // a box's corners are never all in line: its half-diagonal would leave the scene small
+  const radius = focus.length ? Math.max(300, (scene.box ? 0.35 : 0.5) * Math.hypot(hi[0] - lo[0], hi[1] - lo[1],
+                                                                                     hi[2] - lo[2])) : 1000;
   const up = scene.up;                     // a unit vector; the view's vertical
   const fwd0 = Math.abs(up[2]) < 0.9 ? [0, 0, 1] : [1, 0, 0];
   const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
@@ -104,6 +109,27 @@
     ctx.fillStyle = colour;
     ctx.fillText(text, x, y);
   }
+  function arrowHead(a, b) {                // a screen-space arrowhead at b, pointing from a
+    const va = toView(a), vb = toView(b);
+    if (va[2] < near() || vb[2] < near()) return;
+    const pa = screen(va), pb = screen(vb), r = window.devicePixelRatio || 1;
+    const L = Math.hypot(pb[0] - pa[0], pb[1] - pa[1]);
+    if (L < 1) return;
+    const ux = (pb[0] - pa[0]) / L, uy = (pb[1] - pa[1]) / L, s = 11 * r;
+    ctx.moveTo(pb[0] - s * ux + 0.5 * s * uy, pb[1] - s * uy - 0.5 * s * ux);
+    ctx.lineTo(pb[0], pb[1]);
+    ctx.lineTo(pb[0] - s * ux - 0.5 * s * uy, pb[1] - s * uy + 0.5 * s * ux);
+    drawn += 1;
+  }
+  function region(t) {                      // rings and edges; dashed: no far end; arrow: runs on
+    const g = t.region, dash = g.open ? [7, 5] : [];
+    g.rings.forEach(r => polyline(r, true));
+    g.sides.forEach(s => segment(s[0], s[1]));
+    stroke(t.colour, 1.3, 0.9, dash);
+    segment(g.axis[0], g.axis[1]);
+    stroke(t.colour, 0.9, 0.7, dash);
+    if (g.cut) { arrowHead(g.axis[0], g.axis[1]); stroke(t.colour, 1.8, 1); }
+  }
   function ellipse(c, a, b) {
     const pts = [];
     for (let i = 0; i < 48; i++) {
@@ -155,7 +181,8 @@
     scene.targets.forEach(t => {
       if (show.lines) { t.lines.forEach(l => segment(l[0], l[1])); stroke(t.colour, 0.8, 0.35); }
       if (t.path) { polyline(t.path, false); stroke(t.colour, 3, 1); }
-      if (show.ellipsoids && t.position && t.ellipsoid) {
+      if (show.regions && t.region) region(t);
+      if (show.regions && !t.region && t.position && t.ellipsoid) {
         const [a, b, c] = t.ellipsoid;
         ellipse(t.position, a, b); ellipse(t.position, b, c); ellipse(t.position, a, c);
         stroke(t.colour, 1.2, 0.9);
@@ -164,7 +191,11 @@
       if (show.truth && t.truth && t.position) { segment(t.position, t.truth); stroke("#000000", 1, 0.8, [3, 3]); }
     });
     scene.targets.forEach(t => {
-      const s = t.position ? dotAt(t.position, t.colour, 5) : null;
+      let s = t.position ? dotAt(t.position, t.colour, 5) : null;
+      if (!s && t.region) {                 // a direction without a point: its label on the line of sight
+        const v = toView(t.region.axis[0].map((x, k) => 0.5 * (x + t.region.axis[1][k])));
+        s = v[2] > near() ? screen(v) : null;
+      }
       if (show.truth && t.truth) dotAt(t.truth, t.colour, 5, "square");
       label(s, t.label, t.colour);
     });

@@ -1,8 +1,10 @@
 """The report's 3D view the reader can turn (docs/processing.md, "The report"): the room's
-marker map, the head path, each target's fan of view lines, its estimate with the 95 %
-ellipsoid and, for a simulated session, the truth. One HTML block, self-contained: the scene as
-JSON and the viewer (``view3d.js``, package data: canvas 2D, no library, no network, no GPU)
-inlined. World frame of the marker map, mm.
+marker map, the head path, each target's fan of view lines, its estimate with its 95 % credible
+region (``regions``: its depth interval along the line of sight and its lateral extent, cut at
+the box of the head path and the targets with an arrow, dashed where it has no far end; the 95 %
+ellipsoid only for a target without one) and, for a simulated session, the truth. One HTML
+block, self-contained: the scene as JSON and the viewer (``view3d.js``, package data: canvas 2D,
+no library, no network, no GPU) inlined. World frame of the marker map, mm.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from dataclasses import dataclass
 from importlib import resources
 
 import numpy as np
+
+from .regions import RegionLines
 
 MAX_HEAD_POINTS = 1500       # the head path is thinned to at most this many points
 MAX_LINES = 40               # view lines drawn per target
@@ -32,6 +36,8 @@ class SceneTarget:
         path_mm: (K, 3) a moving target's path, or None.
         truth_mm: (3,) the true position (simulated session), or None.
         truth_path_mm: (K, 3) the true path of a moving target, or None.
+        region: its 95 % credible region as lines in the view's box (``regions.RegionLines``), or
+            None (then its ellipsoid is drawn).
     """
 
     index: int
@@ -42,6 +48,7 @@ class SceneTarget:
     path_mm: np.ndarray | None = None
     truth_mm: np.ndarray | None = None
     truth_path_mm: np.ndarray | None = None
+    region: RegionLines | None = None
 
 
 def _mm(a) -> list | None:
@@ -63,7 +70,19 @@ def _thin(P, n: int) -> np.ndarray:
     return P[np.unique(np.linspace(0, len(P) - 1, n).round().astype(int))]
 
 
-def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_truth=(), points_mm=None) -> dict:
+def _region(r: RegionLines | None) -> dict | None:
+    """A region's lines, JSON-ready (mm): ``rings`` (closed polylines), ``sides`` and ``axis``
+    (segments), ``open`` (no far end: dashed), ``cut`` (an arrow at the axis's end: it runs on past
+    the box), the interval ``near_mm``, ``far_mm`` (null: none) and the drawn end ``end_mm``."""
+    if r is None:
+        return None
+    return {"rings": [_mm(p) for p in r.rings], "sides": [_mm(s) for s in r.sides], "axis": _mm(r.axis),
+            "open": bool(r.open), "cut": bool(r.cut), "near_mm": round(r.near_mm),
+            "far_mm": round(r.far_mm) if np.isfinite(r.far_mm) else None, "end_mm": round(r.end_mm)}
+
+
+def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_truth=(), points_mm=None,
+          box=None) -> dict:
     """The 3D view's scene (JSON-ready, mm).
 
     Args:
@@ -73,10 +92,13 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
         truth_head_mm: (M', 3) the true head path (simulated session), or None.
         other_truth: (label, position (3,)) true targets no estimate matched.
         points_mm: (P, 3) the room's points (a markerless map's, ``process --map``), or None.
+        box: (lo (3,), hi (3,)) mm, what the view is scaled to (``regions.scene_box``), or None
+            (the viewer takes the head path and the targets).
     """
     markers = [] if markers_mm is None else [{"corners": _mm(c)} for c in np.asarray(markers_mm, float)]
     return {
         "units": "mm", "up": [0.0, -1.0, 0.0], "origin": [0.0, 0.0, 0.0], "markers": markers,
+        "box": None if box is None else [_mm(box[0]), _mm(box[1])],
         "head": _mm(_thin(head_mm, MAX_HEAD_POINTS)),
         "truth_head": None if truth_head_mm is None else _mm(_thin(truth_head_mm, MAX_HEAD_POINTS)),
         "targets": [{
@@ -89,6 +111,7 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
             "path": None if t.path_mm is None else _mm(_thin(t.path_mm, 300)),
             "truth": _mm(t.truth_mm),
             "truth_path": None if t.truth_path_mm is None else _mm(_thin(t.truth_path_mm, 300)),
+            "region": _region(t.region),
         } for t in targets],
         "other_truth": [{"label": label, "position": _mm(p)} for label, p in other_truth],
         "points": [] if points_mm is None else _mm(_thin(points_mm, MAX_ROOM_POINTS)),
@@ -106,7 +129,7 @@ def html_block(scene_data: dict, has_truth: bool) -> str:
     the data can end the script)."""
     data = json.dumps(scene_data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
     layers = [("markers", "the room (markers, map points)"), ("head", "head path"), ("lines", "view lines"),
-              ("ellipsoids", "95 % ellipsoids")] + ([("truth", "truth")] if has_truth else [])
+              ("regions", "95 % credible regions")] + ([("truth", "truth")] if has_truth else [])
     boxes = " ".join(f'<label><input type="checkbox" data-layer="{k}" checked> {html.escape(v)}</label>'
                      for k, v in layers)
     legend = " ".join(f'<span class="swatch" style="background:{t["colour"]}"></span>{html.escape(t["label"])}'
@@ -116,9 +139,12 @@ def html_block(scene_data: dict, has_truth: bool) -> str:
     return f"""<h2>3D view</h2>
 <p>Drag to turn, wheel to zoom, double-click to reset. World frame of the marker map (mm; up is &minus;y).
 Grey squares: the map's markers (grey dots: a markerless map's points); black: the head path; thin lines:
-view lines (every few), from the eye to the target's distance; dots and ellipses: each target's estimate and
-its 95 % ellipsoid (three principal sections); the axes x, y, z (dark grey), 300 mm long, at the map's
-origin.{truth}</p>
+view lines (every few), from the eye to the target's distance; dots: each target's estimate; cones: its 95 %
+credible region, its 95 % interval of distance along the line of sight (symmetric in inverse depth: longer
+on the far side) by its 95 % lateral extent, its near end's and far end's cross-sections and four edges;
+dashed: no far end; an arrow: it runs on past the box of the head path and the targets the view is scaled
+to (the table gives its ends; a target without a region: its 95 % ellipsoid, three principal sections); the
+axes x, y, z (dark grey), 300 mm long, at the map's origin.{truth}</p>
 <p class="legend">{legend}</p>
 <p>{boxes}</p>
 <canvas id="view3d" style="width:100%;height:560px;border:1px solid #ccc;touch-action:none"></canvas>
