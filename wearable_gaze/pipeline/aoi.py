@@ -216,6 +216,45 @@ def _shape(s: AoiSpec, marker_map):
     return Polygon(_grown_hull(corners, float(p.get("margin_mm", 0.0))), **tol)
 
 
+AOI_COLOUR = "#00838f"
+"""The areas' colour in the report's 3D view (no target's: Kelly's colours hold no teal)."""
+MAX_MESH_EDGES = 3000
+"""A mesh area is outlined by at most this many of its edges in the 3D view."""
+
+
+def area_outline(area: Area) -> np.ndarray:
+    """(K, 2, 3) segments, world mm, that outline an area for the 3D view: a box's 12 edges, a
+    ball's three great circles, a polygon's sides, a mesh's edges (at most ``MAX_MESH_EDGES``)."""
+    g = area.shape
+    if isinstance(g, Box):
+        c = np.array(list(np.ndindex(2, 2, 2)), float) - 0.5
+        corners = g.center_mm + (c * g.size_mm) @ g.R_world_from_box.T
+        pairs = [(i, j) for i in range(8) for j in range(i + 1, 8) if np.sum(c[i] != c[j]) == 1]
+        return np.array([[corners[i], corners[j]] for i, j in pairs])
+    if isinstance(g, Sphere):
+        a = np.linspace(0, 2 * np.pi, 33)
+        ring = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
+        rings = [ring, ring[:, [0, 2, 1]], ring[:, [2, 0, 1]]]
+        return np.concatenate([np.stack([g.center_mm + g.radius_mm * r[:-1], g.center_mm + g.radius_mm * r[1:]],
+                                        axis=1) for r in rings])
+    if isinstance(g, Polygon):
+        c = np.asarray(g.corners_mm, float)
+        return np.stack([c, np.roll(c, -1, axis=0)], axis=1)
+    f = np.asarray(g.faces, int)
+    edges = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    if len(edges) > MAX_MESH_EDGES:
+        edges = edges[np.linspace(0, len(edges) - 1, MAX_MESH_EDGES).astype(int)]
+    return np.asarray(g.vertices_mm, float)[edges]
+
+
+def aoi_outlines(aois_path, marker_map=None) -> list:
+    """[(name, colour, segments (K, 2, 3) mm)] of an AOI file's areas for the report's 3D view
+    (``view3d.scene``'s ``aois``); [] without a file."""
+    if aois_path is None:
+        return []
+    return [(a.name, AOI_COLOUR, area_outline(a)) for a in areas_of(read_aois(aois_path), marker_map)]
+
+
 def _grown_hull(corners, margin_mm: float) -> np.ndarray:
     """(K, 3) the convex hull of ``corners`` (M, 3) on their best plane, each side moved
     ``margin_mm`` outward (a corner where its two moved sides meet), in order around it."""

@@ -35,6 +35,17 @@ POSE_NOTES = {
 }
 
 
+WORLDS = {"device": "the device's own world (its SLAM map's frame; grey dots: its map points, where it gives them)",
+          "still_head": "the head's frame (the head taken as still)",
+          "markerless": "the markerless map's world (grey dots: its points)"}
+"""The report's words for the world frame, by pose source or map kind; else the marker map's."""
+
+
+def world_words(pose_source: str | None, map_kind: str) -> str:
+    """What the report's positions and 3D view are in (``WORLDS``)."""
+    return WORLDS.get(pose_source or "", WORLDS.get(map_kind, "the marker map's world (grey squares: its markers)"))
+
+
 def device_poses(head_poses: Path, out: Path) -> None:
     """The device's head poses (head_poses.csv, ``T_world_from_head``) as the tracking step's
     poses.csv, with status 'device'."""

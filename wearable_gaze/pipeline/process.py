@@ -39,7 +39,7 @@ from ..formats.sfmmap import load_sfm_map
 from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
-from .aoi import aoi_folder, mesh_paths
+from .aoi import aoi_folder, aoi_outlines, mesh_paths
 from .calibrate import (
     calibrate_camera_files,
     calibrate_eyes,
@@ -49,7 +49,7 @@ from .calibrate import (
     read_eye_recordings,
     view_lines,
 )
-from .device import POSE_NOTES, device_comparison, device_points, device_poses, still_head_poses
+from .device import POSE_NOTES, device_comparison, device_points, device_poses, still_head_poses, world_words
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
@@ -439,9 +439,10 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
     def do_report(cb):
         truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
         points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else device_points(f.root)
+        mm = vals["marker_map"] if has_map else None
         write_report(out, session_title(f.root), overlay_inputs if cfg.overlay and cam_ok else None, cb,
-                     _report_notes(f, cfg) + truth_notes, truth, vals["marker_map"] if has_map else None,
-                     cfg.overlay_video, points)
+                     _report_notes(f, cfg) + truth_notes, truth, mm, cfg.overlay_video, points,
+                     world=world_words(f.pose_source, cfg.map_kind), aois=aoi_outlines(cfg.aois, mm))
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
               | ({"overlay_video": True} if cfg.overlay_video else {})
               | ({"truth_frame": frame.record()} if frame else {}), do_report)

@@ -239,7 +239,8 @@ def truth_error(d: ReportData, tg) -> tuple[np.ndarray | None, float]:
 
 
 def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), truth: ReportTruth | None = None,
-                 marker_map: MarkerMap | None = None, overlay_video: bool = False, room_points_mm=None) -> None:
+                 marker_map: MarkerMap | None = None, overlay_video: bool = False, room_points_mm=None,
+                 world: str = "the marker map's world", aois=()) -> None:
     """The plots (``PLOTS``), the overlay and report.html in ``out``, from the outputs of the
     earlier steps there. ``title``: the session's name. ``overlay``: None (no overlay),
     or a function returning its ``OverlayInputs`` (called here: a failure to load them, like any
@@ -247,7 +248,9 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
     ``overlay_video``: also the full-resolution overlay_full.mp4. ``notes``: sentences the reader
     must see first (where the head poses came from, ...). ``truth``: a simulated session's
     truth, shown beside every estimate. ``marker_map``: the room's markers for the 3D view;
-    ``room_points_mm``: (P, 3) its points (a markerless map's, world mm), or None."""
+    ``room_points_mm``: (P, 3) its points (a markerless map's or the device's, world mm), or None.
+    ``world``: what the positions are in, in words (``device.world_words``); ``aois``: the areas of
+    interest's outlines for the 3D view (``aoi.aoi_outlines``)."""
     out = Path(out)
     t_p, frame_p, T_p, _ = read_poses_csv(out / "poses.csv")
     d = report_data(out, T_p, truth)
@@ -266,11 +269,13 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
             write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
     if progress:
         progress(4, 5)
-    block = view3d.html_block(_scene(d, truth, marker_map, room_points_mm), bool(d.truth or d.unmatched))
+    block = view3d.html_block(_scene(d, truth, marker_map, room_points_mm, aois), bool(d.truth or d.unmatched),
+                              world)
     _html(out, title, d, images, names, notes, _device_rows(out), block)
 
 
-def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | None, points_mm=None) -> dict:
+def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | None, points_mm=None,
+           aois=()) -> dict:
     """The 3D view's scene: the map's markers (and a markerless map's points), the head path, per
     target its lines, estimate, credible region (its ellipsoid when it has none), path and truth,
     and the box the view is scaled to."""
@@ -293,7 +298,7 @@ def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | Non
     others = [(f"true target {tt['index']} (not found)", tt["position_mm"]) for tt in d.unmatched
               if "position_mm" in tt]
     return view3d.scene(targets, d.head, corners, truth.head_mm if truth is not None else None, others, points_mm,
-                        (lo, hi))
+                        (lo, hi), aois)
 
 
 def _device_rows(out: Path) -> str:

@@ -1,14 +1,14 @@
 // The report's 3D view (wearable_gaze/pipeline/view3d.py inlines this file and its scene as JSON).
 // Canvas 2D, no library, no network: works offline and without a GPU. Drag turns the view about
-// the scene's centre, the wheel zooms, a double click resets. World frame of the marker map, mm;
+// the scene's centre, shift-drag (or the right button) pans, the wheel zooms, a double click resets. World frame of the marker map, mm;
 // "up" is the scene's up vector (-y: OpenCV's y points down).
 (function () {
   "use strict";
   const canvas = document.getElementById("view3d");
   const scene = JSON.parse(document.getElementById("view3d-data").textContent);
   const ctx = canvas.getContext("2d");
-  const show = {markers: true, head: true, lines: true, regions: true, truth: true};
-  const home = {yaw: -0.35, pitch: 0.55, zoom: 1.0};   // from behind the head, above
+  const show = {markers: true, head: true, lines: true, regions: true, truth: true, aois: true};
+  const home = {yaw: -0.35, pitch: 0.55, zoom: 1.0, panX: 0, panY: 0};   // from behind the head, above
   let view = Object.assign({}, home);
 
   // the centre and size of what is looked at: the box of the head path and the targets (the room
@@ -53,7 +53,7 @@
     const cy = Math.cos(view.yaw), sy = Math.sin(view.yaw), cp = Math.cos(view.pitch), sp = Math.sin(view.pitch);
     const x = cy * a - sy * b, z1 = sy * a + cy * b;                   // turned about the vertical
     const y = cp * u + sp * z1, z = cp * z1 - sp * u;                  // tilted: pitch > 0 looks down
-    return [x, y, z + dist];
+    return [x - view.panX, y - view.panY, z + dist];         // panned across the view
   }
   const near = () => 0.02 * dist;
   function screen(v) { return [W / 2 + f * v[0] / v[2], H / 2 - f * v[1] / v[2]]; }
@@ -199,6 +199,13 @@
       if (show.truth && t.truth) dotAt(t.truth, t.colour, 5, "square");
       label(s, t.label, t.colour);
     });
+    if (show.aois) (scene.aois || []).forEach(a => {
+      a.segments.forEach(l => segment(l[0], l[1]));
+      stroke(a.colour, 1.6, 0.9, [5, 3]);
+      const c = [0, 1, 2].map(k => a.segments.reduce((acc, l) => acc + l[0][k] + l[1][k], 0) / (2 * a.segments.length));
+      const v = toView(c);
+      if (v[2] > near()) label(screen(v), a.name, a.colour);
+    });
     if (show.truth) (scene.other_truth || []).forEach(u => label(dotAt(u.position, "#000000", 5, "square"), u.label, "#000000"));
     canvas.dataset.drawn = String(drawn);
   }
@@ -206,10 +213,18 @@
   function redraw() { resize(); draw(); }
   let drag = null;
   canvas.addEventListener("pointerdown", e => { drag = [e.clientX, e.clientY]; canvas.setPointerCapture(e.pointerId); });
+  canvas.addEventListener("contextmenu", e => e.preventDefault());      // the right button pans
   canvas.addEventListener("pointermove", e => {
     if (!drag) return;
-    view.yaw += 0.01 * (e.clientX - drag[0]);
-    view.pitch = Math.max(-1.55, Math.min(1.55, view.pitch + 0.01 * (e.clientY - drag[1])));
+    const dx = e.clientX - drag[0], dy = e.clientY - drag[1];
+    if (e.shiftKey || (e.buttons & 2)) {       // pan: the scene follows the pointer at the focus's depth
+      const r = window.devicePixelRatio || 1;
+      view.panX -= dx * r * dist / f;
+      view.panY += dy * r * dist / f;
+    } else {
+      view.yaw += 0.01 * dx;
+      view.pitch = Math.max(-1.55, Math.min(1.55, view.pitch + 0.01 * dy));
+    }
     drag = [e.clientX, e.clientY];
     draw();
   });

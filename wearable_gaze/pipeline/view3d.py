@@ -82,7 +82,7 @@ def _region(r: RegionLines | None) -> dict | None:
 
 
 def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_truth=(), points_mm=None,
-          box=None) -> dict:
+          box=None, aois=()) -> dict:
     """The 3D view's scene (JSON-ready, mm).
 
     Args:
@@ -94,6 +94,7 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
         points_mm: (P, 3) the room's points (a markerless map's, ``process --map``), or None.
         box: (lo (3,), hi (3,)) mm, what the view is scaled to (``regions.scene_box``), or None
             (the viewer takes the head path and the targets).
+        aois: (name, colour, segments (K, 2, 3) mm) the areas of interest's outlines.
     """
     markers = [] if markers_mm is None else [{"corners": _mm(c)} for c in np.asarray(markers_mm, float)]
     return {
@@ -115,6 +116,8 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
         } for t in targets],
         "other_truth": [{"label": label, "position": _mm(p)} for label, p in other_truth],
         "points": [] if points_mm is None else _mm(_thin(points_mm, MAX_ROOM_POINTS)),
+        "aois": [{"name": name, "colour": colour, "segments": [[_mm(a), _mm(b)] for a, b in segs]}
+                 for name, colour, segs in aois],
     }
 
 
@@ -123,28 +126,31 @@ def viewer_script() -> str:
     return resources.files("wearable_gaze.pipeline").joinpath("view3d.js").read_text(encoding="utf-8")
 
 
-def html_block(scene_data: dict, has_truth: bool) -> str:
+def html_block(scene_data: dict, has_truth: bool, world: str = "the marker map's world") -> str:
     """The 3D view as an HTML block: a canvas (id ``view3d``), layer switches, a legend in the
     targets' colours, the scene as JSON and the viewer inlined (``</`` escaped so no string in
-    the data can end the script)."""
+    the data can end the script). ``world``: what its frame is, in words."""
     data = json.dumps(scene_data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
     layers = [("markers", "the room (markers, map points)"), ("head", "head path"), ("lines", "view lines"),
-              ("regions", "95 % credible regions")] + ([("truth", "truth")] if has_truth else [])
+              ("regions", "95 % credible regions")] + ([("truth", "truth")] if has_truth else []) \
+        + ([("aois", "areas of interest")] if scene_data.get("aois") else [])
     boxes = " ".join(f'<label><input type="checkbox" data-layer="{k}" checked> {html.escape(v)}</label>'
                      for k, v in layers)
     legend = " ".join(f'<span class="swatch" style="background:{t["colour"]}"></span>{html.escape(t["label"])}'
                       for t in scene_data["targets"])
+    aois = (" Teal outlines: the areas of interest (docs/aois.md), each with its name." if scene_data.get("aois")
+            else "")
     truth = (" Squares: the true targets, a dashed line to each one's estimate; dashed black: the true head path."
              if has_truth else "")
     return f"""<h2>3D view</h2>
-<p>Drag to turn, wheel to zoom, double-click to reset. World frame of the marker map (mm; up is &minus;y).
-Grey squares: the map's markers (grey dots: a markerless map's points); black: the head path; thin lines:
+<p>Drag to turn, shift-drag (or drag with the right button) to pan, wheel to zoom, double-click to reset.
+Positions in {html.escape(world)}, mm; up is &minus;y. Black: the head path; thin lines:
 view lines (every few), from the eye to the target's distance; dots: each target's estimate; cones: its 95 %
 credible region, its 95 % interval of distance along the line of sight (symmetric in inverse depth: longer
 on the far side) by its 95 % lateral extent, its near end's and far end's cross-sections and four edges;
 dashed: no far end; an arrow: it runs on past the box of the head path and the targets the view is scaled
 to (the table gives its ends; a target without a region: its 95 % ellipsoid, three principal sections); the
-axes x, y, z (dark grey), 300 mm long, at the map's origin.{truth}</p>
+axes x, y, z (dark grey), 300 mm long, at the world's origin.{aois}{truth}</p>
 <p class="legend">{legend}</p>
 <p>{boxes}</p>
 <canvas id="view3d" style="width:100%;height:560px;border:1px solid #ccc;touch-action:none"></canvas>
