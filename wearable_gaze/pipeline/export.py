@@ -51,7 +51,8 @@ def fixation_rows(result: TargetsResult) -> list[dict]:
                 pos, cov = f.estimate.position_mm, f.estimate.covariance_mm2
         rows.append({"fixation_id": f.index, "start_s": float(t.min()), "end_s": float(t.max()),
                      "n_samples": len(f.samples), "target_id": target_of.get(f.index, -1), "motion": f.motion,
-                     "status": status, "position_mm": pos, "covariance_mm2": cov})
+                     "status": status, "position_mm": pos, "covariance_mm2": cov,
+                     "direction": f.estimate.direction if f.estimate is not None else None})
     return rows
 
 
@@ -195,13 +196,23 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
     """targets.ply's mesh: per target with a point, a lone vertex at the point and, with a
     covariance, its 95 % ellipsoid (``estimator.result.covariance_ellipsoid``: the unit
     icosphere scaled by the semi-axes along the covariance's eigenvectors), in the target's
-    colour; then each moving target's path (``paths``: target_paths.csv's, {index: (t, (K, 3)
-    positions, covariances)}) as edges in its colour; then the head path, the scene camera's
+    colour; a direction-only target's ray over its depth interval as an edge (``direction_ray``);
+    then each moving target's path (``paths``: target_paths.csv's, {index: (t, (K, 3) positions,
+    covariances)}) as edges in its colour; then the head path, the scene camera's
     positions at its posed frames, as edges."""
     sphere, faces = icosphere()
     V, C, F, E, notes = [], [], [], [], []
     n = 0
     for tg in targets:
+        if not np.all(np.isfinite(tg.position_mm)) and tg.direction is not None:
+            V.append(direction_ray(tg.direction))            # a direction-only target: its ray, an edge
+            C.append(np.repeat(COLOURS[tg.index % len(COLOURS)][None], 2, 0))
+            E.append(np.array([[n, n + 1]]))
+            open_end = "" if np.isfinite(tg.direction.depth95_mm[1]) else f", no far end: drawn to {RAY_FAR_MM:.0f} mm"
+            notes.append(f"target {tg.index}: vertices {n}-{n + 1}, the edge: its direction over its 95 % depth "
+                         f"interval (direction-only{open_end})")
+            n += 2
+            continue
         if not np.all(np.isfinite(tg.position_mm)):
             continue
         colour = COLOURS[tg.index % len(COLOURS)]
@@ -232,6 +243,19 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
                      "the edges")
     return PlyMesh(_cat(V, (0, 3), float), _cat(C, (0, 3), np.uint8), _cat(F, (0, 3), int), _cat(E, (0, 2), int),
                    ["wearable-gaze targets.ply (docs/formats.md)", *notes])
+
+
+RAY_FAR_MM = 20000.0
+"""Where targets.ply ends a direction-only target's ray whose depth interval has no far end, mm."""
+
+
+def direction_ray(g) -> np.ndarray:
+    """(2, 3) world mm: a direction's (``estimator.direction.GazeDirection``) ray from the near to
+    the far end of its 95 % depth interval (``RAY_FAR_MM`` from where it was seen when it has
+    none)."""
+    near, far = g.depth95_mm
+    far = far if np.isfinite(far) else max(RAY_FAR_MM, 2 * near)
+    return g.origin_mm + np.outer([near, far], g.unit)
 
 
 def _cat(parts: list, shape: tuple, dtype) -> np.ndarray:
