@@ -171,3 +171,70 @@ def test_the_live_session_answers_a_far_fixation_by_its_direction():
     validate(msg, "live-message", "live message")
     assert msg["status"] == "direction-only" and msg["position_mm"] is None and msg["direction"]["cone95_deg"] > 0
 
+
+
+def statuses_everywhere(res, out) -> tuple[list, list, list, int, int]:
+    """The targets' statuses in process's table (``format_result``), targets.json and
+    report.html, and the fixated-target counts of the table and the report."""
+    import json
+    import re
+
+    from wearable_gaze.pipeline.steps import format_result
+
+    text = format_result(res)
+    table = re.findall(r"^\s*\d+ .*?\d+\.\d-\d+\.\d\s+(\S+)", text, flags=re.M)
+    records = [r["status"] for r in json.loads((out / "targets.json").read_text())["targets"]]
+    page = (out / "report.html").read_text()
+    report = re.findall(r'<span class="status">([^<]*)</span>', page)
+    n_table = int(re.match(r"(\d+) fixated target", text).group(1))
+    n_report = int(re.search(r"(\d+) fixated target", page).group(1))
+    return table, records, report, n_table, n_report
+
+
+@pytest.mark.slow
+def test_process_answers_every_fixation_of_a_still_head_looking_far(tmp_path):
+    """A simulated still head looking at targets 4-8 m away, each eye 0.3 deg outward: the
+    rays of the far fixations diverge. Every fixation the segmenter finds is a target with a
+    direction (before: the diverging ones were dropped), the status the same in the table, the
+    report and targets.json."""
+    from wearable_gaze.formats.fixations_table import read_fixations_csv
+    from wearable_gaze.formats.targets import read_targets
+    from wearable_gaze.formats.truth import read_truth_targets
+    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.sim.simulate import simulate_scenario
+
+    scn = {"base": "lab-walkabout", "duration_s": 12.0, "camera": {"resolution": [640, 360]},
+           "eyes": {"bias_deg": [[-0.3, 0.0], [0.3, 0.0]]}, "head": {"motion": "fixed"},
+           "targets": {"random_count": 4, "random_depth_mm": [4000.0, 8000.0]}, "calibration": {"camera_views": 6}}
+    simulate_scenario(scn, tmp_path / "s", seed=5)
+    res = process_session(tmp_path / "s", tmp_path / "out", overlay=False)
+    out = tmp_path / "out"
+    fx = read_fixations_csv(out / "fixations.csv")
+    recs = {r["target"]: r for r in read_targets(out / "targets.json")}
+    assert len(fx["fixation_id"]) >= 3
+    assert (fx["target_id"] >= 0).all(), fx["status"]                      # every fixation answered
+    assert "direction-only" in set(fx["status"])
+    truth = [tt for tt in read_truth_targets(tmp_path / "s" / "truth" / "targets.json") if "position_mm" in tt]
+    for k in range(len(fx["fixation_id"])):
+        rec = recs[int(fx["target_id"][k])]
+        g = GazeDirection.from_dict(rec["direction"])
+        mid = 0.5 * (fx["start_s"][k] + fx["end_s"][k])
+        tt = next(tt for tt in truth if any(a <= mid <= b for a, b in tt["fixations_s"]))
+        assert g.contains(tt["position_mm"]), (rec["status"], g)
+    table, records, report, n_table, n_report = statuses_everywhere(res, out)
+    assert table == records == report and n_table == n_report == len(records)
+
+
+def test_one_status_per_target_and_a_too_near_point_is_not_counted(real_data, tmp_path):
+    """Issue 27 on the Tufts import (a still head, an eye model whose lines meet 40 mm ahead):
+    moving fixations whose point is too near were 'too-near' in the table and targets.json but
+    'moving' in the report, and counted among the fixated targets."""
+    from wearable_gaze.pipeline.importer import import_recording
+    from wearable_gaze.pipeline.process import process_session
+
+    import_recording(real_data / "tufts_gaze_depth" / "test.csv", tmp_path / "s", "pupil-core")
+    res = process_session(tmp_path / "s", tmp_path / "out", overlay=False)
+    table, records, report, n_table, n_report = statuses_everywhere(res, tmp_path / "out")
+    assert "too-near" in records
+    assert table == records == report
+    assert n_table == n_report == sum(st != "too-near" for st in records) < len(records)

@@ -120,3 +120,22 @@ def test_an_export_with_neon_eye_states_gives_per_eye_visual_axes(tmp_path):
     assert np.allclose(got.left_origin_mm[got.left_valid], sim.rays.left_origin_mm[np.isin(sim.t, got.t_s)][
         got.left_valid], atol=1e-3)
     assert any("kappa offset" in n for n in rep["notes"])
+
+
+def test_the_real_invisible_export_goes_through_process_with_a_direction_per_target(real_data, tmp_path):
+    """Issue 26/27: one cyclopean line per sample from a still head (no video) fixes each
+    fixation's direction, never its depth: every fixation the segmenter finds is a
+    direction-only target whose depth interval is the whole of it (before: no target at all,
+    exit status 2)."""
+    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
+
+    run_import(pupil_cloud, real_data / FOLLOW, tmp_path / "s")
+    res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["failed_steps"] == [] and res.exit_status == 0
+    assert len(res.targets) >= 20
+    for t in res.targets:
+        assert t["status"] == "direction-only" and t["position_mm"] is None
+        d = t["direction"]
+        assert d["unit"][2] > 0.8 and 0 < d["cone95_deg"] < 3.0            # ahead, within a few degrees
+        assert d["depth95_mm"] == [70.0, None]                               # a still head: no depth

@@ -250,11 +250,11 @@ def targets_of_segments(path, method: str, sigma_deg: float, error_model: ErrorM
 
 
 def nothing_estimated(path, results: list[dict]) -> UserError | None:
-    """The error for an ``estimate_file`` result in which no segment (or target) got a position:
-    every row in segment -1, or every estimate failed (too few rows, parallel lines); None when
-    at least one has a position."""
+    """The error for an ``estimate_file`` result in which no segment (or target) got a position
+    or a direction (``direction-only``): every row in segment -1, or every estimate failed (too
+    few rows); None when at least one has either."""
     tried = [r for r in results if r.get("status") != "skipped"]
-    if any(r.get("position_mm") is not None for r in tried):
+    if any(r.get("position_mm") is not None or r.get("status") == "direction-only" for r in tried):
         return None
     if not tried and not results:                 # --targets: no fixation gave a target
         return UserError(f"{path}: nothing could be estimated: no fixation gave a target (too few rows, or view lines "
@@ -306,7 +306,10 @@ def _targets_table(results: list[dict]) -> str:
     for r in results:
         axes = " ".join(f"{v:.1f}" for v in (r["ellipsoid95_radii_mm"] or [np.nan] * 3))
         x, y, z = r["position_mm"] or [np.nan] * 3
+        g = r.get("direction") if r["position_mm"] is None else None
         rows.append(f"{r['target']:>6} {r['status']:>17} {x:>9.1f} {y:>9.1f} {z:>9.1f} "
                     f"{axes:>22} {r['n_samples']:>8} {r['t_start']:>5.1f}-{r['t_end']:<6.1f} "
-                    + ";".join(str(f) for f in r["fixations"]))
+                    + ";".join(str(f) for f in r["fixations"])
+                    + (f" (direction {' '.join(f'{v:.3f}' for v in g['unit'])}, 95 % cone {g['cone95_deg']:.2f} deg)"
+                       if g else ""))
     return "\n".join(rows)
