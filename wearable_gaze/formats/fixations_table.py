@@ -20,6 +20,8 @@ One writer, ``write_fixations_csv``, and one reader, ``read_fixations_csv``.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .tables import Checks, read_table, write_table
@@ -74,12 +76,16 @@ def write_fixations_csv(path, rows: list[dict]) -> None:
 
 def read_fixations_csv(path) -> dict:
     """The columns of a fixations.csv, {name: (N,) array} in ``FIXATION_COLUMNS``'s dtypes (NaN
-    where empty); a header alone is no fixation, not an error.
+    where empty; the direction columns NaN in a file written before they existed); a header
+    alone is no fixation, not an error.
 
     Raises:
         UserError: a missing file or column, a cell that is not a number (one line).
     """
-    cols = read_table(path, _NUMBERS, text_columns=_TEXT, rows_required=False, checks=FIXATION_CHECKS)
+    older = dataclasses.replace(FIXATION_CHECKS, required=tuple(c for c in _NUMBERS if c not in DIRECTION_COLUMNS))
+    cols = read_table(path, _NUMBERS, text_columns=_TEXT, rows_required=False, checks=older)
     for k in _TEXT:
         cols.setdefault(k, np.zeros(0, object))
+    for k in DIRECTION_COLUMNS:                    # a file written before they existed: none
+        cols.setdefault(k, np.full(len(cols["fixation_id"]), np.nan))
     return {k: cols[k].astype(np.int64) if d == "int64" else cols[k] for k, d in FIXATION_COLUMNS.items()}
