@@ -6,7 +6,7 @@ answer with its 95 % cone and a depth interval that may have no far end, in ``es
 import numpy as np
 import pytest
 
-from estimator import BinocularSamples, Status, estimate, perturb_directions
+from estimator import BinocularSamples, Status, estimate, make_estimator, perturb_directions
 from estimator.direction import GazeDirection, gaze_direction
 from estimator.errormodel import ErrorModel
 from estimator.frames import rotation_about_axis
@@ -234,3 +234,18 @@ def test_one_status_per_target_and_a_too_near_point_is_not_counted(real_data, tm
     assert "too-near" in records
     assert table == records == report
     assert n_table == n_report == sum(st != "too-near" for st in records) < len(records)
+
+
+def test_the_live_session_publishes_the_status_process_gives(rng):
+    """A static fixation whose lines meet 40 mm in front of the eyes: process calls its target
+    'too-near'; the live session published it 'ok' (the estimator's status), now 'too-near' too."""
+    from wearable_gaze.live.estimation import FinishedFixation, GazeEstimation
+    from wearable_gaze.pipeline.target_status import estimate_status
+
+    near = np.array([5.0, 0.0, 40.0])
+    s = diverging(near, rng, n=60, bias_deg=0.0, sigma_deg=0.2)
+    e = make_estimator("voxel", 0.2).add(s)                    # the live stream's own estimate: ok
+    assert e.ok
+    lines = tuple(s.sample(i) for i in range(len(s)))
+    target = GazeEstimation(None, "voxel").finish(FinishedFixation(0, lines, e, 0.0, 1.0, len(s)))
+    assert target.status == estimate_status(e, s) == "too-near" and not target.fixated
