@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 
+from .direction import with_direction
 from .likelihood import MLConfig, ml_point
 from .lines import BinocularSample, BinocularSamples, samples_from_stream
 from .result import GazeEstimate, Status, failed, near_point_check
@@ -106,7 +107,9 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
     ``(estimator, GazeEstimate)`` so that its density can be exported.
 
     ``voxel`` and ``paper`` take the samples in time order, as they would stream: the seed comes
-    from the first samples, as in a live session.
+    from the first samples, as in a live session. A result without a point ahead of the eyes is
+    answered by its direction (``estimator.direction.with_direction``, the cone's bias from
+    ``options["error_model"]`` when given).
     """
     if samples.frame != "world":
         raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
@@ -121,6 +124,7 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
     if result.ok:
         lines = samples.lines()
         result = near_point_check(result, lines.origins_mm, lines.directions)
+    result = with_direction(result, samples, options.get("error_model"))
     log.info("%s: %d samples, %d lines: %s", method, result.n_samples, result.n_lines,
              f"{result.position_mm.round(1).tolist()} mm" if result.ok else f"{result.status.value}: {result.reason}")
     return est, result
@@ -128,7 +132,11 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
 
 def estimate(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,
              **options) -> GazeEstimate:
-    """Estimate the gazed point from a batch of binocular samples (world frame); see ``run_estimator``."""
+    """Estimate the gazed point from a batch of binocular samples (world frame); see
+    ``run_estimator``. Lines that fix no point ahead of the eyes (parallel or diverging rays, one
+    line per sample from a still head) give ``Status.DIRECTION_ONLY``: no point, the direction
+    with its 95 % cone and depth interval (``estimator.direction``), when there are at least
+    ``MIN_DIRECTION_SAMPLES`` samples."""
     return run_estimator(samples, method, sigma_deg, **options)[1]
 
 

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.stats import chi2
 
 from .errormodel import Sight
+
+if TYPE_CHECKING:
+    from .direction import GazeDirection
 
 
 class Status(str, Enum):
@@ -19,6 +23,7 @@ class Status(str, Enum):
     DEGENERATE = "degenerate"            # lines (nearly) parallel: the point is not determined
     BEHIND = "behind"                    # the best point lies behind the eyes
     TOO_NEAR = "too-near"                # nearer the eyes than anyone can fixate: the lines are wrong
+    DIRECTION_ONLY = "direction-only"    # the lines fix a direction (with its cone), not a point: ``direction``
 
 
 @dataclass(frozen=True)
@@ -51,6 +56,9 @@ class GazeEstimate:
         n_lines: view lines used.
         reason: a sentence for people when ``status`` is not OK (empty otherwise).
         info: method-specific diagnostics (iterations, residual RMS in degrees, voxel size...).
+        direction: with ``Status.DIRECTION_ONLY``, where the lines looked
+            (``estimator.direction.GazeDirection``: the cyclopean direction, its 95 % cone and the
+            depth interval, which may have no far end); None otherwise.
     """
 
     method: str
@@ -61,6 +69,7 @@ class GazeEstimate:
     n_lines: int
     reason: str = ""
     info: dict = field(default_factory=dict)
+    direction: GazeDirection | None = None
 
     @property
     def ok(self) -> bool:
@@ -98,9 +107,10 @@ class GazeEstimate:
         return sight.depth_interval(self.position_mm, probability)
 
     def to_dict(self) -> dict:
-        """JSON-ready dict (lists, not arrays)."""
+        """JSON-ready dict (lists, not arrays); ``direction`` (``GazeDirection.to_dict``) only
+        when the estimate has one."""
         ell = self.ellipsoid()
-        return {
+        out = {
             "method": self.method,
             "status": self.status.value,
             "reason": self.reason,
@@ -110,6 +120,9 @@ class GazeEstimate:
             "n_samples": int(self.n_samples),
             "n_lines": int(self.n_lines),
         }
+        if self.direction is not None:
+            out["direction"] = self.direction.to_dict()
+        return out
 
 
 def failed(method: str, status: Status, reason: str, n_samples: int, n_lines: int,

@@ -137,3 +137,22 @@ def test_export_recording_eye_states_writes_a_neon_export_that_imports_per_eye(t
                      *extra]) == 0
         assert (rec / "3d_eye_states.csv").is_file() == bool(extra)
         assert run_import(pupil_cloud, rec, tmp_path / f"out{len(extra)}")["rays"] == rays
+
+
+def test_the_real_invisible_export_goes_through_process_with_a_direction_per_target(real_data, tmp_path):
+    """Issue 26/27: one cyclopean line per sample from a still head (no video) fixes each
+    fixation's direction, never its depth: every fixation the segmenter finds is a
+    direction-only target whose depth interval is the whole of it (before: no target at all,
+    exit status 2)."""
+    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
+
+    run_import(pupil_cloud, real_data / FOLLOW, tmp_path / "s")
+    res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["failed_steps"] == [] and res.exit_status == 0
+    assert len(res.targets) >= 20
+    for t in res.targets:
+        assert t["status"] == "direction-only" and t["position_mm"] is None
+        d = t["direction"]
+        assert d["unit"][2] > 0.8 and 0 < d["cone95_deg"] < 6.0            # ahead; 1.2-4.8 deg measured
+        assert d["depth95_mm"] == [70.0, None]                               # a still head: no depth

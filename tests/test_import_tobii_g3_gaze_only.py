@@ -86,9 +86,25 @@ def test_g3_goes_through_process_with_no_failed_step(g3):
     summary = json.loads((s.parent / "out" / "summary.json").read_text())
     assert summary["failed_steps"] == [] and summary["problems"] == []
     assert len(res.targets) > 0 and (s.parent / "out" / "report.html").is_file()
-    for t in res.targets:
-        d = np.asarray(t["position_mm"], float)
-        assert np.all(np.isfinite(d)) and d[2] > 0                 # each has a direction, ahead
+    for t in res.targets:                                          # each has a direction, ahead
+        d = np.asarray(t["position_mm"] if t["position_mm"] is not None else t["direction"]["unit"], float)
+        assert np.all(np.isfinite(d)) and d[2] > 0
+        assert t.get("moving") or t["direction"]["cone95_deg"] > 0    # a static one: its direction and cone
+
+
+def test_g3_answers_every_fixation_of_its_still_head(g3):
+    """Issue 27: with a still head the eyes' vergence alone fixes depth, and a far fixation's rays
+    meet behind the head or not at all: such a fixation was dropped ('degenerate', no target);
+    now every static fixation is a target with its direction, and those are direction-only."""
+    from wearable_gaze.formats.fixations_table import read_fixations_csv  # noqa: PLC0415
+
+    _, s, _, _ = g3
+    out = s.parent / "out"
+    if not (out / "fixations.csv").is_file():
+        process_session(s, out)
+    fx = read_fixations_csv(out / "fixations.csv")
+    assert len(fx["fixation_id"]) >= 30 and (fx["target_id"] >= 0).all(), list(fx["status"])
+    assert "direction-only" in set(fx["status"])
 
 
 def test_target_paths_keep_a_still_heads_depth_variance(tmp_path):

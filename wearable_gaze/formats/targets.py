@@ -17,8 +17,9 @@ from where it was seen and the 68 % and 95 % intervals of it, symmetric in inver
 records. targets.csv holds the same records flattened (``TARGET_CSV_COLUMNS``: ``position_mm``
 -> ``x_mm, y_mm, z_mm``; ``covariance_mm2`` -> ``cov_xx_mm2 .. cov_zz_mm2``, its six unique
 terms; ``ellipsoid95_radii_mm`` -> ``ellipsoid95_r1_mm .. r3_mm``; ``fixations`` ``;``-joined;
-``moving`` 1/0; ``depth`` -> ``distance_mm``, ``depth68_near_mm .. depth95_far_mm``), an empty
-cell for null, rounded to 0.1 mm and 1 ms for spreadsheets.
+``moving`` 1/0; ``depth`` -> ``distance_mm``, ``depth68_near_mm .. depth95_far_mm``, the 95 %
+pair from ``direction`` when there is no ``depth``; ``direction`` -> ``direction_x .. _z``,
+``cone95_deg``), an empty cell for null, rounded to 0.1 mm and 1 ms for spreadsheets.
 
 ``target_paths.csv`` holds the moving targets' paths, one row per knot: ``target``, ``t`` (s),
 ``x, y, z`` (world frame, mm) and the covariance terms ``cxx, cxy, cxz, cyy, cyz, czz`` (mm^2);
@@ -46,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.direction import GazeDirection
 from estimator.errormodel import FAR_SIDE_K, Sight
 from estimator.region import CredibleRegion, region_of_direction, region_of_point
 
@@ -61,9 +63,15 @@ COV_TERMS = ("xx", "xy", "xz", "yy", "yz", "zz")
 TARGET_CSV_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", *(f"cov_{k}_mm2" for k in COV_TERMS), "ellipsoid95_r1_mm",
                       "ellipsoid95_r2_mm", "ellipsoid95_r3_mm", "n_samples", "t_start", "t_end", "fixations", "method",
                       "status", "crb_mm", "moving", "distance_mm", "depth68_near_mm", "depth68_far_mm",
-                      "depth95_near_mm", "depth95_far_mm")
+                      "depth95_near_mm", "depth95_far_mm", "direction_x", "direction_y", "direction_z",
+                      "cone95_deg")
 """The columns of targets.csv: a record flattened (``target_csv_columns``)."""
 DEPTH_COLUMN = "depth"
+DIRECTION_COLUMN = "direction"
+"""A record's ``direction`` (``estimator.direction.GazeDirection.to_dict``): the cyclopean gaze
+direction seen from the mean of its lines' cyclopean origins, its 95 % cone's half-angle, the 95 %
+depth interval along it (far null: no far end); every static target with enough lines has one,
+and it is a ``direction-only`` target's whole answer (its ``position_mm`` is null)."""
 DEPTH_KEYS = ("seen_from_mm", "distance_mm", "relative_sd", "interval68_mm", "interval95_mm")
 """The keys of a record's ``depth``: where it was seen from (the mean origin of its view lines,
 [x, y, z] world frame, mm), its distance from there (mm), the linearised relative sd of that
@@ -72,6 +80,7 @@ far end), symmetric in inverse depth (``estimator.errormodel.depth_interval``)."
 TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "ellipsoid95_r1_mm", "ellipsoid95_r2_mm",
                                      "ellipsoid95_r3_mm", "crb_mm", "distance_mm", "depth68_near_mm",
                                      "depth68_far_mm", "depth95_near_mm", "depth95_far_mm")} | {
+    k: ".6f" for k in ("direction_x", "direction_y", "direction_z")} | {"cone95_deg": ".3f"} | {
     f"cov_{k}_mm2": ".6g" for k in COV_TERMS} | {"t_start": ".3f", "t_end": ".3f"}
 TARGETS_VERSION = 2
 MOVING_COLUMN = "moving"
@@ -82,7 +91,7 @@ ESTIMATE_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
 ESTIMATE_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
 TARGET_CSV_CHECKS = Checks(tuple(c for c in TARGET_CSV_COLUMNS if c not in ("fixations", "method", "status")),
                            tuple(c for c in TARGET_CSV_COLUMNS if c.endswith("_mm") or c.endswith("_mm2")
-                                 or c in ("t_start", "t_end")),
+                                 or c.startswith("direction_") or c in ("t_start", "t_end", "cone95_deg")),
                            tuple(f"cov_{k}_mm2" for k in COV_TERMS), "targets table (targets.csv)")
 PATH_CHECKS = Checks(PATH_COLUMNS, (), PATH_COLUMNS[5:], "target-path CSV (target_paths.csv)")
 """What target_paths.csv may hold, checked by its writer and its reader: the covariances in mm^2
@@ -110,7 +119,7 @@ def _finite(value, decimals: int | None = None):
 
 def target_record(index: int, t_start: float, t_end: float, position_mm, radii95_mm, n_samples: int, method: str,
                   status: str, covariance_mm2=None, crb_mm: float = float("nan"), fixations=(), moving: bool = False,
-                  rounded: bool = False, sight: Sight | None = None) -> dict:
+                  rounded: bool = False, sight: Sight | None = None, direction: GazeDirection | None = None) -> dict:
     """The record of one target (keys ``TARGET_KEYS``, plain JSON values): the one function that
     makes the rows of targets.json, the objects of ``estimate --json --targets`` and the body of
     the live ``target`` message, so that they cannot drift apart.
@@ -128,6 +137,9 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
         sight: where it was seen from and how the error model shaped its covariance
             (``estimator.errormodel.Sight``; ``pipeline.types.Target.sight``): the record gets
             ``depth``.
+        direction: where its lines looked (``estimator.direction.GazeDirection``): the record
+            gets ``direction`` (``GazeDirection.to_dict``: ``seen_from_mm``, ``unit``,
+            ``cone95_deg``, ``depth95_mm`` [near, far or null], ``spread_deg``, ``n_samples``).
     """
     mm, s = (1, 4) if rounded else (None, None)
     cov = _finite_list(covariance_mm2, (3, 3), None)
@@ -142,6 +154,8 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
         rec[MOVING_COLUMN] = True
     if sight is not None and rec["position_mm"] is not None and np.isfinite(sight.depth_rel_sd):
         rec[DEPTH_COLUMN] = _depth(position_mm, sight, mm)
+    if direction is not None:
+        rec[DIRECTION_COLUMN] = direction.to_dict(mm)
     return rec
 
 
@@ -193,7 +207,20 @@ def target_csv_columns(records: list[dict]) -> dict:
     cols |= {"distance_mm": np.array([depth(r, "distance_mm") for r in records], float)}
     cols |= {f"depth{p}_{side}_mm": np.array([depth(r, f"interval{p}_mm", j) for r in records], float)
              for p in (68, 95) for j, side in enumerate(("near", "far"))}
+    no_depth = np.array([not r.get(DEPTH_COLUMN) for r in records], bool)
+    for j, side in enumerate(("near", "far")):          # a direction-only target's interval, from its direction
+        along = np.array([direction(r, "depth95_mm", j) for r in records], float)
+        cols[f"depth95_{side}_mm"] = np.where(no_depth, along, cols[f"depth95_{side}_mm"])
+    cols |= {f"direction_{a}": np.array([direction(r, "unit", j) for r in records], float) for j, a in enumerate("xyz")}
+    cols |= {"cone95_deg": np.array([direction(r, "cone95_deg") for r in records], float)}
     return cols
+
+
+def direction(r: dict, key: str, j: int | None = None) -> float:
+    """A record's ``direction[key]`` (its ``j``-th entry), NaN when it has none (or it is null)."""
+    d = r.get(DIRECTION_COLUMN)
+    v = None if not d else (d[key] if j is None else d[key][j])
+    return np.nan if v is None else float(v)
 
 
 def write_targets_csv(path, records: list[dict], sessions=None) -> None:

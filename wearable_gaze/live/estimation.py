@@ -16,15 +16,18 @@ from estimator import (
     BinocularSample,
     BinocularSamples,
     GazeEstimate,
+    Status,
     ViewLines,
     make_estimator,
     view_lines_to_world,
 )
+from estimator.direction import gaze_direction, with_direction
 from estimator.motion import DEFAULT_KNOT_S, MIN_LINES, MOVING, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter
 
-from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, target_merger, target_status
+from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, target_merger
+from ..pipeline.target_status import estimate_status, target_status
 from ..pipeline.types import Target
 
 log = logging.getLogger(__name__)
@@ -135,7 +138,8 @@ class FinishedFixation:
         fixation: its index (0, 1, ... in the session).
         lines: its ``BinocularSample`` (world frame, time order), without the lines the segmenter
             took in before it saw the saccade.
-        estimate: its streaming estimator's latest usable ``GazeEstimate``.
+        estimate: its streaming estimator's latest usable ``GazeEstimate``, or its latest one when none
+            was usable (then ``finish`` answers the fixation by its direction).
         t_start, t_end: its first sample's and its latest estimate's session times, s.
         n_samples: samples its estimator took.
     """
@@ -247,15 +251,19 @@ class GazeEstimation:
     def end_fixation(self, saccade_lines: int = 0) -> FinishedFixation | None:
         """End the current fixation (a saccade, or the session's end); the next starts afresh.
         Cheap, on the loop's thread: returns what its target needs (``finish`` makes it) when it
-        lasted ``min_fixation_s`` and had an estimate, else None. Its lines but the last
+        lasted ``min_fixation_s``, else None. Its lines but the last
         ``saccade_lines`` (a saccade is seen once it fills half the segmenter's windows: up to
-        ``window`` lines already after it) are kept."""
+        ``window`` lines already after it) are kept. A fixation whose estimator gave no usable
+        estimate is handed on with its latest one (``finish`` answers it by its direction when its
+        lines fix one)."""
         done = None
-        if (self.last is not None and self.t_start is not None
-                and self.last[1] - self.t_start >= self.segmenter.config.min_fixation_s):
-            est, t_end = self.last
+        t_last = self.last[1] if self.last is not None else (self.lines[-1].t_s if self.lines else None)
+        if (t_last is not None and self.t_start is not None
+                and t_last - self.t_start >= self.segmenter.config.min_fixation_s):
+            # no usable estimate: the lines may still fix a direction (finish answers it)
+            est = self.last[0] if self.last is not None else self.estimator.estimate()
             done = FinishedFixation(self.fixation, tuple(self.lines[:len(self.lines) - saccade_lines]), est,
-                                    self.t_start, t_end, self.n_samples)
+                                    self.t_start, t_last, self.n_samples)
         self.fixation += 1
         self._new_fixation()
         return done
@@ -268,27 +276,47 @@ class GazeEstimation:
         target (``moving_target``) with a new id. A static one (``pipeline.types.Target``: its
         own estimate) has as ``index`` the id of the target whose lines its own join
         (``TargetIds.id_for``, the merge test ``process`` runs), or a new one; its one fixation
-        in ``fixations``; no Cramér-Rao bound (NaN)."""
+        in ``fixations``; no Cramér-Rao bound (NaN); its status from
+        ``pipeline.target_status.estimate_status`` (as ``process``) and its direction. One without
+        a usable point is direction-only (``direction_target``)."""
         step = -(-len(done.lines) // MAX_END_LINES)                  # ceil: at most MAX_END_LINES
         samples = lines_to_samples(done.lines[::step]) if done.lines else None
         target = None if samples is None else self.moving_target(done, samples)
         if target is not None:
             return target
         est = done.estimate
+        if not est.ok:
+            return self.direction_target(done, samples)
         r = est.ellipsoid(0.95)
         index = (self.targets.new_own() if samples is None
                  else self.targets.id_for(samples, est, key=done.fixation))
         return Target(index=index, position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
-                      axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm, status=str(est.status.value),
+                      axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm,
+                      status=estimate_status(est, samples) if samples is not None else str(est.status.value),
                       n_samples=done.n_samples, t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,),
-                      method=self.method, crb_mm=float("nan"), sight=est.sight())
+                      method=self.method, crb_mm=float("nan"), sight=est.sight(),
+                      direction=None if samples is None else gaze_direction(samples, DEFAULT_ERROR_MODEL))
+
+    def direction_target(self, done: FinishedFixation, samples: BinocularSamples | None) -> Target | None:
+        """The target of a finished static fixation without a usable point: direction-only
+        (``estimator.direction.with_direction``, as ``process`` answers it) with an id of its
+        own, or None when its lines give no direction either."""
+        if samples is None:
+            return None
+        est = with_direction(done.estimate, samples, DEFAULT_ERROR_MODEL)
+        if est.status is not Status.DIRECTION_ONLY:
+            return None
+        return Target(index=self.targets.new_own(), position_mm=np.full(3, np.nan), covariance_mm2=None,
+                      axes95_mm=np.full(3, np.nan), status=estimate_status(est, samples), n_samples=done.n_samples,
+                      t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,), method=self.method,
+                      crb_mm=float("nan"), direction=est.direction)
 
     def moving_target(self, done: FinishedFixation, samples: BinocularSamples) -> Target | None:
         """The target of the finished fixation ``done`` when its (thinned) lines ``samples``
         (world frame, time order) are of a moving point, else None: its path
         (``estimator.motion.smooth_trajectory``) in ``trajectory``, its point the path's at the
         middle knot with that knot's covariance, status 'moving' (or why not, as
-        ``pipeline.estimate.target_status`` says), as ``process`` reports one."""
+        ``pipeline.target_status.target_status`` says), as ``process`` reports one."""
         if len(samples) < MIN_LINES:
             return None
         knot_s = max(DEFAULT_KNOT_S, float(np.ptp(samples.t_s)) / (MAX_MOTION_KNOTS - 1))

@@ -22,6 +22,7 @@ from ..formats.session import MANIFEST
 from ..formats.tables import write_table
 from ..formats.targets import read_targets, write_targets_csv
 from ..formats.truth import read_truth_targets
+from .target_status import is_fixated
 from .truth_match import TruthFrame, match_targets
 
 log = logging.getLogger(__name__)
@@ -88,7 +89,7 @@ def _session_row(out: Path, st: dict) -> tuple[dict, list[dict]]:
             log.warning("%s", exc)
     nan = float("nan")
     row = {"session": st["name"], "state": st["state"], "reason": st.get("reason") or "",
-           "n_targets": len(rows), "recording_s": _recording_s(session),
+           "n_targets": sum(is_fixated(r["status"]) for r in rows), "recording_s": _recording_s(session),
            "processing_s": float(st.get("duration_s", nan)), "n_problems": len(st.get("problems", [])),
            "truth_targets": "", "truth_found": "", "error_rms_mm": nan, "error_max_mm": nan, "crb_rms_mm": nan,
            "peak_rss_mb": float(st.get("peak_rss_mb") or nan), "worker": st.get("worker", ""), "path": str(session)}

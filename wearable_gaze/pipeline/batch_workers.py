@@ -112,7 +112,7 @@ def _run_locked(task: SessionTask, out: Path, process_session) -> dict:
     else:
         state = {"ok": "done", "partial": "partial"}.get(res.outcome, "failed")
         status.update(state=state, reason=None if state == "done" else one_line("; ".join(res.problems)),
-                      n_targets=len(res.found), problems=res.problems, failed_steps=res.failed,
+                      n_targets=sum(t.fixated for t in res.found), problems=res.problems, failed_steps=res.failed,
                       steps_skipped=res.skipped)
     status["duration_s"] = round(time.perf_counter() - t0, 3)
     status["finished"] = time.time()

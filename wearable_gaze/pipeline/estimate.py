@@ -9,10 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from estimator import (
-    NEAR_POINT_MM,
     BinocularSamples,
     GazeEstimate,
-    Status,
     batch_options,
     cramer_rao_bound,
     density_point_cloud,
@@ -20,6 +18,7 @@ from estimator import (
     near_point_check,
     run_estimator,
 )
+from estimator.direction import gaze_direction, with_direction
 from estimator.errormodel import ErrorModel
 from estimator.merge import MERGE_POSE_DEG, TargetMerger
 
@@ -27,6 +26,7 @@ from ..errors import UserError
 from ..formats.atomic import atomic_path
 from ..formats.viewlines import read_viewlines_csv
 from .segmentation import NO_FIXATION, measured_rate_hz, read_in_time_order, segment_config, segment_view_lines
+from .target_status import UNRESOLVED, estimate_status, target_status  # noqa: F401  (their home: target_status)
 from .types import Target
 
 DEFAULT_ERROR_MODEL = ErrorModel(pose_offset_deg=MERGE_POSE_DEG)
@@ -56,7 +56,9 @@ def running_estimate(samples: BinocularSamples, method: str, sigma_deg: float,
                      chunks: int = 20, error_model: ErrorModel | None = None) -> tuple[GazeEstimate | None, list]:
     """The estimator fed one fixation's samples (N,) in about ``chunks`` chunks, as a live session
     would, its covariance from ``error_model`` (``model_options``). Returns the last estimate (None
-    without samples) and the usable ones as (time of the chunk's last sample s, estimate) pairs."""
+    without samples; a direction-only one, ``estimator.direction.with_direction``, when the lines
+    fix no point ahead of the eyes) and the usable ones as (time of the chunk's last sample s,
+    estimate) pairs."""
     stream = make_estimator(method, sigma_deg, **batch_options(method, len(samples),
                                                                **model_options(method, error_model)))
     bounds = np.unique(np.linspace(0, len(samples), min(chunks + 1, len(samples) + 1)).astype(int))
@@ -69,6 +71,8 @@ def running_estimate(samples: BinocularSamples, method: str, sigma_deg: float,
             e = near_point_check(e, lines.origins_mm[used], lines.directions[used])
         if e.ok:
             usable.append((float(samples.t_s[j1 - 1]), e))
+    if e is not None:
+        e = with_direction(e, samples, error_model)
     return e, usable
 
 
@@ -80,46 +84,24 @@ def radius95_mm(e: GazeEstimate) -> float:
 
 
 def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixations, e: GazeEstimate,
-                    method: str, sigma_deg: float) -> Target:
+                    method: str, sigma_deg: float, error_model: ErrorModel | None = None) -> Target:
     """The target made of the view lines ``samples[idx]`` (fixations ``fixations``) with their
-    estimate ``e``: its 95 % semi-axes and the Cramér-Rao bound of those lines at the estimate."""
+    estimate ``e``: its 95 % semi-axes, the Cramér-Rao bound of those lines at the estimate, its
+    status (``target_status.estimate_status``) and its direction (``estimator.direction``: a
+    direction-only estimate's own, else the lines' cyclopean direction with its cone from
+    ``error_model``)."""
     pos = e.position_mm if e.ok else np.full(3, np.nan)
     radii = e.ellipsoid(0.95).radii_mm if e.covariance_mm2 is not None else np.full(3, np.nan)
     t = samples.t_s[idx]
-    crb = _crb(samples.select(idx), e.position_mm, sigma_deg) if e.ok else None
-    far = float(e.info.get("error_model", {}).get("far_side_factor", 1.0))
-    status = target_status(e.status.value, pos, radii, samples.select(idx), far)
+    lines = samples.select(idx)
+    crb = _crb(lines, e.position_mm, sigma_deg) if e.ok else None
+    direction = e.direction if e.direction is not None else gaze_direction(lines, error_model)
     return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2, sight=e.sight(),
-                  axes95_mm=np.asarray(radii, float), status=status, n_samples=len(idx),
+                  axes95_mm=np.asarray(radii, float), status=estimate_status(e, lines), n_samples=len(idx),
                   t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in fixations), method=method,
-                  crb_mm=float(np.sqrt(np.trace(crb))) if crb is not None else float("nan"), samples=idx)
-
-
-UNRESOLVED = "unresolved"
-"""A target's status when its 95 % region reaches from the eyes to beyond twice its distance:
-the lines fix a direction but not a depth (a still head beyond a few metres), and the point is
-no answer to "where did the person look"."""
-
-
-def target_status(status: str, position_mm, axes95_mm, samples: BinocularSamples, far_side: float = 1.0) -> str:
-    """The status a target is published with: the estimator's, unless its point is nearer the
-    eyes than anyone fixates (``too-near``; also for a moving target's point) or a static
-    target's 95 % ellipsoid's longest semi-axis, before the error model's far-side stretch
-    (``far_side``, ``estimator.errormodel.far_side``: the semi-axes are divided by it), exceeds
-    its distance from the eyes (``unresolved``: the far end of its depth interval is unbounded).
-    A moving target stays ``moving`` (never ``ok``): its path's covariances (target_paths.csv,
-    with the eyes' bias floor) say how well its depth is known."""
-    if status not in ("ok", "moving") or not np.all(np.isfinite(position_mm)):
-        return status
-    lines = samples.lines()
-    dist = float(np.median(np.einsum("ij,ij->i", np.asarray(position_mm, float) - lines.origins_mm,
-                                     lines.directions)))
-    if dist < NEAR_POINT_MM:
-        return Status.TOO_NEAR.value
-    if status == "ok" and np.all(np.isfinite(axes95_mm)) and float(np.max(axes95_mm)) / far_side > dist:
-        return UNRESOLVED
-    return status
+                  crb_mm=float(np.sqrt(np.trace(crb))) if crb is not None else float("nan"), samples=idx,
+                  direction=direction)
 
 
 def _crb(samples: BinocularSamples, point_mm, sigma_deg: float):
@@ -268,11 +250,11 @@ def targets_of_segments(path, method: str, sigma_deg: float, error_model: ErrorM
 
 
 def nothing_estimated(path, results: list[dict]) -> UserError | None:
-    """The error for an ``estimate_file`` result in which no segment (or target) got a position:
-    every row in segment -1, or every estimate failed (too few rows, parallel lines); None when
-    at least one has a position."""
+    """The error for an ``estimate_file`` result in which no segment (or target) got a position
+    or a direction (``direction-only``): every row in segment -1, or every estimate failed (too
+    few rows); None when at least one has either."""
     tried = [r for r in results if r.get("status") != "skipped"]
-    if any(r.get("position_mm") is not None for r in tried):
+    if any(r.get("position_mm") is not None or r.get("status") == "direction-only" for r in tried):
         return None
     if not tried and not results:                 # --targets: no fixation gave a target
         return UserError(f"{path}: nothing could be estimated: no fixation gave a target (too few rows, or view lines "
@@ -324,7 +306,10 @@ def _targets_table(results: list[dict]) -> str:
     for r in results:
         axes = " ".join(f"{v:.1f}" for v in (r["ellipsoid95_radii_mm"] or [np.nan] * 3))
         x, y, z = r["position_mm"] or [np.nan] * 3
+        g = r.get("direction") if r["position_mm"] is None else None
         rows.append(f"{r['target']:>6} {r['status']:>17} {x:>9.1f} {y:>9.1f} {z:>9.1f} "
                     f"{axes:>22} {r['n_samples']:>8} {r['t_start']:>5.1f}-{r['t_end']:<6.1f} "
-                    + ";".join(str(f) for f in r["fixations"]))
+                    + ";".join(str(f) for f in r["fixations"])
+                    + (f" (direction {' '.join(f'{v:.3f}' for v in g['unit'])}, 95 % cone {g['cone95_deg']:.2f} deg)"
+                       if g else ""))
     return "\n".join(rows)

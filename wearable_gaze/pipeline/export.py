@@ -53,7 +53,8 @@ def fixation_rows(result: TargetsResult) -> list[dict]:
                 pos, cov = f.estimate.position_mm, f.estimate.covariance_mm2
         rows.append({"fixation_id": f.index, "start_s": float(t.min()), "end_s": float(t.max()),
                      "n_samples": len(f.samples), "target_id": target_of.get(f.index, -1), "motion": f.motion,
-                     "status": status, "position_mm": pos, "covariance_mm2": cov})
+                     "status": status, "position_mm": pos, "covariance_mm2": cov,
+                     "direction": f.estimate.direction if f.estimate is not None else None})
     return rows
 
 

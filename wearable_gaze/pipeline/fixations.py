@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator import BinocularSamples, GazeEstimate
+from estimator import BinocularSamples, GazeEstimate, Status
 from estimator.errormodel import ErrorModel
 from estimator.frames import angle_deg
 from estimator.motion import MOVING, STATIC, TWO_POINTS, Trajectory, classify_lines, smooth_trajectory
@@ -25,7 +25,8 @@ from ..formats.targets import (
     write_targets,
 )
 from ..formats.viewlines import write_viewlines_csv
-from .estimate import estimate_target, radius95_mm, running_estimate, target_merger, target_status
+from .estimate import estimate_target, radius95_mm, running_estimate, target_merger
+from .target_status import target_status
 from .types import Fixation, Target, TargetsResult
 
 log = logging.getLogger(__name__)
@@ -38,7 +39,9 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
                  progress=None, error_model: ErrorModel | None = None) -> TargetsResult:
     """Test each fixation of view lines (N,) segmented into fixations for motion, estimate the
     static ones (their running estimates too), merge the static fixations of one target and
-    estimate each target from all its lines; a moving fixation is a moving target of its own.
+    estimate each target from all its lines; a moving fixation is a moving target of its own,
+    and so is a static fixation whose lines fix a direction but no point (``direction-only``:
+    ``direction_only_groups``), so that every fixation with a direction is answered.
 
     A fixation of two points (a switch the segmenter missed) is split at the switch into two
     fixations, the labels renumbered in time order (``split_two_point_fixations``); a moving one
@@ -64,9 +67,10 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
             progress(k + 1, n_seg + 1)
     groups = merge_fixations(fixations, samples, method, sigma_deg, error_model)
     groups += join_pursuits(fixations, samples, sigma_deg, error_model)
+    groups += direction_only_groups(fixations)
     groups.sort(key=lambda g: g.fixations[0])
     targets = [moving_target(i, samples, g, method) if g.trajectory is not None else
-               estimate_target(i, samples, g.samples, g.fixations, g.estimate, method, sigma_deg)
+               estimate_target(i, samples, g.samples, g.fixations, g.estimate, method, sigma_deg, error_model)
                for i, g in enumerate(groups)]
     tlabels = np.full(len(samples), -1)
     for tg in targets:
@@ -89,6 +93,14 @@ def _fixation(samples: BinocularSamples, k: int, idx: np.ndarray, motion: str, m
                            strict=True):
             running[name].append(v)
     return Fixation(k, idx, e)
+
+
+def direction_only_groups(fixations: list) -> list:
+    """The static fixations whose estimate is direction-only (``estimator.direction``: their
+    lines fix a direction with its cone, not a point), each a group of its own: they go around
+    the merge test, which compares points, so that each is answered by its own direction."""
+    return [_Group(f.samples, [f.index], f.estimate, parts=[f.samples]) for f in fixations
+            if f.motion == STATIC and f.estimate is not None and f.estimate.status is Status.DIRECTION_ONLY]
 
 
 PURSUIT_GAP_S = 0.5

@@ -327,10 +327,10 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
               "error_model": dataclasses.asdict(error_model)}
     if steps.run("targets", [raw_vl], params, do_targets):
         res.found = vals["targets"]
-        if not res.found:
+        if not any(t.fixated for t in res.found):        # a too-near point is no target (target_status.FIXATED)
             n = res.summary.get("viewlines", {}).get("written", "the")
             res.problems.append(f"targets: no target could be estimated from {n} view lines (no fixation of "
-                                f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate)")
+                                f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate or a direction)")
     _export_step(f, out, steps, vals, cam_path, eye_inputs, correction)
     if cfg.aois is not None:
         _aoi_step(f, out, steps, vals, cfg.aois)

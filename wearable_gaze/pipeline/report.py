@@ -46,6 +46,7 @@ from .overlay import (
 from .regions import anchor_points, region_lines, scene_box
 from .report_plots import _plt, _save  # noqa: F401  (mapping.py's map plot uses them)
 from .report_time import plot_depth_over_time
+from .target_status import status_note
 from .truth_match import match_positions
 from .types import Target
 
@@ -340,7 +341,7 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
         sd = float(np.sqrt(np.sum(np.asarray(t.axes95_mm) ** 2)) / K95)
         dist = d.distance_m(t)
         cells = (f'<td><span class="swatch" style="background:{colour(t.index)}"></span>{t.index}</td>'
-                 f"<td>{_xyz(t.position_mm)}</td>" + _cells(dist, fmt="{:.2f}") + f"<td>{_intervals(t)}</td>"
+                 f"<td>{_position(t)}</td>" + _cells(dist, fmt="{:.2f}") + f"<td>{_intervals(t)}</td>"
                  + f"<td>{_xyz(t.axes95_mm, ' / ')}</td><td>{t.n_samples}</td><td>{t.t_start:.1f}&ndash;{t.t_end:.1f}"
                  f"</td><td>{html.escape(', '.join(map(str, t.fixations)))}</td>" + _cells(t.crb_mm, sd))
         if has_truth:
@@ -351,8 +352,9 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
                       + _cells(err, fmt="{:.1f}") + _cells(err / t.crb_mm if t.index not in d.paths else None,
                                                            err / sd if t.index not in d.paths else None,
                                                            fmt="{:.2f}"))
-        status = "moving: the point is its path's middle (target_paths.csv)" if t.moving else t.status
-        rows.append(f"<tr>{cells}<td>{html.escape(status)}</td></tr>")
+        note = status_note(t.status)
+        rows.append(f'<tr>{cells}<td><span class="status">{html.escape(t.status)}</span>'
+                    f"{'<br><small>' + html.escape(note) + '</small>' if note else ''}</td></tr>")
     for tt in d.unmatched:
         X = tt.get("position_mm")
         rows.append(f"<tr><td>&ndash;</td><td>not found</td>{'<td></td>' * 8}"
@@ -361,10 +363,24 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
     return head, "".join(rows)
 
 
+def _position(t) -> str:
+    """A target's position cell: its point, mm, or a direction-only target's direction (world
+    frame) and 95 % cone."""
+    if np.all(np.isfinite(t.position_mm)) or t.direction is None:
+        return _xyz(t.position_mm)
+    u = t.direction.unit
+    return (f"direction {u[0]:.3f}, {u[1]:.3f}, {u[2]:.3f}<br><small>95 % cone {t.direction.cone95_deg:.2f}&deg;; "
+            "no point</small>")
+
+
 def _intervals(t) -> str:
     """A target's distance from where it was seen (its view lines' mean origin), m, and its 68 %
     and 95 % intervals, symmetric in inverse depth (``Target.depth_interval``; '&infin;': no far
-    end); '&ndash;' without the error model's."""
+    end); a direction-only target's 95 % interval along its direction; '&ndash;' without the
+    error model's."""
+    if t.sight is None and t.direction is not None and not np.all(np.isfinite(t.position_mm)):
+        near, far = t.direction.depth95_mm
+        return (f"no point; 95 %: {near / 1000:.2f}&ndash;" + (f"{far / 1000:.2f}" if np.isfinite(far) else "&infin;"))
     parts = []
     for p in (0.68, 0.95):
         near, far = t.depth_interval(p)
@@ -372,6 +388,13 @@ def _intervals(t) -> str:
             return "&ndash;"
         parts.append(f"{near / 1000:.2f}&ndash;" + (f"{far / 1000:.2f}" if np.isfinite(far) else "&infin;"))
     return f"{t.sight.distance_mm(t.position_mm) / 1000:.2f} ({' / '.join(parts)})"
+
+
+def _count(targets: list) -> str:
+    """The sentence counting the fixated targets (``Target.fixated``) and the others listed."""
+    n = sum(t.fixated for t in targets)
+    rest = len(targets) - n
+    return f"{n} fixated target(s)" + (f"; {rest} more listed that are no target (status)." if rest else ".")
 
 
 def _xyz(v, sep: str = ", ") -> str:
@@ -409,7 +432,7 @@ table{{border-collapse:collapse;font-size:90%}}td,th{{border:1px solid #ccc;padd
 td .swatch{{margin-left:0}}</style></head>
 <body><h1>Gaze targets: {html.escape(str(name))}</h1>
 {"".join(f"<p><b>{html.escape(n)}</b></p>" for n in notes)}
-<p>{len(d.targets)} fixated target(s). Positions in the world frame{"" if notes else " of the marker map"}, mm;
+<p>{_count(d.targets)} Positions in the world frame{"" if notes else " of the marker map"}, mm;
 distances from the eyes while the target was looked at (median). Each target keeps its number and colour
 in every table, plot and view.</p>
 {_truth_summary(d)}

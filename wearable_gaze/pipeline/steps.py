@@ -12,6 +12,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import UserError
 from ..formats.atomic import write_text
 from ..formats.jsonio import load_json
@@ -91,8 +93,9 @@ class ProcessResult:
     @property
     def outcome(self) -> str:
         """'ok': targets, and every step that ran succeeded; 'partial': targets, but a step
-        failed or was not done (its outputs are missing); 'no_targets': none estimated."""
-        if not self.found:
+        failed or was not done (its outputs are missing); 'no_targets': no fixated target
+        (``Target.fixated``: a too-near point is listed, not counted)."""
+        if not any(t.fixated for t in self.found):
             return "no_targets"
         return "partial" if self.failed or self.not_done else "ok"
 
@@ -288,16 +291,34 @@ class Steps:
         write_text(self.state_path, json.dumps(self.state, indent=1))
 
 
+def _target_line(t) -> str:
+    """One target's row of ``format_result``: its point and 95 % semi-axes ('-' without), samples,
+    time and its status (``Target.status``, as targets.json and the report have it); a
+    direction-only target's direction, cone and depth interval after its status."""
+    def num(v, width):
+        return f"{v:>{width}.0f}" if np.isfinite(v) else f"{'-':>{width}}"
+
+    x, y, z = (num(v, 8) for v in t.position_mm)
+    a1, a2, a3 = (num(v, 6) for v in t.axes95_mm)
+    line = f"{t.index:>6} {x} {y} {z} {a1} {a2} {a3} {t.n_samples:>8} {t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}"
+    g = t.direction
+    if g is not None and not np.all(np.isfinite(t.position_mm)):
+        near, far = g.depth95_mm
+        depth = f"{near / 1000:.2f}-{far / 1000:.2f} m" if np.isfinite(far) else f">= {near / 1000:.2f} m"
+        line += (f" (direction {g.unit[0]:.3f} {g.unit[1]:.3f} {g.unit[2]:.3f}, 95 % cone {g.cone95_deg:.2f} deg, "
+                 f"depth {depth})")
+    return line
+
+
 def format_result(res: ProcessResult) -> str:
     """The text ``process`` prints: this run's targets, and what failed or was not done."""
-    lines = [f"{len(res.found)} fixated target(s) in {res.out}:"]
+    n = sum(t.fixated for t in res.found)
+    rest = len(res.found) - n
+    lines = [f"{n} fixated target(s) in {res.out}" + (f" ({rest} more listed that are no target: status)" if rest
+                                                       else "") + ":"]
     lines.append(f"{'target':>6} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'95% semi-axes mm':>20} {'samples':>8} "
                  f"{'time s':>12}  status")
-    for t in res.found:
-        x, y, z = t.position_mm
-        a1, a2, a3 = t.axes95_mm
-        lines.append(f"{t.index:>6} {x:>8.0f} {y:>8.0f} {z:>8.0f} {a1:>6.0f} {a2:>6.0f} {a3:>6.0f} {t.n_samples:>8} "
-                     f"{t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}")
+    lines += [_target_line(t) for t in res.found]
     if res.failed:
         lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")
     if res.outcome == "partial":

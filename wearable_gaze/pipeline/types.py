@@ -16,10 +16,12 @@ import numpy as np
 
 from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
+from estimator.direction import GazeDirection
 from estimator.errormodel import Sight
 from estimator.motion import STATIC, Trajectory
 
-from ..formats.targets import MOVING_COLUMN, TARGET_KEYS, record_sight, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
+from ..formats.targets import DIRECTION_COLUMN, MOVING_COLUMN, TARGET_KEYS, record_sight, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
+from .target_status import is_fixated
 
 
 @dataclass
@@ -60,7 +62,8 @@ class Target:
             version-1 targets.json, which kept only the ellipsoid's semi-axes).
         axes95_mm: (3,) semi-axes of the 95 % confidence ellipsoid, increasing, mm; NaN without
             a covariance.
-        status: the estimator's status ('ok' or why not).
+        status: its one status (``pipeline.target_status``: 'ok', 'unresolved', 'direction-only',
+            'moving', or why it is no target, e.g. 'too-near'), the same in every output.
         n_samples: binocular samples (view lines) of its fixations.
         t_start, t_end: time of its first and last sample, s.
         fixations: the fixation indices merged into it.
@@ -76,6 +79,10 @@ class Target:
         sight: where its lines were seen from and how the error model shaped its covariance
             (``estimator.errormodel.Sight``), which draws its region at any level and its depth
             intervals; None without the error model.
+        direction: where its lines looked (``estimator.direction.GazeDirection``: the cyclopean
+            direction, its 95 % cone, the depth interval, which may have no far end): a
+            direction-only target's answer, and beside the point of a static one; None for a
+            moving target.
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -96,6 +103,7 @@ class Target:
     moving: bool = False
     trajectory: Trajectory | None = None
     sight: Sight | None = None
+    direction: GazeDirection | None = None
 
     def level_covariance(self, probability: float) -> np.ndarray | None:
         """(3, 3) mm^2 whose ``probability`` ellipsoid is the region of that level (the error
@@ -118,13 +126,19 @@ class Target:
         """A static target with a usable point estimate."""
         return self.status == "ok" and bool(np.all(np.isfinite(self.position_mm)))
 
+    @property
+    def fixated(self) -> bool:
+        """Whether it counts as a fixated target (``pipeline.target_status.FIXATED``: not a
+        ``too-near`` point, nor an estimate that failed without a direction)."""
+        return is_fixated(self.status)
+
     def row(self, rounded: bool = False) -> dict:
         """The target's record (``formats.targets.target_record``: a row of targets.json, plain
         Python values, null for a value that does not exist), with ``moving: True`` for a moving
         target; ``rounded`` as the live messages send it."""
         return target_record(self.index, self.t_start, self.t_end, self.position_mm, self.axes95_mm, self.n_samples,
                              self.method, self.status, self.covariance_mm2, self.crb_mm, self.fixations, self.moving,
-                             rounded, self.sight)
+                             rounded, self.sight, self.direction)
 
     @classmethod
     def from_row(cls, row: dict) -> Target:
@@ -139,7 +153,8 @@ class Target:
                    axes95_mm=vec("ellipsoid95_radii_mm"), status=str(row["status"]), n_samples=int(row["n_samples"]),
                    t_start=_num(row["t_start"]), t_end=_num(row["t_end"]),
                    fixations=tuple(int(f) for f in row["fixations"]), method=str(row["method"]),
-                   crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)), sight=record_sight(row))
+                   crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)), sight=record_sight(row),
+                   direction=GazeDirection.from_dict(row.get(DIRECTION_COLUMN)))
 
 
 def _num(v) -> float:
