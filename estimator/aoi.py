@@ -60,8 +60,9 @@ class GazeSpread:
         angular_cov_rad2: (2, 2) covariance of the direction's two angles about ``direction``
             (along ``tangent_basis(direction)``), rad^2.
         near_mm: no point nearer than this (0: none), mm; with ``inverse_depth_per_mm`` 0 the
-            inverse depth is uniform on [0, 1/near_mm] (a direction-only fixation: any depth beyond
-            its lower bound, none preferred in inverse depth).
+            inverse depth is uniform on [1/far_mm, 1/near_mm] (a direction-only fixation: any depth
+            in its interval, none preferred in inverse depth).
+        far_mm: the far end of a direction-only fixation's depth interval, mm (inf: none).
     """
 
     origin_mm: np.ndarray
@@ -70,6 +71,7 @@ class GazeSpread:
     inverse_depth_sd_per_mm: float
     angular_cov_rad2: np.ndarray
     near_mm: float = 0.0
+    far_mm: float = math.inf
 
     @classmethod
     def from_covariance(cls, origin_mm, point_mm, covariance_mm2) -> GazeSpread:
@@ -87,13 +89,15 @@ class GazeSpread:
         return cls(o, u, 1.0 / D, math.sqrt(max(float(u @ C @ u), 0.0)) / D**2, E.T @ C @ E / D**2)
 
     @classmethod
-    def direction_only(cls, origin_mm, direction, cone95_deg: float, near_mm: float) -> GazeSpread:
+    def direction_only(cls, origin_mm, direction, cone95_deg: float, near_mm: float,
+                       far_mm: float = math.inf) -> GazeSpread:
         """A fixation whose lines fix a direction but not a depth: ``direction`` (3,) with its 95 %
-        cone half-angle ``cone95_deg`` (the same sd on both angles), any depth beyond ``near_mm``."""
+        cone half-angle ``cone95_deg`` (the same sd on both angles), any depth between ``near_mm``
+        and ``far_mm`` (inf: none), uniform in inverse depth."""
         d = check_vector(direction, "direction")
         sd = math.radians(cone95_deg) / math.sqrt(chi2.ppf(0.95, 2))
         return cls(check_vector(origin_mm, "origin_mm"), d / np.linalg.norm(d), 0.0, 0.0, np.eye(2) * sd**2,
-                   float(near_mm))
+                   float(near_mm), float(far_mm))
 
     def sample(self, n: int = SAMPLES, seed: int = SEED) -> np.ndarray:
         """(n, 3) points drawn from the distribution, world, mm (``FAR_MM`` away where the drawn
@@ -106,7 +110,7 @@ class GazeSpread:
         if self.inverse_depth_per_mm > 0:
             inv = self.inverse_depth_per_mm + self.inverse_depth_sd_per_mm * rng.standard_normal(n)
         else:
-            inv = rng.uniform(0.0, 1.0 / self.near_mm if self.near_mm > 0 else 0.0, n)
+            inv = rng.uniform(1.0 / self.far_mm, 1.0 / self.near_mm if self.near_mm > 0 else 0.0, n)
         depth = np.full(n, FAR_MM)
         pos = inv > 1.0 / FAR_MM
         depth[pos] = 1.0 / inv[pos]

@@ -238,3 +238,29 @@ def test_process_and_batch_with_aois(tmp_path, capsys):
     assert main(["batch", str(tmp_path / "study"), "-o", str(tmp_path / "b"), "--no-overlay", "--workers", "1",
                  "--aois", str(aois)]) == 0
     assert (tmp_path / "b" / "batch_aoi_metrics.csv").is_file() and (tmp_path / "b" / "batch_aoi_dwell_s.png").is_file()
+
+
+def test_a_direction_only_target_gives_its_fixations_its_cone_over_its_interval():
+    """fixations.csv's row without a point, merged into a direction-only target (targets.json's
+    ``direction``): its spread is that cone over that depth interval, uniform in inverse depth."""
+    from estimator import BinocularSamples
+    from wearable_gaze.formats.viewlines import Segment
+    from wearable_gaze.pipeline.aoi import fixation_gaze
+
+    n = 10
+    o = np.zeros((n, 3))
+    d = np.tile([0.0, 0.0, 1.0], (n, 1))
+    s = BinocularSamples.from_arrays(np.arange(n) / 10.0, o, d, o, d)
+    nan = np.full(1, np.nan)
+    fx = {"fixation_id": np.array([0]), "start_s": np.array([0.0]), "end_s": np.array([0.9]),
+          "target_id": np.array([4]), "x_mm": nan, "y_mm": nan, "z_mm": nan,
+          **{f"cov_{k}_mm2": nan for k in ("xx", "xy", "xz", "yy", "yz", "zz")}}
+    rec = {"target": 4, "status": "direction-only", "position_mm": None, "covariance_mm2": None,
+           "direction": {"seen_from_mm": [0.0, 0.0, 0.0], "unit": [0.0, 0.0, 1.0], "cone95_deg": 1.0,
+                         "depth95_mm": [1000.0, 4000.0]}}
+    (f,) = fixation_gaze(fx, [Segment(0, s, 2)], [rec])
+    assert f.spread is not None and f.spread.near_mm == 1000.0 and f.spread.far_mm == 4000.0
+    pts = f.spread.sample(5000)
+    depth = np.linalg.norm(pts, axis=1)
+    assert depth.min() >= 1000.0 - 1e-6 and depth.max() <= 4000.0 + 1e-6
+    assert np.mean(depth < 2000) == pytest.approx((1 / 1000 - 1 / 2000) / (1 / 1000 - 1 / 4000), abs=0.03)

@@ -26,6 +26,7 @@ measures*, ch. 6 "areas of interest"):
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -278,8 +279,8 @@ def fixation_gaze(fixations: dict, segments, targets=()) -> tuple:
     order, seen from the mean origin of its view lines (``segments``: ``read_viewlines_csv``'s,
     keyed by fixation id). Its gazed point's spread is its target's (``targets``: targets.json's
     records) when it was merged into an ``ok`` target, which pools the lines of every fixation
-    the merge test found on that point; else its own estimate's (point and covariance); None
-    when it has neither."""
+    the merge test found on that point; else its own estimate's (point and covariance); a
+    direction-only target's cone over its depth interval; None when it has none of them."""
     origins = {}
     for seg in segments:
         if isinstance(seg.key, (int, np.integer)) and seg.key >= 0:
@@ -289,6 +290,8 @@ def fixation_gaze(fixations: dict, segments, targets=()) -> tuple:
                 origins[int(seg.key)] = o.mean(axis=0)
     pooled = {int(t["target"]): (np.asarray(t["position_mm"], float), np.asarray(t["covariance_mm2"], float))
               for t in targets if t["status"] == "ok" and t.get("covariance_mm2") is not None}
+    directions = {int(t["target"]): t["direction"] for t in targets
+                  if t.get("position_mm") is None and t.get("direction") is not None}
     out = []
     for i in np.argsort(fixations["start_s"], kind="stable"):
         fid, tid = int(fixations["fixation_id"][i]), int(fixations["target_id"][i])
@@ -296,6 +299,11 @@ def fixation_gaze(fixations: dict, segments, targets=()) -> tuple:
         spread = None
         if fid in origins and np.all(np.isfinite(p)) and np.all(np.isfinite(C)):
             spread = GazeSpread.from_covariance(origins[fid], p, C)
+        elif tid in directions:                     # direction-only: its cone over its depth interval
+            g = directions[tid]
+            near, far = g["depth95_mm"]
+            spread = GazeSpread.direction_only(g["seen_from_mm"], g["unit"], g["cone95_deg"], near,
+                                               math.inf if far is None else far)
         out.append(FixationGaze(fid, float(fixations["start_s"][i]), float(fixations["end_s"][i]), tid, spread))
     return tuple(out)
 
