@@ -99,6 +99,19 @@ def test_a_walking_2d_only_session_finds_its_targets_within_twice_the_binocular_
     nat, got, report = roundtrip_errors("pupil-cloud", tmp_path_factory.getbasetemp(), tmp_path)
     assert report["pose_source"] == "scene_video" and report["rays"] == "cyclopean"
     assert np.all(np.isfinite(got)) and rms(got) <= 2.0 * rms(nat), (got, nat)
+    # the report says where the depth came from, and how far the head moved in each fixation
+    import re  # noqa: PLC0415
+
+    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
+
+    process_session(tmp_path / "imported", tmp_path / "out", overlay=False)
+    page = (tmp_path / "out" / "report.html").read_text()
+    assert "comes from the head&#x27;s motion alone" in page or "comes from the head's motion alone" in page
+    head = re.findall(r"<th>(.*?)</th>", page.split('id="targets"')[1].split("</tr>")[0])
+    k = head.index("head travel in each fixation (mm)")
+    rows = page.split('id="targets"')[1].split("</table>")[0].split("<tr>")[2:]
+    travel = [float(v) for r in rows for v in re.findall(r"<td>(.*?)</td>", r)[k].split(", ") if v]
+    assert travel and max(travel) > 100                                  # the walk: the head moved
 
 
 def test_an_export_with_neon_eye_states_gives_per_eye_visual_axes(tmp_path):

@@ -16,6 +16,7 @@ from tracking.surface import first_surface
 from tracking.timeline import interpolate_poses, nearest_in_time
 
 from ..errors import UserError
+from ..formats.devices.common import read_import_report
 from ..formats.eye_rays import read_device_gaze
 from ..formats.ply import read_ply
 from ..formats.poses import read_poses_csv, write_poses_csv
@@ -44,6 +45,29 @@ WORLDS = {"device": "the device's own world (its SLAM map's frame; grey dots: it
 def world_words(pose_source: str | None, map_kind: str) -> str:
     """What the report's positions and 3D view are in (``WORLDS``)."""
     return WORLDS.get(pose_source or "", WORLDS.get(map_kind, "the marker map's world (grey squares: its markers)"))
+
+
+CYCLOPEAN_NOTE = ("One gaze line per sample (a 2D-only tracker's cyclopean ray, no vergence): a target's depth "
+                  "comes from the head's motion alone, and the table gives how far the head moved during each of "
+                  "its fixations; where the head stood still a fixation has a direction, never a depth.")
+
+
+def report_notes(pose_source: str | None, no_overlay: bool, import_report: Path | None) -> list[str]:
+    """What the report must say first about an imported session: where the head poses came
+    from (``POSE_NOTES``), that its depths come from head motion alone when its rays are
+    cyclopean (``CYCLOPEAN_NOTE``), the import's notes (kappa, eye labels, fallbacks) and what it
+    dropped; ``no_overlay``: an overlay was asked for but an imported session has none."""
+    notes = [POSE_NOTES[pose_source]] if pose_source else []
+    if no_overlay:
+        notes.append("No overlay video: an imported session's eye rays are drawn in the plots only.")
+    if import_report is not None:
+        rep = read_import_report(import_report)
+        notes += [CYCLOPEAN_NOTE] if rep.get("rays") == "cyclopean" else []
+        notes += [f"Import ({rep['device']}): {n}" for n in rep.get("notes", [])]
+        if rep.get("dropped"):
+            notes.append(f"Import ({rep['device']}): dropped " + ", ".join(f"{n} ({why})" for why, n in
+                                                                          rep["dropped"].items()))
+    return notes
 
 
 def device_poses(head_poses: Path, out: Path) -> None:

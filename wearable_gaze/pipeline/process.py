@@ -24,7 +24,6 @@ from ..errors import UserError
 from ..formats.atomic import remove_temporaries
 from ..formats.board import BOARD_FILE, read_board
 from ..formats.camera import load_camera
-from ..formats.devices.common import read_import_report
 from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
@@ -49,7 +48,7 @@ from .calibrate import (
     read_eye_recordings,
     view_lines,
 )
-from .device import POSE_NOTES, device_comparison, device_points, device_poses, still_head_poses, world_words
+from .device import device_comparison, device_points, device_poses, report_notes, still_head_poses, world_words
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
@@ -440,8 +439,9 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
         truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
         points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else device_points(f.root)
         mm = vals["marker_map"] if has_map else None
+        notes = report_notes(f.pose_source, f.eye_rays is not None and cfg.overlay, f.import_report)
         write_report(out, session_title(f.root), overlay_inputs if cfg.overlay and cam_ok else None, cb,
-                     _report_notes(f, cfg) + truth_notes, truth, mm, cfg.overlay_video, points,
+                     notes + truth_notes, truth, mm, cfg.overlay_video, points,
                      world=world_words(f.pose_source, cfg.map_kind), aois=aoi_outlines(cfg.aois, mm))
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
               | ({"overlay_video": True} if cfg.overlay_video else {})
@@ -467,21 +467,6 @@ def _output_folder(root: Path, out, inputs=()) -> Path:
                             "inputs: choose a folder outside it (the default is SESSION/processed)")
     out.mkdir(parents=True, exist_ok=True)
     return out
-
-
-def _report_notes(f: _SessionFiles, cfg: _Settings) -> list[str]:
-    """What the report must say first about an imported session: where the head poses came
-    from, the import's notes (kappa, eye labels, fallbacks) and what it dropped."""
-    notes = [POSE_NOTES[f.pose_source]] if f.pose_source else []
-    if f.eye_rays is not None and cfg.overlay:
-        notes.append("No overlay video: an imported session's eye rays are drawn in the plots only.")
-    if f.import_report is not None:
-        rep = read_import_report(f.import_report)
-        notes += [f"Import ({rep['device']}): {n}" for n in rep.get("notes", [])]
-        if rep.get("dropped"):
-            notes.append(f"Import ({rep['device']}): dropped " + ", ".join(f"{n} ({why})" for why, n in
-                                                                          rep["dropped"].items()))
-    return notes
 
 
 def _finish(res: ProcessResult, s, out: Path, method: str) -> ProcessResult:
