@@ -16,7 +16,10 @@ Sources, and where each comes from:
   cannot see it in its residuals (it moves the point instead), so it is a floor: the covariance of
   the point when each eye's lines all turn by a 2D angle of std ``bias_deg``, through the fit's
   sensitivity. ``bias_from_calibration`` takes it from the eye calibration's leave-one-out
-  residuals; without one, ``DEFAULT_BIAS_DEG``.
+  residuals, ``estimator.slippage`` the slippage after it from the session's own lines (how
+  each eye's residuals sit off its fixations' points beyond their noise);
+  ``wearable_gaze.pipeline.errorbudget`` puts them together with a device's published accuracy
+  where there is no calibration. Without any, ``DEFAULT_BIAS_DEG``.
 
 The covariance is ``H^-1 M H^-1 * f_t + C_bias`` with ``H = sum w J^T J`` (the fit's normal
 matrix), ``M`` the residuals' covariance carried through the Jacobians (per-eye variances, the
@@ -90,12 +93,12 @@ class ErrorModel:
             raise ValueError(f"overdispersion_p must be in [0, 1), got {self.overdispersion_p}")
 
 
-def bias_from_calibration(loo_rms_deg, slip_deg: float = DEFAULT_BIAS_DEG) -> float:
+def bias_from_calibration(loo_rms_deg, slip_deg: float = 0.0) -> float:
     """Per-axis bias std, degrees, from the eye calibration's leave-one-out RMS angular errors (one
     per eye, degrees; None or NaN where an eye has none): the calibration's own error (the RMS over
-    the eyes divided by sqrt 2: an angle's RMS has two axes) and, added in quadrature, the
-    slippage after it (``slip_deg`` per axis, which no calibration sees). ``slip_deg`` alone when
-    no eye has a figure."""
+    the eyes divided by sqrt 2: an angle's RMS has two axes) and, added in quadrature, a slippage
+    after it (``slip_deg`` per axis, which no calibration sees; the session's own lines size it,
+    ``estimator.slippage``). 0 plus ``slip_deg`` when no eye has a figure."""
     vals = np.array([v for v in (loo_rms_deg or []) if v is not None], float)
     vals = vals[np.isfinite(vals)]
     cal2 = float(np.mean(vals**2) / 2.0) if len(vals) else 0.0

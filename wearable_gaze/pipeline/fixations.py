@@ -6,7 +6,7 @@ targets.json and target_labels.npy, each through its formats module; docs/proces
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -204,14 +204,17 @@ def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sig
     return groups
 
 
-def write_targets_step(out: Path, result: TargetsResult, method: str) -> None:
+def write_targets_step(out: Path, result: TargetsResult, method: str, error_model: dict | None = None,
+                       depth_assumption: str | None = None) -> None:
     """The step's files in ``out``: viewlines.csv (with fixation labels), and through
-    formats/targets.py estimates.csv, targets.csv and targets.json (the rows of ``Target.row``),
-    target_paths.csv (the moving targets' paths) and target_labels.npy (the target of every
-    view line)."""
+    formats/targets.py estimates.csv, targets.csv and targets.json (the rows of ``Target.row``,
+    each named the session's ``depth_assumption`` if any; ``error_model``: the bias's record,
+    ``pipeline.errorbudget.session_bias``), target_paths.csv (the moving targets' paths) and
+    target_labels.npy (the target of every view line)."""
     write_viewlines_csv(out / "viewlines.csv", result.samples, result.labels)
     write_estimates(out / "estimates.csv", result.running)
-    write_targets(out, [tg.row() for tg in result.targets], method)
+    write_targets(out, [replace(tg, depth_assumption=depth_assumption).row() if depth_assumption else tg.row()
+                        for tg in result.targets], method, error_model)
     write_target_paths(out / "target_paths.csv", {tg.index: (tg.trajectory.t_s, tg.trajectory.positions_mm,
                                                             tg.trajectory.covariances_mm2)
                                                  for tg in result.targets if tg.trajectory is not None})

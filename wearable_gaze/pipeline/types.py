@@ -19,7 +19,13 @@ from estimator import BinocularSamples, GazeEstimate
 from estimator.errormodel import Sight
 from estimator.motion import STATIC, Trajectory
 
-from ..formats.targets import MOVING_COLUMN, TARGET_KEYS, record_sight, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
+from ..formats.targets import (  # noqa: F401  (TARGET_KEYS: a record's keys)
+    DEPTH_ASSUMPTION,
+    MOVING_COLUMN,
+    TARGET_KEYS,
+    record_sight,
+    target_record,
+)
 
 
 @dataclass
@@ -76,6 +82,8 @@ class Target:
         sight: where its lines were seen from and how the error model shaped its covariance
             (``estimator.errormodel.Sight``), which draws its region at any level and its depth
             intervals; None without the error model.
+        depth_assumption: the assumption that fixes its depth, in words
+            (``pipeline.errorbudget.depth_assumption``), or None.
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -96,6 +104,7 @@ class Target:
     moving: bool = False
     trajectory: Trajectory | None = None
     sight: Sight | None = None
+    depth_assumption: str | None = None
 
     def level_covariance(self, probability: float) -> np.ndarray | None:
         """(3, 3) mm^2 whose ``probability`` ellipsoid is the region of that level (the error
@@ -124,7 +133,7 @@ class Target:
         target; ``rounded`` as the live messages send it."""
         return target_record(self.index, self.t_start, self.t_end, self.position_mm, self.axes95_mm, self.n_samples,
                              self.method, self.status, self.covariance_mm2, self.crb_mm, self.fixations, self.moving,
-                             rounded, self.sight)
+                             rounded, self.sight, self.depth_assumption)
 
     @classmethod
     def from_row(cls, row: dict) -> Target:
@@ -139,7 +148,8 @@ class Target:
                    axes95_mm=vec("ellipsoid95_radii_mm"), status=str(row["status"]), n_samples=int(row["n_samples"]),
                    t_start=_num(row["t_start"]), t_end=_num(row["t_end"]),
                    fixations=tuple(int(f) for f in row["fixations"]), method=str(row["method"]),
-                   crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)), sight=record_sight(row))
+                   crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)), sight=record_sight(row),
+                   depth_assumption=row.get(DEPTH_ASSUMPTION))
 
 
 def _num(v) -> float:
