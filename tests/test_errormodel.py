@@ -141,6 +141,17 @@ def test_the_pose_term_widens_the_lateral_extent(rng):
     assert np.all(np.diag(pose)[:2] > 2.5 * np.diag(base)[:2])
 
 
+def test_the_head_position_error_over_a_fixation_moves_the_point_as_much(rng):
+    lines = walkabout_samples(X, rng, n=300).lines()
+    p = ml_point(lines).position_mm
+    base = model_covariance(p, lines, np.deg2rad(1.0), ErrorModel(bias_deg=0.2))[1]["linear_cov"]
+    moved, info = model_covariance(p, lines, np.deg2rad(1.0), ErrorModel(bias_deg=0.2, pose_position_mm=3.0))
+    np.testing.assert_allclose(info["linear_cov"] - base, 9.0 * np.eye(3), atol=1e-6)
+    assert info["pose_position_mm"] == 3.0
+    with pytest.raises(ValueError, match="pose_position_mm"):
+        ErrorModel(pose_position_mm=-1.0)
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="bias_correlation"):
         ErrorModel(bias_correlation=1.5)

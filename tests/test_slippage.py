@@ -57,10 +57,10 @@ def test_consistent_fixations_show_no_bias():
 def test_a_group_far_noisier_than_the_others_is_left_out_and_labels_are_checked():
     rng = np.random.default_rng(13)
     samples, labels = _session(rng, np.zeros((2, 2)), n_fix=6)
-    noisy = labels == 5                                     # a missed saccade: 20 deg of scatter
+    noisy = labels == 5                                     # a missed saccade: 5 deg of scatter
     ld, rd = samples.left_direction.copy(), samples.right_direction.copy()
-    ld[noisy] = perturb_directions(ld[noisy], np.deg2rad(20.0), rng)
-    rd[noisy] = perturb_directions(rd[noisy], np.deg2rad(20.0), rng)
+    ld[noisy] = perturb_directions(ld[noisy], np.deg2rad(5.0), rng)
+    rd[noisy] = perturb_directions(rd[noisy], np.deg2rad(5.0), rng)
     bad = BinocularSamples.from_arrays(samples.t_s, samples.left_origin_mm, ld, samples.right_origin_mm, rd)
     s = seen_bias(bad, labels)
     assert s.groups == 5 and s.left_out == 1 and s.deg < 0.1

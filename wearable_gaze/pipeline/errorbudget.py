@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from estimator.errormodel import DEFAULT_BIAS_DEG, ErrorModel, bias_from_calibration
@@ -40,6 +40,17 @@ log = logging.getLogger(__name__)
 MEAN_TO_AXIS = math.sqrt(2.0 / math.pi)
 """A published accuracy is a mean angular offset; for a 2D Gaussian offset of std ``s`` per axis
 the mean size is ``s sqrt(pi / 2)``: per axis std = accuracy x this (0.80)."""
+
+TRACKED_POSITION_MM = 3.0
+"""Per axis std of the head position's error over one fixation when the poses are tracked in the
+scene video, mm (``ErrorModel.pose_position_mm``): on 8 simulated walking and swaying sessions
+(benchmarks/coverage.py, 640x360 video, 6 markers a wall) the tracked head positions were off the
+true ones by a per-axis RMS of 2.4-8.9 mm per session (median 4.5, most of it along the walk or
+sway); part of a frame's error averages out over a fixation. On the small-bias sessions of
+benchmarks/coverage.py (``ml`` on each true target's fixations) the 95 % regions held 85 % of the
+targets without it, the misses near ones (about 1 m) off sideways; with 3 mm, 97 %. Sizing it from
+the tracking's own residuals is left to do."""
+
 
 @dataclass(frozen=True)
 class BiasPrior:
@@ -160,15 +171,22 @@ def session_prior(imported: bool, eyes_path: Path, import_report: dict | None = 
     return device_prior(import_report) if imported else calibration_prior(eyes_path)
 
 
+def pose_model(tracked: bool) -> ErrorModel:
+    """The error model's head-pose terms, before its bias: head poses ``tracked`` in the scene
+    video have the merge test's per-fixation angular offset (``estimator.merge.MERGE_POSE_DEG``)
+    and a per-fixation position error (``TRACKED_POSITION_MM``); a device's own poses (SLAM) or a
+    still head neither."""
+    return ErrorModel(pose_offset_deg=MERGE_POSE_DEG if tracked else 0.0,
+                      pose_position_mm=TRACKED_POSITION_MM if tracked else 0.0)
+
+
 def session_error_model(imported: bool, eyes_path: Path, tracked: bool = True, seen: SeenBias | None = None,
                         import_report: dict | None = None) -> ErrorModel:
     """The error model of the targets' covariances and merges: its bias is ``session_bias`` of
     the session's prior (``session_prior``) and the bias ``seen`` in its lines (None: the prior
-    alone). Head poses ``tracked`` in the scene video add the merge test's per-fixation pose
-    offset (``estimator.merge.MERGE_POSE_DEG``); a device's own poses (SLAM) or a still head do
-    not."""
+    alone), its head-pose terms ``pose_model(tracked)``."""
     bias = session_bias(session_prior(imported, eyes_path, import_report), seen)["bias_deg"]
-    return ErrorModel(bias_deg=bias, pose_offset_deg=MERGE_POSE_DEG if tracked else 0.0)
+    return replace(pose_model(tracked), bias_deg=bias)
 
 
 def depth_assumption(report: dict | None, pose_source: str | None) -> str | None:

@@ -15,8 +15,6 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from estimator.errormodel import ErrorModel
-from estimator.merge import MERGE_POSE_DEG
 from estimator.segments import SegmentConfig
 from estimator.slippage import seen_bias
 
@@ -49,7 +47,7 @@ from .calibrate import (
     view_lines,
 )
 from .device import POSE_NOTES, device_comparison, device_poses, still_head_poses
-from .errorbudget import depth_assumption, session_bias, session_prior, targets_bias_note
+from .errorbudget import depth_assumption, pose_model, session_bias, session_prior, targets_bias_note
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
@@ -312,8 +310,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     rep = read_import_report(f.import_report) if f.import_report is not None else None
     prior = session_prior(f.eye_rays is not None, eyes_path, rep)
-    base = ErrorModel(pose_offset_deg=MERGE_POSE_DEG if f.eye_rays is None or f.pose_source not in (
-        "device", "still_head") else 0.0)
+    base = pose_model(f.eye_rays is None or f.pose_source not in ("device", "still_head"))
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
