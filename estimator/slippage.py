@@ -3,24 +3,29 @@ slippage after it): how each eye's residuals over a fixation sit off the fitted 
 their noise explains.
 
 Model. Over one group of lines (a fixation; or all the fixations of one target, so that revisits
-from other places must agree too), every line of an eye is turned by one 2D angle ``beta_e``,
-in axes fixed to the head (about the normal of the plane of the line and the eyes' baseline,
+from other places must agree too), every line of an eye is turned by one 2D angle ``beta_e``, in
+axes fixed to the head (about the normal of the plane of the line and the eyes' baseline,
 "vertical", and about the axis in that plane, "horizontal"), on top of independent noise. The
-point fitted to the group absorbs what a point can (the lateral shift of both eyes, the
-vergence's depth); the rest stays in the residuals: in the noise-whitened residuals ``r`` the
-eyes' sums ``q = B^T r`` (``B`` the lines' membership of the 4 angles) have noise covariance
-``S = B^T P B`` (``P`` the fit's residual projector) and mean ``S beta``. With each angle's
-component of std ``s`` (per eye and axis, the eyes independent),
-``E[q^T q] = tr S + s^2 tr S^2``, so over the groups
+point fitted to the group absorbs what a point can; the rest stays in the residuals: in the
+noise-whitened residuals ``r`` (each eye by its own residual spread in the group, so the assumed
+``sigma`` does not enter) the eyes' sums ``q = B^T P r`` (``B`` the lines' membership of the 4
+angles, ``P`` the fit's residual projector) have noise covariance ``S = B^T P B`` and mean
+``S beta``.
 
-    s^2 = (sum q^T q - sum tr S) / sum tr S^2,     standard error sqrt(2 / sum tr S^2)
+The bias is one over the session (fixed to the head), so the groups pool: ``q = sum q_g``,
+``S = sum S_g``. Along each eigenvector of ``S`` with eigenvalue ``lam`` the angles' component is
+``z = v^T q / lam`` with noise variance ``1 / lam``; the directions the lines fix to
+``WELL_SEEN_DEG`` or better count, and with each eye's angle's components of std ``s`` (per eye
+and axis, the eyes independent)
 
-(method of moments; negative: no bias seen, 0). The noise is each eye's own residual spread in
-the group, so the assumed ``sigma`` does not enter. What a group's point absorbs cannot be seen
-(a still head's fixation shows the eyes' vertical disagreement only; head travel and revisits
-show more): the components are taken alike (isotropic), which the estimate assumes and the
-report says. Groups whose noise is far above the session's (a missed saccade, a moving target)
-are left out (``OUTLIER_NOISE``).
+    s^2 = mean over them of (z^2 - 1 / lam),     standard error sqrt(sum 2 / lam^2) / count
+
+(negative: no bias seen, 0). A point absorbs the eyes' common turn (a lateral shift) and, from a
+still head, the horizontal difference (depth); head travel and revisits let the lines fix the
+eyes' vertical and horizontal differences, not the common turn. ``s`` rests on the directions
+seen and takes the others alike (isotropy), which the report says: glasses that slip both eyes
+alike show less than they have. Groups whose noise is far above the session's (a missed saccade,
+a moving target) are left out (``OUTLIER_NOISE``).
 """
 
 from __future__ import annotations
