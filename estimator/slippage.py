@@ -69,9 +69,9 @@ class SeenBias:
     seen: int
 
     def record(self) -> dict:
-        """A JSON-ready record (for eyes.json and the report)."""
-        return {"deg": round(self.deg, 4), "se_deg": round(self.se_deg, 4), "groups": self.groups,
-                "left_out": self.left_out, "seen": self.seen}
+        """A JSON-ready record (targets.json's ``error_model.seen``; null for an undefined figure)."""
+        return {"deg": round(self.deg, 4), "se_deg": round(self.se_deg, 4) if math.isfinite(self.se_deg) else None,
+                "groups": self.groups, "left_out": self.left_out, "seen": self.seen}
 
 
 def seen_bias(samples: BinocularSamples, labels) -> SeenBias:

@@ -64,6 +64,9 @@ def test_without_a_calibration_the_device_kind_gives_the_bias_and_its_source():
     assert em.bias_deg == pytest.approx(tobii.deg)          # an imported session: the device's, not the default
     rec = session_bias(aria, None)
     assert "a conservative value, not a published or measured figure" in bias_note(rec)
+    nothing = session_bias(aria, SeenBias(0.0, float("nan"), 0, 2, 0))   # no fixation to show it: valid JSON
+    assert nothing["seen"]["se_deg"] is None and "no fixation to show it" in bias_note(nothing)
+    json.dumps(nothing, allow_nan=False)
 
 
 def test_the_depth_assumption_is_named_in_targets_json_and_the_report(tmp_path):

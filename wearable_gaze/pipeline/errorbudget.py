@@ -211,7 +211,7 @@ def bias_note(record: dict) -> str:
     prior = (f"prior {record['prior_deg']:.2f} deg ({record['basis']}: {record['source']}"
              + ("" if record["published"] else "; a conservative value, not a published or measured figure") + ")")
     lines = (f"the session's lines showed {seen['deg']:.2f} deg (standard error {seen['se_deg']:.2f}, "
-             f"{seen['groups']} fixations, {seen['left_out']} left out)" if seen.get("groups") else
+             f"{seen['groups']} fixations, {seen['left_out']} left out)" if seen.get("se_deg") is not None else
              "the session's lines had no fixation to show it")
     return (f"Error model: a per-eye bias of {record['bias_deg']:.2f} deg per axis: {prior}; {lines}"
             + (f", {record['slip_deg']:.2f} deg beyond the prior (slippage)." if record.get("slip_deg") else "."))
