@@ -16,9 +16,15 @@ Sources, and where each comes from:
   cannot see it in its residuals (it moves the point instead), so it is a floor: the covariance of
   the point when each eye's lines all turn by a 2D angle of std ``bias_deg``, through the fit's
   sensitivity. ``bias_from_calibration`` takes it from the eye calibration's leave-one-out
-  residuals; without one, ``DEFAULT_BIAS_DEG``.
+  residuals, ``estimator.slippage`` the slippage after it from the session's own lines (how
+  each eye's residuals sit off its fixations' points beyond their noise);
+  ``wearable_gaze.pipeline.errorbudget`` puts them together with a device's published accuracy
+  where there is no calibration. Without any, ``DEFAULT_BIAS_DEG``.
 
-The covariance is ``H^-1 M H^-1 * f_t + C_bias`` with ``H = sum w J^T J`` (the fit's normal
+- Head-position error from tracking over a fixation (``pose_position_mm``): both eyes' origins
+  move alike, and so does the point: ``t^2 I``.
+
+The covariance is ``H^-1 M H^-1 * f_t + C_bias + t^2 I`` with ``H = sum w J^T J`` (the fit's normal
 matrix), ``M`` the residuals' covariance carried through the Jacobians (per-eye variances, the
 eyes' correlation), ``f_t = (1 + rho_t) / (1 - rho_t)`` (an AR(1) series' variance of the mean)
 and ``C_bias`` the floor. With the model's defaults switched off (no bias, no pose, residuals that
@@ -70,6 +76,9 @@ class ErrorModel:
         pose_offset_deg: std per axis of the head pose's error over one fixation, degrees, an
             offset shared by both eyes' lines: the merge test's (``estimator.merge``); poses
             tracked in the scene video have one, a device's SLAM hardly any.
+        pose_position_mm: std per axis of the head position's error over one fixation, mm,
+            shared by both eyes: it moves the point by as much (``t^2 I`` added to the
+            covariance); poses tracked in the scene video have one, a device's SLAM hardly any.
     """
 
     bias_deg: float = DEFAULT_BIAS_DEG
@@ -79,23 +88,26 @@ class ErrorModel:
     correlations: bool = True
     far_side_k: float = FAR_SIDE_K
     pose_offset_deg: float = 0.0
+    pose_position_mm: float = 0.0
 
     def __post_init__(self):
-        if not (self.bias_deg >= 0 and self.pose_sigma_deg >= 0 and self.pose_offset_deg >= 0):
-            raise ValueError(f"bias_deg, pose_sigma_deg and pose_offset_deg must be non-negative, got "
-                             f"{self.bias_deg}, {self.pose_sigma_deg} and {self.pose_offset_deg}")
+        if not (self.bias_deg >= 0 and self.pose_sigma_deg >= 0 and self.pose_offset_deg >= 0
+                and self.pose_position_mm >= 0):
+            raise ValueError(f"bias_deg, pose_sigma_deg, pose_offset_deg and pose_position_mm must be non-negative, "
+                             f"got {self.bias_deg}, {self.pose_sigma_deg}, {self.pose_offset_deg} and "
+                             f"{self.pose_position_mm}")
         if not 0 <= self.bias_correlation <= 1:
             raise ValueError(f"bias_correlation must be in [0, 1], got {self.bias_correlation}")
         if not 0 <= self.overdispersion_p < 1:
             raise ValueError(f"overdispersion_p must be in [0, 1), got {self.overdispersion_p}")
 
 
-def bias_from_calibration(loo_rms_deg, slip_deg: float = DEFAULT_BIAS_DEG) -> float:
+def bias_from_calibration(loo_rms_deg, slip_deg: float = 0.0) -> float:
     """Per-axis bias std, degrees, from the eye calibration's leave-one-out RMS angular errors (one
     per eye, degrees; None or NaN where an eye has none): the calibration's own error (the RMS over
-    the eyes divided by sqrt 2: an angle's RMS has two axes) and, added in quadrature, the
-    slippage after it (``slip_deg`` per axis, which no calibration sees). ``slip_deg`` alone when
-    no eye has a figure."""
+    the eyes divided by sqrt 2: an angle's RMS has two axes) and, added in quadrature, a slippage
+    after it (``slip_deg`` per axis, which no calibration sees; the session's own lines size it,
+    ``estimator.slippage``). 0 plus ``slip_deg`` when no eye has a figure."""
     vals = np.array([v for v in (loo_rms_deg or []) if v is not None], float)
     vals = vals[np.isfinite(vals)]
     cal2 = float(np.mean(vals**2) / 2.0) if len(vals) else 0.0
@@ -238,7 +250,7 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
     f_t = (1 + nz["rho_t"]) / (1 - nz["rho_t"])
     C_noise = Hi @ meat @ Hi * f_t
     C_bias = _bias_floor(Hi, J, w, eye, lines.directions, b1, b2, model)
-    C_lin = C_noise + C_bias
+    C_lin = C_noise + C_bias + model.pose_position_mm**2 * np.eye(3)
     origin = lines.origins_mm.mean(axis=0)
     C, far = far_side(C_lin, X, origin, model.far_side_k)
     C = 0.5 * (C + C.T)
@@ -247,6 +259,7 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
             "chi2_ratio": nz["chi2_ratio"].round(3).tolist(), "inflated": bool(inflated or f_t > 1),
             "eye_correlation": round(nz["rho"], 3), "time_correlation": round(nz["rho_t"], 3),
             "bias_deg": model.bias_deg, "pose_sigma_deg": model.pose_sigma_deg,
+            "pose_position_mm": model.pose_position_mm,
             "bias_share": float(np.trace(C_bias) / max(np.trace(C), 1e-300)), "far_side_factor": round(far, 3),
             **sight_info(C_lin, X, origin, model.far_side_k)}
     info["note"] = _note(nz, f_t, sigma_rad)

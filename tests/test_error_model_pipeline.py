@@ -1,11 +1,13 @@
 """The error model wired into the pipeline: ``estimate`` reports the model's covariance by default
 and the inverse Fisher information with --no-error-model (and says which), ``find_targets`` gives
 it to the running, fixation, merged and target estimates, and ``process`` takes its bias from the
-eye calibration (the default for an imported session)."""
+eye calibration (an imported session: its device's, tests/test_errorbudget.py)."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
+import pytest
 from helpers import walkabout_samples
 
 from estimator import run_estimator
@@ -13,9 +15,9 @@ from estimator.errormodel import ErrorModel, bias_from_calibration
 from estimator.merge import MERGE_POSE_DEG
 from wearable_gaze.cli import main
 from wearable_gaze.formats.viewlines import write_viewlines_csv
+from wearable_gaze.pipeline.errorbudget import TRACKED_POSITION_MM, session_error_model
 from wearable_gaze.pipeline.estimate import radius95_mm, running_estimate
 from wearable_gaze.pipeline.fixations import find_targets
-from wearable_gaze.pipeline.process import session_error_model
 
 TARGET = [120.0, -40.0, 1200.0]
 
@@ -60,8 +62,9 @@ def test_process_takes_the_bias_from_the_eye_calibration(tmp_path):
     eyes = tmp_path / "eyes.json"
     eyes.write_text(json.dumps({"eyes": [{"report": {"loo_rms_deg": 0.3}}, {"report": {"loo_rms_deg": 0.9}}]}))
     calibrated = session_error_model(False, eyes)
-    assert calibrated == ErrorModel(bias_deg=bias_from_calibration([0.3, 0.9]), pose_offset_deg=MERGE_POSE_DEG)
-    assert calibrated.bias_deg > ErrorModel().bias_deg
+    tracked = ErrorModel(pose_offset_deg=MERGE_POSE_DEG, pose_position_mm=TRACKED_POSITION_MM)
+    assert calibrated == replace(tracked, bias_deg=calibrated.bias_deg)
+    assert calibrated.bias_deg == pytest.approx(bias_from_calibration([0.3, 0.9]), abs=1e-4)
     assert session_error_model(True, eyes, tracked=False) == ErrorModel()          # a device's SLAM poses
-    assert session_error_model(True, eyes) == ErrorModel(pose_offset_deg=MERGE_POSE_DEG)
-    assert session_error_model(False, tmp_path / "absent.json") == ErrorModel(pose_offset_deg=MERGE_POSE_DEG)
+    assert session_error_model(True, eyes) == tracked                   # no import report: the conservative bias
+    assert session_error_model(False, tmp_path / "absent.json") == tracked

@@ -121,7 +121,8 @@ def test_eye_labels_follow_the_samples_and_place_lone_lines(rng):
 
 
 def test_bias_from_the_calibration_and_pose_sigma():
-    assert bias_from_calibration([None, None]) == pytest.approx(DEFAULT_BIAS_DEG)
+    assert bias_from_calibration([None, None]) == 0.0                   # no fixed slippage: the lines size it
+    assert bias_from_calibration([None, None], slip_deg=DEFAULT_BIAS_DEG) == pytest.approx(DEFAULT_BIAS_DEG)
     assert bias_from_calibration([0.4, 0.4], slip_deg=0.0) == pytest.approx(0.4 / np.sqrt(2))
     assert bias_from_calibration([0.3, float("nan")], slip_deg=0.5) == pytest.approx(np.sqrt(0.3**2 / 2 + 0.25))
     cov = np.zeros((6, 6))
@@ -138,6 +139,17 @@ def test_the_pose_term_widens_the_lateral_extent(rng):
                                ErrorModel(bias_deg=0.0, pose_sigma_deg=1.0))
     # a shared 1 deg pose error per sample: the lateral variance (x, y) roughly triples
     assert np.all(np.diag(pose)[:2] > 2.5 * np.diag(base)[:2])
+
+
+def test_the_head_position_error_over_a_fixation_moves_the_point_as_much(rng):
+    lines = walkabout_samples(X, rng, n=300).lines()
+    p = ml_point(lines).position_mm
+    base = model_covariance(p, lines, np.deg2rad(1.0), ErrorModel(bias_deg=0.2))[1]["linear_cov"]
+    moved, info = model_covariance(p, lines, np.deg2rad(1.0), ErrorModel(bias_deg=0.2, pose_position_mm=3.0))
+    np.testing.assert_allclose(info["linear_cov"] - base, 9.0 * np.eye(3), atol=1e-6)
+    assert info["pose_position_mm"] == 3.0
+    with pytest.raises(ValueError, match="pose_position_mm"):
+        ErrorModel(pose_position_mm=-1.0)
 
 
 def test_bad_settings_are_refused():

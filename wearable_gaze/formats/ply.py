@@ -56,7 +56,7 @@ def write_ply(path, mesh: PlyMesh) -> None:
             "property uchar red", "property uchar green", "property uchar blue",
             f"element face {len(f)}", "property list uchar int vertex_indices",
             f"element edge {len(e)}", "property int vertex1", "property int vertex2", "end_header"]
-    body = [f"{x:.3f} {y:.3f} {z:.3f} {r} {g} {b}" for (x, y, z), (r, g, b) in zip(v, c.tolist(), strict=True)]
+    body = [f"{x:.4f} {y:.4f} {z:.4f} {r} {g} {b}" for (x, y, z), (r, g, b) in zip(v, c.tolist(), strict=True)]
     body += [f"3 {a} {b} {d}" for a, b, d in f.tolist()]
     body += [f"{a} {b}" for a, b in e.tolist()]
     write_text(path, "\n".join(head + body) + "\n")

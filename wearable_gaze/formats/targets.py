@@ -12,7 +12,10 @@ mm, or null: no covariance), ``n_samples``, ``method``, ``status``, ``covariance
 or null), ``crb_mm`` (or null), ``fixations`` (list of fixation indices), on a moving target
 only, ``moving: true``, and, where the error model gave the covariance, ``depth`` (its distance
 from where it was seen and the 68 % and 95 % intervals of it, symmetric in inverse depth:
-``DEPTH_KEYS``). targets.json is ``{"version": 2, "method": ..., "targets": [records]}``
+``DEPTH_KEYS``), and where an assumption fixes the depth (a kappa offset taken at a distance, a
+still head: ``pipeline.errorbudget.depth_assumption``), ``depth_assumption`` (it, in words).
+targets.json is ``{"version": 2, "method": ..., "targets": [records]}`` with, from ``process``,
+``error_model`` (the per-eye bias and where it came from: ``pipeline.errorbudget.session_bias``)
 (schema ``targets``); ``read_targets`` also reads version 1 files (flat rows, NaN for none) into
 records. targets.csv holds the same records flattened (``TARGET_CSV_COLUMNS``: ``position_mm``
 -> ``x_mm, y_mm, z_mm``; ``covariance_mm2`` -> ``cov_xx_mm2 .. cov_zz_mm2``, its six unique
@@ -72,6 +75,7 @@ DIRECTION_COLUMN = "direction"
 direction seen from the mean of its lines' cyclopean origins, its 95 % cone's half-angle, the 95 %
 depth interval along it (far null: no far end); every static target with enough lines has one,
 and it is a ``direction-only`` target's whole answer (its ``position_mm`` is null)."""
+DEPTH_ASSUMPTION = "depth_assumption"
 DEPTH_KEYS = ("seen_from_mm", "distance_mm", "relative_sd", "interval68_mm", "interval95_mm")
 """The keys of a record's ``depth``: where it was seen from (the mean origin of its view lines,
 [x, y, z] world frame, mm), its distance from there (mm), the linearised relative sd of that
@@ -119,7 +123,8 @@ def _finite(value, decimals: int | None = None):
 
 def target_record(index: int, t_start: float, t_end: float, position_mm, radii95_mm, n_samples: int, method: str,
                   status: str, covariance_mm2=None, crb_mm: float = float("nan"), fixations=(), moving: bool = False,
-                  rounded: bool = False, sight: Sight | None = None, direction: GazeDirection | None = None) -> dict:
+                  rounded: bool = False, sight: Sight | None = None, direction: GazeDirection | None = None,
+                  depth_assumption: str | None = None) -> dict:
     """The record of one target (keys ``TARGET_KEYS``, plain JSON values): the one function that
     makes the rows of targets.json, the objects of ``estimate --json --targets`` and the body of
     the live ``target`` message, so that they cannot drift apart.
@@ -140,6 +145,8 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
         direction: where its lines looked (``estimator.direction.GazeDirection``): the record
             gets ``direction`` (``GazeDirection.to_dict``: ``seen_from_mm``, ``unit``,
             ``cone95_deg``, ``depth95_mm`` [near, far or null], ``spread_deg``, ``n_samples``).
+        depth_assumption: the assumption that fixes its depth, in words (the record gets
+            ``depth_assumption``), or None.
     """
     mm, s = (1, 4) if rounded else (None, None)
     cov = _finite_list(covariance_mm2, (3, 3), None)
@@ -156,6 +163,8 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
         rec[DEPTH_COLUMN] = _depth(position_mm, sight, mm)
     if direction is not None:
         rec[DIRECTION_COLUMN] = direction.to_dict(mm)
+    if depth_assumption:
+        rec[DEPTH_ASSUMPTION] = str(depth_assumption)
     return rec
 
 
@@ -232,12 +241,14 @@ def write_targets_csv(path, records: list[dict], sessions=None) -> None:
     write_table(path, cols, TARGET_FORMATS, TARGET_CSV_CHECKS)
 
 
-def write_targets(out, records: list[dict], method: str) -> None:
+def write_targets(out, records: list[dict], method: str, error_model: dict | None = None) -> None:
     """Write ``records`` (``target_record``) as ``out``/targets.csv and ``out``/targets.json
-    (with ``method``, the estimator), each atomically."""
+    (with ``method``, the estimator, and ``error_model``, the bias's record, when given), each
+    atomically."""
     out = Path(out)
     write_targets_csv(out / "targets.csv", records)
-    write_json(out / "targets.json", {"version": TARGETS_VERSION, "method": method, "targets": records})
+    obj = {"version": TARGETS_VERSION, "method": method, "targets": records}
+    write_json(out / "targets.json", obj | ({"error_model": error_model} if error_model is not None else {}))
 
 
 def _record_of_v1(row: dict) -> dict:

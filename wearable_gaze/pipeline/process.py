@@ -11,19 +11,18 @@ older run's result presented as this one's.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from estimator.errormodel import ErrorModel, bias_from_calibration
-from estimator.merge import MERGE_POSE_DEG
 from estimator.segments import SegmentConfig
+from estimator.slippage import seen_bias
 
 from ..errors import UserError
 from ..formats.atomic import remove_temporaries
 from ..formats.board import BOARD_FILE, read_board
 from ..formats.camera import load_camera
+from ..formats.devices.common import read_import_report
 from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import read_eye_csv
 from ..formats.eyes import load_eyes, write_eyes
@@ -49,6 +48,7 @@ from .calibrate import (
     view_lines,
 )
 from .device import device_comparison, device_points, device_poses, report_notes, still_head_poses, world_words
+from .errorbudget import depth_assumption, pose_model, session_bias, session_prior, targets_bias_note
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
@@ -311,19 +311,23 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
     if steps.run("viewlines", eye_inputs + [poses_path], person, do_viewlines):
         res.summary["viewlines"] = load_json(counts_path, "viewlines-counts")     # as written: steps.changed_output
 
+    rep = read_import_report(f.import_report) if f.import_report is not None else None
+    prior = session_prior(f.eye_rays is not None, eyes_path, rep)
+    base = pose_model(f.eye_rays is None or f.pose_source not in ("device", "still_head"))
+
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
-        result = find_targets(samples, segment_view_lines(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb,
-                              error_model)
-        write_targets_step(out, result, cfg.method)
+        labels = segment_view_lines(samples, cfg.segment_config)
+        budget = session_bias(prior, seen_bias(samples, labels))          # the bias sized from the lines
+        result = find_targets(samples, labels, cfg.method, cfg.sigma_deg, cb,
+                              dataclasses.replace(base, bias_deg=budget["bias_deg"]))
+        write_targets_step(out, result, cfg.method, budget, depth_assumption(rep, f.pose_source))
         write_fixations_step(out, result)
         if f.device_gaze is not None:
             device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
         vals.set("targets", result.targets)
-    error_model = session_error_model(f.eye_rays is not None, eyes_path,
-                                      tracked=f.eye_rays is None or f.pose_source not in ("device", "still_head"))
     params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__,
-              "error_model": dataclasses.asdict(error_model)}
+              "error_model": dataclasses.asdict(base), "bias_prior": dataclasses.asdict(prior), "bias": "seen"}
     if steps.run("targets", [raw_vl], params, do_targets):
         res.found = vals["targets"]
         if not any(t.fixated for t in res.found):        # a too-near point is no target (target_status.FIXATED)
@@ -362,25 +366,6 @@ def _export_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, cam_p
     params = {"camera": cam_ok, "clock_offset_s": f.clock_offset_s,
               "person": None if correction is None else correction.tolist()}
     steps.run("export", inputs + eye_inputs + ([cam_path] if cam_ok else []), params, do_export)
-
-
-def session_error_model(imported: bool, eyes_path: Path, tracked: bool = True) -> ErrorModel:
-    """The error model of the targets' covariances and merges (``estimator.errormodel``): an
-    ``imported`` session's device calibrated the eyes (the default bias); a calibrated session's
-    bias is ``bias_from_calibration`` of each eye's leave-one-out RMS error in ``eyes_path``'s
-    report (eyes.json; the default bias when it has none). Head poses ``tracked`` in the scene
-    video add the merge test's per-fixation pose offset (``estimator.merge.MERGE_POSE_DEG``); a
-    device's own poses (SLAM) or a still head do not."""
-    pose = MERGE_POSE_DEG if tracked else 0.0
-    if imported or not eyes_path.is_file():       # none: the eye step failed and said so; nothing uses this
-        return ErrorModel(pose_offset_deg=pose)
-    try:
-        eyes = json.loads(eyes_path.read_text(encoding="utf-8"))["eyes"]
-        loo = [e.get("report", {}).get("loo_rms_deg") for e in eyes]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        log.warning("%s: no leave-one-out errors (%s); the default eye bias", eyes_path, exc)
-        loo = []
-    return ErrorModel(bias_deg=bias_from_calibration(loo), pose_offset_deg=pose)
 
 
 def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path, poses_path: Path,
@@ -440,6 +425,7 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
         points = load_sfm_map(cfg.sfm_map)[0].points_world if cfg.sfm_map is not None else device_points(f.root)
         mm = vals["marker_map"] if has_map else None
         notes = report_notes(f.pose_source, f.eye_rays is not None and cfg.overlay, f.import_report)
+        notes += targets_bias_note(out / "targets.json")
         write_report(out, session_title(f.root), overlay_inputs if cfg.overlay and cam_ok else None, cb,
                      notes + truth_notes, truth, mm, cfg.overlay_video, points,
                      world=world_words(f.pose_source, cfg.map_kind), aois=aoi_outlines(cfg.aois, mm))

@@ -400,7 +400,8 @@ def _intervals(t) -> str:
         if t.sight is None or not np.isfinite(near):
             return "&ndash;"
         parts.append(f"{near / 1000:.2f}&ndash;" + (f"{far / 1000:.2f}" if np.isfinite(far) else "&infin;"))
-    return f"{t.sight.distance_mm(t.position_mm) / 1000:.2f} ({' / '.join(parts)})"
+    assumed = f"<br><small>assumes: {html.escape(t.depth_assumption)}</small>" if t.depth_assumption else ""
+    return f"{t.sight.distance_mm(t.position_mm) / 1000:.2f} ({' / '.join(parts)}){assumed}"
 
 
 def _count(targets: list) -> str:

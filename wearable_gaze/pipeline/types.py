@@ -20,7 +20,14 @@ from estimator.direction import GazeDirection
 from estimator.errormodel import Sight
 from estimator.motion import STATIC, Trajectory
 
-from ..formats.targets import DIRECTION_COLUMN, MOVING_COLUMN, TARGET_KEYS, record_sight, target_record  # noqa: F401  (TARGET_KEYS: a record's keys)
+from ..formats.targets import (  # noqa: F401  (TARGET_KEYS: a record's keys)
+    DEPTH_ASSUMPTION,
+    DIRECTION_COLUMN,
+    MOVING_COLUMN,
+    TARGET_KEYS,
+    record_sight,
+    target_record,
+)
 from .target_status import is_fixated
 
 
@@ -83,6 +90,8 @@ class Target:
             direction, its 95 % cone, the depth interval, which may have no far end): a
             direction-only target's answer, and beside the point of a static one; None for a
             moving target.
+        depth_assumption: the assumption that fixes its depth, in words
+            (``pipeline.errorbudget.depth_assumption``), or None.
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -104,6 +113,7 @@ class Target:
     trajectory: Trajectory | None = None
     sight: Sight | None = None
     direction: GazeDirection | None = None
+    depth_assumption: str | None = None
 
     def level_covariance(self, probability: float) -> np.ndarray | None:
         """(3, 3) mm^2 whose ``probability`` ellipsoid is the region of that level (the error
@@ -138,7 +148,7 @@ class Target:
         target; ``rounded`` as the live messages send it."""
         return target_record(self.index, self.t_start, self.t_end, self.position_mm, self.axes95_mm, self.n_samples,
                              self.method, self.status, self.covariance_mm2, self.crb_mm, self.fixations, self.moving,
-                             rounded, self.sight, self.direction)
+                             rounded, self.sight, self.direction, self.depth_assumption)
 
     @classmethod
     def from_row(cls, row: dict) -> Target:
@@ -154,7 +164,8 @@ class Target:
                    t_start=_num(row["t_start"]), t_end=_num(row["t_end"]),
                    fixations=tuple(int(f) for f in row["fixations"]), method=str(row["method"]),
                    crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)), sight=record_sight(row),
-                   direction=GazeDirection.from_dict(row.get(DIRECTION_COLUMN)))
+                   direction=GazeDirection.from_dict(row.get(DIRECTION_COLUMN)),
+                   depth_assumption=row.get(DEPTH_ASSUMPTION))
 
 
 def _num(v) -> float:

@@ -291,9 +291,8 @@ def read_recording(src: Path, imp: SessionImport, options: ImportOptions, progre
                                                                           if others else ""))
     if "personalized" not in path.name:
         imp.note("the gaze is Aria's general model, not calibrated to this wearer: where the head stands still the "
-                 "depth comes from its vergence alone, which on MPS's sample reads about 2.7 deg too divergent, and "
-                 "the depth intervals, made for a tracker calibrated to its wearer (0.5 deg per axis), are too "
-                 "narrow there (docs/estimators.md)")
+                 "depth comes from its vergence alone, which on MPS's sample reads about 2.7 deg too divergent; the "
+                 "error model takes a general model's bias prior there (docs/processing.md, 'The error model')")
     info = _survey(path, names, model)
     swapped = info["diverging"] > info["converging"]
     if model == "per-eye":
