@@ -264,3 +264,21 @@ def test_a_direction_only_target_gives_its_fixations_its_cone_over_its_interval(
     depth = np.linalg.norm(pts, axis=1)
     assert depth.min() >= 1000.0 - 1e-6 and depth.max() <= 4000.0 + 1e-6
     assert np.mean(depth < 2000) == pytest.approx((1 / 1000 - 1 / 2000) / (1 / 1000 - 1 / 4000), abs=0.03)
+
+
+def test_a_targets_dwell_is_the_sum_of_its_fixations_not_its_span(processed):
+    """targets.json's ``dwell_s`` is the sum of the target's fixations' durations (fixations.csv),
+    which is less than its first-to-last span when it was revisited; the CLI table shows it."""
+    from wearable_gaze.formats.fixations_table import read_fixations_csv
+    from wearable_gaze.formats.targets import read_targets
+    from wearable_gaze.pipeline.steps import format_result
+
+    _, out, res = processed
+    fx = read_fixations_csv(out / "fixations.csv")
+    revisited = 0
+    for t in read_targets(out / "targets.json"):
+        mine = fx["target_id"] == t["target"]
+        assert t["dwell_s"] == pytest.approx(float(fx["duration_s"][mine].sum()), abs=2e-3)
+        revisited += mine.sum() > 1 and t["dwell_s"] < t["t_end"] - t["t_start"] - 0.5
+    assert revisited >= 1
+    assert "dwell s" in format_result(res)

@@ -178,7 +178,7 @@ def statuses_everywhere(res, out) -> tuple[list, list, list, int, int]:
     from wearable_gaze.pipeline.steps import format_result
 
     text = format_result(res)
-    table = re.findall(r"^\s*\d+ .*?\d+\.\d-\d+\.\d\s+(\S+)", text, flags=re.M)
+    table = re.findall(r"^\s*\d+ .*?\d+\.\d-\d+\.\d\s+\S+\s+(\S+)", text, flags=re.M)      # after the dwell
     records = [r["status"] for r in json.loads((out / "targets.json").read_text())["targets"]]
     page = (out / "report.html").read_text()
     report = re.findall(r'<span class="status">([^<]*)</span>', page)

@@ -67,7 +67,7 @@ TARGET_CSV_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", *(f"cov_{k}_mm2" for k i
                       "ellipsoid95_r2_mm", "ellipsoid95_r3_mm", "n_samples", "t_start", "t_end", "fixations", "method",
                       "status", "crb_mm", "moving", "distance_mm", "depth68_near_mm", "depth68_far_mm",
                       "depth95_near_mm", "depth95_far_mm", "direction_x", "direction_y", "direction_z",
-                      "cone95_deg")
+                      "cone95_deg", "dwell_s")
 """The columns of targets.csv: a record flattened (``target_csv_columns``)."""
 DEPTH_COLUMN = "depth"
 DIRECTION_COLUMN = "direction"
@@ -76,6 +76,8 @@ direction seen from the mean of its lines' cyclopean origins, its 95 % cone's ha
 depth interval along it (far null: no far end); every static target with enough lines has one,
 and it is a ``direction-only`` target's whole answer (its ``position_mm`` is null)."""
 DEPTH_ASSUMPTION = "depth_assumption"
+DWELL = "dwell_s"
+"""A record's dwell time: the sum of its fixations' durations (each first to last sample), s."""
 DEPTH_KEYS = ("seen_from_mm", "distance_mm", "relative_sd", "interval68_mm", "interval95_mm")
 """The keys of a record's ``depth``: where it was seen from (the mean origin of its view lines,
 [x, y, z] world frame, mm), its distance from there (mm), the linearised relative sd of that
@@ -95,7 +97,7 @@ ESTIMATE_COLUMNS = ("t", "segment", "x", "y", "z", "radius95_mm")
 ESTIMATE_FORMATS = {"t": ".4f", "x": ".1f", "y": ".1f", "z": ".1f", "radius95_mm": ".1f"}
 TARGET_CSV_CHECKS = Checks(tuple(c for c in TARGET_CSV_COLUMNS if c not in ("fixations", "method", "status")),
                            tuple(c for c in TARGET_CSV_COLUMNS if c.endswith("_mm") or c.endswith("_mm2")
-                                 or c.startswith("direction_") or c in ("t_start", "t_end", "cone95_deg")),
+                                 or c.startswith("direction_") or c in ("t_start", "t_end", "cone95_deg", "dwell_s")),
                            tuple(f"cov_{k}_mm2" for k in COV_TERMS), "targets table (targets.csv)")
 PATH_CHECKS = Checks(PATH_COLUMNS, (), PATH_COLUMNS[5:], "target-path CSV (target_paths.csv)")
 """What target_paths.csv may hold, checked by its writer and its reader: the covariances in mm^2
@@ -124,7 +126,7 @@ def _finite(value, decimals: int | None = None):
 def target_record(index: int, t_start: float, t_end: float, position_mm, radii95_mm, n_samples: int, method: str,
                   status: str, covariance_mm2=None, crb_mm: float = float("nan"), fixations=(), moving: bool = False,
                   rounded: bool = False, sight: Sight | None = None, direction: GazeDirection | None = None,
-                  depth_assumption: str | None = None) -> dict:
+                  depth_assumption: str | None = None, dwell_s: float = float("nan")) -> dict:
     """The record of one target (keys ``TARGET_KEYS``, plain JSON values): the one function that
     makes the rows of targets.json, the objects of ``estimate --json --targets`` and the body of
     the live ``target`` message, so that they cannot drift apart.
@@ -147,6 +149,7 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
             ``cone95_deg``, ``depth95_mm`` [near, far or null], ``spread_deg``, ``n_samples``).
         depth_assumption: the assumption that fixes its depth, in words (the record gets
             ``depth_assumption``), or None.
+        dwell_s: the sum of its fixations' durations, s (the record gets ``dwell_s`` when finite).
     """
     mm, s = (1, 4) if rounded else (None, None)
     cov = _finite_list(covariance_mm2, (3, 3), None)
@@ -165,6 +168,8 @@ def target_record(index: int, t_start: float, t_end: float, position_mm, radii95
         rec[DIRECTION_COLUMN] = direction.to_dict(mm)
     if depth_assumption:
         rec[DEPTH_ASSUMPTION] = str(depth_assumption)
+    if np.isfinite(dwell_s):
+        rec[DWELL] = _finite(dwell_s, s if rounded else 4)
     return rec
 
 
@@ -222,6 +227,7 @@ def target_csv_columns(records: list[dict]) -> dict:
         cols[f"depth95_{side}_mm"] = np.where(no_depth, along, cols[f"depth95_{side}_mm"])
     cols |= {f"direction_{a}": np.array([direction(r, "unit", j) for r in records], float) for j, a in enumerate("xyz")}
     cols |= {"cone95_deg": np.array([direction(r, "cone95_deg") for r in records], float)}
+    cols |= {DWELL: np.array([r.get(DWELL, np.nan) if r.get(DWELL) is not None else np.nan for r in records], float)}
     return cols
 
 

@@ -72,6 +72,7 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
     targets = [moving_target(i, samples, g, method) if g.trajectory is not None else
                estimate_target(i, samples, g.samples, g.fixations, g.estimate, method, sigma_deg, error_model)
                for i, g in enumerate(groups)]
+    targets = [replace(tg, dwell_s=dwell_s(samples.t_s, labels, tg.fixations)) for tg in targets]
     tlabels = np.full(len(samples), -1)
     for tg in targets:
         tlabels[tg.samples] = tg.index
@@ -93,6 +94,12 @@ def _fixation(samples: BinocularSamples, k: int, idx: np.ndarray, motion: str, m
                            strict=True):
             running[name].append(v)
     return Fixation(k, idx, e)
+
+
+def dwell_s(t_s: np.ndarray, labels: np.ndarray, fixations) -> float:
+    """The sum of the durations of ``fixations`` (each from its first to its last view line's time
+    ``t_s``, ``labels`` (N,) the fixation of each), s: a target's dwell time."""
+    return float(sum(np.ptp(t_s[labels == f]) for f in fixations if np.any(labels == f)))
 
 
 def direction_only_groups(fixations: list) -> list:

@@ -344,7 +344,7 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
     head = ("<tr><th>target</th><th>position x, y, z (mm)</th><th>distance from the head (m)</th>"
             "<th>distance from where it was seen (m): estimate (68 % / 95 % intervals)</th>"
             "<th>95 % semi-axes (mm)</th><th>samples</th>"
-            "<th>time (s)</th><th>fixations</th><th>head travel in each fixation (mm)</th>"
+            "<th>time (s)</th><th>dwell (s)</th><th>fixations</th><th>head travel in each fixation (mm)</th>"
             "<th>Cramér-Rao bound (mm)</th><th>predicted sd (mm)</th>"
             + ("<th>true position x, y, z (mm)</th><th>error (mm)</th><th>error / bound</th>"
                "<th>error / predicted sd</th>" if has_truth else "") + "<th>status</th></tr>")
@@ -355,7 +355,8 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
         cells = (f'<td><span class="swatch" style="background:{colour(t.index)}"></span>{t.index}</td>'
                  f"<td>{_position(t)}</td>" + _cells(dist, fmt="{:.2f}") + f"<td>{_intervals(t)}</td>"
                  + f"<td>{_xyz(t.axes95_mm, ' / ')}</td><td>{t.n_samples}</td><td>{t.t_start:.1f}&ndash;{t.t_end:.1f}"
-                 f"</td><td>{html.escape(', '.join(map(str, t.fixations)))}</td>"
+                 f"</td>" + _cells(t.dwell_s, fmt="{:.1f}")
+                 + f"<td>{html.escape(', '.join(map(str, t.fixations)))}</td>"
                  f"<td>{', '.join(f'{v:.0f}' for v in d.head_travel_mm(t))}</td>" + _cells(t.crb_mm, sd))
         if has_truth:
             X, err = truth_error(d, t)
@@ -370,7 +371,7 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
                     f"{'<br><small>' + html.escape(note) + '</small>' if note else ''}</td></tr>")
     for tt in d.unmatched:
         X = tt.get("position_mm")
-        rows.append(f"<tr><td>&ndash;</td><td>not found</td>{'<td></td>' * 9}"
+        rows.append(f"<tr><td>&ndash;</td><td>not found</td>{'<td></td>' * 10}"
                     f"<td>{_xyz(X) if X is not None else 'a moving target'} (true target {tt['index']})</td>"
                     f"{'<td></td>' * 3}<td>not found</td></tr>")
     return head, "".join(rows)

@@ -293,14 +293,17 @@ class Steps:
 
 def _target_line(t) -> str:
     """One target's row of ``format_result``: its point and 95 % semi-axes ('-' without), samples,
-    time and its status (``Target.status``, as targets.json and the report have it); a
-    direction-only target's direction, cone and depth interval after its status."""
+    time span, dwell (its fixations' durations summed) and its status (``Target.status``, as
+    targets.json and the report have it); a direction-only target's direction, cone and depth
+    interval after its status."""
     def num(v, width):
         return f"{v:>{width}.0f}" if np.isfinite(v) else f"{'-':>{width}}"
 
     x, y, z = (num(v, 8) for v in t.position_mm)
     a1, a2, a3 = (num(v, 6) for v in t.axes95_mm)
-    line = f"{t.index:>6} {x} {y} {z} {a1} {a2} {a3} {t.n_samples:>8} {t.t_start:>5.1f}-{t.t_end:<5.1f}  {t.status}"
+    dwell = f"{t.dwell_s:>7.1f}" if np.isfinite(t.dwell_s) else f"{'-':>7}"
+    line = (f"{t.index:>6} {x} {y} {z} {a1} {a2} {a3} {t.n_samples:>8} {t.t_start:>5.1f}-{t.t_end:<5.1f} {dwell}  "
+            f"{t.status}")
     g = t.direction
     if g is not None and not np.all(np.isfinite(t.position_mm)):
         near, far = g.depth95_mm
@@ -317,7 +320,7 @@ def format_result(res: ProcessResult) -> str:
     lines = [f"{n} fixated target(s) in {res.out}" + (f" ({rest} more listed that are no target: status)" if rest
                                                        else "") + ":"]
     lines.append(f"{'target':>6} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'95% semi-axes mm':>20} {'samples':>8} "
-                 f"{'time s':>12}  status")
+                 f"{'time s':>12} {'dwell s':>7}  status")
     lines += [_target_line(t) for t in res.found]
     if res.failed:
         lines.append("FAILED: " + ", ".join(res.failed) + " (the problems are listed on stderr and in summary.json)")

@@ -23,6 +23,7 @@ from estimator.motion import STATIC, Trajectory
 from ..formats.targets import (  # noqa: F401  (TARGET_KEYS: a record's keys)
     DEPTH_ASSUMPTION,
     DIRECTION_COLUMN,
+    DWELL,
     MOVING_COLUMN,
     TARGET_KEYS,
     record_sight,
@@ -92,6 +93,7 @@ class Target:
             moving target.
         depth_assumption: the assumption that fixes its depth, in words
             (``pipeline.errorbudget.depth_assumption``), or None.
+        dwell_s: the sum of its fixations' durations (each first to last sample), s; NaN unknown.
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -114,6 +116,7 @@ class Target:
     sight: Sight | None = None
     direction: GazeDirection | None = None
     depth_assumption: str | None = None
+    dwell_s: float = float("nan")
 
     def level_covariance(self, probability: float) -> np.ndarray | None:
         """(3, 3) mm^2 whose ``probability`` ellipsoid is the region of that level (the error
@@ -148,7 +151,7 @@ class Target:
         target; ``rounded`` as the live messages send it."""
         return target_record(self.index, self.t_start, self.t_end, self.position_mm, self.axes95_mm, self.n_samples,
                              self.method, self.status, self.covariance_mm2, self.crb_mm, self.fixations, self.moving,
-                             rounded, self.sight, self.direction, self.depth_assumption)
+                             rounded, self.sight, self.direction, self.depth_assumption, self.dwell_s)
 
     @classmethod
     def from_row(cls, row: dict) -> Target:
@@ -165,7 +168,8 @@ class Target:
                    fixations=tuple(int(f) for f in row["fixations"]), method=str(row["method"]),
                    crb_mm=_num(row["crb_mm"]), moving=bool(row.get(MOVING_COLUMN, False)), sight=record_sight(row),
                    direction=GazeDirection.from_dict(row.get(DIRECTION_COLUMN)),
-                   depth_assumption=row.get(DEPTH_ASSUMPTION))
+                   depth_assumption=row.get(DEPTH_ASSUMPTION),
+                   dwell_s=_num(row.get(DWELL)))
 
 
 def _num(v) -> float:
