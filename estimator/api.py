@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import logging
 
+import numpy as np
+
 from .likelihood import MLConfig, ml_point
 from .lines import BinocularSample, BinocularSamples, samples_from_stream
 from .result import GazeEstimate, Status, failed, near_point_check
@@ -124,6 +126,71 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
     log.info("%s: %d samples, %d lines: %s", method, result.n_samples, result.n_lines,
              f"{result.position_mm.round(1).tolist()} mm" if result.ok else f"{result.status.value}: {result.reason}")
     return est, result
+
+
+class PooledEstimate:
+    """``run_estimator`` over lines that arrive in batches in time order (a target's fixations,
+    one after another), each answer the one a new estimator fed all the lines so far would give.
+
+    For ``voxel`` it is that very estimator, kept: a batch is fed as ``run_estimator`` feeds it
+    (the first ``seed_samples`` at once, then sample by sample), so the answer after each batch is
+    the full re-estimate's, bit for bit, at the cost of the new lines only (the voxel estimator's
+    work over its kept lines is bounded, amortised, per line added). The other methods are run
+    again over all the lines (``ml`` and the closed forms solve over every line anyway; ``paper``
+    seeds from a count that depends on the batch's size). A batch older than the last line, or a
+    voxel answer that is not usable (``retract`` then undoes it), makes the next answer a
+    re-run over all the lines, in time order.
+
+    Args:
+        method, sigma_deg, **options: as ``run_estimator``'s.
+    """
+
+    def __init__(self, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0, **options):
+        self.method, self.sigma_deg, self.options = method, float(sigma_deg), options
+        self.parts: list[BinocularSamples] = []
+        self._stream = None                    # the kept voxel estimator, None: re-run at the next add
+        self.reruns = 0                        # answers made by a re-run over all the lines (for tests)
+
+    def add(self, samples: BinocularSamples) -> GazeEstimate:
+        """The estimate of all lines so far and ``samples`` (world frame, time order)."""
+        if samples.frame != "world":
+            raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
+        in_order = not self.parts or not len(samples) or samples.t_s[0] >= self.parts[-1].t_s[-1]
+        self.parts.append(samples)
+        est = self._stream
+        if est is None or not in_order or len(est) < est.config.seed_samples:
+            return self._rerun()
+        result = est.estimate()
+        for i in range(len(samples)):
+            result = est.update(samples.sample(i))
+        return self._checked(result)
+
+    def keep(self, samples: BinocularSamples) -> None:
+        """Keep ``samples`` (world frame, time order) without an answer: the next ``add`` is a
+        re-run over them and its own (a target's first fixation, which has its own estimate)."""
+        self.parts.append(samples)
+        self._stream = None
+
+    def retract(self) -> None:
+        """Undo the last ``add`` (its lines are forgotten; the next answer is a re-run)."""
+        self.parts.pop()
+        self._stream = None
+
+    def _rerun(self) -> GazeEstimate:
+        pooled = BinocularSamples.concatenate(self.parts)
+        pooled = pooled.select(np.argsort(pooled.t_s, kind="stable"))
+        self.parts = [pooled]
+        self.reruns += 1
+        est, result = run_estimator(pooled, self.method, self.sigma_deg, **self.options)
+        self._stream = est if self.method == "voxel" else None
+        return result
+
+    def _checked(self, result: GazeEstimate) -> GazeEstimate:
+        """``near_point_check`` over all the kept lines, as ``run_estimator`` ends."""
+        if not result.ok:
+            return result
+        lines = self._stream.view_lines()
+        return near_point_check(result, lines.origins_mm, lines.directions)
 
 
 def estimate(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,
