@@ -90,7 +90,7 @@ def test_a_joining_fixation_is_estimated_from_its_own_lines_only():
     samples it processes grow linearly with the revisits, not quadratically."""
     rng = np.random.default_rng(5)
     parts = [_fixation(A, 1.6 * k, rng, n=60) for k in range(8)]
-    pooled = PooledEstimate("voxel", SIGMA_DEG, **OPTIONS)
+    pooled = PooledEstimate("voxel", SIGMA_DEG, batched=False, **OPTIONS)
     pooled.keep(parts[0])
     fed = []
     for k, p in enumerate(parts[1:], start=1):

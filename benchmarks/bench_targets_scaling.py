@@ -1,0 +1,74 @@
+"""The targets step's time against the session's length (issue 27), and the whole ``process`` of a
+long session against real time, on one core: simulated lab-walkabout sessions (four targets
+revisited in turn, a swaying head, 640x360 video at 30 fps, 60 Hz eye data) of 1, 5 and 20
+minutes, each processed without the report.
+
+    python benchmarks/bench_targets_scaling.py [--minutes 1,5,20] [--keep DIR]
+
+``--keep DIR`` simulates each session into DIR once and reuses it on the next run (a 20-minute
+session takes about as long to simulate as to process). Targets (issue 27): the targets step's
+seconds per minute of session within 1.5x of each other; the longest session processed at 4x
+real time or faster (its whole ``process``: tracking, view lines, targets, exports).
+"""
+
+from __future__ import annotations
+
+import argparse  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
+
+from wearable_gaze.pipeline.process import process_session  # noqa: E402
+from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
+
+RESOLUTION = [640, 360]
+
+
+def session(folder: Path, minutes: float, seed: int) -> tuple[Path, float]:
+    """The simulated session of ``minutes`` in ``folder`` (made unless there), and the seconds it
+    took to simulate (0 when reused)."""
+    root = folder / f"lab-walkabout-{minutes:g}min-{RESOLUTION[0]}x{RESOLUTION[1]}-seed{seed}"
+    if root.exists():
+        return root, 0.0
+    t0 = time.perf_counter()
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 60.0 * minutes, "camera": {"resolution": RESOLUTION}},
+                      root, seed)
+    return root, time.perf_counter() - t0
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", default="1,5,20", help="session lengths, minutes (default 1,5,20)")
+    ap.add_argument("--seed", type=int, default=11, help="random seed (default 11)")
+    ap.add_argument("--keep", type=Path, default=None, help="simulate the sessions into this folder once, reuse them")
+    args = ap.parse_args()
+    minutes = [float(m) for m in args.minutes.split(",")]
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.keep or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        rows = []
+        for m in minutes:
+            root, sim_s = session(folder, m, args.seed)
+            t0 = time.perf_counter()
+            r = process_session(root, Path(tmp) / f"out-{m:g}", report=False, overlay=False)
+            total = time.perf_counter() - t0
+            rows.append((m, sim_s, total, r.timings, len(r.targets)))
+    print(f"process on one core, simulated lab-walkabout sessions ({RESOLUTION[0]}x{RESOLUTION[1]} at 30 fps, "
+          "60 Hz eye data, seed {}), no report".format(args.seed))
+    for m, sim_s, total, tm, n in rows:
+        print(f"  {m:5.1f} min: targets step {tm['targets']:7.1f} s = {tm['targets'] / m:5.2f} s per minute; "
+              f"tracking {tm['tracking']:6.1f} s; whole process {total:7.1f} s = {60 * m / total:5.2f}x real time; "
+              f"{n} targets{f'; simulated in {sim_s:.0f} s' if sim_s else ''}")
+    per_min = [tm["targets"] / m for m, _, _, tm, _ in rows]
+    spread = max(per_min) / min(per_min)
+    m, _, total, _, _ = rows[-1]
+    rate = 60 * m / total
+    print(f"  targets step, seconds per minute: largest / smallest {spread:.2f} (target <= 1.5: "
+          f"{'PASS' if spread <= 1.5 else 'FAIL'}); {m:g}-minute session at {rate:.2f}x real time (target >= 4: "
+          f"{'PASS' if rate >= 4 else 'FAIL'})")
+
+
+if __name__ == "__main__":
+    main()
