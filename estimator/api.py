@@ -128,6 +128,11 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
     return est, result
 
 
+NEAR_CHECK_SAMPLES = 4096
+"""``PooledEstimate`` checks an answer's distance from the eyes (``near_point_check``: the median
+along the lines) over at most this many samples, evenly spread over all it kept."""
+
+
 class PooledEstimate:
     """``run_estimator`` over lines that arrive in batches in time order (a target's fixations,
     one after another), each answer that of one estimator fed all the lines so far.
@@ -208,10 +213,11 @@ class PooledEstimate:
         return self._checked(result)
 
     def _checked(self, result: GazeEstimate) -> GazeEstimate:
-        """``near_point_check`` over all the kept lines, as ``run_estimator`` ends."""
+        """``near_point_check`` as ``run_estimator`` ends, over the kept lines of at most
+        ``NEAR_CHECK_SAMPLES`` samples evenly spread (a median: bounded cost per answer)."""
         if not result.ok:
             return result
-        lines = self._stream.view_lines()
+        lines = self._stream.view_lines(every=max(1, -(-len(self._stream) // NEAR_CHECK_SAMPLES)))
         return near_point_check(result, lines.origins_mm, lines.directions)
 
 
