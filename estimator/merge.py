@@ -101,6 +101,7 @@ class TargetMerger:
         self.sigma_deg = float(sigma_deg)
         self.pose_deg = float(pose_deg)
         self.groups: list[MergeGroup] = []
+        self._points = np.zeros((0, 3))           # each group's estimate (rows beyond the groups: room to grow)
 
     def __len__(self) -> int:
         return len(self.groups)
@@ -118,9 +119,9 @@ class TargetMerger:
             raise ValueError(f"a fixation without a usable estimate cannot be merged ({estimate.status.value})")
         origin = lines.origin_mm(0)
         scored = []
-        for k, g in enumerate(self.groups):
-            if angle_deg(estimate.position_mm - origin, g.estimate.position_mm - origin) > MERGE_MAX_DEG:
-                continue
+        near = angle_deg(estimate.position_mm - origin, self._points[:len(self.groups)] - origin) <= MERGE_MAX_DEG
+        for k in np.flatnonzero(near):                     # one array op over the groups, however many
+            g = self.groups[k]
             lr = form_statistic(g.form, lines, estimate.position_mm, self.sigma_deg, self.pose_deg)
             if lr < MERGE_LR_THRESHOLD:
                 scored.append((lr, len(scored), k))
@@ -129,12 +130,16 @@ class TargetMerger:
             merged = g.pooled.add(lines)
             if merged.ok:
                 self._join(g, lines, key, merged)
-                return k
+                self._points[k] = merged.position_mm
+                return int(k)
             g.pooled.retract()
         pooled = self.pooled()
         pooled.keep(lines)
         form = self._form(lines, estimate.position_mm)
         self.groups.append(MergeGroup([lines], [key], estimate, pooled, form, form.n_lines))
+        if len(self.groups) > len(self._points):
+            self._points = np.concatenate([self._points, np.zeros((len(self._points) + 1, 3))])
+        self._points[len(self.groups) - 1] = estimate.position_mm
         return len(self.groups) - 1
 
     def _form(self, lines: BinocularSamples, x_mm) -> MergeForm:
