@@ -24,6 +24,8 @@ from .report import REPORT_FILES
 log = logging.getLogger(__name__)
 
 STEPS = ("camera", "eyes", "tracking", "viewlines", "targets", "export", "aoi", "report")
+ON_REQUEST = ("aoi",)
+"""The steps that run only when asked for (``process --aois``)."""
 # the files each step writes into the output folder ...
 OUTPUTS = {
     "camera": ("camera.json", "camera_undistorted.png"),
@@ -263,13 +265,14 @@ class Steps:
     def finish(self, aborted: bool = False) -> None:
         """Mark what did not run and remove every output that is no longer this run's: of a
         step that failed, of one that needs a failed one, of one not run whose inputs were
-        redone. ``aborted``: an exception is on its way out of the step running now."""
+        redone. ``aborted``: an exception is on its way out of the step running now. A step run
+        only on request (``ON_REQUEST``) and not asked for is not marked."""
         if aborted and self.current is not None:
             self.status[self.current] = "failed"
         for name in STEPS:
             st = self.status.get(name)
             upstream = [self.status.get(d) for d in NEEDS[name]]
-            if st is None and any(u not in GOOD for u in upstream):
+            if st is None and name not in ON_REQUEST and any(u not in GOOD for u in upstream):
                 if aborted or any(u in ("failed", "not_done") for u in upstream):
                     self.status[name] = "not_done"
             if self.status.get(name) in ("failed", "not_done", "no_recording") or (st is None and "done" in upstream):
