@@ -39,11 +39,6 @@ are at least ``DEFAULT_KNOT_S`` apart and at most ``MAX_MOTION_KNOTS``: the cost
 fixation end in the target worker, stays bounded (about 0.2 s for the motion test on a 2-core
 machine, against 12 s for a 20 s pursuit at 0.1 s knots)."""
 MAX_MOTION_KNOTS = 30
-SEGMENT_DEPTH_SD = 2.0
-"""The segmenter's depth for taking out the head's translation is the running estimate's, this
-many sd farther in inverse depth (``GazeEstimation._segment_depth``)."""
-
-
 @dataclass(frozen=True)
 class LiveEstimate:
     """The running estimate of the current fixation's target after one sample.
@@ -135,14 +130,16 @@ class FinishedFixation:
         fixation: its index (0, 1, ... in the session).
         lines: its ``BinocularSample`` (world frame, time order), without the lines the segmenter
             took in before it saw the saccade.
-        estimate: its streaming estimator's latest usable ``GazeEstimate``.
+        estimate: its streaming estimator's latest usable ``GazeEstimate``; None for a fixation
+            split off a stretch by the chain splitter (``GazeEstimation._split``), whose estimate
+            ``finish`` makes from its lines.
         t_start, t_end: its first sample's and its latest estimate's session times, s.
         n_samples: samples its estimator took.
     """
 
     fixation: int
     lines: tuple
-    estimate: GazeEstimate
+    estimate: GazeEstimate | None
     t_start: float
     t_end: float
     n_samples: int
@@ -181,7 +178,7 @@ class GazeEstimation:
     def __init__(self, eyes, method: str = "voxel"):
         self.eyes = eyes
         self.method = method
-        self.segmenter = OnlineSegmenter()
+        self.segmenter = OnlineSegmenter(world=True)       # the world rule, as process with head poses
         self.targets = TargetIds(method)
         self.fixation = 0                 # the current fixation's index
         self._new_fixation()
@@ -192,6 +189,7 @@ class GazeEstimation:
         self.t_start: float | None = None
         self.last: tuple | None = None    # (GazeEstimate, t_s) of the latest estimate
         self.lines: list = []             # the fixation's BinocularSample, for ``finish`` at its end
+        self.chain_pos: list = []         # the index in ``lines`` of each sample fed to the chain splitter
 
     @property
     def current_mm(self) -> np.ndarray | None:
@@ -207,42 +205,74 @@ class GazeEstimation:
             this sample, or None: in a saccade, or the estimator has none yet).
         """
         sample = world_sample(self.eyes, t_s, rec, T_world_from_cam)
-        ended = None
+        ended, ray = None, None
         if rec.left_valid and rec.right_valid:              # one eye alone is off the cyclopean line by
             cyc = sample.left_direction + sample.right_direction    # half the vergence: not a saccade
-            mid = 0.5 * (sample.left_origin_mm + sample.right_origin_mm)
-            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc), mid, self._segment_depth(mid)):
-                # a saccade seen, or a gap
-                ended = self.end_fixation(self.segmenter.config.window if self.segmenter.in_saccade else 0)
-        if self.segmenter.in_saccade:                       # between fixations: no target's line
+            ray = (0.5 * (sample.left_origin_mm + sample.right_origin_mm), cyc / np.linalg.norm(cyc))
+            if self.segmenter.update(t_s, ray[1], ray[0]):
+                # a saccade seen (its step a window back: the lines after it start the next), or a gap
+                ended = self.end_at(self.segmenter.cut_t if self.segmenter.in_saccade else np.inf)
+        self._feed(sample)
+        if ray is not None:
+            self.chain_pos.append(len(self.lines) - 1)
+            split = self.segmenter.chain.push(t_s, *ray)
+            if split is not None:                           # a saccade the eye rate hid: the run before
+                ended = self._split(*split)                 # it is a fixation, the new one goes on
+        if self.last is None or self.last[1] != t_s:        # no estimate from this sample
             return ended, None
+        est = self.last[0]
+        return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
+
+    def _feed(self, sample):
+        """One line into the current fixation's streaming estimator and lines."""
         if self.t_start is None:
-            self.t_start = t_s
+            self.t_start = sample.t_s
         est = self.estimator.update(sample)
         self.n_samples += 1
         self.lines.append(sample)
-        if not est.ok:
-            return ended, None
-        self.last = (est, t_s)
-        return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
+        if est.ok:
+            self.last = (est, sample.t_s)
+        return est
 
-    def _segment_depth(self, origin) -> float:
-        """The depth, mm, from ``origin`` (3,) (world, mm) at which the segmenter takes out the
-        head's translation (``OnlineSegmenter.update``): the far end of the current estimate's
-        interval, 2 sd out in inverse depth (depth from vergence and parallax is Gaussian
-        there), so that it never over-corrects; infinity (no correction) before an estimate or
-        while the far end is unbounded."""
-        if self.last is None:
-            return np.inf
-        est = self.last[0]
-        ray = np.asarray(est.position_mm, float) - origin
-        depth = float(np.linalg.norm(ray))
-        if est.covariance_mm2 is None or depth <= 0:
-            return np.inf
-        u = ray / depth
-        sd = float(np.sqrt(max(u @ np.asarray(est.covariance_mm2, float) @ u, 0.0)))
-        inv_far = 1.0 / depth - SEGMENT_DEPTH_SD * sd / depth ** 2
-        return 1.0 / inv_far if inv_far > 0 else np.inf
+    def end_at(self, cut_t: float) -> FinishedFixation | None:
+        """End the current fixation at a saccade's step at time ``cut_t`` (s; infinity: a gap):
+        its lines before it are the fixation's (``end_fixation``), those after start the next
+        (fed to its estimator and chain splitter again)."""
+        after = [x for x in self.lines if x.t_s > cut_t]
+        if not after:
+            return self.end_fixation()
+        kept = tuple(self.lines[:len(self.lines) - len(after)])
+        done = None                             # its own estimate is made in ``finish`` from its lines
+        if kept and kept[-1].t_s - kept[0].t_s >= self.segmenter.config.min_fixation_s - 1e-9:
+            done = FinishedFixation(self.fixation, kept, None, float(kept[0].t_s), float(kept[-1].t_s), len(kept))
+        self.fixation += 1
+        self._new_fixation()
+        for sample in after:
+            self._feed(sample)
+            if sample.left_direction is not None and sample.right_direction is not None:
+                cyc = sample.left_direction + sample.right_direction
+                self.chain_pos.append(len(self.lines) - 1)
+                self.segmenter.chain.push(sample.t_s, 0.5 * (sample.left_origin_mm + sample.right_origin_mm),
+                                          cyc / np.linalg.norm(cyc))
+        return done
+
+    def _split(self, run: tuple, goes_on: int) -> FinishedFixation | None:
+        """The chain splitter's split (``estimator.worldsegments.ChainSplitter``): the lines of its
+        finished run (chain positions ``run``, first and last) end as a fixation (its estimate made
+        in ``finish``), the current fixation starts again from chain position ``goes_on``."""
+        lines, pos = self.lines, self.chain_pos
+        done_lines = tuple(lines[pos[run[0]]:pos[run[1]] + 1])
+        done = None
+        if done_lines[-1].t_s - done_lines[0].t_s >= self.segmenter.config.min_fixation_s - 1e-9:
+            done = FinishedFixation(self.fixation, done_lines, None, float(done_lines[0].t_s),
+                                    float(done_lines[-1].t_s), len(done_lines))
+        rest, keep = lines[pos[goes_on]:], [p - pos[goes_on] for p in pos[goes_on:]]
+        self.fixation += 1
+        self._new_fixation()
+        for sample in rest:
+            self._feed(sample)
+        self.chain_pos = keep
+        return done
 
     def end_fixation(self, saccade_lines: int = 0) -> FinishedFixation | None:
         """End the current fixation (a saccade, or the session's end); the next starts afresh.
@@ -260,7 +290,7 @@ class GazeEstimation:
         self._new_fixation()
         return done
 
-    def finish(self, done: FinishedFixation) -> Target:
+    def finish(self, done: FinishedFixation) -> Target | None:
         """The target of a finished fixation (in the loop's target worker, fixations in order).
 
         Its lines, thinned evenly to ``MAX_END_LINES``, are tested for motion
@@ -274,7 +304,9 @@ class GazeEstimation:
         target = None if samples is None else self.moving_target(done, samples)
         if target is not None:
             return target
-        est = done.estimate
+        est = done.estimate if done.estimate is not None else self.estimate_of(done.lines)
+        if est is None:
+            return None
         r = est.ellipsoid(0.95)
         index = (self.targets.new_own() if samples is None
                  else self.targets.id_for(samples, est, key=done.fixation))
@@ -282,6 +314,16 @@ class GazeEstimation:
                       axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm, status=str(est.status.value),
                       n_samples=done.n_samples, t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,),
                       method=self.method, crb_mm=float("nan"), sight=est.sight())
+
+    def estimate_of(self, lines) -> GazeEstimate | None:
+        """The latest usable estimate of a fresh streaming estimator fed ``lines`` (world frame,
+        time order), as the fixation's own would have been; None if none is usable."""
+        est = make_estimator(self.method, **model_options(self.method, DEFAULT_ERROR_MODEL))
+        last = None
+        for sample in lines:
+            e = est.update(sample)
+            last = e if e.ok else last
+        return last
 
     def moving_target(self, done: FinishedFixation, samples: BinocularSamples) -> Target | None:
         """The target of the finished fixation ``done`` when its (thinned) lines ``samples``

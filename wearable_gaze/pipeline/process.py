@@ -311,8 +311,8 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
-        result = find_targets(samples, segment_view_lines(samples, cfg.segment_config), cfg.method, cfg.sigma_deg, cb,
-                              error_model)
+        labels = segment_view_lines(samples, cfg.segment_config, world=world)     # no poses: eye-in-head rule
+        result = find_targets(samples, labels, cfg.method, cfg.sigma_deg, cb, error_model)
         write_targets_step(out, result, cfg.method)
         write_fixations_step(out, result)
         if f.device_gaze is not None:
@@ -320,7 +320,8 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
         vals.set("targets", result.targets)
     error_model = session_error_model(f.eye_rays is not None, eyes_path,
                                       tracked=f.eye_rays is None or f.pose_source not in ("device", "still_head"))
-    params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__,
+    world = f.pose_source != "still_head"
+    params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__, "world_rule": world,
               "error_model": dataclasses.asdict(error_model)}
     if steps.run("targets", [raw_vl], params, do_targets):
         res.found = vals["targets"]
