@@ -184,8 +184,8 @@ class OnlineSegmenter:
         self.buf: deque = deque(maxlen=2 * self.config.window)     # (direction (3,), origin (3,) or None, t)
         self.in_saccade = False
         self.last_t: float | None = None
-        self.since_end = 0
         self.cut_t: float | None = None     # the world rule: the time of the last saccade's step, s
+        self.peak: tuple | None = None      # ... the saccade being seen: (excess, its time, samples since)
         self.noise = NoiseMeter(self.config)
         self.chain = ChainSplitter(self.noise.value, self.config)
 
@@ -223,7 +223,6 @@ class OnlineSegmenter:
         if self.rate_times is not None:
             self._learn_rate(t_s)
         w = self.config.window
-        self.since_end += 1
         gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
         self.last_t = t_s
         item = (np.asarray(direction, float), None if origin is None else np.asarray(origin, float), float(t_s))
@@ -234,26 +233,42 @@ class OnlineSegmenter:
             self.buf.clear()
             self.buf.append(item)
             self.in_saccade = False
-            self.since_end = 0
+            self.peak, self.cut_t = None, None
             self.chain = ChainSplitter(self.noise.value, self.config)
             return True
         self.buf.append(item)
         if len(self.buf) < 2 * w:
             return False
         if self.world:
-            t = np.array([x[2] for x in self.buf])
-            score, sd = course_scores(t, np.array([x[0] for x in self.buf]), w)
-            jumped = bool(score[w] > max(self.config.jump_deg, JUMP_K * sd[w] * self.noise.value))
-        else:
-            b = self._directions(depth_mm)
-            jumped = angle_deg(np.median(b[:w], axis=0), np.median(b[w:], axis=0)) > self.config.jump_deg
-        ended = jumped and not self.in_saccade and self.since_end > w     # one end per saccade, as
-        self.in_saccade = jumped                                            # offline: one cut a peak
-        if ended:
-            self.since_end = 0
-            self.chain = ChainSplitter(self.noise.value, self.config)
-            self.cut_t = 0.5 * (self.buf[w - 1][2] + self.buf[w][2])
+            return self._world_step(w)
+        b = self._directions(depth_mm)
+        jumped = angle_deg(np.median(b[:w], axis=0), np.median(b[w:], axis=0)) > self.config.jump_deg
+        ended = jumped and not self.in_saccade
+        self.in_saccade = jumped
         return ended
+
+    def _world_step(self, w: int) -> bool:
+        """The world rule's test on the full buffer: a saccade ends the fixation at its peak, as
+        offline (``saccade_peaks``): the largest excess of the score over its threshold with no
+        larger one in the ``w`` samples after it (seen ``w`` samples late), or the run's largest
+        when the score falls back first; ``cut_t`` is that boundary's time."""
+        t = np.array([x[2] for x in self.buf])
+        score, sd = course_scores(t, np.array([x[0] for x in self.buf]), w)
+        excess = float(score[w] - max(self.config.jump_deg, JUMP_K * sd[w] * self.noise.value))
+        boundary_t = 0.5 * (t[w - 1] + t[w])
+        self.in_saccade = excess > 0
+        if excess > 0 and (self.peak is None or excess > self.peak[0]):
+            self.peak = (excess, boundary_t, 0)
+            return False
+        if self.peak is None:
+            return False
+        self.peak = (self.peak[0], self.peak[1], self.peak[2] + 1)
+        if excess > 0 and self.peak[2] < w:
+            return False
+        self.cut_t = self.peak[1]
+        self.peak = None
+        self.chain = ChainSplitter(self.noise.value, self.config)
+        return True
 
     def _directions(self, depth_mm: float) -> np.ndarray:
         """(2 window, 3) the buffered directions, or with a finite depth and every origin known the

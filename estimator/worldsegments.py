@@ -270,7 +270,8 @@ class ChainSplitter:
     ``MAX_HOLD_S``) hold a point; once it does not, the search goes on over the latest
     ``min_fixation_s`` of rays. When a new run starts at most ``window`` rays after the last one
     ended and the two together hold no one point, the gaze went from one point to another:
-    the earlier run is a fixation of its own and the stretch goes on from the new run. A pursuit
+    the rays up to the earlier run's end are a fixation of their own and the stretch goes on
+    from the new run. A pursuit
     holds no point for long, so its runs are rare and far apart: it stays whole (the motion test
     makes it a moving target); a fixation that holds one point throughout is one run.
     """
@@ -286,9 +287,10 @@ class ChainSplitter:
 
     def push(self, t_s: float, origin_mm, direction) -> tuple | None:
         """Add a ray at time ``t_s`` (s; origin (3,) mm, unit direction (3,), world). Returns
-        None, or on a split ((first, last) of the finished run, the index of the ray from which
-        the stretch goes on), indices counted from the stretch's or the last split's first ray;
-        the rays before that index are then forgotten."""
+        None, or on a split ((first, last) of the finished fixation: the rays from the stretch's
+        or the last split's first ray to the end of the run that held its point, the index of the
+        ray from which the stretch goes on), indices counted from that first ray; the rays before
+        the stretch goes on are then forgotten."""
         self.t.append(float(t_s))
         self.o.append(np.asarray(origin_mm, float))
         self.d.append(np.asarray(direction, float))
@@ -312,7 +314,7 @@ class ChainSplitter:
         if c is None or s > c[1] + 1 + self.config.window or self._holds(c[0], n, recent=False):
             return None
         self._forget(s)
-        return c, s
+        return (0, c[1]), s
 
     def _forget(self, s: int) -> None:
         """Drop the rays before index ``s``; the run now holding starts at 0."""

@@ -133,7 +133,7 @@ def test_the_live_session_finds_the_fixations_process_finds(monkeypatch):
     rng = np.random.default_rng(5)
     t = np.arange(180) / 60.0
     walk = _lines(t, np.where((t < 1.5)[:, None], [-400.0, 300.0, 2600.0], [-200.0, 250.0, 3000.0]), 0.5, rng)
-    for s, rate in ((_chain()[0], 10.0), (walk, 60.0)):
+    for s, rate, n_true in ((_chain()[0], 10.0, 5), (walk, 60.0, 2)):     # true fixations compared
         offline = [(s.t_s[r[0]], s.t_s[r[-1]]) for r in _runs(segment_view_lines(s, SegmentConfig.for_rate(rate)))]
         live = _live_fixations(s, monkeypatch)
         # live measures the lines' noise as they come: its first seconds (10 windows of 0.3 s at
@@ -141,7 +141,7 @@ def test_the_live_session_finds_the_fixations_process_finds(monkeypatch):
         start = 2.5 if rate == 10.0 else 0.0
         offline = [f for f in offline if f[0] >= start]
         live = [f for f in live if f[0] >= start]
-        assert len(live) == len(offline), (rate, live, offline)
+        assert len(live) == len(offline) == n_true, (rate, live, offline)
         for (a, b), (c, d) in zip(offline, live, strict=True):
             assert min(b, d) - max(a, c) >= 0.5 * (b - a), (rate, live, offline)
 

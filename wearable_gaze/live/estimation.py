@@ -163,8 +163,11 @@ class GazeEstimation:
     ``end_fixation``: cheap, on the loop's thread), and a finished fixation's target (``finish``:
     the motion and merge tests, in the loop's target worker; docs/live.md, The loop).
 
-    Fixations are found online (``OnlineSegmenter``, on binocular samples' cyclopean
-    directions); a sample inside a saccade belongs to no target; each fixation gets a fresh
+    Fixations are found online by the world rule of ``process`` (``OnlineSegmenter(world=True)``
+    on binocular samples' cyclopean rays, its window from the measured eye rate): a saccade is
+    seen at its peak, a window late, and the lines after its step start the next fixation
+    (``end_at``); at low eye rates its ``ChainSplitter`` splits a fixation where the rays go from
+    one held point to another (``_split``); each fixation gets a fresh
     streaming estimator (``estimator.make_estimator(method)``), whose covariance for ``ml`` and
     ``voxel`` follows the default error model (``pipeline.estimate.DEFAULT_ERROR_MODEL``).
     ``add`` and ``end_fixation`` are called from one thread, ``finish`` from one other (it alone
@@ -202,7 +205,7 @@ class GazeEstimation:
 
         Returns:
             (the fixation this sample ended, for ``finish``, or None; the running estimate after
-            this sample, or None: in a saccade, or the estimator has none yet).
+            this sample, or None: the estimator has none yet).
         """
         sample = world_sample(self.eyes, t_s, rec, T_world_from_cam)
         ended, ray = None, None
@@ -211,7 +214,8 @@ class GazeEstimation:
             ray = (0.5 * (sample.left_origin_mm + sample.right_origin_mm), cyc / np.linalg.norm(cyc))
             if self.segmenter.update(t_s, ray[1], ray[0]):
                 # a saccade seen (its step a window back: the lines after it start the next), or a gap
-                ended = self.end_at(self.segmenter.cut_t if self.segmenter.in_saccade else np.inf)
+                cut = self.segmenter.cut_t                    # None: a gap
+                ended = self.end_at(np.inf if cut is None else cut)
         self._feed(sample)
         if ray is not None:
             self.chain_pos.append(len(self.lines) - 1)
