@@ -249,9 +249,9 @@ class OnlineSegmenter:
 
     def _world_step(self, w: int) -> bool:
         """The world rule's test on the full buffer: a saccade ends the fixation at its peak, as
-        offline (``saccade_peaks``): the largest excess of the score over its threshold with no
-        larger one in the ``w`` samples after it (seen ``w`` samples late), or the run's largest
-        when the score falls back first; ``cut_t`` is that boundary's time."""
+        offline (``saccade_peaks``): an excess of the score over its threshold with no larger one
+        in the ``w`` samples after it (so seen ``w`` samples late); ``cut_t`` is that boundary's
+        time."""
         t = np.array([x[2] for x in self.buf])
         score, sd = course_scores(t, np.array([x[0] for x in self.buf]), w)
         excess = float(score[w] - max(self.config.jump_deg, JUMP_K * sd[w] * self.noise.value))
@@ -263,7 +263,7 @@ class OnlineSegmenter:
         if self.peak is None:
             return False
         self.peak = (self.peak[0], self.peak[1], self.peak[2] + 1)
-        if excess > 0 and self.peak[2] < w:
+        if self.peak[2] < w:
             return False
         self.cut_t = self.peak[1]
         self.peak = None

@@ -18,7 +18,7 @@ from wearable_gaze.pipeline.segmentation import fixations_file, measured_rate_hz
 from wearable_gaze.sim.protocol import simulate_lines
 from wearable_gaze.sim.simulate import simulate_scenario
 
-SCENARIO = {"base": "lab-walkabout", "duration_s": 14.0,        # long enough to come back to a target
+SCENARIO = {"base": "lab-walkabout", "duration_s": 11.0,        # long enough to come back to a target
             "room": {"size_mm": [4500.0, 2700.0, 5500.0], "markers_per_wall": 5},
             "targets": {"random_count": 3, "random_depth_mm": [700.0, 3000.0]},
             "calibration": {"camera_views": 10}}

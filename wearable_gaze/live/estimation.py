@@ -239,13 +239,14 @@ class GazeEstimation:
         return est
 
     def end_at(self, cut_t: float) -> FinishedFixation | None:
-        """End the current fixation at a saccade's step at time ``cut_t`` (s; infinity: a gap):
-        its lines before it are the fixation's (``end_fixation``), those after start the next
-        (fed to its estimator and chain splitter again)."""
-        after = [x for x in self.lines if x.t_s > cut_t]
-        if not after:
+        """End the current fixation at a saccade's step at time ``cut_t`` (s; infinity: a gap,
+        ``end_fixation``): its lines before it are the fixation's, those after start the next
+        (fed to its estimator and chain splitter again), less ``trim_s`` either side of it."""
+        if not np.isfinite(cut_t):
             return self.end_fixation()
-        kept = tuple(self.lines[:len(self.lines) - len(after)])
+        trim = self.segmenter.config.trim_s - 1e-9      # the saccade's tails, as offline
+        after = [x for x in self.lines if x.t_s - cut_t > trim]
+        kept = tuple(x for x in self.lines if cut_t - x.t_s > trim)
         done = None                             # its own estimate is made in ``finish`` from its lines
         if kept and kept[-1].t_s - kept[0].t_s >= self.segmenter.config.min_fixation_s - 1e-9:
             done = FinishedFixation(self.fixation, kept, None, float(kept[0].t_s), float(kept[-1].t_s), len(kept))
