@@ -20,6 +20,7 @@ minimum fixation 0.3 s, maximum gap 0.5 s.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import deque
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ import numpy as np
 
 from .frames import angle_deg
 from .lines import BinocularSamples
-from .worldsegments import JUMP_K, ChainSplitter, NoiseMeter, course_scores, segment_world
+from .worldsegments import JUMP_K, ChainSplitter, NoiseMeter, course_scores, course_window, segment_world
 
 log = logging.getLogger(__name__)
 
@@ -198,7 +199,10 @@ class OnlineSegmenter:
         dt = dt[dt > 0]
         if len(dt) < RATE_SAMPLES:
             return
-        self.config = SegmentConfig.for_rate(1.0 / float(np.median(dt)))
+        rate = 1.0 / float(np.median(dt))
+        self.config = SegmentConfig.for_rate(rate)
+        if self.world:
+            self.config = dataclasses.replace(self.config, window=course_window(self.config, rate))
         self.rate_times = None
         self.buf = deque(self.buf, maxlen=2 * self.config.window)
         self.noise.config = self.chain.config = self.config

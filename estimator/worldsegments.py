@@ -33,6 +33,7 @@ and saccadic behaviors") compare, at the long end because the estimators need th
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import deque
 from typing import TYPE_CHECKING
@@ -137,6 +138,22 @@ def noise_window(t_s: np.ndarray, config: SegmentConfig) -> int:
     return max(3, int(round(config.min_fixation_s / float(np.median(dt))))) if len(dt) else 3
 
 
+COURSE_S = 8 / 60.0
+"""The world rule's course spans this much on each side of a sample, s: ``window`` samples, or more
+above 60 Hz (a straight line through 8 samples extrapolates their noise 1.25 times, so above
+60 Hz the span, not the count, is kept: 16 samples at 120 Hz), up to ``MAX_COURSE_WINDOW``."""
+MAX_COURSE_WINDOW = 16
+
+
+def course_window(config: SegmentConfig, rate_hz: float | None) -> int:
+    """The world rule's window, samples a side, at eye rate ``rate_hz`` (None: ``config.window``):
+    ``config.window`` or the samples of ``COURSE_S``, whichever is more, at most
+    ``MAX_COURSE_WINDOW``."""
+    if not rate_hz:
+        return config.window
+    return max(config.window, min(MAX_COURSE_WINDOW, int(round(COURSE_S * rate_hz))))
+
+
 def segment_world(samples: BinocularSamples, config: SegmentConfig) -> np.ndarray:
     """The world rule: fixation labels (N,) of view lines in the world frame, in time order, as
     ``segment_fixations``'s.
@@ -156,6 +173,9 @@ def segment_world(samples: BinocularSamples, config: SegmentConfig) -> np.ndarra
     if len(idx) == 0:
         return labels
     tv = samples.t_s[idx]
+    dt = np.diff(tv)
+    dt = dt[dt > 0]
+    config = dataclasses.replace(config, window=course_window(config, 1.0 / float(np.median(dt)) if len(dt) else None))
     noise = config.noise_deg
     if noise is None:
         noise = measured_noise_deg(o, d, noise_window(tv, config)) or DEFAULT_NOISE_DEG
