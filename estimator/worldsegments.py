@@ -331,7 +331,7 @@ class ChainSplitter:
             return None
         self.run = (s, n)
         c = self.closed
-        if c is None or s > c[1] + 1 + self.config.window or self._holds(c[0], n, recent=False):
+        if c is None or s > c[1] + 1 + self.config.window or self._same_point(c, s, n):
             return None
         self._forget(s)
         return (0, c[1]), s
@@ -341,6 +341,17 @@ class ChainSplitter:
         self.t, self.o, self.d = self.t[s:], self.o[s:], self.d[s:]
         self.run = (0, self.run[1] - s)
         self.closed = None
+
+    def _same_point(self, c: tuple, s: int, n: int) -> bool:
+        """Whether the run from ray ``s`` to ``n`` is on the point the run ``c`` (first, last)
+        held: its rays within ``RECENT_K`` / ``HOLD_K`` of the hold angle of that point, and the
+        two together holding one (with the depth free, two bundles of rays from a travelling
+        head also meet where their axes cross: the first test rules that out)."""
+        o, d = np.array(self.o), np.array(self.d)
+        held = np.arange(c[0], c[1] + 1)
+        u, rho, _ = hold_fit(o[held], d[held])
+        res = angles_to_point_deg(u, rho, o[held].mean(axis=0), o[s:n + 1], d[s:n + 1])
+        return bool(np.sqrt(np.mean(res ** 2)) <= self.tau * RECENT_K / HOLD_K and self._holds(c[0], n, recent=False))
 
     def _holds(self, a: int, b: int, recent: bool = True) -> bool:
         """Whether rays a..b hold one point (``_holds``; without ``recent``, only their RMS)."""
