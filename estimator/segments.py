@@ -1,26 +1,20 @@
 """Gaze segmentation: which view lines belong to one fixated target.
 
-A person looks at one thing, then jumps (a saccade) to the next. Two rules:
-
-- The world rule, for lines in the world frame with the head's poses
-  (``estimator.worldsegments.segment_world``, ``segment_fixations(world=True)``): a fixation is
-  the gaze ray held on a point in the world while the head moves (docs/processing.md).
-- The eye-in-head rule, for lines without poses (a still head assumed: the directions are the
-  eyes' in the head): the direction stays put while a target is fixated, drifts smoothly while
-  a moving one is pursued, and jumps at a saccade. Single samples carry about 1 deg of noise per
-  eye, so the test is made between windows: at each sample, the angle between the median
-  cyclopean direction of the ``window`` valid samples before it and of those after it. Peaks of
-  that angle above ``jump_deg`` are saccades; the stretches between them are fixations, kept
-  when longer than ``min_fixation_s``. Blinks (both eyes invalid) are skipped, not treated as
-  saccades; a gap longer than ``max_gap_s`` ends a fixation. (Applied to world lines, it is the
-  rule ``process`` used before the world rule: a walk's parallax reads as saccades.)
+A person looks at one thing, then jumps (a saccade) to the next. In the world frame the gaze
+direction stays put while a fixed target is fixated (the head may move; the parallax is small),
+drifts smoothly while a moving one is pursued, and jumps at a saccade. Single samples carry
+about 1 deg of noise per eye, so the test is made between windows: at each sample, the angle
+between the median cyclopean direction of the ``window`` valid samples before it and of those
+after it. Peaks of that angle above ``jump_deg`` are saccades; the stretches between them are
+fixations, kept when longer than ``min_fixation_s``. Blinks (both eyes invalid) are skipped,
+not treated as saccades; a gap longer than ``max_gap_s`` ends a fixation.
 
 Defaults (documented in docs/processing.md): window 8 samples (0.13 s at 60 Hz), jump 3 deg,
 minimum fixation 0.3 s, maximum gap 0.5 s.
 """
+
 from __future__ import annotations
 
-import dataclasses
 import logging
 from collections import deque
 from dataclasses import dataclass
@@ -29,7 +23,6 @@ import numpy as np
 
 from .frames import angle_deg
 from .lines import BinocularSamples
-from .worldsegments import JUMP_K, ChainSplitter, NoiseMeter, course_scores, course_window, segment_world
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +37,6 @@ class SegmentConfig:
         min_fixation_s: shorter fixations are dropped, seconds.
         max_gap_s: a gap in the data longer than this ends a fixation, seconds.
         trim_s: time cut from each end of a fixation (the saccade's tails), seconds.
-        noise_deg: the world rule's noise, one sample's cyclopean direction's sd per axis,
-            degrees; None: measured on the lines (``segment_world``).
     """
 
     window: int = 8
@@ -53,7 +44,6 @@ class SegmentConfig:
     min_fixation_s: float = 0.3
     max_gap_s: float = 0.5
     trim_s: float = 0.05
-    noise_deg: float | None = None
 
     @classmethod
     def for_rate(cls, rate_hz: float, **settings) -> SegmentConfig:
@@ -81,21 +71,13 @@ def cyclopean_directions(samples: BinocularSamples) -> np.ndarray:
     return out
 
 
-def segment_fixations(samples: BinocularSamples, config: SegmentConfig = SegmentConfig(),
-                      world: bool = False) -> np.ndarray:
+def segment_fixations(samples: BinocularSamples, config: SegmentConfig = SegmentConfig()) -> np.ndarray:
     """Fixation labels (N,) int: 0, 1, 2... in time order, -1 for saccades, blinks and short
     or broken-off stretches.
 
     Args:
-        samples: view lines in time order: in the world frame (head poses known) or in the head
-            frame (no poses: the eye-in-head directions).
-        world: the world rule (``segment_world``: the rays hold a point in the world while the
-            head moves), for lines in the world frame; False: the eye-in-head rule, the jump
-            between the median directions of the windows on either side of each sample (the
-            module's docstring), the rule for lines without head poses.
+        samples: view lines in the world frame, in time order.
     """
-    if world:
-        return segment_world(samples, config)
     n = len(samples)
     labels = np.full(n, -1)
     d = cyclopean_directions(samples)
@@ -111,66 +93,44 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
         a = np.median(dv[k - w:k], axis=0)
         b = np.median(dv[k:k + w], axis=0)
         score[k] = angle_deg(a, b)
-    stretches, n_cuts, n_gaps = fixation_stretches(tv, score, np.full(m, config.jump_deg), config)
-    for label, sel in enumerate(stretches):
-        labels[idx[sel]] = label
-    log.info("%d fixations in %d samples (%d valid; %d saccades, %d time gaps)", len(stretches), n, m, n_cuts, n_gaps)
-    return labels
-
-
-def fixation_stretches(t_s: np.ndarray, score: np.ndarray, jump: np.ndarray,
-                       config: SegmentConfig) -> tuple[list, int, int]:
-    """The stretches between saccades and gaps: (index arrays into ``t_s``, saccades, gaps).
-
-    A saccade is a run of ``score`` (M,) degrees above ``jump`` (M,) degrees, cut at its peak;
-    a gap in ``t_s`` (M,) s over ``max_gap_s`` also ends a stretch. The samples of a saccade's
-    run (and ``window`` // 2 either side) and ``trim_s`` at each end are left out; stretches
-    shorter than ``min_fixation_s`` are dropped."""
-    m, w = len(t_s), config.window
+    # saccades: local maxima of the score above the threshold (one per jump)
     cuts = []
     k = 0
     while k < m:
-        if score[k] > jump[k]:
+        if score[k] > config.jump_deg:
             j = k
-            while j + 1 < m and score[j + 1] > jump[j + 1]:
+            while j + 1 < m and score[j + 1] > config.jump_deg:
                 j += 1
-            cuts.append((k, j, k + int(np.argmax(score[k:j + 1] - jump[k:j + 1]))))
+            cuts.append((k, j, k + int(np.argmax(score[k:j + 1]))))
             k = j + 1
         else:
             k += 1
-    gaps = np.flatnonzero(np.diff(t_s) > config.max_gap_s)
+    # gaps in time (long blinks, lost samples) also end a fixation
+    gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s)
     bounds = sorted({0, m} | {c[2] for c in cuts} | set((gaps + 1).tolist()))
-    out = []
+    label = 0
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        ta, tb = t_s[a] + config.trim_s, t_s[b - 1] - config.trim_s
+        # drop the samples inside the jump region around each cut and trim the ends
+        ta, tb = tv[a] + config.trim_s, tv[b - 1] - config.trim_s
         sel = np.arange(a, b)
         for c0, c1, _ in cuts:
             sel = sel[(sel < c0 - w // 2) | (sel > c1 + w // 2)] if c0 - w // 2 <= sel.max(initial=-1) else sel
-        sel = sel[(t_s[sel] >= ta) & (t_s[sel] <= tb)]
-        if len(sel) and t_s[sel[-1]] - t_s[sel[0]] >= config.min_fixation_s:
-            out.append(sel)
-    return out, len(cuts), len(gaps)
-
-
-RATE_SAMPLES = 10
-"""``OnlineSegmenter`` without settings takes the eye rate from this many sample intervals."""
+        sel = sel[(tv[sel] >= ta) & (tv[sel] <= tb)]
+        if len(sel) == 0 or tv[sel[-1]] - tv[sel[0]] < config.min_fixation_s:
+            continue
+        labels[idx[sel]] = label
+        label += 1
+    log.info("%d fixations in %d samples (%d valid; %d saccades, %d time gaps)", label, n, m, len(cuts), len(gaps))
+    return labels
 
 
 class OnlineSegmenter:
-    """Fixations found one sample at a time, for a live stream.
+    """``segment_fixations`` one sample at a time, for a live stream.
 
-    The world rule (``world``, the lines in the world with the head's poses), as
-    ``segment_world``: the course score (``course_scores``) of the ``window`` samples before and
-    the ``window`` after a sample, made as soon as the window after it is full, against the same
-    threshold (``jump_deg``, or ``JUMP_K`` sd of the score for the noise: ``config.noise_deg``,
-    else measured as the stream goes, ``NoiseMeter``); ``chain`` (a ``ChainSplitter``, renewed
-    at each saccade and gap) splits a stretch where the eye rate hid a saccade, as
-    ``split_chain`` does offline. The caller feeds ``chain`` the samples of the fixation.
-
-    The eye-in-head rule (``world`` False): the angle between the median cyclopean direction of
-    the ``window`` samples before and of the ``window`` after (``segment_fixations``'s). Crossing
-    the threshold ends the fixation; the samples until the score falls back under it (the
-    saccade, as the windows see it) belong to no fixation. A gap over ``max_gap_s`` ends a
+    The same test, made as soon as the window after a sample is full: the angle between the
+    median cyclopean direction of the ``window`` samples before and of the ``window`` after.
+    Crossing ``jump_deg`` ends the fixation; the samples until the angle falls back under it
+    (the saccade, as the windows see it) belong to no fixation. A gap over ``max_gap_s`` ends a
     fixation too, and the sample after it starts the next. The reference thus follows a target
     whose direction drifts as the head moves, as the offline test does; only a jump counts.
 
@@ -178,101 +138,47 @@ class OnlineSegmenter:
     by half the vergence, which is not a saccade).
     """
 
-    def __init__(self, config: SegmentConfig | None = None, world: bool = False):
-        self.rate_times: list | None = None if config is not None else []
-        self.config = config if config is not None else SegmentConfig()
-        self.world = world
-        self.buf: deque = deque(maxlen=2 * self.config.window)     # (direction (3,), origin (3,) or None, t)
+    def __init__(self, config: SegmentConfig = SegmentConfig()):
+        self.config = config
+        self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None)
         self.in_saccade = False
         self.last_t: float | None = None
-        self.cut_t: float | None = None     # the world rule: the time of the last saccade's step, s
-        self.peak: tuple | None = None      # ... the saccade being seen: (excess, its time, samples since)
-        self.noise = NoiseMeter(self.config)
-        self.chain = ChainSplitter(self.noise.value, self.config)
-
-    def _learn_rate(self, t_s: float) -> None:
-        """Without a config, the settings of the eye rate (``SegmentConfig.for_rate``) once the
-        first ``RATE_SAMPLES`` samples' times give it (one over their median interval), as
-        ``process`` takes them from the session's rate."""
-        self.rate_times.append(float(t_s))
-        dt = np.diff(self.rate_times)
-        dt = dt[dt > 0]
-        if len(dt) < RATE_SAMPLES:
-            return
-        rate = 1.0 / float(np.median(dt))
-        self.config = SegmentConfig.for_rate(rate)
-        if self.world:
-            self.config = dataclasses.replace(self.config, window=course_window(self.config, rate))
-        self.rate_times = None
-        self.buf = deque(self.buf, maxlen=2 * self.config.window)
-        self.noise.config = self.chain.config = self.config
 
     def update(self, t_s: float, direction, origin=None, depth_mm: float = np.inf) -> bool:
         """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) (world frame).
 
-        ``origin`` (3,) (world, mm; the eyes' midpoint): the world rule needs it. With the
-        eye-in-head rule, it and ``depth_mm`` (the fixated point's distance from it, when known)
-        take the head's translation out of the test: each buffered sample's gaze is taken to the
-        point ``depth_mm`` along it, and the directions compared are to those points from the
-        newest origin (too near a depth over-corrects, too far one under-corrects, down to no
-        correction: the default, infinity).
+        ``origin`` (3,) (world, mm; the eyes' midpoint) and ``depth_mm`` (the fixated point's
+        distance from it, when known) take the head's translation out of the test: each
+        buffered sample's gaze is taken to the point ``depth_mm`` along it, and the directions
+        compared are to those points from the newest origin. A still target's point stays put
+        however the head moves, where its direction turns by the parallax (1 deg per 17 mm
+        sideways at 1 m), which eats into the margin below ``jump_deg``. A saccade moves the
+        point by its amplitude. The caller gives a depth no nearer than the point can be
+        (``live.estimation``: the far end of its interval): too near a depth over-corrects, too
+        far one under-corrects, down to no correction (the default, infinity).
 
         Returns:
-            True when this sample ends the current fixation. Afterwards, with the eye-in-head
-            rule, ``in_saccade`` tells whether the sample (and the ones after it, until it
-            clears) belongs to no fixation; with the world rule, ``cut_t`` is the time of the
-            saccade's step (midway between the samples either side of it): the samples after it
-            start the next fixation, as offline.
+            True when this sample ends the current fixation. Afterwards ``in_saccade`` tells
+            whether the sample (and the ones after it, until it clears) belongs to no fixation.
         """
-        if self.rate_times is not None:
-            self._learn_rate(t_s)
         w = self.config.window
         gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
         self.last_t = t_s
-        item = (np.asarray(direction, float), None if origin is None else np.asarray(origin, float), float(t_s))
-        if self.world:
-            self.noise.push(t_s, item[1], item[0])
-            self.chain.tau = self.noise.hold_deg()
+        item = (np.asarray(direction, float), None if origin is None else np.asarray(origin, float))
         if gap:
             self.buf.clear()
             self.buf.append(item)
             self.in_saccade = False
-            self.peak, self.cut_t = None, None
-            self.chain = ChainSplitter(self.noise.value, self.config)
             return True
         self.buf.append(item)
         if len(self.buf) < 2 * w:
             return False
-        if self.world:
-            return self._world_step(w)
         b = self._directions(depth_mm)
-        jumped = angle_deg(np.median(b[:w], axis=0), np.median(b[w:], axis=0)) > self.config.jump_deg
+        before, after = np.median(b[:w], axis=0), np.median(b[w:], axis=0)
+        jumped = angle_deg(before, after) > self.config.jump_deg
         ended = jumped and not self.in_saccade
         self.in_saccade = jumped
         return ended
-
-    def _world_step(self, w: int) -> bool:
-        """The world rule's test on the full buffer: a saccade ends the fixation at its peak, as
-        offline (``saccade_peaks``): an excess of the score over its threshold with no larger one
-        in the ``w`` samples after it (so seen ``w`` samples late); ``cut_t`` is that boundary's
-        time."""
-        t = np.array([x[2] for x in self.buf])
-        score, sd = course_scores(t, np.array([x[0] for x in self.buf]), w)
-        excess = float(score[w] - max(self.config.jump_deg, JUMP_K * sd[w] * self.noise.value))
-        boundary_t = 0.5 * (t[w - 1] + t[w])
-        self.in_saccade = excess > 0
-        if excess > 0 and (self.peak is None or excess > self.peak[0]):
-            self.peak = (excess, boundary_t, 0)
-            return False
-        if self.peak is None:
-            return False
-        self.peak = (self.peak[0], self.peak[1], self.peak[2] + 1)
-        if self.peak[2] < w:
-            return False
-        self.cut_t = self.peak[1]
-        self.peak = None
-        self.chain = ChainSplitter(self.noise.value, self.config)
-        return True
 
     def _directions(self, depth_mm: float) -> np.ndarray:
         """(2 window, 3) the buffered directions, or with a finite depth and every origin known the

@@ -59,9 +59,8 @@ def test_g2_report_says_the_head_was_taken_as_still_and_sets_targets_beside_gp3(
 
 
 def test_g2_step_by_step_commands_give_process_targets_with_device_poses(g2_processed, capsys):
-    """docs/processing.md: ``fixations`` (``--eye-in-head``: a still head has no poses, and process
-    segments its lines by the eye-in-head rule) then ``estimate --targets`` give process's targets.
-    On an imported session (a still head here) process merges without the per-fixation pose offset of
+    """docs/processing.md: ``fixations`` then ``estimate --targets`` give process's targets. On an
+    imported session (a still head here) process merges without the per-fixation pose offset of
     poses tracked in the scene video; ``estimate --targets`` assumed tracked poses and merged two of
     the real recording's fixations (11 targets, not process's 12). ``--device-poses`` merges as
     process does: the same targets, positions within 1e-6 mm."""
@@ -71,7 +70,7 @@ def test_g2_step_by_step_commands_give_process_targets_with_device_poses(g2_proc
 
     base, res = g2_processed
     fx = base / "fixations.csv"
-    assert main(["fixations", str(base / "out" / "viewlines.csv"), "-o", str(fx), "--eye-in-head"]) == 0
+    assert main(["fixations", str(base / "out" / "viewlines.csv"), "-o", str(fx)]) == 0
     capsys.readouterr()
     assert main(["estimate", str(fx), "--targets", "--device-poses", "--json"]) == 0
     rows = [r for r in map(json.loads, capsys.readouterr().out.splitlines()) if r.get("status") != "skipped"]

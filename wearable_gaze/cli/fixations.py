@@ -14,13 +14,13 @@ def cmd_fixations(args) -> int:
 
     settings = {field: getattr(args, attr) for attr, field in SETTINGS.items() if getattr(args, attr) is not None}
     with heartbeat("segmenting"):               # a long recording: a line every few seconds in a log
-        r = fixations_file(args.viewlines, args.out, settings, args.eye_rate_hz, world=not args.eye_in_head)
+        r = fixations_file(args.viewlines, args.out, settings, args.eye_rate_hz)
     rate = "unknown rate" if r["rate_hz"] is None else f"{r['rate_hz']:.4g} Hz"
     c = r["config"]
     print(f"wrote {args.out}: {r['fixations']} fixation(s) in {r['rows']} rows; {r['unlabelled']} row(s) in no "
-          f"fixation (segment -1: saccades, blinks, gaps); {r['rule']} rule, window {c['window']} samples "
-          f"({rate}), jump {c['jump_deg']:g} deg or more, fixations of {c['min_fixation_s']:g} s or more, gaps "
-          f"over {c['max_gap_s']:g} s end one")
+          f"fixation (segment -1: saccades, blinks, gaps); window {c['window']} samples ({rate}), jump "
+          f"{c['jump_deg']:g} deg, fixations of {c['min_fixation_s']:g} s or more, gaps over {c['max_gap_s']:g} s "
+          "end one")
     return 0
 
 
@@ -36,14 +36,9 @@ def add_fixations(sub) -> None:
     f.add_argument("--window", type=A.positive_int, metavar="N",
                    help="samples on each side compared (default: 8, fewer below 60 Hz)")
     f.add_argument("--jump-deg", type=A.positive_float, metavar="DEG",
-                   help="a saccade turns the gaze by more than this (default: 3; the world rule raises it "
-                        "where the lines' noise asks for more)")
+                   help="a saccade turns the gaze by more than this (default: 3)")
     f.add_argument("--min-fixation-s", type=A.positive_float, metavar="S",
                    help="shorter fixations are dropped (default: 0.3)")
     f.add_argument("--max-gap-s", type=A.positive_float, metavar="S",
                    help="a gap in the samples longer than this ends a fixation (default: 0.5)")
-    f.add_argument("--eye-in-head", action="store_true",
-                   help="the lines have no head poses (a still head): segment them by the eye-in-head rule, as "
-                        "process does such a session's (default: the world rule, rays held on a point while the head "
-                        "moves)")
     f.set_defaults(func=cmd_fixations)

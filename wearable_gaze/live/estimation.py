@@ -23,7 +23,7 @@ from estimator import (
 )
 from estimator.direction import gaze_direction, with_direction
 from estimator.motion import DEFAULT_KNOT_S, MIN_LINES, MOVING, classify_lines, smooth_trajectory
-from estimator.result import covariance_ellipsoid, failed
+from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter
 
 from ..pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, target_merger
@@ -42,6 +42,11 @@ are at least ``DEFAULT_KNOT_S`` apart and at most ``MAX_MOTION_KNOTS``: the cost
 fixation end in the target worker, stays bounded (about 0.2 s for the motion test on a 2-core
 machine, against 12 s for a 20 s pursuit at 0.1 s knots)."""
 MAX_MOTION_KNOTS = 30
+SEGMENT_DEPTH_SD = 2.0
+"""The segmenter's depth for taking out the head's translation is the running estimate's, this
+many sd farther in inverse depth (``GazeEstimation._segment_depth``)."""
+
+
 @dataclass(frozen=True)
 class LiveEstimate:
     """The running estimate of the current fixation's target after one sample.
@@ -134,16 +139,14 @@ class FinishedFixation:
         lines: its ``BinocularSample`` (world frame, time order), without the lines the segmenter
             took in before it saw the saccade.
         estimate: its streaming estimator's latest usable ``GazeEstimate``, or its latest one when none
-            was usable (then ``finish`` answers the fixation by its direction); None for a fixation
-            split off a stretch by the chain splitter (``GazeEstimation._split``), whose estimate
-            ``finish`` makes from its lines.
+            was usable (then ``finish`` answers the fixation by its direction).
         t_start, t_end: its first sample's and its latest estimate's session times, s.
         n_samples: samples its estimator took.
     """
 
     fixation: int
     lines: tuple
-    estimate: GazeEstimate | None
+    estimate: GazeEstimate
     t_start: float
     t_end: float
     n_samples: int
@@ -167,11 +170,8 @@ class GazeEstimation:
     ``end_fixation``: cheap, on the loop's thread), and a finished fixation's target (``finish``:
     the motion and merge tests, in the loop's target worker; docs/live.md, The loop).
 
-    Fixations are found online by the world rule of ``process`` (``OnlineSegmenter(world=True)``
-    on binocular samples' cyclopean rays, its window from the measured eye rate): a saccade is
-    seen at its peak, a window late, and the lines after its step start the next fixation
-    (``end_at``); at low eye rates its ``ChainSplitter`` splits a fixation where the rays go from
-    one held point to another (``_split``); each fixation gets a fresh
+    Fixations are found online (``OnlineSegmenter``, on binocular samples' cyclopean
+    directions); a sample inside a saccade belongs to no target; each fixation gets a fresh
     streaming estimator (``estimator.make_estimator(method)``), whose covariance for ``ml`` and
     ``voxel`` follows the default error model (``pipeline.estimate.DEFAULT_ERROR_MODEL``).
     ``add`` and ``end_fixation`` are called from one thread, ``finish`` from one other (it alone
@@ -185,7 +185,7 @@ class GazeEstimation:
     def __init__(self, eyes, method: str = "voxel"):
         self.eyes = eyes
         self.method = method
-        self.segmenter = OnlineSegmenter(world=True)       # the world rule, as process with head poses
+        self.segmenter = OnlineSegmenter()
         self.targets = TargetIds(method)
         self.fixation = 0                 # the current fixation's index
         self._new_fixation()
@@ -196,7 +196,6 @@ class GazeEstimation:
         self.t_start: float | None = None
         self.last: tuple | None = None    # (GazeEstimate, t_s) of the latest estimate
         self.lines: list = []             # the fixation's BinocularSample, for ``finish`` at its end
-        self.chain_pos: list = []         # the index in ``lines`` of each sample fed to the chain splitter
 
     @property
     def current_mm(self) -> np.ndarray | None:
@@ -209,79 +208,45 @@ class GazeEstimation:
 
         Returns:
             (the fixation this sample ended, for ``finish``, or None; the running estimate after
-            this sample, or None: the estimator has none yet).
+            this sample, or None: in a saccade, or the estimator has none yet).
         """
         sample = world_sample(self.eyes, t_s, rec, T_world_from_cam)
-        ended, ray = None, None
+        ended = None
         if rec.left_valid and rec.right_valid:              # one eye alone is off the cyclopean line by
             cyc = sample.left_direction + sample.right_direction    # half the vergence: not a saccade
-            ray = (0.5 * (sample.left_origin_mm + sample.right_origin_mm), cyc / np.linalg.norm(cyc))
-            if self.segmenter.update(t_s, ray[1], ray[0]):
-                # a saccade seen (its step a window back: the lines after it start the next), or a gap
-                cut = self.segmenter.cut_t                    # None: a gap
-                ended = self.end_at(np.inf if cut is None else cut)
-        self._feed(sample)
-        if ray is not None:
-            self.chain_pos.append(len(self.lines) - 1)
-            split = self.segmenter.chain.push(t_s, *ray)
-            if split is not None:                           # a saccade the eye rate hid: the run before
-                ended = self._split(*split)                 # it is a fixation, the new one goes on
-        if self.last is None or self.last[1] != t_s:        # no estimate from this sample
+            mid = 0.5 * (sample.left_origin_mm + sample.right_origin_mm)
+            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc), mid, self._segment_depth(mid)):
+                # a saccade seen, or a gap
+                ended = self.end_fixation(self.segmenter.config.window if self.segmenter.in_saccade else 0)
+        if self.segmenter.in_saccade:                       # between fixations: no target's line
             return ended, None
-        est = self.last[0]
-        return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
-
-    def _feed(self, sample):
-        """One line into the current fixation's streaming estimator and lines."""
         if self.t_start is None:
-            self.t_start = sample.t_s
+            self.t_start = t_s
         est = self.estimator.update(sample)
         self.n_samples += 1
         self.lines.append(sample)
-        if est.ok:
-            self.last = (est, sample.t_s)
-        return est
+        if not est.ok:
+            return ended, None
+        self.last = (est, t_s)
+        return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
 
-    def end_at(self, cut_t: float) -> FinishedFixation | None:
-        """End the current fixation at a saccade's step at time ``cut_t`` (s; infinity: a gap,
-        ``end_fixation``): its lines before it are the fixation's, those after start the next
-        (fed to its estimator and chain splitter again), less ``trim_s`` either side of it."""
-        if not np.isfinite(cut_t):
-            return self.end_fixation()
-        trim = self.segmenter.config.trim_s - 1e-9      # the saccade's tails, as offline
-        after = [x for x in self.lines if x.t_s - cut_t > trim]
-        kept = tuple(x for x in self.lines if cut_t - x.t_s > trim)
-        done = None                             # its own estimate is made in ``finish`` from its lines
-        if kept and kept[-1].t_s - kept[0].t_s >= self.segmenter.config.min_fixation_s - 1e-9:
-            done = FinishedFixation(self.fixation, kept, None, float(kept[0].t_s), float(kept[-1].t_s), len(kept))
-        self.fixation += 1
-        self._new_fixation()
-        for sample in after:
-            self._feed(sample)
-            if sample.left_direction is not None and sample.right_direction is not None:
-                cyc = sample.left_direction + sample.right_direction
-                self.chain_pos.append(len(self.lines) - 1)
-                self.segmenter.chain.push(sample.t_s, 0.5 * (sample.left_origin_mm + sample.right_origin_mm),
-                                          cyc / np.linalg.norm(cyc))
-        return done
-
-    def _split(self, run: tuple, goes_on: int) -> FinishedFixation | None:
-        """The chain splitter's split (``estimator.worldsegments.ChainSplitter``): the lines of its
-        finished run (chain positions ``run``, first and last) end as a fixation (its estimate made
-        in ``finish``), the current fixation starts again from chain position ``goes_on``."""
-        lines, pos = self.lines, self.chain_pos
-        done_lines = tuple(lines[pos[run[0]]:pos[run[1]] + 1])
-        done = None
-        if done_lines[-1].t_s - done_lines[0].t_s >= self.segmenter.config.min_fixation_s - 1e-9:
-            done = FinishedFixation(self.fixation, done_lines, None, float(done_lines[0].t_s),
-                                    float(done_lines[-1].t_s), len(done_lines))
-        rest, keep = lines[pos[goes_on]:], [p - pos[goes_on] for p in pos[goes_on:]]
-        self.fixation += 1
-        self._new_fixation()
-        for sample in rest:
-            self._feed(sample)
-        self.chain_pos = keep
-        return done
+    def _segment_depth(self, origin) -> float:
+        """The depth, mm, from ``origin`` (3,) (world, mm) at which the segmenter takes out the
+        head's translation (``OnlineSegmenter.update``): the far end of the current estimate's
+        interval, 2 sd out in inverse depth (depth from vergence and parallax is Gaussian
+        there), so that it never over-corrects; infinity (no correction) before an estimate or
+        while the far end is unbounded."""
+        if self.last is None:
+            return np.inf
+        est = self.last[0]
+        ray = np.asarray(est.position_mm, float) - origin
+        depth = float(np.linalg.norm(ray))
+        if est.covariance_mm2 is None or depth <= 0:
+            return np.inf
+        u = ray / depth
+        sd = float(np.sqrt(max(u @ np.asarray(est.covariance_mm2, float) @ u, 0.0)))
+        inv_far = 1.0 / depth - SEGMENT_DEPTH_SD * sd / depth ** 2
+        return 1.0 / inv_far if inv_far > 0 else np.inf
 
     def end_fixation(self, saccade_lines: int = 0) -> FinishedFixation | None:
         """End the current fixation (a saccade, or the session's end); the next starts afresh.
@@ -303,7 +268,7 @@ class GazeEstimation:
         self._new_fixation()
         return done
 
-    def finish(self, done: FinishedFixation) -> Target | None:
+    def finish(self, done: FinishedFixation) -> Target:
         """The target of a finished fixation (in the loop's target worker, fixations in order).
 
         Its lines, thinned evenly to ``MAX_END_LINES``, are tested for motion
@@ -319,9 +284,9 @@ class GazeEstimation:
         target = None if samples is None else self.moving_target(done, samples)
         if target is not None:
             return target
-        est = done.estimate if done.estimate is not None else self.estimate_of(done.lines)
-        if est is None or not est.ok:
-            return self.direction_target(done, samples, est)
+        est = done.estimate
+        if not est.ok:
+            return self.direction_target(done, samples)
         r = est.ellipsoid(0.95)
         index = (self.targets.new_own() if samples is None
                  else self.targets.id_for(samples, est, key=done.fixation))
@@ -332,33 +297,19 @@ class GazeEstimation:
                       method=self.method, crb_mm=float("nan"), sight=est.sight(),
                       direction=None if samples is None else gaze_direction(samples, DEFAULT_ERROR_MODEL))
 
-    def direction_target(self, done: FinishedFixation, samples: BinocularSamples | None,
-                         est: GazeEstimate | None) -> Target | None:
-        """The target of a finished static fixation without a usable point (its estimate ``est``,
-        None: its lines never gave one): direction-only (``estimator.direction.with_direction``,
-        as ``process`` answers it) with an id of its own, or None when its lines give no direction
-        either."""
+    def direction_target(self, done: FinishedFixation, samples: BinocularSamples | None) -> Target | None:
+        """The target of a finished static fixation without a usable point: direction-only
+        (``estimator.direction.with_direction``, as ``process`` answers it) with an id of its
+        own, or None when its lines give no direction either."""
         if samples is None:
             return None
-        if est is None:
-            est = failed(self.method, Status.INSUFFICIENT, "no usable point", len(samples), 2 * len(samples))
-        est = with_direction(est, samples, DEFAULT_ERROR_MODEL)
+        est = with_direction(done.estimate, samples, DEFAULT_ERROR_MODEL)
         if est.status is not Status.DIRECTION_ONLY:
             return None
         return Target(index=self.targets.new_own(), position_mm=np.full(3, np.nan), covariance_mm2=None,
                       axes95_mm=np.full(3, np.nan), status=estimate_status(est, samples), n_samples=done.n_samples,
                       t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,), method=self.method,
                       crb_mm=float("nan"), direction=est.direction)
-
-    def estimate_of(self, lines) -> GazeEstimate | None:
-        """The latest usable estimate of a fresh streaming estimator fed ``lines`` (world frame,
-        time order), as the fixation's own would have been; None if none is usable."""
-        est = make_estimator(self.method, **model_options(self.method, DEFAULT_ERROR_MODEL))
-        last = None
-        for sample in lines:
-            e = est.update(sample)
-            last = e if e.ok else last
-        return last
 
     def moving_target(self, done: FinishedFixation, samples: BinocularSamples) -> Target | None:
         """The target of the finished fixation ``done`` when its (thinned) lines ``samples``

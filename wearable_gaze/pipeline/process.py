@@ -317,7 +317,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
-        labels = segment_view_lines(samples, cfg.segment_config, world=world)     # no poses: eye-in-head rule
+        labels = segment_view_lines(samples, cfg.segment_config)
         budget = session_bias(prior, seen_bias(samples, labels))          # the bias sized from the lines
         result = find_targets(samples, labels, cfg.method, cfg.sigma_deg, cb,
                               dataclasses.replace(base, bias_deg=budget["bias_deg"]))
@@ -326,8 +326,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
         if f.device_gaze is not None:
             device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
         vals.set("targets", result.targets)
-    world = f.pose_source != "still_head"
-    params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__, "world_rule": world,
+    params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__,
               "error_model": dataclasses.asdict(base), "bias_prior": dataclasses.asdict(prior), "bias": "seen"}
     if steps.run("targets", [raw_vl], params, do_targets):
         res.found = vals["targets"]

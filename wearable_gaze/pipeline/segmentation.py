@@ -28,15 +28,11 @@ NO_FIXATION = -1
 SETTINGS = tuple(f.name for f in dataclasses.fields(SegmentConfig))
 
 
-def segment_view_lines(samples: BinocularSamples, config: SegmentConfig, world: bool = True) -> np.ndarray:
-    """The segmentation step: fixation labels (N,) int of view lines (N,) in time order,
+def segment_view_lines(samples: BinocularSamples, config: SegmentConfig) -> np.ndarray:
+    """The segmentation step: fixation labels (N,) int of world view lines (N,) in time order,
     0, 1, 2... in time order and -1 (``NO_FIXATION``) for saccades, blinks and gaps. ``process``
-    and ``fixations`` both call this, and ``live`` runs the same rule online.
-
-    ``world``: the lines are in the world frame with the head's poses (the world rule: rays held
-    on a point while the head moves, ``estimator.segments.segment_world``); False: they are
-    eye-in-head directions (no poses: a still head assumed), segmented by the eye-in-head rule."""
-    return segment_fixations(samples, config, world=world)
+    and ``fixations`` both call this."""
+    return segment_fixations(samples, config)
 
 
 def measured_rate_hz(t_s: np.ndarray) -> float | None:
@@ -74,7 +70,7 @@ def read_in_time_order(path) -> tuple[BinocularSamples, list]:
 
 
 def fixations_file(viewlines_csv, out_csv, config: SegmentConfig | Mapping | None = None,
-                   eye_rate_hz: float | None = None, world: bool = True) -> dict:
+                   eye_rate_hz: float | None = None) -> dict:
     """``wearable-gaze fixations``: segment a view-line CSV and write it to ``out_csv`` with a
     ``segment`` column of fixation labels (-1: saccades, blinks, gaps), through
     ``formats.viewlines``.
@@ -86,8 +82,6 @@ def fixations_file(viewlines_csv, out_csv, config: SegmentConfig | Mapping | Non
             (``segment_config``); None: the rate's settings.
         eye_rate_hz: the eye samples' rate, for the window; None: measured from the file's times
             (``process`` uses the session's declared rate: give it here to match exactly).
-        world: the world rule (``segment_view_lines``); False: the eye-in-head rule, for lines
-            without head poses (``process`` uses it on a still-head session's).
 
     Returns:
         {'rows', 'fixations', 'unlabelled', 'rate_hz', 'config'}: rows written, fixations found,
@@ -98,8 +92,8 @@ def fixations_file(viewlines_csv, out_csv, config: SegmentConfig | Mapping | Non
         log.info("%s has a segment column; it is replaced by this segmentation", viewlines_csv)
     rate = eye_rate_hz if eye_rate_hz is not None else measured_rate_hz(samples.t_s)
     cfg = config if isinstance(config, SegmentConfig) else segment_config(rate, config)
-    labels = segment_view_lines(samples, cfg, world=world)
+    labels = segment_view_lines(samples, cfg)
     write_viewlines_csv(Path(out_csv), samples, labels)
     n_fix = int(labels.max()) + 1 if len(labels) else 0
     return {"rows": len(labels), "fixations": max(n_fix, 0), "unlabelled": int((labels == NO_FIXATION).sum()),
-            "rate_hz": rate, "config": dataclasses.asdict(cfg), "rule": "world" if world else "eye-in-head"}
+            "rate_hz": rate, "config": dataclasses.asdict(cfg)}
