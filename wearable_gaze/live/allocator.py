@@ -5,10 +5,11 @@ glibc's malloc keeps the freed pages: its heap only shrinks from the top, its mm
 rises to the largest block freed (up to 32 MB), so a session's growing buffers (arrays of the
 fixation's samples, frames, encoder buffers) go onto the heap, and each session's heap ends a
 few MB higher than the last, in pages it holds but does not use (the Python objects and the
-bytes in use stay flat: tracemalloc and ``mallinfo2``). ``bound_heap`` fixes the threshold at
-``MMAP_THRESHOLD_BYTES``, so a large block goes back to the system when freed;
-``release_free_memory`` hands the free pages back at a session's end (``malloc_trim``). Both do
-nothing outside glibc."""
+bytes in use stay flat: tracemalloc and ``mallinfo2``); and each of a session's threads may get
+an arena of its own, which the next session's threads fragment further. ``bound_heap`` fixes the
+threshold at ``MMAP_THRESHOLD_BYTES``, so a large block goes back to the system when freed, and
+keeps every thread on one arena (``ARENAS``); ``release_free_memory`` hands the free pages back at
+a session's start and end (``malloc_trim``). Both do nothing outside glibc."""
 
 from __future__ import annotations
 
@@ -17,10 +18,11 @@ import logging
 
 log = logging.getLogger(__name__)
 
-MMAP_THRESHOLD_BYTES = 256 * 1024
-"""Blocks of at least this many bytes are mapped on their own, not carved from the heap (glibc's
-starting value, kept fixed)."""
-_M_MMAP_THRESHOLD = -3          # mallopt's parameter number (malloc.h)
+MMAP_THRESHOLD_BYTES = 64 * 1024
+"""Blocks of at least this many bytes are mapped on their own, not carved from the heap."""
+ARENAS = 1
+"""The most malloc arenas (the session's threads hold the GIL for their Python work anyway)."""
+_M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8          # mallopt's parameter numbers (malloc.h)
 
 
 def _libc():
@@ -32,10 +34,11 @@ def _libc():
 
 
 def bound_heap() -> bool:
-    """Fix glibc's mmap threshold at ``MMAP_THRESHOLD_BYTES`` (for the whole process); False
-    where there is no glibc."""
+    """Fix glibc's mmap threshold at ``MMAP_THRESHOLD_BYTES`` and its arenas at ``ARENAS`` (for
+    the whole process: call it before the session's threads start); False where there is no glibc."""
     libc = _libc()
-    return bool(libc is not None and libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+    return bool(libc is not None and libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+                and libc.mallopt(_M_ARENA_MAX, ARENAS))
 
 
 def release_free_memory() -> bool:
