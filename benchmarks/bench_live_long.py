@@ -6,9 +6,9 @@ segmenter, the streaming voxel estimator), driven directly with simulated 200 Hz
 records (no video, no tracking, no serial line) over a session of ``--minutes`` (10) in which the
 wearer looks at a new point every 1.5-3 s, swaying, except for one fixation held for
 ``--hold-s`` (120) s. Each finished fixation is turned into its target (``finish``, the motion
-and merge tests) as the loop's target worker would, outside the timed call. Timed: each ``add``
-call, wall clock (``perf_counter``) and the thread's CPU time (``thread_time``; the machine may be
-loaded by other work).
+and merge tests) as the loop's target worker would, outside the timed call (``--no-targets``: not
+at all). Timed: each ``add`` call, wall clock (``perf_counter``) and the thread's CPU time
+(``thread_time``; the machine may be loaded by other work).
 
     python benchmarks/bench_live_long.py fixation [--minutes 10] [--hold-s 120]
 
@@ -96,7 +96,7 @@ def run_fixation(args) -> None:
             cpu.append(time.thread_time() - c0)
             wall.append(time.perf_counter() - w0)
             n_fix.append(est.n_samples)
-            if ended is not None:                 # the target worker's part, not timed
+            if ended is not None and args.targets:     # the target worker's part, not timed
                 est.finish(ended)
                 targets += 1
             t, k = t + 1 / RATE_HZ, k + 1
@@ -160,6 +160,9 @@ def main():
     ap.add_argument("--sessions", type=int, default=10)
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--no-targets", dest="targets", action="store_false",
+                    help="fixation: do not make the finished fixations' targets (the target worker's part, "
+                         "never timed; saves CPU time on a loaded machine)")
     args = ap.parse_args()
     (run_fixation if args.mode == "fixation" else run_sessions)(args)
 
