@@ -88,9 +88,12 @@ class _SampleBuffer:
         return sl
 
     def lines(self, sl=slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(origins (L, 3), directions (L, 3), sample index (L,)) of the valid lines in ``sl``."""
-        start, stop, step = sl.indices(self.n)
-        idx = np.arange(start, stop, step)          # O(len(sl)), not O(n): the streaming path
+        """(origins (L, 3), directions (L, 3), sample index (L,)) of the valid lines in ``sl`` (a
+        slice, or sample indices (M,) in increasing order)."""
+        if isinstance(sl, slice):
+            idx = np.arange(*sl.indices(self.n))    # O(len(sl)), not O(n): the streaming path
+        else:
+            idx = np.asarray(sl, dtype=np.intp)
         valid = self.valid[idx]
         rows, eyes = np.nonzero(valid)
         return self.o[idx][rows, eyes], self.d[idx][rows, eyes], idx[rows]
@@ -98,6 +101,18 @@ class _SampleBuffer:
     def view_lines(self) -> ViewLines:
         o, d, si = self.lines()
         return ViewLines(o, d, "world", si)
+
+
+def spread_samples(n: int, most: int, runs: int = 16):
+    """Indices of at most ``most`` of ``n`` samples standing for all of them: ``slice(0, n)`` when
+    ``n <= most``, else (M,) increasing indices of ``runs`` runs of consecutive samples spread
+    evenly over the ``n`` (consecutive, so that a fit over them still sees the residuals'
+    correlation from one sample to the next; spread, so that it sees the head's whole motion)."""
+    if n <= most:
+        return slice(0, n)
+    length = max(most // runs, 1)
+    starts = np.linspace(0, n - length, runs).astype(np.intp)
+    return np.unique((starts[:, None] + np.arange(length)[None, :]).ravel())
 
 
 def _as_samples(sample) -> BinocularSamples:

@@ -22,27 +22,18 @@ The paper's method (``paper``) is in ``estimator.paper_voxel``; the names stay i
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .errormodel import ErrorModel, far_side, model_covariance, sight_info
 from .grid import DensityGrid, _quadratic_fit_local
-from .likelihood import (
-    MAX_TAN2,
-    MLConfig,
-    angular_log_likelihood,
-    angular_tan2,
-    fisher_information,
-    ml_point,
-    reliability_weight,
-    reliability_weights,
-)
+from .likelihood import MLConfig, angular_log_likelihood, fisher_information, ml_point
 from .lines import BinocularSample, BinocularSamples, ViewLines
 from .paper_voxel import PaperVoxelConfig, PaperVoxelEstimator
+from .reliability import reliability_weight_at, reliability_weights_at
 from .result import GazeEstimate, Status, failed
-from .samplebuffer import _SampleBuffer
+from .samplebuffer import _SampleBuffer, spread_samples
 from .triangulation import lse_point
 
 log = logging.getLogger(__name__)
@@ -69,64 +60,17 @@ class VoxelWork:
     deferred: int = 0
 
 
-def reliability_weights_at(center_mm, cov_mm2, origins_mm, directions, sample_index, n_samples: int,
-                           sigma_rad: float, outlier_prob: float) -> np.ndarray:
-    """Reliability weight (n_samples,) of each binocular sample given the posterior N(center, cov).
+@dataclass
+class _PendingBox:
+    """A box being laid over several streaming updates (``VoxelEstimator._advance``): its grid,
+    design std (3,) mm, the posterior N(center (3,) mm, cov (3, 3) mm^2) it was laid for, and the
+    kept samples evaluated into it so far (the first ``done``)."""
 
-    Each line's chi-square is its squared tangent residual at ``center_mm`` over the predictive
-    variance ``sigma^2 + lateral / a^2``: the noise plus the posterior's mean spread across the line
-    (``lateral = (trace cov - d^T cov d) / 2``) at distance ``a`` along it. A sample's chi-square sums
-    its lines (2 degrees of freedom each); ``likelihood.reliability_weights`` turns it into the
-    posterior probability of being an inlier. Samples without a line get weight 1.
-
-    Args:
-        center_mm: (3,) posterior mean, world, mm.  cov_mm2: (3, 3) posterior covariance, mm^2.
-        origins_mm, directions: (L, 3) lines, world, mm and unit vectors.
-        sample_index: (L,) int in [0, n_samples): the sample each line belongs to.
-    """
-    center = np.asarray(center_mm, float)
-    cov = np.asarray(cov_mm2, float)
-    o = np.asarray(origins_mm, float).reshape(-1, 3)
-    d = np.asarray(directions, float).reshape(-1, 3)
-    si = np.asarray(sample_index, int)
-    v = center - o
-    a = np.maximum(np.einsum("ij,ij->i", v, d), 1e-6 * np.sqrt(np.einsum("ij,ij->i", v, v)))
-    tan2 = angular_tan2(center, o, d)[:, 0]
-    lateral = 0.5 * (np.trace(cov) - np.einsum("ij,jk,ik->i", d, cov, d))
-    chi2_line = tan2 / (sigma_rad**2 + np.maximum(lateral, 0) / (a * a))
-    chi2_s = np.bincount(si, weights=chi2_line, minlength=n_samples)
-    dof = 2.0 * np.bincount(si, minlength=n_samples)
-    wts = reliability_weights(chi2_s, np.maximum(dof, 1), sigma_rad, outlier_prob)
-    return np.where(dof > 0, wts, 1.0)
-
-
-def reliability_weight_at(center_mm, cov_mm2, origins_mm, directions, valid, sigma_rad: float,
-                          outlier_prob: float) -> float:
-    """``reliability_weights_at`` for one binocular sample (origins and directions (2, 3), valid
-    (2,) bool), in scalar arithmetic: the streaming hot path."""
-    if not (valid[0] or valid[1]):
-        return 1.0
-    cx, cy, cz = np.asarray(center_mm, float).tolist()
-    C = np.asarray(cov_mm2, float).tolist()
-    tr = C[0][0] + C[1][1] + C[2][2]
-    sig2 = sigma_rad**2
-    chi2 = 0.0
-    dof = 0.0
-    for eye in (0, 1):
-        if not valid[eye]:
-            continue
-        ox, oy, oz = origins_mm[eye].tolist()
-        dx, dy, dz = directions[eye].tolist()
-        vx, vy, vz = cx - ox, cy - oy, cz - oz
-        s2 = vx * vx + vy * vy + vz * vz
-        a = max(vx * dx + vy * dy + vz * dz, 1e-6 * math.sqrt(s2))
-        tan2 = min(s2 / (a * a) - 1.0, MAX_TAN2)   # angular_tan2, in scalars
-        dCd = (dx * (C[0][0] * dx + C[0][1] * dy + C[0][2] * dz) + dy * (C[1][0] * dx + C[1][1] * dy + C[1][2] * dz)
-               + dz * (C[2][0] * dx + C[2][1] * dy + C[2][2] * dz))
-        lateral = max(0.5 * (tr - dCd), 0.0)
-        chi2 += tan2 / (sig2 + lateral / (a * a))
-        dof += 2.0
-    return reliability_weight(chi2, dof, sigma_rad, outlier_prob)
+    grid: DensityGrid
+    std: np.ndarray
+    center: np.ndarray
+    cov: np.ndarray
+    done: int = 0
 
 
 @dataclass(frozen=True)
@@ -162,6 +106,13 @@ class VoxelConfig:
             1/lines and its bias floor stays. The grid, the seed and the reliability weights keep
             the plain likelihood of ``sigma_deg``.
         model_growth: see ``error_model``.
+        fit_samples: the seed fits after the first box and the error model are evaluated over at
+            most this many kept samples (``samplebuffer.spread_samples``: runs of consecutive
+            samples spread over the stream), the model's noise part scaled to all of them: the
+            cost of one update stays bounded however long a fixation lasts.
+        layout_chunk_lines: in streaming (``update``), a new box over more kept lines than this is
+            laid over several updates, this many lines each; the old box answers meanwhile (the
+            batch ``add`` lays every box at once).
     """
 
     sigma_deg: float = 1.0
@@ -179,6 +130,8 @@ class VoxelConfig:
     work_burst: float = 4.0
     error_model: ErrorModel | None = None
     model_growth: float = 1.1
+    fit_samples: int = 2048
+    layout_chunk_lines: int = 1024
 
     def __post_init__(self):
         if not self.sigma_deg > 0:
@@ -200,6 +153,9 @@ class VoxelConfig:
             raise ValueError(f"error_model must be an ErrorModel or None, got {type(self.error_model).__name__}")
         if not self.model_growth > 1:
             raise ValueError(f"model_growth must exceed 1, got {self.model_growth}")
+        if self.fit_samples < 64 or self.layout_chunk_lines < 2:
+            raise ValueError(f"fit_samples must be at least 64 and layout_chunk_lines at least 2, "
+                             f"got {self.fit_samples} and {self.layout_chunk_lines}")
 
 
 class VoxelEstimator:
@@ -229,6 +185,7 @@ class VoxelEstimator:
         self._allowance = float(config.work_initial)   # line re-evaluations still allowed
         self._posterior = None        # (point, Laplace covariance) of the last peak: the weights' posterior
         self._model = None            # (lines then, noise covariance then, bias floor, info) of the error model
+        self._pending: _PendingBox | None = None   # a box being laid over several updates (streaming)
 
     def __len__(self) -> int:
         return self._buf.n
@@ -240,7 +197,7 @@ class VoxelEstimator:
         if self.grid is not None:
             self._set_weights(slice(i, i + 1))
             self._accumulate(slice(i, i + 1))
-        self._last = self._settle()
+        self._last = self._settle(stream=True)
         return self._last
 
     def add(self, samples: BinocularSamples) -> GazeEstimate:
@@ -321,7 +278,10 @@ class VoxelEstimator:
 
     def _seed(self, x0=None):
         cfg = self.config
-        lines = self._buf.view_lines()
+        # at most ``fit_samples`` of the kept samples, the information scaled to all of them: a
+        # seed, not the answer (the box's peak is, over every kept line)
+        o, d, si = self._buf.lines(spread_samples(self._buf.n, cfg.fit_samples))
+        lines = ViewLines(o, d, "world", si)
         self.work.seed_fits += 1
         if x0 is not None or cfg.seed_method == "ml":
             # the same model as the grid's: Gaussian inliers, and blinks or saccades as a mixture
@@ -333,13 +293,15 @@ class VoxelEstimator:
             est = lse_point(lines)
         if not est.ok:
             return None, est.reason
-        F = fisher_information(est.position_mm, lines.origins_mm, self._sigma)
+        F = fisher_information(est.position_mm, lines.origins_mm, self._sigma) * (self._buf.n_lines / max(len(si), 1))
         if np.linalg.cond(F) > 1e14:
             return None, "the view lines do not yet fix a point"
         return (est.position_mm, np.linalg.inv(F)), ""
 
-    def _layout(self, center, cov):
-        """Lay a new box for posterior N(center, cov) and re-evaluate every kept sample into it."""
+    def _layout(self, center, cov, stream: bool = False) -> bool:
+        """Lay a new box for posterior N(center, cov) and re-evaluate every kept sample into it:
+        at once (True), or, ``stream`` with more kept lines than ``layout_chunk_lines``, over this
+        and the next updates (False: ``_pending``, until ``_advance`` has filled it)."""
         cfg = self.config
         w, V = np.linalg.eigh(0.5 * (cov + cov.T))
         if np.linalg.det(V) < 0:
@@ -348,13 +310,27 @@ class VoxelEstimator:
         std = np.clip(std, cfg.min_spacing_mm * cfg.grid_size / (2 * cfg.coverage_sigmas),
                       cfg.max_extent_mm / (2 * cfg.coverage_sigmas))
         spacing = 2 * cfg.coverage_sigmas * std / cfg.grid_size
-        self.grid = DensityGrid(center, V, spacing, cfg.grid_size)
-        self._design_std = std
         log.debug("voxel: box %d laid at %s mm, voxel %s mm, over %d kept lines", self.work.layouts + 1,
                   np.round(center, 1).tolist(), np.round(spacing, 2).tolist(), self._buf.n_lines)
         self.work.layouts += 1
-        self._set_weights(slice(0, self._buf.n), center, cov)
-        self._accumulate(slice(0, self._buf.n))
+        self._pending = _PendingBox(DensityGrid(center, V, spacing, cfg.grid_size), std, center, cov)
+        return self._advance(None if not stream or self._buf.n_lines <= cfg.layout_chunk_lines
+                             else cfg.layout_chunk_lines)
+
+    def _advance(self, most_lines: int | None) -> bool:
+        """Evaluate the next kept samples (about ``most_lines`` lines; None: all) into the pending
+        box, under its posterior's weights; once every kept sample is in, it replaces the box
+        (True). Samples added meanwhile are in the old box and come to the new one in turn."""
+        p = self._pending
+        stop = self._buf.n if most_lines is None else min(self._buf.n, p.done + max(most_lines // 2, 1))
+        sl = slice(p.done, stop)
+        self._set_weights(sl, p.center, p.cov)
+        self._accumulate(sl, p.grid)
+        p.done = stop
+        if stop < self._buf.n:
+            return False
+        self.grid, self._design_std, self._pending = p.grid, p.std, None
+        return True
 
     def _set_weights(self, sl, center=None, cov=None):
         """Reliability weight of samples ``sl`` given the current posterior (center, cov)."""
@@ -378,14 +354,21 @@ class VoxelEstimator:
         b.weight[first:first + m] = reliability_weights_at(center, cov, o, d, si - first, m, self._sigma,
                                                            self.config.outlier_prob)
 
-    def _accumulate(self, sl):
+    def _accumulate(self, sl, grid=None):
         o, d, si = self._buf.lines(sl)
-        self.grid.add_lines(o, d, self._buf.weight[si] * (-0.5 / self._sigma**2))
+        (self.grid if grid is None else grid).add_lines(o, d, self._buf.weight[si] * (-0.5 / self._sigma**2))
 
-    def _settle(self) -> GazeEstimate:
+    def _settle(self, stream: bool = False) -> GazeEstimate:
+        """The estimate after the samples added: seed and lay boxes as needed (``stream``: a box
+        over many lines is laid over several updates, ``_layout``)."""
         cfg = self.config
         L = self._buf.n_lines
+        laying = "a new box is being laid over the kept lines"
+        if self._pending is not None:
+            self._advance(cfg.layout_chunk_lines if stream else None)
         if self.grid is None:
+            if self._pending is not None:
+                return self._fail(Status.INSUFFICIENT, f"no estimate yet: {laying}")
             if self._buf.n < cfg.seed_samples:
                 return self._fail(Status.INSUFFICIENT,
                                   f"gathering samples for the seed: {self._buf.n} of {cfg.seed_samples}")
@@ -398,7 +381,8 @@ class VoxelEstimator:
             seed, reason = self._seed()
             if seed is None:
                 return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
-            self._layout(*seed)
+            if not self._layout(*seed, stream=stream):
+                return self._fail(Status.INSUFFICIENT, f"no estimate yet: {laying}")
         for _ in range(cfg.max_relayouts):
             grid = self.grid
             idx = grid.argmax()
@@ -406,6 +390,8 @@ class VoxelEstimator:
             if idx.min() > 0 and idx.max() < grid.n - 1:
                 fit = _quadratic_fit_local(grid, idx)
             if fit is None:
+                if self._pending is not None:      # the new box comes in the next updates
+                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak in this box; {laying}")
                 # the maximum is at the border, or not a peak at this voxel size: lay the box
                 # anew from the continuous optimum over every kept line (nothing is lost)
                 if not self._afford(2 * L):
@@ -417,18 +403,19 @@ class VoxelEstimator:
                     # box is evaluated from every kept line, so dropping this one loses nothing
                     self.grid = None
                     return self._fail(Status.INSUFFICIENT, f"the density has no clear peak yet: {reason}")
-                self._layout(*seed)
+                if not self._layout(*seed, stream=stream):
+                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak in this box; {laying}")
                 continue
             offset, cov_local = fit
             point = grid.center_mm + grid.axes @ offset
             cov = grid.axes @ cov_local @ grid.axes.T
             # a peak inside the box with a valid fit is an answer even when the box would be
-            # re-laid (refined or re-centred) but the work bound defers it
-            if self._needs_layout(offset, cov_local) and self._afford(L):
-                self._layout(point, cov)
-                continue
+            # re-laid (refined or re-centred) but the work bound defers it, or it is being laid
+            if self._pending is None and self._needs_layout(offset, cov_local) and self._afford(L):
+                if self._layout(point, cov, stream=stream):
+                    continue
             return self._result(point, cov)
-        self.grid = None                      # back to the O(1) seed test (nothing is lost: see above)
+        self.grid = self._pending = None      # back to the O(1) seed test (nothing is lost: see above)
         log.debug("voxel: no bounded maximum after %d re-layouts; back to seeding", cfg.max_relayouts)
         return self._fail(Status.DEGENERATE, "the density has no bounded maximum: the view lines are "
                                              "nearly parallel (target too far for this head motion)")
@@ -451,12 +438,16 @@ class VoxelEstimator:
             return cov
         L = self._buf.n_lines
         if self._model is None or L >= self.config.model_growth * self._model[0]:
-            o, d, si = self._buf.lines()
-            C, minfo = model_covariance(point, ViewLines(o, d, "world", si), self._sigma, model, self._buf.weight[si])
+            # over at most ``fit_samples`` kept samples (O(1) per update): the noise part shrinks
+            # as 1 / the lines' summed weight, the bias floor does not depend on their number
+            b = self._buf
+            o, d, si = b.lines(spread_samples(b.n, self.config.fit_samples))
+            C, minfo = model_covariance(point, ViewLines(o, d, "world", si), self._sigma, model, b.weight[si])
             if C is None:
                 return cov
             bias, linear = minfo.pop("bias_cov"), minfo.pop("linear_cov")
-            self._model = (L, linear - bias, bias, minfo, o.mean(axis=0))
+            share = float(b.weight[si].sum() / (b.weight[:b.n] @ b.valid[:b.n].sum(axis=1)))
+            self._model = (L, (linear - bias) * share, bias, minfo, o.mean(axis=0))
         n0, noise, bias, minfo, origin = self._model
         C_lin = noise * (n0 / L) + bias
         C, f = far_side(C_lin, point, origin, model.far_side_k)

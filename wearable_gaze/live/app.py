@@ -20,6 +20,7 @@ from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.eyes import load_eyes
 from ..formats.markermap import load_marker_map
+from .allocator import bound_heap
 from .camera_in import FrameSource
 from .clock import SessionClock
 from .estimation import GazeEstimation, warm_up
@@ -79,6 +80,7 @@ def open_session(serial_port: str, camera_source: str, camera_calib, eyes_path, 
         UserError: a file that is missing or malformed, a camera that will not open or does not
             match its calibration, a bad ``--publish`` URL, a ``--record`` folder not empty.
     """
+    bound_heap()                     # before the session's threads start (allocator.py)
     camera = load_camera(camera_calib)
     eyes = load_eyes(eyes_path)
     marker_map = load_marker_map(markers_path)

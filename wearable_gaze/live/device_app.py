@@ -12,6 +12,7 @@ from pathlib import Path
 from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.markermap import load_marker_map
+from .allocator import bound_heap
 from .app import run_session
 from .estimation import GazeEstimation, warm_up
 from .head import HeadTracker
@@ -55,6 +56,7 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
             frames of another size than the calibration's, a bad file or ``--publish``, a
             ``--record`` folder not empty.
     """
+    bound_heap()                     # before the session's threads start (allocator.py)
     name = device_scheme(device_url)
     camera = load_camera(camera_calib)
     marker_map = load_marker_map(markers_path)

@@ -13,6 +13,7 @@ from collections import deque
 import numpy as np
 
 from ..errors import UserError
+from .allocator import bound_heap, release_free_memory
 from .messages import estimate_message, target_message
 from .stats import LiveStats
 
@@ -146,6 +147,8 @@ class LiveSession:
             UserError: the serial port will not open, or an error inside the session (the
                 recording is kept and marked incomplete).
         """
+        bound_heap()                                 # sessions one after another stay flat (allocator.py)
+        release_free_memory()
         self.reader.start()
         self.reader.connected.wait(5.0)
         if self.reader.error and self.reader.error.startswith("cannot open"):
@@ -295,3 +298,4 @@ class LiveSession:
         if self.recorder is not None:
             self.recorder.close(complete=complete)
         self.update_stats()
+        release_free_memory()
