@@ -169,9 +169,8 @@ def room_locator(room: MarkerMap | FeatureMap, camera: CameraCalibration):
 
 
 def marker_locator(marker_map: MarkerMap, camera: CameraCalibration):
-    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay), from the markers
-    (video frames: ``MarkerDetector``'s ``small_frames``)."""
-    detector = MarkerDetector(marker_map.dictionary, small_frames=True)
+    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay), from the markers."""
+    detector = MarkerDetector(marker_map.dictionary)
     estimator = MarkerPoseEstimator(marker_map, camera)
 
     def locate(grey):
