@@ -1285,14 +1285,6 @@ def _viewlines_rows(e, edit_row, n=None) -> str:
     return "\n".join([lines[0], *(",".join(edit_row(r.split(","))) for r in rows)]) + "\n"
 
 
-def _parallel(cells):
-    """Every view line of the row along +z (a monocular row's empty eye left empty)."""
-    for k in (4, 10):
-        if cells[k]:
-            cells[k:k + 3] = ["0", "0", "1"]
-    return cells
-
-
 def _neon_damaged(name, damage):
     def b(e, d):
         src = _real_copy(d, "pupil_labs_neon_demo_recording")
@@ -1343,10 +1335,8 @@ add("estimate-one-row-paper", "estimate", lambda e, d: argv_estimate(e, write(d,
     e, lambda c: c, 1)), ["--method", "paper"]), ("nothing could be estimated", "segment 0"))
 add("estimate-every-row-segment-minus-1", "estimate", lambda e, d: argv_estimate(e, write(d, "v.csv", _viewlines_rows(
     e, lambda c: [*c[:-1], "-1"]))), ("nothing to estimate", "segment -1"))
-add("estimate-every-segment-parallel", "estimate", lambda e, d: argv_estimate(e, write(d, "v.csv", _viewlines_rows(
-    e, _parallel))), ("nothing could be estimated", "parallel"))
-add("estimate-targets-every-segment-parallel", "estimate", lambda e, d: argv_estimate(e, write(
-    d, "v.csv", _viewlines_rows(e, _parallel)), ["--targets"]), ("nothing could be estimated", "no fixation"))
+# parallel lines are no bad input since issue 27: they are answered by their direction (direction-only,
+# tests/test_direction_only.py)
 add("calibrate-eyes-camera-other-image-size", "calibrate-eyes", lambda e, d: argv_calibrate_eyes(e, d, camera=write(
     d, "c.json", edited_json(e.camera, lambda c: c.__setitem__("image_size", [1920, 1080])))),
     ("320x180", "1920x1080"))

@@ -138,7 +138,10 @@ def device_prior(report: dict | None) -> BiasPrior:
 
 def calibration_prior(eyes_path: Path) -> BiasPrior:
     """The bias prior of a session calibrated here: ``bias_from_calibration`` of each eye's
-    leave-one-out RMS error in eyes.json; ``DEFAULT_BIAS_DEG`` when it has none."""
+    leave-one-out RMS error in eyes.json; ``DEFAULT_BIAS_DEG`` when it has none (no warning when
+    there is no eyes.json: the eye step failed and said so, and no target will use it)."""
+    if not Path(eyes_path).is_file():
+        return BiasPrior(DEFAULT_BIAS_DEG, "conservative", "no eye calibration", False)
     try:
         eyes = json.loads(Path(eyes_path).read_text(encoding="utf-8"))["eyes"]
         loo = [e.get("report", {}).get("loo_rms_deg") for e in eyes]
