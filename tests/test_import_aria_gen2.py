@@ -131,5 +131,5 @@ def test_gen2_real_goes_through_process_with_no_failed_step(sample, tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["failed_steps"] == [] and summary["steps_not_done"] == [] and res.targets == []
     assert summary["problems"] == ["targets: no target could be estimated from 5 view lines (no fixation of 0.3 s "
-                                   "or more gave an estimate)"]
+                                   "or more gave an estimate or a direction)"]
     assert (tmp_path / "out" / "report.html").is_file()
