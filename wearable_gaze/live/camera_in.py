@@ -19,6 +19,24 @@ from .input_thread import InputThread
 
 log = logging.getLogger(__name__)
 
+
+def put_newest(q: queue.Queue, item) -> int:
+    """Put ``item`` on the frame queue ``q``; when it is full the oldest frame goes (the loop
+    wants the newest). Returns how many frames were skipped for it (0 or 1). The one producer's
+    put cannot fail after the get, as only it puts."""
+    skipped = 0
+    try:
+        q.put_nowait(item)
+    except queue.Full:
+        try:
+            q.get_nowait()
+            skipped = 1
+        except queue.Empty:
+            pass
+        q.put_nowait(item)
+    return skipped
+
+
 @dataclass
 class CameraStats:
     frames: int = 0
@@ -93,15 +111,7 @@ class FrameSource(InputThread):
                 if self.sink is not None:
                     self.sink(t - self.t0, i, grey)
                 item = (t, i, grey, frame)
-                try:
-                    self.queue.put_nowait(item)
-                except queue.Full:
-                    try:
-                        self.queue.get_nowait()
-                        self.stats.skipped += 1
-                    except queue.Empty:
-                        pass
-                    self.queue.put_nowait(item)
+                self.stats.skipped += put_newest(self.queue, item)
                 self.stats.frames += 1
                 i += 1
         finally:

@@ -42,7 +42,7 @@ from ..formats.devices.pupil_net import (
     parse_gaze,
     start_frame_publisher,
 )
-from .camera_in import CameraStats
+from .camera_in import CameraStats, put_newest
 from .input_thread import InputThread
 from .serial_in import SerialStats
 
@@ -369,15 +369,7 @@ class WorldFrames(_Subscriber):
         item = (local, self.n, grey, colour)
         self.n += 1
         self.stats.frames += 1
-        try:
-            self.queue.put_nowait(item)
-        except queue.Full:
-            try:
-                self.queue.get_nowait()
-                self.stats.skipped += 1
-            except queue.Empty:
-                pass
-            self.queue.put_nowait(item)
+        self.stats.skipped += put_newest(self.queue, item)
 
 
 def probe_frames(link: PupilCoreLink, n: int = 6, timeout_s: float = 3.0) -> tuple[tuple[int, int], float]:
