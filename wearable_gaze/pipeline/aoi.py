@@ -40,10 +40,11 @@ from estimator.frames import tangent_basis
 from ..errors import UserError
 from ..formats.aoi_tables import write_aoi_fixations, write_aoi_metrics, write_aoi_transitions
 from ..formats.aois import AoiSpec, read_aois
-from ..formats.fixations_table import read_fixations_csv
+from ..formats.fixations_table import COV_COLUMNS, COV_INDEX, read_fixations_csv
 from ..formats.markermap import load_marker_map
 from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv
+from .report_plots import _plt
 
 NONE = "none"
 """The name of "no area" in the tables."""
@@ -313,8 +314,10 @@ def _own_point(fixations: dict, i: int) -> np.ndarray:
 
 
 def _own_covariance(fixations: dict, i: int) -> np.ndarray:
-    c = np.array([fixations[f"cov_{k}_mm2"][i] for k in ("xx", "xy", "xz", "yy", "yz", "zz")], float)
-    return np.array([[c[0], c[1], c[2]], [c[1], c[3], c[4]], [c[2], c[4], c[5]]])
+    C = np.empty((3, 3))
+    for name, (a, b) in zip(COV_COLUMNS, COV_INDEX, strict=True):
+        C[a, b] = C[b, a] = fixations[name][i]
+    return C
 
 
 AOI_PLOTS = {"aoi_dwell.png": "Dwell time per area of interest: over the fixations assigned to it, and weighted "
@@ -392,10 +395,7 @@ def aoi_folder(processed, aois_path, out=None, markers=None, conf: AoiConfig = A
 
 def plot_dwell(metrics: list[dict], path: Path) -> None:
     """A bar chart of each area's dwell time with its probability-weighted dwell beside it."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    plt = _plt()
 
     names = [m["aoi"] for m in metrics]
     x = np.arange(len(names))
@@ -413,10 +413,7 @@ def plot_dwell(metrics: list[dict], path: Path) -> None:
 def plot_timeline(res: AoiResult, fixations: tuple, path: Path) -> None:
     """Rows of areas (and none) against session time: each fixation drawn in each row as dark as
     its probability of that area, outlined in the row it is assigned to."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    plt = _plt()
 
     rows = [*res.names, NONE]
     fig, ax = plt.subplots(figsize=(9.0, 0.45 * len(rows) + 1.2))

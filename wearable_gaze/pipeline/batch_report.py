@@ -22,6 +22,7 @@ from ..formats.session import MANIFEST
 from ..formats.tables import write_table
 from ..formats.targets import read_targets, write_targets_csv
 from ..formats.truth import read_truth_targets
+from .report_plots import _plt
 from .target_status import is_fixated
 from .truth_match import TruthFrame, match_targets
 
@@ -153,10 +154,7 @@ def write_batch_aois(out: Path, names: list[str]) -> bool:
 def plot_grouped(rows: dict, measure: str, path: Path) -> None:
     """Grouped bars of ``measure``: one group per area, one bar per session (``rows``: session ->
     its aoi_metrics.csv columns)."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    plt = _plt()
 
     areas = list(dict.fromkeys(a for m in rows.values() for a in m["aoi"]))
     width = 0.8 / max(len(rows), 1)
