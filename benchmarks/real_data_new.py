@@ -25,6 +25,7 @@ import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV loa
 import numpy as np
 from real_data_table import REAL
 
+from estimator.triangulation import closest_point_two_lines
 from wearable_gaze.formats.eye_rays import read_eye_rays
 from wearable_gaze.pipeline.importer import import_recording
 from wearable_gaze.pipeline.process import process_session
@@ -67,12 +68,8 @@ def gen2(tmp: Path) -> None:
     (src / "general_eye_gaze.csv").write_bytes((REAL / "aria_gen2_mps_eye_gaze" / "general_eye_gaze.csv").read_bytes())
     import_recording(src, tmp / "gen2_s")
     r = read_eye_rays(tmp / "gen2_s" / "eye_rays.csv")
-    o1, d1, o2, d2 = r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction
-    c, p = np.sum(d1 * d2, axis=1), o1 - o2
-    a, b = np.sum(d1 * p, axis=1), np.sum(d2 * p, axis=1)
-    t, s = (c * b - a) / (1 - c * c), (b - c * a) / (1 - c * c)
-    mid = 0.5 * (o1 + t[:, None] * d1 + o2 + s[:, None] * d2)
-    depth = np.linalg.norm(mid - 0.5 * (o1 + o2), axis=1) / 1000
+    pair = closest_point_two_lines(r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction)
+    depth = np.linalg.norm(pair.point_mm - 0.5 * (r.left_origin_mm + r.right_origin_mm), axis=1) / 1000
     print(f"Aria Gen2 MPS eye gaze, general: {len(depth)} rows, vergence {depth.min():.3f}-{depth.max():.3f} m")
 
 

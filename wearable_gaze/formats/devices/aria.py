@@ -344,6 +344,14 @@ def usable_rows(g, imp: SessionImport, state: dict, path: Path, what: str, eye: 
     return sel
 
 
+def session_times(t_us: np.ndarray, state: dict) -> np.ndarray:
+    """Session times (k,) in s of a chunk's kept rows' device times ``t_us`` (k,) in us, from the
+    first kept row of the file (``state['t0_us']``, set by the first chunk that keeps a row)."""
+    if state["t0_us"] is None:
+        state["t0_us"] = float(t_us[0])
+    return (t_us - state["t0_us"]) / 1e6
+
+
 def posed_rows(trajectory, t_us, sel, imp: SessionImport, max_gap_s: float) -> tuple:
     """(T_world_from_head (k, 4, 4), the rows ``sel`` kept) of the rows with a trajectory pose
     within ``max_gap_s``, the others dropped and counted with the trajectory's reason; (None,
@@ -365,9 +373,7 @@ def _import_chunk(g: _Gaze, imp: SessionImport, options: ImportOptions, trajecto
     T, sel = posed_rows(trajectory, g.t_us, sel, imp, options.max_pose_gap_s)
     if not len(sel):
         return
-    if state["t0_us"] is None:
-        state["t0_us"] = float(g.t_us[sel[0]])
-    t = (g.t_us[sel] - state["t0_us"]) / 1e6
+    t = session_times(g.t_us[sel], state)
     eyes = cpf_to_head_mm(g.eyes_m[sel].reshape(-1, 3)).reshape(len(sel), -1, 3)
     if g.yaw.shape[1] == 2:
         yl, yr = (g.yaw[sel, 1], g.yaw[sel, 0]) if swapped else (g.yaw[sel, 0], g.yaw[sel, 1])

@@ -53,6 +53,7 @@ from .aria import (
     _cad_T_cpf_from_sensor,
     cpf_to_head_mm,
     posed_rows,
+    session_times,
     usable_rows,
 )
 from .aria_trajectory import TIME, TrajectoryStream, mps_header
@@ -238,9 +239,7 @@ def _import_chunk(g: _Rows, imp: SessionImport, options: ImportOptions, trajecto
     T, sel = posed_rows(trajectory, g.t_us, sel, imp, options.max_pose_gap_s)
     if not len(sel):
         return
-    if state["t0_us"] is None:
-        state["t0_us"] = float(g.t_us[sel[0]])
-    t = (g.t_us[sel] - state["t0_us"]) / 1e6
+    t = session_times(g.t_us[sel], state)
     o, d = g.eyes_m[sel], g.dirs[sel]
     M = T_HEAD_FROM_CPF[:3, :3]
     yes = np.ones(len(sel), bool)
