@@ -22,9 +22,10 @@ from .lines import (
     view_lines_to_camera,
     view_lines_to_world,
 )
+from .paper_voxel import PaperVoxelConfig, PaperVoxelEstimator
 from .result import NEAR_POINT_MM, Ellipsoid, GazeEstimate, Status, near_point_check
 from .triangulation import PairStatus, closest_point_two_lines, lse_point, nearest_point_to_lines
-from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEstimator
+from .voxel import VoxelConfig, VoxelEstimator
 
 __all__ = [
     "METHODS", "NEAR_POINT_MM", "near_point_check",

@@ -15,9 +15,10 @@ import logging
 from .direction import with_direction
 from .likelihood import MLConfig, ml_point
 from .lines import BinocularSample, BinocularSamples, samples_from_stream
+from .paper_voxel import PaperVoxelConfig, PaperVoxelEstimator
 from .result import GazeEstimate, Status, failed, near_point_check
 from .triangulation import lse_point, nearest_point_to_lines
-from .voxel import PaperVoxelConfig, PaperVoxelEstimator, VoxelConfig, VoxelEstimator
+from .voxel import VoxelConfig, VoxelEstimator
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ robust ML fit there is well conditioned. The work over all kept lines (seed fits
 bounded: over any stream it totals at most ``work_initial + work_per_line`` x the lines added, so
 lines that never fix a point (a still head, diverging eyes) cost O(1) per sample, amortised.
 
-The paper's method (``paper``) is in ``estimator.paper_voxel``; the names stay importable from here.
+The paper's method (``paper``) is in ``estimator.paper_voxel``.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from .errormodel import ErrorModel, far_side, model_covariance, sight_info
 from .grid import DensityGrid, _quadratic_fit_local
 from .likelihood import MLConfig, angular_log_likelihood, fisher_information, ml_point
 from .lines import BinocularSample, BinocularSamples, ViewLines
-from .paper_voxel import PaperVoxelConfig, PaperVoxelEstimator
 from .reliability import reliability_weight_at, reliability_weights_at
 from .result import GazeEstimate, Status, failed
 from .samplebuffer import _SampleBuffer, spread_samples
@@ -38,8 +37,7 @@ from .triangulation import lse_point
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DensityGrid", "PaperVoxelConfig", "PaperVoxelEstimator", "VoxelConfig", "VoxelEstimator", "VoxelWork",
-           "reliability_weights_at", "reliability_weight_at"]
+__all__ = ["VoxelConfig", "VoxelEstimator", "VoxelWork"]
 
 
 @dataclass

@@ -17,7 +17,8 @@ from estimator import (
     run_estimator,
 )
 from estimator._open3d import import_open3d
-from estimator.voxel import DensityGrid
+from estimator.grid import DensityGrid
+from estimator.reliability import reliability_weight_at, reliability_weights_at
 from tests.helpers import random_rotation, walkabout_samples
 from wearable_gaze.sim.protocol import simulate_lines, still_head_samples
 
@@ -264,7 +265,6 @@ def test_vector_and_scalar_reliability_weights_agree(rng):
     """The batch path (``reliability_weights_at``) and the streaming path (``reliability_weight_at``)
     compute the same weight, with a posterior spread wide enough that its lateral term matters,
     monocular samples, a blink, and a point behind one eye."""
-    from estimator.voxel import reliability_weight_at, reliability_weights_at
 
     sigma = np.deg2rad(1.0)
     X = np.array([120.0, -40.0, 1500.0])
