@@ -67,23 +67,23 @@ def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) 
         M = T[:3, [0, 1, 3]]
         x0, y0, x1, y1 = bbox
         ss = max(int(plane.supersample), 1)
-        R = camera.sample_rays(ss)[y0 * ss:y1 * ss, x0 * ss:x1 * ss]
+        rays = camera.sample_rays(ss)[y0 * ss:y1 * ss, x0 * ss:x1 * ss]
         Mi = _inv3(M)                                  # ray (x, y, 1) -> plane (u, v, 1) mm, homogeneous
         tex_h, tex_w = plane.texture.shape[:2]
         su, sv = tex_w / plane.size_mm[0], tex_h / plane.size_mm[1]
         # level-0 continuous texel coordinates (0 .. W across the rectangle)
         P = Mi * np.array([[su], [sv], [1.0]])
-        pp = cv2.perspectiveTransform(R, P)
-        den = cv2.transform(R, Mi[2:3])               # Mi[2] . (x, y, 1): 1 / depth
+        pp = cv2.perspectiveTransform(rays, P)
+        den = cv2.transform(rays, Mi[2:3])            # Mi[2] . (x, y, 1): 1 / depth
         if plane.box_prefilter and ss == 1:
             # area sampling without supersampling: a level with 3-6 texels per pixel, box-filtered
             # over one pixel's footprint, then sampled bilinearly at the pixel centre
-            scale = _footprint(pp, R.shape[0] // 2, R.shape[1] // 2)
+            scale = _footprint(pp, rays.shape[0] // 2, rays.shape[1] // 2)
             k = 0 if not np.isfinite(scale) or scale < 6 else int(np.floor(np.log2(scale / 3)))
             lev, k, shift = plane.boxed(k, max(1, int(round(scale / 2.0**k))) if np.isfinite(scale) else 1)
         else:
             # footprint: texels per sample at the box centre -> pyramid level
-            k = _pyramid_level(pp, R.shape[0] // 2, R.shape[1] // 2, plane.max_texel_step * ss)
+            k = _pyramid_level(pp, rays.shape[0] // 2, rays.shape[1] // 2, plane.max_texel_step * ss)
             lev, k = plane.level2(k)
             shift = 0.0
         f = 2.0**k                  # exact: pyrDown rounds odd sizes up, so tex_w / width is not
@@ -102,12 +102,12 @@ def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) 
             size = (x1 - x0, y1 - y0)
             out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
             s = cv2.resize(s, size, interpolation=cv2.INTER_AREA)
-        premult, cov = out[..., 0], out[..., 1]
+        premult, coverage = out[..., 0], out[..., 1]
         sub_d = depth[y0 - dy:y1 - dy, x0 - dx:x1 - dx]
         sub_i = img[y0:y1, x0:x1]
         nearer = s < sub_d
-        np.copyto(sub_i, premult + (1 - cov) * sub_i, where=nearer & (cov > 0))
-        np.copyto(sub_d, s, where=nearer & (cov >= 0.5))
+        np.copyto(sub_i, premult + (1 - coverage) * sub_i, where=nearer & (coverage > 0))
+        np.copyto(sub_d, s, where=nearer & (coverage >= 0.5))
     return img
 
 
@@ -138,9 +138,9 @@ def _render_shell(camera: Camera, T_cam_from_world, planes, background: float) -
         # camera; otherwise the texture's own extent masks it, BORDER_TRANSPARENT)
         clipped = len(poly) != 4 or np.any(np.abs(poly - pts_cam) > 1e-9)
         if clipped:
-            cov = np.zeros((bh, bw), np.uint8)
+            inside = np.zeros((bh, bw), np.uint8)
             pts = np.rint((pix - (x0, y0)) * 16).astype(np.int64).clip(-2**27, 2**27).astype(np.int32)
-            cv2.fillConvexPoly(cov, pts, 255, cv2.LINE_8, shift=4)
+            cv2.fillConvexPoly(inside, pts, 255, cv2.LINE_8, shift=4)
         tex_h, tex_w = plane.texture.shape[:2]
         su, sv = tex_w / plane.size_mm[0], tex_h / plane.size_mm[1]
         # canvas pixel -> plane mm (homogeneous)
@@ -163,7 +163,7 @@ def _render_shell(camera: Camera, T_cam_from_world, planes, background: float) -
                 colour = cv2.warpPerspective(lev, A @ shift, (xe - xs, ye - ys),
                                              flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                              borderMode=cv2.BORDER_REPLICATE)
-                cv2.copyTo(colour, cov[ys - y0:ye - y0, xs - x0:xe - x0], sub)
+                cv2.copyTo(colour, inside[ys - y0:ye - y0, xs - x0:xe - x0], sub)
             else:
                 cv2.warpPerspective(lev, A @ shift, (xe - xs, ye - ys), dst=sub,
                                     flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
