@@ -119,6 +119,6 @@ def _as_samples(sample) -> BinocularSamples:
     if isinstance(sample, BinocularSamples):
         return sample
     if isinstance(sample, BinocularSample):
-        from .lines import samples_from_stream  # noqa: PLC0415
+        from .lines import samples_from_stream
         return samples_from_stream([sample])
     raise TypeError(f"expected a BinocularSample or BinocularSamples, got {type(sample).__name__}")

@@ -129,7 +129,7 @@ class FeatureLocaliser:
         self._index = cv2.flann_Index(feature_map.descriptors, {"algorithm": 1, "trees": 4})
         self._checks = checks
         self.scales = (scale,) if scale == FEATURE_SCALE else (scale, FEATURE_SCALE)
-        import pycolmap  # noqa: PLC0415  (made once: pose() runs on every frame)
+        import pycolmap  # made once: pose() runs on every frame
 
         w, h = (int(v) for v in camera.image_size)
         self._pinhole = pycolmap.Camera(model="PINHOLE", width=w, height=h, params=[self.f, self.f, 0.0, 0.0])
@@ -173,7 +173,7 @@ class FeatureLocaliser:
 
     def pose(self, px, pts_world) -> PoseResult:
         """Pose from matched distorted pixels (K, 2) and world points (K, 3) mm."""
-        import pycolmap  # noqa: PLC0415
+        import pycolmap
 
         x = self.camera.undistort_points(px)
         r = pycolmap.estimate_and_refine_absolute_pose(x * self.f, pts_world, self._pinhole, self._options)

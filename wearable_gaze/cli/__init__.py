@@ -34,12 +34,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version  # noqa: PLC0415
+    from importlib.metadata import PackageNotFoundError, version
 
     try:
         return version("wearable-gaze")
     except PackageNotFoundError:
-        from .. import __version__  # noqa: PLC0415
+        from .. import __version__
 
         return __version__
 

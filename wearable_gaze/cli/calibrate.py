@@ -8,9 +8,9 @@ from . import args as A
 
 
 def cmd_calibrate_camera(args) -> int:
-    from ..formats.camera import calibration_dict  # noqa: PLC0415
-    from ..pipeline.calibrate import calibrate_camera_files, format_camera_report  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..formats.camera import calibration_dict
+    from ..pipeline.calibrate import calibrate_camera_files, format_camera_report
+    from ..progress import progress_bar
 
     with progress_bar("detecting the board", 1) as cb:
         cal, paths = calibrate_camera_files(args.inputs, args.board, args.out, args.model, args.max_views, cb)
@@ -25,8 +25,8 @@ def cmd_calibrate_camera(args) -> int:
 
 
 def cmd_calibrate_eyes(args) -> int:
-    from ..pipeline.calibrate import calibrate_eyes_files, format_eyes_report  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..pipeline.calibrate import calibrate_eyes_files, format_eyes_report
+    from ..progress import progress_bar
 
     with progress_bar("calibrating the eyes", 1) as cb:
         result = calibrate_eyes_files(args.source, args.camera, args.out, args.model, progress=cb)
@@ -36,8 +36,8 @@ def cmd_calibrate_eyes(args) -> int:
 
 
 def cmd_viewlines(args) -> int:
-    from ..pipeline.calibrate import viewlines_files  # noqa: PLC0415
-    from ..progress import heartbeat  # noqa: PLC0415
+    from ..pipeline.calibrate import viewlines_files
+    from ..progress import heartbeat
 
     with heartbeat("view lines"):               # a long recording: a line every few seconds in a log
         counts = viewlines_files(args.eye, args.eyes, args.poses, args.out, args.max_gap, args.person)

@@ -244,7 +244,7 @@ def _view_in_rerun(rerun: str, frames_every: int, res: ProcessResult, s, f: _Ses
                    cam_path: Path) -> None:
     """The results logged to rerun (``pipeline.rerun_view``); a viewer that cannot be reached is a
     problem, the results are kept."""
-    from .rerun_view import view_processed  # noqa: PLC0415  (rerun-sdk: an optional extra)
+    from .rerun_view import view_processed  # rerun-sdk: an optional extra
     try:
         res.summary["rerun"] = view_processed(rerun, out, res.found or None, cam_path, f.markers or out / BUILT_MAP,
                                               s.path("truth_targets"), s.path("truth_head_poses"), f.video, f.stamps,

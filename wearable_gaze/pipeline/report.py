@@ -185,7 +185,7 @@ class ReportData:
 
 def report_data(out: Path, T_p: np.ndarray, truth: ReportTruth | None = None) -> ReportData:
     """The outputs in ``out`` read for the report; ``T_p`` (M, 4, 4) the head poses."""
-    from estimator import BinocularSamples  # noqa: PLC0415
+    from estimator import BinocularSamples
 
     records = read_targets(out / "targets.json")
     targets = [Target.from_row(r) for r in records]
@@ -278,7 +278,7 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
         try:
             targets = OverlayTargets(d.targets, d.samples.t_s, d.tlabels, d.paths)
             names = write_overlays(out, overlay(), targets, t_p, frame_p, T_p, overlay_video)
-        except Exception as exc:  # noqa: BLE001  (a report without a video is still a report)
+        except Exception as exc:  # a report without a video is still a report
             write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
     if progress:
         progress(4, 5)
@@ -292,7 +292,7 @@ def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | Non
     """The 3D view's scene: the map's markers (and a markerless map's points), the head path, per
     target its lines, estimate, credible region (its ellipsoid when it has none), path and truth,
     and the box the view is scaled to."""
-    from .report_plots import line_segments  # noqa: PLC0415
+    from .report_plots import line_segments
 
     targets, (lo, hi) = [], d.box()
     for tg in d.targets:
