@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2
 
 from estimator import fisher_information
+from estimator.errormodel import K95  # the 95 % ellipsoid's semi-axes over the standard deviations
 from tracking.markermap import MarkerMap
 
 from ..formats.atomic import write_text
@@ -56,7 +56,6 @@ PLOTS = report_plots.PLOTS
 REPORT_FILES = ("report.html", *PLOTS, PREVIEW_NAME, VIDEO_NAME, "overlay_error.txt")   # all write_report writes
 OPTIONAL_FILES = (PREVIEW_NAME, VIDEO_NAME, "overlay_error.txt")                        # ... not always
 COLOURS = report_plots.COLOURS
-K95 = float(np.sqrt(chi2.ppf(0.95, 3)))       # the 95 % ellipsoid's semi-axes over the standard deviations
 
 __all__ = ["OverlayInputs", "ReportTruth", "write_report", "load_truth", "REPORT_FILES", "PLOTS"]
 

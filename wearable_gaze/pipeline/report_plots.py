@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator import angular_log_likelihood
+from estimator.errormodel import K95
 
 from ..formats.atomic import atomic_path
 from .regions import region_lines
@@ -278,7 +279,7 @@ def figure_top(d, colour):
             _, P, cov = d.paths[tg.index]
             ax.plot(P[:, 0], P[:, 2], "-", color=c, lw=2, label=f"target {tg.index} (moving: its path)")
             for k in range(0, len(P), 10):
-                ax.add_patch(_shadow(Ellipse, P[k], 7.8147 * cov[k], c, 0.5))
+                ax.add_patch(_shadow(Ellipse, P[k], K95 ** 2 * cov[k], c, 0.5))
         elif np.all(np.isfinite(X)):
             E = d.ellipsoid(tg) if tg.index not in d.regions else None
             if E is not None:
