@@ -12,6 +12,10 @@ from estimator._checks import check_array
 
 log = logging.getLogger(__name__)
 
+MAX_POSE_GAP_S = 0.1
+"""A sample gets a head pose only between two valid poses this close to it, s (``interpolate_poses``'
+``max_gap_s``): the view-line step's, the exports' and the person step's, referenced from here."""
+
 
 def _times_and_poses(t, T, t_name: str, T_name: str):
     """(N,) times and (N, 4, 4) poses, checked (an empty sequence is 0 poses)."""
@@ -24,7 +28,7 @@ def _times_and_poses(t, T, t_name: str, T_name: str):
     return t, T
 
 
-def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
+def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = MAX_POSE_GAP_S):
     """``T_world_from_cam`` at query times: SLERP for rotation, linear for translation, between
     the two valid poses around each query.
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+from tracking.timeline import MAX_POSE_GAP_S
+
 from . import args as A
 
 
@@ -83,8 +85,8 @@ def add_viewlines(sub) -> None:
     vl.add_argument("--eyes", required=True, metavar="eyes.json", help="from calibrate-eyes")
     vl.add_argument("--poses", required=True, metavar="POSES.csv", help="head poses (docs/formats.md)")
     vl.add_argument("-o", "--out", required=True, metavar="viewlines.csv", help="view-line CSV to write")
-    vl.add_argument("--max-gap", type=A.positive_float, default=0.1, metavar="S",
-                    help="use a sample only with head poses within S seconds on both sides (default 0.1)")
+    vl.add_argument("--max-gap", type=A.positive_float, default=MAX_POSE_GAP_S, metavar="S",
+                    help=f"use a sample only with head poses within S seconds on both sides (default {MAX_POSE_GAP_S})")
     vl.add_argument("--person", metavar="person.json",
                     help="apply this person's per-eye gaze correction (from learn-bias)")
     vl.set_defaults(func=cmd_viewlines)
