@@ -11,9 +11,9 @@ import logging
 import os
 import sys
 
-from ..errors import UserError
+from ..errors import UserError, one_line
 from . import aoi, batch, calibrate, estimate, fixations, importer, live, paper, person, process, safety, sim, track
-from .args import Parser, one_line
+from .args import Parser
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -5,12 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-
-def one_line(text: str) -> str:
-    """``text`` as one printable line: whitespace runs become one space, control characters
-    (a terminal escape in a file name or a header) are shown escaped."""
-    text = " ".join(text.split())
-    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+from ..errors import one_line
 
 
 class Parser(argparse.ArgumentParser):

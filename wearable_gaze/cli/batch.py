@@ -8,9 +8,8 @@ from pathlib import Path
 
 from estimator import METHODS
 
-from ..errors import check_output
+from ..errors import check_output, one_line
 from . import args as A
-from .args import one_line
 
 
 def scheduler_address(text):

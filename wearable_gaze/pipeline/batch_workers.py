@@ -17,7 +17,7 @@ import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ..errors import UserError
+from ..errors import UserError, one_line
 from ..formats.batch_status import (
     LOCK_FILE,
     STATUS_FILE,
@@ -65,9 +65,8 @@ def _memory_mb() -> tuple[float | None, float | None]:
             return None, None
 
 
-def one_line(text: str, limit: int = 500) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+REASON_CHARS = 500
+"""A status's ``reason``, cut to this many characters (``one_line``)."""
 
 
 def run_session(task: SessionTask) -> dict:
@@ -103,15 +102,15 @@ def _run_locked(task: SessionTask, out: Path, process_session) -> dict:
     try:
         res = process_session(task.session, out, **task.settings.process_kwargs())
     except UserError as exc:
-        status.update(state="failed", reason=one_line(exc))
+        status.update(state="failed", reason=one_line(exc, REASON_CHARS))
     except Exception as exc:  # a bug on one session must not stop the others
         log.exception("session %s: internal error", task.session)
         status.update(state="failed", reason=one_line(f"internal error ({type(exc).__name__}: {exc}); this is a "
-                                                      f"bug: its traceback is in {STATUS_FILE}"),
+                                                      f"bug: its traceback is in {STATUS_FILE}", REASON_CHARS),
                       traceback=traceback.format_exc())
     else:
         state = {"ok": "done", "partial": "partial"}.get(res.outcome, "failed")
-        status.update(state=state, reason=None if state == "done" else one_line("; ".join(res.problems)),
+        status.update(state=state, reason=None if state == "done" else one_line("; ".join(res.problems), REASON_CHARS),
                       n_targets=sum(t.fixated for t in res.found), problems=res.problems, failed_steps=res.failed,
                       steps_skipped=res.skipped)
     status["duration_s"] = round(time.perf_counter() - t0, 3)
