@@ -28,7 +28,7 @@ from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares
 
 from estimator import ViewLines
-from estimator._checks import check_points, check_vector
+from estimator._checks import check_points, check_same_rows, check_vector
 
 log = logging.getLogger(__name__)
 
@@ -116,8 +116,7 @@ def fit_raw_map(raw, q, model: str = "quadratic", smoothing: float = 1e-3) -> Ra
     """
     raw = check_points(raw, "raw", 2)
     q = check_points(q, "q", 2)
-    if len(raw) != len(q):
-        raise ValueError(f"raw and q must have the same length, got {len(raw)} and {len(q)}")
+    check_same_rows(raw, q, "raw", "q")
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
     centre = raw.mean(axis=0)
@@ -230,8 +229,7 @@ def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | No
     """
     raw = check_points(raw, "raw", 2)
     P = check_points(targets_cam_mm, "targets_cam_mm")
-    if len(raw) != len(P):
-        raise ValueError(f"raw and targets_cam_mm must have one row per target, got {len(raw)} and {len(P)}")
+    check_same_rows(raw, P, "raw", "targets_cam_mm", "one row per target")
     centre_mm = check_vector(centre_mm, "centre_mm")
     ok = np.all(np.isfinite(raw), axis=1)
     if not ok.any():
@@ -335,8 +333,7 @@ def wall_pose(points_wall_mm, points_norm) -> WallPose:
     """
     W = check_points(points_wall_mm, "points_wall_mm", 2)
     x = check_points(points_norm, "points_norm", 2)
-    if len(W) != len(x):
-        raise ValueError(f"points_wall_mm and points_norm must have the same length, got {len(W)} and {len(x)}")
+    check_same_rows(W, x, "points_wall_mm", "points_norm")
     if len(W) < 4:
         raise CalibrationError(f"{len(W)} reference points on the wall, need 4: make the wall's markers visible")
     obj = np.column_stack([W, np.zeros(len(W))])
@@ -373,8 +370,7 @@ def estimate_centre(raw, targets_cam_mm, initial_mm, model: str = "quadratic") -
     """
     raw = check_points(raw, "raw", 2)
     P = check_points(targets_cam_mm, "targets_cam_mm")
-    if len(raw) != len(P):
-        raise ValueError(f"raw and targets_cam_mm must have one row per target, got {len(raw)} and {len(P)}")
+    check_same_rows(raw, P, "raw", "targets_cam_mm", "one row per target")
     check_vector(initial_mm, "initial_mm")
     z = P[:, 2]
     if np.ptp(z) < 0.2 * np.median(z):

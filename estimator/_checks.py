@@ -26,6 +26,13 @@ def check_array(a, name: str, shape: tuple) -> np.ndarray:
     return arr
 
 
+def check_same_rows(a, b, name_a: str, name_b: str, want: str = "as many rows") -> None:
+    """Raise ``ValueError`` unless ``a`` and ``b`` have as many rows (``len``): the message names
+    both and their lengths; ``want`` says what is asked (``"one row per target"``)."""
+    if len(a) != len(b):
+        raise ValueError(f"{name_a} and {name_b} must have {want}, got {len(a)} and {len(b)}")
+
+
 def check_vector(v, name: str = "vector", dim: int = 3) -> np.ndarray:
     """Return ``v`` as a float64 array of shape (dim,)."""
     a = np.asarray(v, dtype=np.float64)

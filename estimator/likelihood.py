@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import check_points, check_vector
+from ._checks import check_points, check_same_rows, check_vector
 from .errormodel import ErrorModel, model_covariance
 from .frames import tangent_basis
 from .lines import ViewLines
@@ -172,8 +172,7 @@ def angular_log_likelihood(points_mm, origins_mm, directions, sigma_rad: float, 
     pts = check_points(points_mm, "points_mm")
     o = check_points(origins_mm, "origins_mm")
     d = check_points(directions, "directions")
-    if len(o) != len(d):
-        raise ValueError(f"origins_mm and directions must have as many rows, got {len(o)} and {len(d)}")
+    check_same_rows(o, d, "origins_mm", "directions")
     w = np.ones(len(o)) if weights is None else np.asarray(weights, float).reshape(len(o))
     out = np.zeros(len(pts))
     for start in range(0, len(pts), _POINT_CHUNK):        # bounded memory: (256 lines, 4096 points)

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import check_points, check_vector, normalize_directions
+from ._checks import check_points, check_same_rows, check_vector, normalize_directions
 from .frames import invert, rotate_directions, transform_points
 
 
@@ -36,8 +36,7 @@ class ViewLines:
     def __post_init__(self):
         o = check_points(self.origins_mm, "origins_mm")
         d = normalize_directions(self.directions, "directions")
-        if len(o) != len(d):
-            raise ValueError(f"origins_mm has {len(o)} rows but directions has {len(d)}")
+        check_same_rows(o, d, "origins_mm", "directions")
         if not np.all(np.isfinite(o)):
             raise ValueError("origins_mm must be finite")
         idx = np.arange(len(o)) if self.sample_index is None else np.asarray(self.sample_index)
@@ -106,8 +105,8 @@ class BinocularSamples:
                               ("right", right_origin_mm, right_direction, right_valid)):
             o = check_points(o, f"{side}_origin_mm") if n else np.zeros((0, 3))
             d = check_points(d, f"{side}_direction") if n else np.zeros((0, 3))
-            if len(o) != n or len(d) != n:
-                raise ValueError(f"{side} arrays must have {n} rows like t_s, got {len(o)} and {len(d)}")
+            check_same_rows(o, t, f"{side}_origin_mm", "t_s")
+            check_same_rows(d, t, f"{side}_direction", "t_s")
             finite = np.all(np.isfinite(o), axis=1) & np.all(np.isfinite(d), axis=1)
             valid = finite if v is None else np.asarray(v, dtype=bool).reshape(-1) & finite
             dn = np.full((n, 3), np.nan)

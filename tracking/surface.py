@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator._checks import check_points
+from estimator._checks import check_points, check_same_rows
 
 
 def first_surface(points_mm, origins_mm, directions, cone_deg: float = 1.5, bin_mm: float = 50.0,
@@ -30,8 +30,7 @@ def first_surface(points_mm, origins_mm, directions, cone_deg: float = 1.5, bin_
     pts = check_points(points_mm, "points_mm")
     o = check_points(origins_mm, "origins_mm")
     d = check_points(directions, "directions")
-    if len(o) != len(d):
-        raise ValueError(f"origins_mm and directions must have as many rows, got {len(o)} and {len(d)}")
+    check_same_rows(o, d, "origins_mm", "directions")
     cos_max = np.cos(np.deg2rad(cone_deg))
     out = np.full(len(o), np.nan)
     for i in range(len(o)):

@@ -8,7 +8,7 @@ import logging
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from estimator._checks import check_array
+from estimator._checks import check_array, check_same_rows
 
 log = logging.getLogger(__name__)
 
@@ -23,8 +23,7 @@ def _times_and_poses(t, T, t_name: str, T_name: str):
     T = T.reshape(0, 4, 4) if T.size == 0 else check_array(T, T_name, (None, 4, 4))
     t = np.asarray(t, float)
     t = t.reshape(0) if t.size == 0 else check_array(t, t_name, (None,))
-    if len(t) != len(T):
-        raise ValueError(f"{t_name} and {T_name} must have one entry per pose, got {len(t)} and {len(T)}")
+    check_same_rows(t, T, t_name, T_name, "one entry per pose")
     return t, T
 
 
