@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares
 
@@ -195,7 +196,7 @@ class EyeCalibration:
                    RawMap.from_dict(d["raw_map"]), d.get("report", {}))
 
 
-def plane_points(targets_cam_mm, centre_mm, plane_mm: float) -> np.ndarray:
+def plane_points(targets_cam_mm: ArrayLike, centre_mm: ArrayLike, plane_mm: float) -> np.ndarray:
     """(K, 2) normalised image points q where the lines from the eye centre through the targets
     (K, 3) meet the calibration plane z = l_c (so that eq. 3-4 reproduce those lines)."""
     P = check_points(targets_cam_mm, "targets_cam_mm")
@@ -205,7 +206,7 @@ def plane_points(targets_cam_mm, centre_mm, plane_mm: float) -> np.ndarray:
     return p[:, :2] / plane_mm
 
 
-def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | None = None,
+def calibrate_eye(eye: str, raw, targets_cam_mm: ArrayLike, centre_mm, plane_mm: float | None = None,
                   model: str = "quadratic", focal_px: float | None = None, outlier_deg: float = 1.0) -> EyeCalibration:
     """Fit one eye (paper eq. 1-2) to targets at known 3D positions.
 
@@ -285,7 +286,8 @@ def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | No
     return cal
 
 
-def compare_models(eye: str, raw, targets_cam_mm, centre_mm, plane_mm=None) -> dict:
+def compare_models(eye: str, raw, targets_cam_mm: np.ndarray, centre_mm: np.ndarray,
+                   plane_mm: float | None = None) -> dict:
     """Leave-one-out RMS (deg) of each model the target count allows: does a richer model
     generalise better than the paper's quadratic?"""
     out = {}
@@ -315,13 +317,13 @@ class WallPose:
     tilt_deg: float
     rms: float
 
-    def to_camera(self, pts_wall_mm) -> np.ndarray:
+    def to_camera(self, pts_wall_mm: ArrayLike) -> np.ndarray:
         """(N, 2) wall points -> (N, 3) camera-frame points, mm."""
         p = check_points(pts_wall_mm, "pts_wall_mm", 2)
         return p @ self.T_cam_from_wall[:3, :2].T + self.T_cam_from_wall[:3, 3]
 
 
-def wall_pose(points_wall_mm, points_norm) -> WallPose:
+def wall_pose(points_wall_mm: ArrayLike, points_norm: ArrayLike) -> WallPose:
     """The wall's pose from reference points on it.
 
     Args:
@@ -352,7 +354,8 @@ def wall_pose(points_wall_mm, points_norm) -> WallPose:
 
 # --- eye centres from two distances ----------------------------------------------------------
 
-def estimate_centre(raw, targets_cam_mm, initial_mm, model: str = "quadratic") -> tuple[np.ndarray, np.ndarray]:
+def estimate_centre(raw, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
+                    model: str = "quadratic") -> tuple[np.ndarray, np.ndarray]:
     """One eye's rotation centre from targets at two or more depths.
 
     Seen from the true centre, one raw reading points at targets at every depth along one line;
