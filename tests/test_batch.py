@@ -350,3 +350,21 @@ def test_run_session_reports_an_internal_error_as_that_session_failing(tmp_path,
     assert st["state"] == "failed" and st["reason"].startswith("internal error (ZeroDivisionError: planted"), st
     assert "ZeroDivisionError: planted: division by zero" in st["traceback"]
     assert not (tmp_path / "out" / LOCK_FILE).exists()                    # the session's lock released
+
+
+def test_a_sessions_reason_is_one_printable_line_cut_to_its_length(tmp_path, monkeypatch):
+    """A session's error that carries a terminal escape and newlines (a file name, a header) and
+    runs long: its status's reason is one printable line (the escape shown, not sent, as the CLI's
+    messages), cut to ``REASON_CHARS`` ending ``...``."""
+    from wearable_gaze.errors import UserError
+    from wearable_gaze.pipeline import process
+    from wearable_gaze.pipeline.batch_workers import REASON_CHARS, SessionTask, run_session
+
+    def planted(session, out, **kwargs):
+        raise UserError("scene.mp4 \x1b[2J\x1b[31mred\n\tcannot be read: " + "x" * 1000)
+
+    monkeypatch.setattr(process, "process_session", planted)
+    st = run_session(SessionTask("s", str(tmp_path / "session"), str(tmp_path / "out"), SETTINGS, "fp"))
+    reason = st["reason"]
+    assert st["state"] == "failed" and reason.isprintable() and len(reason) == REASON_CHARS, reason
+    assert reason.startswith(r"scene.mp4 \x1b[2J\x1b[31mred cannot be read: xxx") and reason.endswith("x...")
