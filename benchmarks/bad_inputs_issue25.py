@@ -83,8 +83,8 @@ def cases(work: Path, real: Path):
         ss = copy(s, f"S_{name}")
         wall = ss / "calibration" / "eye" / "wall_0.png"
         if name == "nomarker":
-            import cv2  # noqa: PLC0415
-            import numpy as np  # noqa: PLC0415
+            import cv2
+            import numpy as np
             img = cv2.imread(str(wall))
             cv2.imwrite(str(wall), np.full_like(img, 200))
         else:

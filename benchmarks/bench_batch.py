@@ -63,7 +63,7 @@ def _dask(root: Path, out: Path):
     """The same on a local Dask cluster of two long-lived single-threaded workers, if Dask is
     installed: (wall s, result) or None."""
     try:
-        from distributed import LocalCluster  # noqa: PLC0415
+        from distributed import LocalCluster
     except ImportError:
         return None
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:

@@ -21,14 +21,14 @@ the speed-up is not bought with precision.
 
 from __future__ import annotations
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import time
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import numpy as np  # noqa: E402
+import numpy as np
 
-from estimator import (  # noqa: E402
+from estimator import (
     BinocularSample,
     BinocularSamples,
     MLConfig,
@@ -37,8 +37,8 @@ from estimator import (  # noqa: E402
     cramer_rao_bound,
     ml_point,
 )
-from estimator._open3d import import_open3d  # noqa: E402
-from wearable_gaze.sim.protocol import Protocol, simulate_lines, still_head_samples  # noqa: E402
+from estimator._open3d import import_open3d
+from wearable_gaze.sim.protocol import Protocol, simulate_lines, still_head_samples
 
 
 class NaiveGrid:

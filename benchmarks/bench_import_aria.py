@@ -8,18 +8,18 @@ generated walk. Memory must stay flat in the recording's length (the trajectory 
 
 from __future__ import annotations
 
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import tempfile
+import time
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy loads)
-import numpy as np  # noqa: E402
-from _args import size_and_seed  # noqa: E402
-from _traced import traced_import  # noqa: E402
+import numpy as np
+from _args import size_and_seed
+from _traced import traced_import
 
-from estimator.lines import BinocularSamples  # noqa: E402
-from wearable_gaze.formats.devices import aria  # noqa: E402
-from wearable_gaze.formats.devices.common import SimulatedRecording  # noqa: E402
+from estimator.lines import BinocularSamples
+from wearable_gaze.formats.devices import aria
+from wearable_gaze.formats.devices.common import SimulatedRecording
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "aria_mps_sample_gen1"
 

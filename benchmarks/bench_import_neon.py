@@ -16,23 +16,23 @@ for 60 minutes.)
 
 from __future__ import annotations
 
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-import tracemalloc  # noqa: E402
-from pathlib import Path  # noqa: E402
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-from _args import size_and_seed  # noqa: E402
+import cv2
+import numpy as np
+from _args import size_and_seed
 
-from calibration.camera import CameraCalibration  # noqa: E402
-from calibration.kappa import apply_kappa  # noqa: E402
-from estimator.lines import BinocularSamples  # noqa: E402
-from wearable_gaze.formats.devices import neon  # noqa: E402
-from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, SimulatedRecording  # noqa: E402
+from calibration.camera import CameraCalibration
+from calibration.kappa import apply_kappa
+from estimator.lines import BinocularSamples
+from wearable_gaze.formats.devices import neon
+from wearable_gaze.formats.devices.common import ImportOptions, SessionImport, SimulatedRecording
 
 RATE_HZ = 200.0
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "pupil_labs_neon_demo_recording"

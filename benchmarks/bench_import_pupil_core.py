@@ -12,15 +12,15 @@ Target (issue 14): memory flat in the recording's length.
 
 from __future__ import annotations
 
-import tempfile  # noqa: E402
-from pathlib import Path  # noqa: E402
+import tempfile
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import numpy as np  # noqa: E402
-from _args import size_and_seed  # noqa: E402
-from _traced import traced_import  # noqa: E402
+import numpy as np
+from _args import size_and_seed
+from _traced import traced_import
 
-from wearable_gaze.formats.devices import pupil_core  # noqa: E402
+from wearable_gaze.formats.devices import pupil_core
 
 RATE_HZ = 200.0
 T0 = 86_400.0          # Pupil time of the first row, s

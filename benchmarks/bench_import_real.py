@@ -9,17 +9,17 @@ Target (issue 14): import of the Aria sample plus process under 30 s on one core
 
 from __future__ import annotations
 
-import json  # noqa: E402
-import os  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-from _args import size_and_seed  # noqa: E402
+from _args import size_and_seed
 
-from wearable_gaze.pipeline.importer import import_recording  # noqa: E402
-from wearable_gaze.pipeline.process import process_session  # noqa: E402
+from wearable_gaze.pipeline.importer import import_recording
+from wearable_gaze.pipeline.process import process_session
 
 REAL = Path(os.environ.get("WEARABLE_GAZE_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 SAMPLES = [("aria-mps", "aria_mps_sample_gen1", 30.0),

@@ -11,16 +11,16 @@ Target (issue 14): memory flat in the recording's length (an hour of livedata ne
 
 from __future__ import annotations
 
-import gzip  # noqa: E402
-import tempfile  # noqa: E402
-from pathlib import Path  # noqa: E402
+import gzip
+import tempfile
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import numpy as np  # noqa: E402
-from _args import size_and_seed  # noqa: E402
-from _traced import traced_import  # noqa: E402
+import numpy as np
+from _args import size_and_seed
+from _traced import traced_import
 
-from wearable_gaze.formats.devices import tobii_g2  # noqa: E402
+from wearable_gaze.formats.devices import tobii_g2
 
 RATE_HZ = 50.0
 TS0_US = 84_000_000

@@ -28,32 +28,32 @@ and the first run's p95 latency within 1.2x the second's.
 
 from __future__ import annotations
 
-import argparse  # noqa: E402
-import ctypes  # noqa: E402
-import io  # noqa: E402
-import json  # noqa: E402
-import os  # noqa: E402
-import socket  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import ctypes
+import io
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
 
-import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import numpy as np  # noqa: E402
+import _onecore  # first: pins one core before numpy and OpenCV load
+import numpy as np
 
-from wearable_gaze.formats.eye_rays import read_eye_rays  # noqa: E402
-from wearable_gaze.formats.eye_samples import read_eye_csv  # noqa: E402
-from wearable_gaze.formats.session import load_session  # noqa: E402
-from wearable_gaze.live.app import open_session  # noqa: E402
-from wearable_gaze.live.device_app import open_device_session  # noqa: E402
-from wearable_gaze.live.stats import LatencyHistogram  # noqa: E402
-from wearable_gaze.pipeline.process import process_session  # noqa: E402
-from wearable_gaze.sim.emulate import RecorderEmulator  # noqa: E402
-from wearable_gaze.sim.pupil_core_emu import device_stream  # noqa: E402
-from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
+from wearable_gaze.formats.eye_rays import read_eye_rays
+from wearable_gaze.formats.eye_samples import read_eye_csv
+from wearable_gaze.formats.session import load_session
+from wearable_gaze.live.app import open_session
+from wearable_gaze.live.device_app import open_device_session
+from wearable_gaze.live.stats import LatencyHistogram
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.sim.emulate import RecorderEmulator
+from wearable_gaze.sim.pupil_core_emu import device_stream
+from wearable_gaze.sim.simulate import simulate_scenario
 
 
 class _MallInfo2(ctypes.Structure):

@@ -119,10 +119,10 @@ def run_fixation(args) -> None:
 
 
 def run_sessions(args) -> None:
-    from wearable_gaze.live.app import open_session  # noqa: PLC0415
-    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
-    from wearable_gaze.sim.emulate import RecorderEmulator  # noqa: PLC0415
-    from wearable_gaze.sim.simulate import simulate_scenario  # noqa: PLC0415
+    from wearable_gaze.live.app import open_session
+    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.sim.emulate import RecorderEmulator
+    from wearable_gaze.sim.simulate import simulate_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

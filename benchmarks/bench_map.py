@@ -135,12 +135,12 @@ def corner_errors(true_map, got, ids) -> tuple[np.ndarray, np.ndarray, float, in
 def moved_survey(args, unmoved: tuple, unmoved_rms: float) -> None:
     """--moved: the survey with marker ``args.moved`` moved halfway, beside the unmoved one (its
     corner errors ``unmoved``, its reprojection RMS, px)."""
-    from tracking.mapadjust import fit_marker  # noqa: PLC0415  (the builder's own fit, for the pose before)
-    from tracking.markermap import marker_corners_world  # noqa: PLC0415
-    from tracking.markers import MarkerDetector, split_repeated  # noqa: PLC0415
-    from wearable_gaze.formats.camera import load_camera  # noqa: PLC0415
-    from wearable_gaze.formats.truth import read_truth_moved_markers  # noqa: PLC0415
-    from wearable_gaze.pipeline.calibrate import read_frames  # noqa: PLC0415
+    from tracking.mapadjust import fit_marker  # the builder's own fit, for the pose before
+    from tracking.markermap import marker_corners_world
+    from tracking.markers import MarkerDetector, split_repeated
+    from wearable_gaze.formats.camera import load_camera
+    from wearable_gaze.formats.truth import read_truth_moved_markers
+    from wearable_gaze.pipeline.calibrate import read_frames
 
     i = args.moved
     true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, i, args.camera)
@@ -197,13 +197,13 @@ def moved_survey(args, unmoved: tuple, unmoved_rms: float) -> None:
 def rough_survey(args) -> None:
     """--rough N: the survey calibrated from its own N board views, mapped with the true intrinsics,
     the rough ones as they are and the rough ones refined (docs/tracking.md, "Building a map")."""
-    from wearable_gaze.formats.board import read_board  # noqa: PLC0415
+    from wearable_gaze.formats.board import read_board
     from wearable_gaze.formats.camera import (
-        load_camera,  # noqa: PLC0415
-        write_camera,  # noqa: PLC0415
+        load_camera,
+        write_camera,
     )
-    from wearable_gaze.formats.images import read_grey_image  # noqa: PLC0415
-    from wearable_gaze.pipeline.calibrate import calibrate_camera_views, camera_json  # noqa: PLC0415
+    from wearable_gaze.formats.images import read_grey_image
+    from wearable_gaze.pipeline.calibrate import calibrate_camera_views, camera_json
 
     n = args.rough
     true_map, _, _, _ = survey_map(args.work, args.seed, args.seconds, args.frames, camera=args.camera,

@@ -10,15 +10,15 @@ Target (issue 6): >= 2x real time.
 
 from __future__ import annotations
 
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import tempfile
+import time
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-from _args import size_and_seed  # noqa: E402
+from _args import size_and_seed
 
-from wearable_gaze.pipeline.process import process_session  # noqa: E402
-from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.sim.simulate import simulate_scenario
 
 
 def main():

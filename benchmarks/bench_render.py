@@ -9,18 +9,18 @@ Target (issue 3): >= 50 frames per second at 1280x720 on one core.
 
 from __future__ import annotations
 
-import argparse  # noqa: E402
-import dataclasses  # noqa: E402
-import time  # noqa: E402
+import argparse
+import dataclasses
+import time
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import numpy as np  # noqa: E402
+import numpy as np
 
-from wearable_gaze.sim.motion import make_motion  # noqa: E402
-from wearable_gaze.sim.noise import SensorNoise  # noqa: E402
-from wearable_gaze.sim.render import render  # noqa: E402
-from wearable_gaze.sim.scenario import resolve  # noqa: E402
-from wearable_gaze.sim.simulate import build_world, make_targets, scene_camera  # noqa: E402
+from wearable_gaze.sim.motion import make_motion
+from wearable_gaze.sim.noise import SensorNoise
+from wearable_gaze.sim.render import render
+from wearable_gaze.sim.scenario import resolve
+from wearable_gaze.sim.simulate import build_world, make_targets, scene_camera
 
 
 def main():

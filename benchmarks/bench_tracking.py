@@ -11,23 +11,23 @@ Target (issue 5): >= 60 frames per second, detection and pose included.
 
 from __future__ import annotations
 
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import tempfile
+import time
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-from _args import size_and_seed  # noqa: E402
+import cv2
+import numpy as np
+from _args import size_and_seed
 
-from tracking.markers import MarkerDetector, detection  # noqa: E402
-from tracking.pose import MarkerPoseEstimator, rotation_angle_deg  # noqa: E402
-from wearable_gaze.formats.camera import load_camera  # noqa: E402
-from wearable_gaze.formats.markermap import load_marker_map  # noqa: E402
-from wearable_gaze.formats.poses import read_poses_csv  # noqa: E402
-from wearable_gaze.formats.session import load_session  # noqa: E402
-from wearable_gaze.formats.video import grey_frames  # noqa: E402
-from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
+from tracking.markers import MarkerDetector, detection
+from tracking.pose import MarkerPoseEstimator, rotation_angle_deg
+from wearable_gaze.formats.camera import load_camera
+from wearable_gaze.formats.markermap import load_marker_map
+from wearable_gaze.formats.poses import read_poses_csv
+from wearable_gaze.formats.session import load_session
+from wearable_gaze.formats.video import grey_frames
+from wearable_gaze.sim.simulate import simulate_scenario
 
 
 def main():

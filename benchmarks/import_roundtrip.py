@@ -10,17 +10,17 @@ Target (issue 14): every format within 1.1x the native session's error.
 
 from __future__ import annotations
 
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-from pathlib import Path  # noqa: E402
+import sys
+import tempfile
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-from _args import size_and_seed  # noqa: E402
+from _args import size_and_seed
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-import roundtrip  # noqa: E402
+import roundtrip
 
-from wearable_gaze.formats.devices import MODULES  # noqa: E402
+from wearable_gaze.formats.devices import MODULES
 
 
 def main():

@@ -18,24 +18,24 @@ estimates beside the device's own 3D gaze, and how both were measured.
 
 from __future__ import annotations
 
-import csv  # noqa: E402
-import os  # noqa: E402
-import tempfile  # noqa: E402
-from pathlib import Path  # noqa: E402
+import csv
+import os
+import tempfile
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
-import numpy as np  # noqa: E402
+import numpy as np
 
-from estimator import MLConfig, estimate, ml_point  # noqa: E402
-from tracking.timeline import nearest_in_time  # noqa: E402
-from wearable_gaze.formats.devices import aria  # noqa: E402
-from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays  # noqa: E402
-from wearable_gaze.formats.poses import read_poses_csv  # noqa: E402
-from wearable_gaze.formats.viewlines import read_viewlines_csv  # noqa: E402
-from wearable_gaze.pipeline.device import surface_reference  # noqa: E402
-from wearable_gaze.pipeline.importer import import_recording  # noqa: E402
-from wearable_gaze.pipeline.process import process_session  # noqa: E402
-from wearable_gaze.pipeline.types import Poses  # noqa: E402
+from estimator import MLConfig, estimate, ml_point
+from tracking.timeline import nearest_in_time
+from wearable_gaze.formats.devices import aria
+from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
+from wearable_gaze.formats.poses import read_poses_csv
+from wearable_gaze.formats.viewlines import read_viewlines_csv
+from wearable_gaze.pipeline.device import surface_reference
+from wearable_gaze.pipeline.importer import import_recording
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.types import Poses
 
 REAL = Path(os.environ.get("WEARABLE_GAZE_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 

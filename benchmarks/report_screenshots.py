@@ -54,7 +54,7 @@ def make_aria(work: Path) -> Path:
 
 def shoot(report: Path, name: str, out: Path) -> list[Path]:
     """The screenshots of ``report`` as ``out``/``name``_*.png; the 3D view's scene summarised."""
-    from playwright.sync_api import sync_playwright  # noqa: PLC0415
+    from playwright.sync_api import sync_playwright
 
     shots, errors = [], []
     with tempfile.TemporaryDirectory() as profile, sync_playwright() as p:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from estimator._checks import check_points
 
@@ -201,11 +202,11 @@ class CameraCalibration:
         return cls(K, D, (int(size[0]), int(size[1])), model, d.get("rms_px"), d.get("views", []), d.get("board"),
                    d.get("std"))
 
-    def undistort_points(self, px) -> np.ndarray:
+    def undistort_points(self, px: ArrayLike) -> np.ndarray:
         """(N, 2) distorted pixels -> (N, 2) undistorted normalised coordinates (x/z, y/z)."""
         return undistort_points(px, self.camera_matrix, self.dist_coeffs, self.model)
 
-    def project(self, pts_cam_mm) -> np.ndarray:
+    def project(self, pts_cam_mm: ArrayLike) -> np.ndarray:
         """(N, 3) camera-frame points -> (N, 2) distorted pixels."""
         p = check_points(pts_cam_mm, "pts_cam_mm").reshape(-1, 1, 3)
         if self.model == "fisheye":
@@ -215,7 +216,8 @@ class CameraCalibration:
         return px.reshape(-1, 2)
 
 
-def undistort_points(px, camera_matrix, dist_coeffs, model: str = "pinhole") -> np.ndarray:
+def undistort_points(px: ArrayLike, camera_matrix: ArrayLike, dist_coeffs: ArrayLike,
+                     model: str = "pinhole") -> np.ndarray:
     """(N, 2) distorted pixels -> (N, 2) undistorted normalised coordinates, iterated to 1e-10."""
     p = np.asarray(px, np.float64)
     if p.size == 0:

@@ -27,6 +27,7 @@ import re
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 def opencv_version(text: str | None = None) -> tuple[int, int]:
@@ -80,7 +81,8 @@ def _criteria(iterations: int, eps: float) -> tuple[int, int, float]:
     return (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, int(iterations), float(eps))
 
 
-def undistort_points(px, camera_matrix, dist_coeffs, iterations: int = 50, eps: float = 1e-10) -> np.ndarray:
+def undistort_points(px: ArrayLike, camera_matrix: ArrayLike, dist_coeffs: ArrayLike, iterations: int = 50,
+                     eps: float = 1e-10) -> np.ndarray:
     """(N, 2) distorted pixels -> (N, 2) undistorted normalised coordinates (x/z, y/z), pinhole
     model, the iteration run to ``eps`` or ``iterations`` steps on every OpenCV release."""
     p = np.ascontiguousarray(np.asarray(px, np.float64).reshape(-1, 1, 2))
@@ -94,7 +96,7 @@ def undistort_points(px, camera_matrix, dist_coeffs, iterations: int = 50, eps: 
     return np.asarray(out, np.float64).reshape(-1, 2)
 
 
-def undistort_points_fisheye(px, camera_matrix, dist_coeffs, iterations: int = 50,
+def undistort_points_fisheye(px: ArrayLike, camera_matrix: ArrayLike, dist_coeffs: ArrayLike, iterations: int = 50,
                              eps: float = 1e-10) -> np.ndarray:
     """(N, 2) distorted pixels -> (N, 2) undistorted normalised coordinates, OpenCV's fisheye
     model (``cv2.fisheye.undistortPoints`` takes ``criteria=`` from 4.6 on, and in 5.x)."""

@@ -24,11 +24,12 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import least_squares
 
 from estimator import ViewLines
-from estimator._checks import check_points, check_vector
+from estimator._checks import check_points, check_same_rows, check_vector
 
 log = logging.getLogger(__name__)
 
@@ -116,8 +117,7 @@ def fit_raw_map(raw, q, model: str = "quadratic", smoothing: float = 1e-3) -> Ra
     """
     raw = check_points(raw, "raw", 2)
     q = check_points(q, "q", 2)
-    if len(raw) != len(q):
-        raise ValueError(f"raw and q must have the same length, got {len(raw)} and {len(q)}")
+    check_same_rows(raw, q, "raw", "q")
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
     centre = raw.mean(axis=0)
@@ -196,7 +196,7 @@ class EyeCalibration:
                    RawMap.from_dict(d["raw_map"]), d.get("report", {}))
 
 
-def plane_points(targets_cam_mm, centre_mm, plane_mm: float) -> np.ndarray:
+def plane_points(targets_cam_mm: ArrayLike, centre_mm: ArrayLike, plane_mm: float) -> np.ndarray:
     """(K, 2) normalised image points q where the lines from the eye centre through the targets
     (K, 3) meet the calibration plane z = l_c (so that eq. 3-4 reproduce those lines)."""
     P = check_points(targets_cam_mm, "targets_cam_mm")
@@ -206,7 +206,7 @@ def plane_points(targets_cam_mm, centre_mm, plane_mm: float) -> np.ndarray:
     return p[:, :2] / plane_mm
 
 
-def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | None = None,
+def calibrate_eye(eye: str, raw, targets_cam_mm: ArrayLike, centre_mm, plane_mm: float | None = None,
                   model: str = "quadratic", focal_px: float | None = None, outlier_deg: float = 1.0) -> EyeCalibration:
     """Fit one eye (paper eq. 1-2) to targets at known 3D positions.
 
@@ -230,8 +230,7 @@ def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | No
     """
     raw = check_points(raw, "raw", 2)
     P = check_points(targets_cam_mm, "targets_cam_mm")
-    if len(raw) != len(P):
-        raise ValueError(f"raw and targets_cam_mm must have one row per target, got {len(raw)} and {len(P)}")
+    check_same_rows(raw, P, "raw", "targets_cam_mm", "one row per target")
     centre_mm = check_vector(centre_mm, "centre_mm")
     ok = np.all(np.isfinite(raw), axis=1)
     if not ok.any():
@@ -287,7 +286,8 @@ def calibrate_eye(eye: str, raw, targets_cam_mm, centre_mm, plane_mm: float | No
     return cal
 
 
-def compare_models(eye: str, raw, targets_cam_mm, centre_mm, plane_mm=None) -> dict:
+def compare_models(eye: str, raw, targets_cam_mm: np.ndarray, centre_mm: np.ndarray,
+                   plane_mm: float | None = None) -> dict:
     """Leave-one-out RMS (deg) of each model the target count allows: does a richer model
     generalise better than the paper's quadratic?"""
     out = {}
@@ -317,13 +317,13 @@ class WallPose:
     tilt_deg: float
     rms: float
 
-    def to_camera(self, pts_wall_mm) -> np.ndarray:
+    def to_camera(self, pts_wall_mm: ArrayLike) -> np.ndarray:
         """(N, 2) wall points -> (N, 3) camera-frame points, mm."""
         p = check_points(pts_wall_mm, "pts_wall_mm", 2)
         return p @ self.T_cam_from_wall[:3, :2].T + self.T_cam_from_wall[:3, 3]
 
 
-def wall_pose(points_wall_mm, points_norm) -> WallPose:
+def wall_pose(points_wall_mm: ArrayLike, points_norm: ArrayLike) -> WallPose:
     """The wall's pose from reference points on it.
 
     Args:
@@ -335,8 +335,7 @@ def wall_pose(points_wall_mm, points_norm) -> WallPose:
     """
     W = check_points(points_wall_mm, "points_wall_mm", 2)
     x = check_points(points_norm, "points_norm", 2)
-    if len(W) != len(x):
-        raise ValueError(f"points_wall_mm and points_norm must have the same length, got {len(W)} and {len(x)}")
+    check_same_rows(W, x, "points_wall_mm", "points_norm")
     if len(W) < 4:
         raise CalibrationError(f"{len(W)} reference points on the wall, need 4: make the wall's markers visible")
     obj = np.column_stack([W, np.zeros(len(W))])
@@ -355,7 +354,8 @@ def wall_pose(points_wall_mm, points_norm) -> WallPose:
 
 # --- eye centres from two distances ----------------------------------------------------------
 
-def estimate_centre(raw, targets_cam_mm, initial_mm, model: str = "quadratic") -> tuple[np.ndarray, np.ndarray]:
+def estimate_centre(raw, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
+                    model: str = "quadratic") -> tuple[np.ndarray, np.ndarray]:
     """One eye's rotation centre from targets at two or more depths.
 
     Seen from the true centre, one raw reading points at targets at every depth along one line;
@@ -373,8 +373,7 @@ def estimate_centre(raw, targets_cam_mm, initial_mm, model: str = "quadratic") -
     """
     raw = check_points(raw, "raw", 2)
     P = check_points(targets_cam_mm, "targets_cam_mm")
-    if len(raw) != len(P):
-        raise ValueError(f"raw and targets_cam_mm must have one row per target, got {len(raw)} and {len(P)}")
+    check_same_rows(raw, P, "raw", "targets_cam_mm", "one row per target")
     check_vector(initial_mm, "initial_mm")
     z = P[:, 2]
     if np.ptp(z) < 0.2 * np.median(z):

@@ -34,6 +34,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from estimator._checks import check_points
 from estimator.triangulation import PairStatus, closest_point_two_lines
@@ -43,7 +44,7 @@ log = logging.getLogger(__name__)
 MIN_SAMPLES = 10
 
 
-def fick_angles(directions) -> tuple[np.ndarray, np.ndarray]:
+def fick_angles(directions: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """(N, 3) directions (any length > 0) -> horizontal h (N,) and vertical v (N,) Fick angles, rad."""
     d = check_points(directions, "directions")
     return np.arctan2(d[:, 0], d[:, 2]), np.arctan2(d[:, 1], np.hypot(d[:, 0], d[:, 2]))
@@ -55,7 +56,7 @@ def from_fick_angles(h, v) -> np.ndarray:
     return np.column_stack([np.cos(v) * np.sin(h), np.sin(v), np.cos(v) * np.cos(h)])
 
 
-def apply_kappa(directions, kappa_deg) -> np.ndarray:
+def apply_kappa(directions: ArrayLike, kappa_deg) -> np.ndarray:
     """Optical axes (N, 3) -> visual axes (N, 3) unit, with ``kappa_deg`` = (h, v) degrees added
     to the Fick angles. Rows that are not finite stay NaN."""
     d = np.asarray(directions, float).reshape(-1, 3)
@@ -68,7 +69,7 @@ def apply_kappa(directions, kappa_deg) -> np.ndarray:
     return out
 
 
-def angular_errors_deg(centers_mm, directions, points_mm) -> np.ndarray:
+def angular_errors_deg(centers_mm: ArrayLike, directions: ArrayLike, points_mm: ArrayLike) -> np.ndarray:
     """(N,) angles, degrees, between each direction (N, 3) and the direction from its centre
     (N, 3, mm) to its point (N, 3, mm), one frame; NaN where a row is not finite."""
     c, d, p = (np.asarray(a, float).reshape(-1, 3) for a in (centers_mm, directions, points_mm))
@@ -97,7 +98,7 @@ class EyeKappa:
     n: int
 
 
-def fit_eye_kappa(centers_mm, optical_axes, points_mm) -> EyeKappa:
+def fit_eye_kappa(centers_mm: ArrayLike, optical_axes, points_mm: ArrayLike) -> EyeKappa:
     """The offset of one eye that turns its optical axes toward the points looked at.
 
     Args:
@@ -145,7 +146,8 @@ class KappaFit:
     depth_mm: float | None = None
 
 
-def fit_kappa_targets(left_centers_mm, left_axes, right_centers_mm, right_axes, targets_mm) -> KappaFit:
+def fit_kappa_targets(left_centers_mm: ArrayLike, left_axes, right_centers_mm: ArrayLike, right_axes,
+                      targets_mm: ArrayLike) -> KappaFit:
     """Per-eye offsets from samples during which the wearer looked at known points.
 
     Args:
@@ -157,7 +159,7 @@ def fit_kappa_targets(left_centers_mm, left_axes, right_centers_mm, right_axes, 
                     fit_eye_kappa(right_centers_mm, right_axes, targets_mm), "targets")
 
 
-def points_on_rays(ray_directions, depth_mm: float) -> np.ndarray:
+def points_on_rays(ray_directions: ArrayLike, depth_mm: float) -> np.ndarray:
     """(N, 3) directions of rays from the head-frame origin (the scene camera's centre) -> the
     (N, 3) points where they reach depth z = ``depth_mm``, mm (NaN for rays not pointing forward)."""
     d = np.asarray(ray_directions, float).reshape(-1, 3)
@@ -167,7 +169,7 @@ def points_on_rays(ray_directions, depth_mm: float) -> np.ndarray:
     return p
 
 
-def fit_kappa_cyclopean(left_centers_mm, left_axes, right_centers_mm, right_axes, gaze_rays,
+def fit_kappa_cyclopean(left_centers_mm: ArrayLike, left_axes, right_centers_mm: ArrayLike, right_axes, gaze_rays,
                         depth_mm: float) -> KappaFit:
     """Per-eye offsets that make each eye's visual axis meet the cyclopean gaze ray (from the
     scene camera's centre, e.g. a tracker's 2D gaze through the scene camera) at depth
@@ -189,7 +191,8 @@ def fit_kappa_cyclopean(left_centers_mm, left_axes, right_centers_mm, right_axes
                     "cyclopean-ray", float(depth_mm))
 
 
-def vergence(left_centers_mm, left_directions, right_centers_mm, right_directions) -> dict:
+def vergence(left_centers_mm: ArrayLike, left_directions: ArrayLike, right_centers_mm: ArrayLike,
+             right_directions: ArrayLike) -> dict:
     """How a set of binocular rays meet: per sample the horizontal vergence and the depth.
 
     Returns:
@@ -204,7 +207,8 @@ def vergence(left_centers_mm, left_directions, right_centers_mm, right_direction
             "depth_mm": pair.point_mm[:, 2], "in_front": pair.status == PairStatus.OK}
 
 
-def vergence_summary(left_centers_mm, left_directions, right_centers_mm, right_directions) -> dict:
+def vergence_summary(left_centers_mm: ArrayLike, left_directions: ArrayLike, right_centers_mm: ArrayLike,
+                     right_directions: ArrayLike) -> dict:
     """``vergence`` of N binocular rays in three numbers: ``median_vergence_deg``,
     ``in_front_share`` (of samples whose rays meet ahead of both eyes) and
     ``median_depth_in_front_mm`` (None when none do). An empty input gives {}."""

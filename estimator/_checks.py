@@ -3,10 +3,13 @@ shape that was received and the shape that was expected."""
 
 from __future__ import annotations
 
+from collections.abc import Sized
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 
-def check_points(points, name: str = "points", dim: int = 3) -> np.ndarray:
+def check_points(points: ArrayLike, name: str = "points", dim: int = 3) -> np.ndarray:
     """Return ``points`` as a float64 array of shape (N, dim); a single (dim,) point becomes (1, dim)."""
     a = np.asarray(points, dtype=np.float64)
     if a.ndim == 1 and a.shape[0] == dim:
@@ -16,7 +19,7 @@ def check_points(points, name: str = "points", dim: int = 3) -> np.ndarray:
     return a
 
 
-def check_array(a, name: str, shape: tuple) -> np.ndarray:
+def check_array(a: ArrayLike, name: str, shape: tuple[int | None, ...]) -> np.ndarray:
     """Return ``a`` as a float64 array of ``shape``, where ``None`` stands for any length (``(None,
     4, 4)``: N transforms). Raises ``ValueError`` naming the expected and the received shape."""
     arr = np.asarray(a, dtype=np.float64)
@@ -26,7 +29,14 @@ def check_array(a, name: str, shape: tuple) -> np.ndarray:
     return arr
 
 
-def check_vector(v, name: str = "vector", dim: int = 3) -> np.ndarray:
+def check_same_rows(a: Sized, b: Sized, name_a: str, name_b: str, want: str = "as many rows") -> None:
+    """Raise ``ValueError`` unless ``a`` and ``b`` have as many rows (``len``): the message names
+    both and their lengths; ``want`` says what is asked (``"one row per target"``)."""
+    if len(a) != len(b):
+        raise ValueError(f"{name_a} and {name_b} must have {want}, got {len(a)} and {len(b)}")
+
+
+def check_vector(v: ArrayLike, name: str = "vector", dim: int = 3) -> np.ndarray:
     """Return ``v`` as a float64 array of shape (dim,)."""
     a = np.asarray(v, dtype=np.float64)
     if a.shape != (dim,):
@@ -34,7 +44,7 @@ def check_vector(v, name: str = "vector", dim: int = 3) -> np.ndarray:
     return a
 
 
-def check_transform(T, name: str = "transform") -> np.ndarray:
+def check_transform(T: ArrayLike, name: str = "transform") -> np.ndarray:
     """Return ``T`` as a (4, 4) float64 rigid transform; the rotation block must be orthonormal."""
     a = np.asarray(T, dtype=np.float64)
     if a.shape != (4, 4):
@@ -47,7 +57,7 @@ def check_transform(T, name: str = "transform") -> np.ndarray:
     return a
 
 
-def normalize_directions(directions, name: str = "directions", min_norm: float = 1e-12) -> np.ndarray:
+def normalize_directions(directions: ArrayLike, name: str = "directions", min_norm: float = 1e-12) -> np.ndarray:
     """Return (N, 3) unit vectors; a zero or non-finite direction raises ``ValueError`` naming its row."""
     d = check_points(directions, name)
     n = np.linalg.norm(d, axis=1)

@@ -19,7 +19,7 @@ class Open3DUnavailable(ImportError):
 def import_open3d():
     """Return the ``open3d`` module, loading libusb-1.0 from ``libusb-package`` first if present."""
     try:
-        import libusb_package  # noqa: PLC0415
+        import libusb_package
 
         path = libusb_package.get_library_path()
         if path is not None:
@@ -27,7 +27,7 @@ def import_open3d():
     except (ImportError, OSError):
         pass
     try:
-        import open3d  # noqa: PLC0415
+        import open3d
     except ImportError as exc:  # pragma: no cover - depends on the machine
         if "libusb" in str(exc):
             raise Open3DUnavailable(

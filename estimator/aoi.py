@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from ._checks import check_points, check_vector
@@ -74,7 +75,7 @@ class GazeSpread:
     far_mm: float = math.inf
 
     @classmethod
-    def from_covariance(cls, origin_mm, point_mm, covariance_mm2) -> GazeSpread:
+    def from_covariance(cls, origin_mm: ArrayLike, point_mm: ArrayLike, covariance_mm2: ArrayLike) -> GazeSpread:
         """The spread of a point estimate ``point_mm`` (3,) mm with covariance (3, 3) mm^2 seen
         from ``origin_mm`` (3,) mm: the covariance's sd along the line of sight at distance D
         gives the inverse depth's sd (sd / D^2), its part across the line the angles' (/ D)."""
@@ -89,7 +90,7 @@ class GazeSpread:
         return cls(o, u, 1.0 / D, math.sqrt(max(float(u @ C @ u), 0.0)) / D**2, E.T @ C @ E / D**2)
 
     @classmethod
-    def direction_only(cls, origin_mm, direction, cone95_deg: float, near_mm: float,
+    def direction_only(cls, origin_mm: ArrayLike, direction: ArrayLike, cone95_deg: float, near_mm: float,
                        far_mm: float = math.inf) -> GazeSpread:
         """A fixation whose lines fix a direction but not a depth: ``direction`` (3,) with its 95 %
         cone half-angle ``cone95_deg`` (the same sd on both angles), any depth between ``near_mm``
@@ -143,7 +144,7 @@ class Box:
     transparent: bool = False
     depth_tolerance_mm: float = DEPTH_TOLERANCE_MM
 
-    def claim(self, origin_mm, pts_world) -> np.ndarray:
+    def claim(self, origin_mm: ArrayLike, pts_world: ArrayLike) -> np.ndarray:
         """(N,) where along each point's ray from ``origin_mm`` the box claims it, mm (inf where it
         does not): a solid box where the ray enters it, when the point lies on or behind that
         (``depth_tolerance_mm``); a transparent one at the point's distance, when inside."""
@@ -174,7 +175,7 @@ class Sphere:
     transparent: bool = False
     depth_tolerance_mm: float = DEPTH_TOLERANCE_MM
 
-    def claim(self, origin_mm, pts_world) -> np.ndarray:
+    def claim(self, origin_mm: ArrayLike, pts_world: ArrayLike) -> np.ndarray:
         """As ``Box.claim``."""
         u, dist = _rays(origin_mm, pts_world)
         if self.transparent:
@@ -203,7 +204,7 @@ class Polygon:
         if off.max() > 1e-3 * max(1.0, float(np.ptp(c, axis=0).max())):
             raise ValueError(f"the polygon's corners are not on one plane (up to {off.max():.1f} mm off)")
 
-    def claim(self, origin_mm, pts_world) -> np.ndarray:
+    def claim(self, origin_mm: ArrayLike, pts_world: ArrayLike) -> np.ndarray:
         """(N,) the distance at which each point's ray from ``origin_mm`` crosses the polygon,
         where it does and the point lies on or behind it (no more than ``depth_tolerance_mm`` in
         front), mm; inf elsewhere."""
@@ -239,7 +240,7 @@ class Mesh:
                             o3d.core.Tensor(np.asarray(self.faces, np.uint32)))
         return o3d, scene
 
-    def claim(self, origin_mm, pts_world) -> np.ndarray:
+    def claim(self, origin_mm: ArrayLike, pts_world: ArrayLike) -> np.ndarray:
         """As ``Box.claim``."""
         o3d, scene = self._scene()
         u, dist = _rays(origin_mm, pts_world)
@@ -260,7 +261,7 @@ def _basis(direction) -> np.ndarray:
     return np.column_stack([b1[0], b2[0]])
 
 
-def plane_normal(corners_mm) -> np.ndarray:
+def plane_normal(corners_mm: ArrayLike) -> np.ndarray:
     """(3,) unit normal of the best plane through ``corners_mm`` (K, 3) (the least singular
     direction), sign arbitrary."""
     c = np.asarray(corners_mm, float)

@@ -36,6 +36,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import chi2, norm
 
 from .errormodel import ErrorModel, _corr, eye_labels
@@ -72,7 +73,7 @@ class GazeDirection:
     spread_deg: float
     n_samples: int
 
-    def contains(self, point_mm) -> bool:
+    def contains(self, point_mm: ArrayLike) -> bool:
         """Whether the direction to ``point_mm`` (3,) world mm from ``origin_mm`` lies in the cone."""
         v = np.asarray(point_mm, float) - self.origin_mm
         cos = float(v @ self.unit) / max(float(np.linalg.norm(v)), 1e-300)
@@ -157,7 +158,7 @@ def _systematic(samples: BinocularSamples, u, b1, b2, model: ErrorModel | None) 
     return var * np.eye(2)
 
 
-def depth_bounds(samples: BinocularSamples, origin_mm, unit, model: ErrorModel | None,
+def depth_bounds(samples: BinocularSamples, origin_mm: ArrayLike, unit: ArrayLike, model: ErrorModel | None,
                  probability: float = CONE_P) -> tuple[float, float]:
     """(near, far) mm: the ``probability`` interval of the distance along ``unit`` from
     ``origin_mm`` that the eye lines of ``samples`` allow (module docstring: inverse depth

@@ -52,9 +52,14 @@ Pupil Core 3D: 1.0-1.5 deg; Kassner et al. 2014, Niehorster et al. 2020), which 
 about 0.35-0.7 deg."""
 
 
-FAR_SIDE_K = math.sqrt(chi2.ppf(0.95, 3))
-"""``ErrorModel.far_side_k``: the 95 % ellipsoid's radius in sds (sqrt of chi2(3)'s 95 % point,
-7.81: 2.80), so that the 95 % ellipsoid reaches the far end of the 95 % interval in inverse depth.
+K95 = math.sqrt(chi2.ppf(0.95, 3))
+"""The 95 % ellipsoid's semi-axes over the standard deviations along them (a normal in 3D): the
+square root of chi2(3)'s 95 % point (7.81), 2.80. Its one home: the error model, the reports' ellipses
+and the tests use it from here."""
+
+FAR_SIDE_K = K95
+"""``ErrorModel.far_side_k``: the 95 % ellipsoid's radius in sds (``K95``), so that the 95 %
+ellipsoid reaches the far end of the 95 % interval in inverse depth.
 Other levels' regions are ``at_level``'s."""
 
 

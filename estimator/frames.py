@@ -22,11 +22,12 @@ Transforms
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._checks import check_points, check_transform
 
 
-def transform_from_rotation_translation(R, t_mm) -> np.ndarray:
+def transform_from_rotation_translation(R: ArrayLike, t_mm: ArrayLike) -> np.ndarray:
     """Build ``T_b_from_a`` (4, 4) from a rotation (3, 3) and a translation (3,) in mm."""
     T = np.eye(4)
     T[:3, :3] = np.asarray(R, dtype=np.float64)
@@ -34,7 +35,7 @@ def transform_from_rotation_translation(R, t_mm) -> np.ndarray:
     return check_transform(T, "transform")
 
 
-def invert(T_b_from_a) -> np.ndarray:
+def invert(T_b_from_a: ArrayLike) -> np.ndarray:
     """Return ``T_a_from_b`` (4, 4), the inverse of a rigid transform ``T_b_from_a`` (4, 4)."""
     T = check_transform(T_b_from_a, "T_b_from_a")
     R = T[:3, :3]
@@ -54,21 +55,21 @@ def _stack_transforms(T, n: int, name: str) -> np.ndarray:
     return a
 
 
-def transform_points(T_b_from_a, pts_a) -> np.ndarray:
+def transform_points(T_b_from_a: ArrayLike, pts_a: ArrayLike) -> np.ndarray:
     """Map points (N, 3) from frame a to frame b with one (4, 4) transform or one per point (N, 4, 4)."""
     p = check_points(pts_a, "pts_a")
     T = _stack_transforms(T_b_from_a, len(p), "T_b_from_a")
     return np.einsum("nij,nj->ni", T[:, :3, :3], p) + T[:, :3, 3]
 
 
-def rotate_directions(T_b_from_a, dirs_a) -> np.ndarray:
+def rotate_directions(T_b_from_a: ArrayLike, dirs_a: ArrayLike) -> np.ndarray:
     """Rotate directions (N, 3) from frame a to frame b (translation ignored)."""
     d = check_points(dirs_a, "dirs_a")
     T = _stack_transforms(T_b_from_a, len(d), "T_b_from_a")
     return np.einsum("nij,nj->ni", T[:, :3, :3], d)
 
 
-def rotation_about_axis(axis, angle_rad: float) -> np.ndarray:
+def rotation_about_axis(axis: ArrayLike, angle_rad: float) -> np.ndarray:
     """Rotation matrix (3, 3) for a right-handed rotation of ``angle_rad`` about a unit ``axis`` (3,)."""
     k = np.asarray(axis, dtype=np.float64)
     k = k / np.linalg.norm(k)
@@ -76,14 +77,14 @@ def rotation_about_axis(axis, angle_rad: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle_rad) * K + (1 - np.cos(angle_rad)) * (K @ K)
 
 
-def angle_deg(a, b):
+def angle_deg(a: ArrayLike, b: ArrayLike):
     """The angle between vectors ``a`` and ``b`` (..., 3), degrees (any lengths; ``atan2`` of the
     cross and dot products, accurate near 0 and 180)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), (a * b).sum(-1)))
 
 
-def tangent_basis(directions) -> tuple[np.ndarray, np.ndarray]:
+def tangent_basis(directions: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (N, 3) each, orthogonal to each unit direction (N, 3) and to each other.
 
     ``(b1, b2, d)`` is right-handed; used to express angular residuals as two tangent components.
@@ -96,7 +97,7 @@ def tangent_basis(directions) -> tuple[np.ndarray, np.ndarray]:
     return b1, b2
 
 
-def similarity_transform(A, B) -> np.ndarray:
+def similarity_transform(A: ArrayLike, B: ArrayLike) -> np.ndarray:
     """The similarity (4, 4) (scale times rotation, translation mm) that best maps points ``A``
     (N, 3) onto ``B`` (N, 3), N >= 3 not on one line, in least squares (Umeyama 1991):
     ``B ~ T[:3, :3] @ A + T[:3, 3]``; its scale is the cube root of the upper block's determinant.

@@ -7,6 +7,7 @@ World frame, mm.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._open3d import import_open3d
 from .likelihood import tan2_from_local
@@ -60,7 +61,7 @@ class DensityGrid:
             self._Psq = np.einsum("ij,ij->i", P, P)
         return self._PT, self._Psq
 
-    def tan2_of_lines(self, origins_mm, directions) -> np.ndarray:
+    def tan2_of_lines(self, origins_mm: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """tan^2 of the angle (L, n^3) between each of L lines (origins (L, 3) mm, unit directions
         (L, 3), world) and the ray from its origin to every voxel centre (rows in the order of
         ``values.ravel()``); at most ``likelihood.MAX_TAN2`` (89.94 deg), also the value behind the
@@ -69,7 +70,7 @@ class DensityGrid:
         f = np.atleast_2d(np.asarray(origins_mm, float)) - self.center_mm
         return tan2_from_local(PT, Psq, f, directions)
 
-    def add_lines(self, origins_mm, directions, coefficients, chunk: int = 64) -> None:
+    def add_lines(self, origins_mm: ArrayLike, directions: ArrayLike, coefficients, chunk: int = 64) -> None:
         """``values += sum_l coefficients[l] * tan2_l`` for lines (L, 3) origins and (L, 3) unit
         directions, world frame (see ``tan2_of_lines``)."""
         o = np.atleast_2d(origins_mm)
@@ -79,7 +80,7 @@ class DensityGrid:
         for i in range(0, len(o), chunk):
             flat += c[i:i + chunk] @ self.tan2_of_lines(o[i:i + chunk], d[i:i + chunk])
 
-    def sq_distance_to(self, point_mm) -> np.ndarray:
+    def sq_distance_to(self, point_mm: ArrayLike) -> np.ndarray:
         """Squared distance (n, n, n), mm^2, from every voxel centre to ``point_mm`` (3,)."""
         p = ((np.asarray(point_mm, float) - self.center_mm) @ self.axes)
         w = [(self.offsets[k] - p[k]) ** 2 for k in range(3)]

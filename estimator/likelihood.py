@@ -19,8 +19,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ._checks import check_points, check_vector
+from ._checks import check_points, check_same_rows, check_vector
 from .errormodel import ErrorModel, model_covariance
 from .frames import tangent_basis
 from .lines import ViewLines
@@ -32,7 +33,8 @@ LOSSES = ("gaussian", "mixture", "huber")
 log = logging.getLogger(__name__)
 
 
-def fisher_information(point_mm, origins_mm, sigma_rad: float, weights=None) -> np.ndarray:
+def fisher_information(point_mm: ArrayLike, origins_mm: ArrayLike, sigma_rad: float,
+                       weights: ArrayLike | None = None) -> np.ndarray:
     """Fisher information (3, 3), mm^-2, about a point from view lines with angular noise.
 
     Args:
@@ -51,7 +53,7 @@ def fisher_information(point_mm, origins_mm, sigma_rad: float, weights=None) -> 
     return np.einsum("n,nij->ij", w / (sigma_rad**2 * r2), P)
 
 
-def cramer_rao_bound(origins_mm, point_mm, sigma_deg: float) -> np.ndarray:
+def cramer_rao_bound(origins_mm: ArrayLike, point_mm: ArrayLike, sigma_deg: float) -> np.ndarray:
     """Cramér-Rao lower bound (3, 3), mm^2, on the covariance of any unbiased estimate of the
     gazed point, for lines from ``origins_mm`` (N, 3) toward ``point_mm`` (3,) with angular
     noise ``sigma_deg`` per tangent axis. Raises ``ValueError`` if the lines cannot fix the point."""
@@ -69,7 +71,7 @@ NaN. The one bound for the residuals, the grids and the log-likelihood."""
 _BEHIND_RESIDUAL = math.sqrt(MAX_TAN2)   # |r| = tan(angle) for a point behind a line's origin
 
 
-def angular_residuals(point_mm, lines: ViewLines) -> np.ndarray:
+def angular_residuals(point_mm: ArrayLike, lines: ViewLines) -> np.ndarray:
     """Gnomonic residuals (N, 2), radians for small angles, of each line at ``point_mm`` (3,).
 
     Lines for which the point lies behind the origin (or within 0.06 deg of perpendicular to it)
@@ -79,7 +81,8 @@ def angular_residuals(point_mm, lines: ViewLines) -> np.ndarray:
     return gnomonic_residuals(check_vector(point_mm, "point_mm"), lines.origins_mm, lines.directions, b1, b2)[0]
 
 
-def gnomonic_residuals(point_mm, origins_mm, directions, b1, b2) -> tuple[np.ndarray, np.ndarray]:
+def gnomonic_residuals(point_mm: np.ndarray, origins_mm: np.ndarray, directions: np.ndarray, b1: np.ndarray,
+                       b2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Residuals (N, 2) of lines at one point and each line's ``d . u`` (N,), for the ML fit.
 
     Args:
@@ -108,7 +111,8 @@ def gnomonic_residuals(point_mm, origins_mm, directions, b1, b2) -> tuple[np.nda
     return r, a_safe
 
 
-def tan2_from_local(points_local_T, points_sq, origins_local, directions) -> np.ndarray:
+def tan2_from_local(points_local_T: np.ndarray, points_sq: np.ndarray, origins_local: np.ndarray,
+                    directions: np.ndarray) -> np.ndarray:
     """tan^2 of the angle (L, M) between each of L lines and the ray from its origin to each of M
     points, all given relative to one reference point ``c`` (any point near the points: it keeps
     the arithmetic exact). At most ``MAX_TAN2``, which is also the value behind an origin.
@@ -144,7 +148,7 @@ def tan2_from_local(points_local_T, points_sq, origins_local, directions) -> np.
     return out
 
 
-def angular_tan2(points_mm, origins_mm, directions) -> np.ndarray:
+def angular_tan2(points_mm: np.ndarray, origins_mm: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """tan^2 of the angle (L, M) between each of L view lines (origins (L, 3) mm, unit directions
     (L, 3)) and the ray from its origin to each of M points (M, 3), all in one frame (world, mm);
     at most ``MAX_TAN2`` (also the value behind an origin). See ``tan2_from_local``."""
@@ -158,7 +162,8 @@ def angular_tan2(points_mm, origins_mm, directions) -> np.ndarray:
 _POINT_CHUNK, _LINE_CHUNK = 4096, 256
 
 
-def angular_log_likelihood(points_mm, origins_mm, directions, sigma_rad: float, weights=None) -> np.ndarray:
+def angular_log_likelihood(points_mm: ArrayLike, origins_mm: ArrayLike, directions: ArrayLike, sigma_rad: float,
+                           weights: ArrayLike | None = None) -> np.ndarray:
     """Log-likelihood (M,) of M candidate gazed points (M, 3) under the angular noise model:
     ``-sum_l w_l tan^2(angle_l) / (2 sigma^2)`` (the gnomonic residual's squared norm is tan^2),
     up to a constant; each term bounded by ``MAX_TAN2`` (points behind an eye).
@@ -172,8 +177,7 @@ def angular_log_likelihood(points_mm, origins_mm, directions, sigma_rad: float, 
     pts = check_points(points_mm, "points_mm")
     o = check_points(origins_mm, "origins_mm")
     d = check_points(directions, "directions")
-    if len(o) != len(d):
-        raise ValueError(f"origins_mm and directions must have as many rows, got {len(o)} and {len(d)}")
+    check_same_rows(o, d, "origins_mm", "directions")
     w = np.ones(len(o)) if weights is None else np.asarray(weights, float).reshape(len(o))
     out = np.zeros(len(pts))
     for start in range(0, len(pts), _POINT_CHUNK):        # bounded memory: (256 lines, 4096 points)
@@ -184,7 +188,7 @@ def angular_log_likelihood(points_mm, origins_mm, directions, sigma_rad: float, 
     return (-0.5 / sigma_rad**2) * out
 
 
-def reliability_weights(chi2_values, dof, sigma_rad: float, outlier_prob: float) -> np.ndarray:
+def reliability_weights(chi2_values: ArrayLike, dof, sigma_rad: float, outlier_prob: float) -> np.ndarray:
     """Posterior probability that each sample is an inlier, under a two-component mixture.
 
     Inliers: Gaussian angular residuals (``dof`` components, std ``sigma_rad``), so
@@ -340,7 +344,7 @@ def _ml_start(lines: ViewLines, x0_mm, ns: int, n: int):
     return start.position_mm.copy()
 
 
-def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> GazeEstimate:
+def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm: ArrayLike | None = None) -> GazeEstimate:
     """Maximum-likelihood gazed point from view lines with Gaussian angular noise.
 
     Levenberg-Marquardt on the gnomonic residuals, started from the geometric least-squares
@@ -381,7 +385,7 @@ def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm=None) -> Gaz
     return _point_result("ml", x, cov, lines, info)
 
 
-def perturb_directions(directions, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
+def perturb_directions(directions: ArrayLike, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
     """Sample the noise model: unit directions (N, 3) with Gaussian tangent-plane errors of
     standard deviation ``sigma_rad`` per axis added to the unit directions (N, 3) given."""
     d = check_points(directions, "directions")

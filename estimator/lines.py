@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ._checks import check_points, check_vector, normalize_directions
+from ._checks import check_points, check_same_rows, check_vector, normalize_directions
 from .frames import invert, rotate_directions, transform_points
 
 
@@ -36,8 +37,7 @@ class ViewLines:
     def __post_init__(self):
         o = check_points(self.origins_mm, "origins_mm")
         d = normalize_directions(self.directions, "directions")
-        if len(o) != len(d):
-            raise ValueError(f"origins_mm has {len(o)} rows but directions has {len(d)}")
+        check_same_rows(o, d, "origins_mm", "directions")
         if not np.all(np.isfinite(o)):
             raise ValueError("origins_mm must be finite")
         idx = np.arange(len(o)) if self.sample_index is None else np.asarray(self.sample_index)
@@ -50,7 +50,7 @@ class ViewLines:
     def __len__(self) -> int:
         return len(self.origins_mm)
 
-    def point_at(self, distance_mm) -> np.ndarray:
+    def point_at(self, distance_mm: ArrayLike) -> np.ndarray:
         """Points (N, 3) at ``distance_mm`` (scalar or (N,)) along each line, mm."""
         return self.origins_mm + np.asarray(distance_mm, dtype=np.float64).reshape(-1, 1) * self.directions
 
@@ -95,8 +95,10 @@ class BinocularSamples:
     frame: str = "world"
 
     @classmethod
-    def from_arrays(cls, t_s, left_origin_mm, left_direction, right_origin_mm, right_direction,
-                    left_valid=None, right_valid=None, frame: str = "world") -> BinocularSamples:
+    def from_arrays(cls, t_s: ArrayLike, left_origin_mm: ArrayLike, left_direction: ArrayLike,
+                    right_origin_mm: ArrayLike, right_direction: ArrayLike,
+                    left_valid: ArrayLike | None = None, right_valid: ArrayLike | None = None,
+                    frame: str = "world") -> BinocularSamples:
         """Validate and normalise; an eye is valid where its origin and direction are all finite
         (unless masks are given). A valid eye with a zero direction raises ``ValueError``."""
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
@@ -106,8 +108,8 @@ class BinocularSamples:
                               ("right", right_origin_mm, right_direction, right_valid)):
             o = check_points(o, f"{side}_origin_mm") if n else np.zeros((0, 3))
             d = check_points(d, f"{side}_direction") if n else np.zeros((0, 3))
-            if len(o) != n or len(d) != n:
-                raise ValueError(f"{side} arrays must have {n} rows like t_s, got {len(o)} and {len(d)}")
+            check_same_rows(o, t, f"{side}_origin_mm", "t_s")
+            check_same_rows(d, t, f"{side}_direction", "t_s")
             finite = np.all(np.isfinite(o), axis=1) & np.all(np.isfinite(d), axis=1)
             valid = finite if v is None else np.asarray(v, dtype=bool).reshape(-1) & finite
             dn = np.full((n, 3), np.nan)
@@ -120,7 +122,7 @@ class BinocularSamples:
                    arrays["right"][2], frame)
 
     @classmethod
-    def from_lines(cls, t_s, left: ViewLines, right: ViewLines) -> BinocularSamples:
+    def from_lines(cls, t_s: ArrayLike, left: ViewLines, right: ViewLines) -> BinocularSamples:
         """Pair two equally long ``ViewLines`` (left, right) into binocular samples."""
         return cls.from_arrays(t_s, left.origins_mm, left.directions, right.origins_mm,
                                right.directions, frame=left.frame)
@@ -189,7 +191,7 @@ def samples_from_stream(samples) -> BinocularSamples:
 
 # --- The paper's eq. 3-8 ----------------------------------------------------------------------
 
-def calibration_plane_points(px, camera_matrix, wall_distance_mm: float) -> np.ndarray:
+def calibration_plane_points(px: ArrayLike, camera_matrix: ArrayLike, wall_distance_mm: float) -> np.ndarray:
     """Paper eq. 3: image points on the view-camera image -> points on the calibration plane.
 
     ``q_c`` is the gaze point on the image plane at focal length ``l_i``; the plane (wall) is
@@ -214,7 +216,7 @@ def calibration_plane_points(px, camera_matrix, wall_distance_mm: float) -> np.n
     return wall_distance_mm * rays / rays[:, 2:3]
 
 
-def view_lines_in_camera(points_cam_mm, eye_center_cam_mm) -> ViewLines:
+def view_lines_in_camera(points_cam_mm: ArrayLike, eye_center_cam_mm: ArrayLike) -> ViewLines:
     """Paper eq. 4: the view line of an eye through gazed points.
 
     Args:
@@ -229,7 +231,8 @@ def view_lines_in_camera(points_cam_mm, eye_center_cam_mm) -> ViewLines:
     return ViewLines(np.broadcast_to(e, p.shape).copy(), p - e, frame="cam")
 
 
-def view_lines_to_world(lines_cam: ViewLines, T_cam_from_world=None, *, T_world_from_cam=None) -> ViewLines:
+def view_lines_to_world(lines_cam: ViewLines, T_cam_from_world: ArrayLike | None = None, *,
+                        T_world_from_cam: ArrayLike | None = None) -> ViewLines:
     """Paper eq. 7-8: ``e_g = R^-1 (e_c - T)``, ``d_g = R^-1 d_c``.
 
     Args:
@@ -254,7 +257,7 @@ def view_lines_to_world(lines_cam: ViewLines, T_cam_from_world=None, *, T_world_
                      rotate_directions(T_wc, lines_cam.directions), "world", lines_cam.sample_index)
 
 
-def view_lines_to_camera(lines_world: ViewLines, T_cam_from_world) -> ViewLines:
+def view_lines_to_camera(lines_world: ViewLines, T_cam_from_world: ArrayLike) -> ViewLines:
     """Paper eq. 5-6: ``e_c = R e_g + T``, ``d_c = R d_g``; the inverse of ``view_lines_to_world``."""
     if lines_world.frame != "world":
         raise ValueError(f"lines_world must be in frame 'world', got {lines_world.frame!r}")

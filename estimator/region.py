@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from .frames import tangent_basis
@@ -83,7 +84,7 @@ def _region(origin_mm, direction, near_mm: float, far_mm: float, across, half_an
                           np.asarray(half_angles, float).reshape(2), float(probability))
 
 
-def region_of_point(point_mm, covariance_mm2, origin_mm, near_mm: float, far_mm: float,
+def region_of_point(point_mm: ArrayLike, covariance_mm2: ArrayLike, origin_mm: ArrayLike, near_mm: float, far_mm: float,
                     probability: float = 0.95) -> CredibleRegion | None:
     """The region of a point estimate seen from ``origin_mm``: its distance interval (``near_mm``,
     ``far_mm``: ``errormodel.depth_interval`` at ``probability``; ``far_mm`` inf or NaN: no far
@@ -116,7 +117,7 @@ def region_of_point(point_mm, covariance_mm2, origin_mm, near_mm: float, far_mm:
     return _region(apex, u, near_mm, far, V.T @ b, half, probability)
 
 
-def region_of_direction(origin_mm, direction, half_angle_rad: float, near_mm: float = 0.0,
+def region_of_direction(origin_mm: ArrayLike, direction: ArrayLike, half_angle_rad: float, near_mm: float = 0.0,
                         far_mm: float = math.inf, probability: float = 0.95) -> CredibleRegion | None:
     """The region of a direction without a point: a circular cone of ``half_angle_rad`` about the
     unit ``direction`` (3,) from ``origin_mm`` (3,) mm, between ``near_mm`` (0: from the apex)
@@ -131,7 +132,7 @@ def region_of_direction(origin_mm, direction, half_angle_rad: float, near_mm: fl
     return _region(apex, u, near, far, np.vstack(tangent_basis(u[None])), [half_angle_rad, half_angle_rad], probability)
 
 
-def ray_exit(origin_mm, direction, lo_mm, hi_mm) -> float:
+def ray_exit(origin_mm: ArrayLike, direction: ArrayLike, lo_mm: ArrayLike, hi_mm: ArrayLike) -> float:
     """The distance along the ray ``origin_mm + s direction`` (s >= 0) at which it leaves the
     box ``[lo_mm, hi_mm]`` ((3,) each, mm); 0 when the ray starts outside and never enters it."""
     apex, d = np.asarray(origin_mm, float), np.asarray(direction, float)

@@ -6,11 +6,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .likelihood import MAX_TAN2, angular_tan2, reliability_weight, reliability_weights
 
 
-def reliability_weights_at(center_mm, cov_mm2, origins_mm, directions, sample_index, n_samples: int,
+def reliability_weights_at(center_mm: ArrayLike, cov_mm2: ArrayLike, origins_mm: ArrayLike, directions: ArrayLike,
+                           sample_index, n_samples: int,
                            sigma_rad: float, outlier_prob: float) -> np.ndarray:
     """Reliability weight (n_samples,) of each binocular sample given the posterior N(center, cov).
 
@@ -41,7 +43,8 @@ def reliability_weights_at(center_mm, cov_mm2, origins_mm, directions, sample_in
     return np.where(dof > 0, wts, 1.0)
 
 
-def reliability_weight_at(center_mm, cov_mm2, origins_mm, directions, valid, sigma_rad: float,
+def reliability_weight_at(center_mm: np.ndarray, cov_mm2: np.ndarray, origins_mm: np.ndarray, directions: np.ndarray,
+                          valid, sigma_rad: float,
                           outlier_prob: float) -> float:
     """``reliability_weights_at`` for one binocular sample (origins and directions (2, 3), valid
     (2,) bool), in scalar arithmetic: the streaming hot path."""

@@ -7,6 +7,7 @@ from enum import Enum
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from .errormodel import Sight
@@ -131,7 +132,7 @@ def failed(method: str, status: Status, reason: str, n_samples: int, n_lines: in
     return GazeEstimate(method, status, None, None, n_samples, n_lines, reason, info or {})
 
 
-def covariance_ellipsoid(center_mm, covariance_mm2, probability: float = 0.95) -> Ellipsoid:
+def covariance_ellipsoid(center_mm: ArrayLike, covariance_mm2: ArrayLike, probability: float = 0.95) -> Ellipsoid:
     """Ellipsoid holding ``probability`` of ``N(center, covariance)`` (3 degrees of freedom)."""
     C = np.asarray(covariance_mm2, dtype=np.float64)
     w, V = np.linalg.eigh(0.5 * (C + C.T))
@@ -146,7 +147,8 @@ an estimate nearer than this, or behind the eyes, comes from wrong view lines (a
 fitted, optical instead of visual axes, swapped eyes), not from a gazed object."""
 
 
-def near_point_check(e: GazeEstimate, origins_mm, directions, near_mm: float = NEAR_POINT_MM) -> GazeEstimate:
+def near_point_check(e: GazeEstimate, origins_mm: np.ndarray, directions: np.ndarray,
+                     near_mm: float = NEAR_POINT_MM) -> GazeEstimate:
     """``e`` unchanged, or, when its point lies less than ``near_mm`` in front of the view lines'
     origins (median over the lines of the distance along each line), the same estimate marked
     ``Status.TOO_NEAR`` (not usable) with the reason.

@@ -11,6 +11,13 @@ from .lines import BinocularSample, BinocularSamples, ViewLines
 class _SampleBuffer:
     """Growable per-sample arrays: times, both eyes' lines (world), validity, reliability weight."""
 
+    # set by _alloc, rows [:n] in use
+    t: np.ndarray        # (cap,) s
+    o: np.ndarray        # (cap, 2, 3) mm, world: each eye's origin
+    d: np.ndarray        # (cap, 2, 3) unit directions, world
+    valid: np.ndarray    # (cap, 2) bool
+    weight: np.ndarray   # (cap,) reliability weights
+
     def __init__(self, capacity: int = 256):
         self.n = 0
         self.n_lines = 0
@@ -119,6 +126,6 @@ def _as_samples(sample) -> BinocularSamples:
     if isinstance(sample, BinocularSamples):
         return sample
     if isinstance(sample, BinocularSample):
-        from .lines import samples_from_stream  # noqa: PLC0415
+        from .lines import samples_from_stream
         return samples_from_stream([sample])
     raise TypeError(f"expected a BinocularSample or BinocularSamples, got {type(sample).__name__}")

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._checks import check_same_rows
 from .lines import BinocularSamples, ViewLines
 
 MIN_GROUP_SAMPLES = 10
@@ -83,8 +84,7 @@ def seen_bias(samples: BinocularSamples, labels) -> SeenBias:
         labels: (N,) group of each sample (a fixation's or a target's index), -1 none.
     """
     labels = np.asarray(labels).reshape(-1)
-    if len(labels) != len(samples):
-        raise ValueError(f"labels has {len(labels)} entries but samples has {len(samples)}")
+    check_same_rows(labels, samples, "labels", "samples", "one entry per sample")
     sums, left_out = [], 0
     for k in np.unique(labels[labels >= 0]):
         t = group_sums(samples.select(np.flatnonzero(labels == k)))

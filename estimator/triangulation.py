@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._checks import check_points, normalize_directions
 from .lines import ViewLines
@@ -39,7 +40,7 @@ class LinePairResult:
     status: np.ndarray
 
 
-def closest_point_two_lines(origin1_mm, direction1, origin2_mm, direction2,
+def closest_point_two_lines(origin1_mm: ArrayLike, direction1: ArrayLike, origin2_mm: ArrayLike, direction2: ArrayLike,
                             min_angle_rad: float = 1e-7) -> LinePairResult:
     """The point nearest two lines and the gap between them, batch-first.
 
@@ -99,7 +100,8 @@ def lse_point(lines: ViewLines) -> GazeEstimate:
     return _point_result("lse", x, None, lines)
 
 
-def nearest_point_to_lines(lines: ViewLines, weights=None, method: str = "geometric") -> GazeEstimate:
+def nearest_point_to_lines(lines: ViewLines, weights: ArrayLike | None = None,
+                           method: str = "geometric") -> GazeEstimate:
     """The point minimising the (weighted) sum of squared perpendicular distances to the lines, mm^2.
 
     Closed form ``sum_i w_i (I - d_i d_i^T) x = sum_i w_i (I - d_i d_i^T) e_i``. Unbiased for

@@ -62,8 +62,8 @@ def processed(tmp_path_factory):
     run (about a minute), shared by tests/test_process.py and tests/test_exports.py:
     (session folder, output folder, ``ProcessResult``). A test that processes it again into the
     same folder (test_process's re-run test) leaves it in the state of its last run."""
-    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
-    from wearable_gaze.sim.simulate import simulate_scenario  # noqa: PLC0415
+    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.sim.simulate import simulate_scenario
 
     base = tmp_path_factory.mktemp("proc")
     root = base / "session"

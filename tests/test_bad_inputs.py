@@ -766,11 +766,11 @@ for opt, values in (("--window", ["0", "-1", "abc"]), ("--jump-deg", ["0", "nan"
 
 def _vl_unsegmented(e, d) -> str:
     """View lines of two 1 s fixations 20 deg apart at 60 Hz, without a segment column."""
-    import numpy as np  # noqa: PLC0415
+    import numpy as np
 
-    from estimator import BinocularSamples  # noqa: PLC0415
-    from wearable_gaze.formats.viewlines import write_viewlines_csv  # noqa: PLC0415
-    from wearable_gaze.sim.protocol import simulate_lines  # noqa: PLC0415
+    from estimator import BinocularSamples
+    from wearable_gaze.formats.viewlines import write_viewlines_csv
+    from wearable_gaze.sim.protocol import simulate_lines
 
     rng = np.random.default_rng(3)
     parts = [simulate_lines(p, rng).select(slice(0, 60)) for p in ([0, 0, 1500.0], [600.0, 0, 1500.0])]
@@ -1242,7 +1242,7 @@ def _symlink(target: Path, link: Path) -> str:
 # 8. damaged inputs of the issue-25 run: internal errors, a silent exit 0, an input overwritten -------
 
 def _real(*parts) -> Path:
-    from conftest import real_data_root  # noqa: PLC0415
+    from conftest import real_data_root
 
     return real_data_root().joinpath(*parts)
 
@@ -1304,7 +1304,7 @@ def _aria_gaze(damage):
 
 
 def _truncated_wall_jpeg(e, d) -> list:
-    import cv2  # noqa: PLC0415
+    import cv2
 
     eye = Path(_cptree(e.eye_cal, d))
     ok, buf = cv2.imencode(".jpg", cv2.imread(str(eye / "wall_0.png")))
@@ -1462,10 +1462,10 @@ def test_process_failed_eye_step_prints_its_error_only(env, tmp_path, capsys):
 def test_image_reader_keeps_libjpeg_warnings_off_stderr(tmp_path, capfd):
     """A JPEG libjpeg decodes with a warning (junk bytes before a marker) is read, and the
     warning, which libjpeg prints on file descriptor 2 itself, does not reach the terminal."""
-    import cv2  # noqa: PLC0415
-    import numpy as np  # noqa: PLC0415
+    import cv2
+    import numpy as np
 
-    from wearable_gaze.formats.images import read_grey_image  # noqa: PLC0415
+    from wearable_gaze.formats.images import read_grey_image
 
     img = (np.arange(64 * 48) % 251).astype(np.uint8).reshape(48, 64)
     data = cv2.imencode(".jpg", img)[1].tobytes()

@@ -295,3 +295,76 @@ def test_a_stopped_pools_manager_thread_ends_without_a_traceback():
     finally:
         threading.excepthook = previous
     assert seen == [("bystander", ValueError), ("after", TypeError)]
+
+
+def test_an_internal_error_in_one_session_fails_that_session_and_the_batch_goes_on(study, tmp_path, monkeypatch):
+    """A bug planted in one session's processing (a ``RuntimeError``, not a ``UserError``): that
+    session is ``failed`` with ``internal error (...)`` as its reason and the traceback kept in
+    its status; the other session is done with the outputs of a single ``process`` run; the batch
+    neither crashes nor passes (exit status 2). The Dask cluster runs in this process (threads),
+    so the planted fault reaches the worker."""
+    distributed = pytest.importorskip("distributed", reason="Dask's distributed is not installed (pip install "
+                                                           "'wearable-gaze[dask]'; the test extra has it)")
+    from wearable_gaze.pipeline import process
+
+    root, ref = study
+    real = process.process_session
+
+    def planted(session, out, **kwargs):
+        if Path(session).parts[-2:] == ("p01", "s2"):
+            raise RuntimeError("planted fault: index 7 is out of bounds")
+        return real(session, out, **kwargs)
+
+    monkeypatch.setattr(process, "process_session", planted)
+    out = tmp_path / "out"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        res = run_batch([root / "p01"], out, SETTINGS, scheduler=cluster.scheduler_address)
+    bad, good = res.statuses["s2"], res.statuses["s1"]
+    assert bad["state"] == "failed" and bad == read_status(out / "s2"), bad
+    assert bad["reason"].startswith("internal error (RuntimeError: planted fault: index 7 is out of bounds); "
+                                    "this is a bug"), bad["reason"]
+    assert "Traceback" in bad["traceback"] and "planted fault" in bad["traceback"]
+    assert good["state"] == "done" and good["n_targets"] == 2, good
+    for f in COMPARED:
+        assert (out / "s1" / f).read_bytes() == (ref["a"] / f).read_bytes(), f
+    assert res.failed == ["s2"] and res.done == ["s1"] and res.exit_status == 2
+    counts = json.loads((out / "batch.json").read_text())["counts"]
+    assert counts == {"pending": 0, "running": 0, "done": 1, "partial": 0, "failed": 1}
+
+
+def test_run_session_reports_an_internal_error_as_that_session_failing(tmp_path, monkeypatch):
+    """The worker itself (no pool): a planted ``ZeroDivisionError`` in ``process_session`` is
+    returned and written as a failed status with the reason and traceback, not raised."""
+    from wearable_gaze.formats.batch_status import LOCK_FILE
+    from wearable_gaze.pipeline import process
+    from wearable_gaze.pipeline.batch_workers import SessionTask, run_session
+
+    def planted(session, out, **kwargs):
+        raise ZeroDivisionError("planted: division by zero")
+
+    monkeypatch.setattr(process, "process_session", planted)
+    task = SessionTask("s", str(tmp_path / "session"), str(tmp_path / "out"), SETTINGS, "fp")
+    st = run_session(task)
+    assert st == read_status(tmp_path / "out")
+    assert st["state"] == "failed" and st["reason"].startswith("internal error (ZeroDivisionError: planted"), st
+    assert "ZeroDivisionError: planted: division by zero" in st["traceback"]
+    assert not (tmp_path / "out" / LOCK_FILE).exists()                    # the session's lock released
+
+
+def test_a_sessions_reason_is_one_printable_line_cut_to_its_length(tmp_path, monkeypatch):
+    """A session's error that carries a terminal escape and newlines (a file name, a header) and
+    runs long: its status's reason is one printable line (the escape shown, not sent, as the CLI's
+    messages), cut to ``REASON_CHARS`` ending ``...``."""
+    from wearable_gaze.errors import UserError
+    from wearable_gaze.pipeline import process
+    from wearable_gaze.pipeline.batch_workers import REASON_CHARS, SessionTask, run_session
+
+    def planted(session, out, **kwargs):
+        raise UserError("scene.mp4 \x1b[2J\x1b[31mred\n\tcannot be read: " + "x" * 1000)
+
+    monkeypatch.setattr(process, "process_session", planted)
+    st = run_session(SessionTask("s", str(tmp_path / "session"), str(tmp_path / "out"), SETTINGS, "fp"))
+    reason = st["reason"]
+    assert st["state"] == "failed" and reason.isprintable() and len(reason) == REASON_CHARS, reason
+    assert reason.startswith(r"scene.mp4 \x1b[2J\x1b[31mred cannot be read: xxx") and reason.endswith("x...")

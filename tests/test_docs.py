@@ -222,7 +222,7 @@ def _assert_none(path, bad):
 def test_a_named_scenario_is_no_input_file(tmp_path, monkeypatch):
     """``simulate --scenario calibration-only -o calibration-only``: the scenario is a name, not
     a file the output would overwrite (it was refused as 'also an input')."""
-    from wearable_gaze.cli import main  # noqa: PLC0415
+    from wearable_gaze.cli import main
 
     monkeypatch.chdir(tmp_path)
     assert main(["simulate", "--scenario", "calibration-only", "-o", "calibration-only",
@@ -233,9 +233,9 @@ def test_a_named_scenario_is_no_input_file(tmp_path, monkeypatch):
 def test_the_import_command_export_recording_prints_runs(tmp_path, capsys):
     """``export-recording`` prints the ``import`` command for its recording; run as printed, it
     imports (a Pupil Core export's head poses are in marker sides: the command gives the size)."""
-    import shlex  # noqa: PLC0415
+    import shlex
 
-    from wearable_gaze.cli import main  # noqa: PLC0415
+    from wearable_gaze.cli import main
 
     s, rec = tmp_path / "s", tmp_path / "rec"
     assert main(["simulate", "-o", str(s), "--duration", "1", "--resolution", "320x180"]) == 0
@@ -252,9 +252,9 @@ def test_the_way_out_of_a_session_without_a_map_can_be_taken(tmp_path, capsys):
     """``process`` on a session without a marker map says what to do instead; every command and
     option the line names exists, and the poses of ``track --reference`` go somewhere that takes
     them (``viewlines --poses``; process has no option for poses: 'pass the poses' led nowhere)."""
-    import json  # noqa: PLC0415
+    import json
 
-    from wearable_gaze.cli import main  # noqa: PLC0415
+    from wearable_gaze.cli import main
 
     s = tmp_path / "s"
     assert main(["simulate", "-o", str(s), "--duration", "1", "--resolution", "320x180"]) == 0
@@ -311,8 +311,8 @@ def test_every_extra_the_docs_install_exists():
 def test_map_markerless_names_its_folder_as_given(tmp_path, monkeypatch, capsys):
     """``map --markerless ... -o sfm/`` (as docs/tracking.md writes it) prints ``sfm/``, not ``sfm//``,
     in the line a user copies from (the reconstruction itself is stubbed: only the printing is tested)."""
-    from wearable_gaze.cli import main  # noqa: PLC0415
-    from wearable_gaze.pipeline import sfm  # noqa: PLC0415
+    from wearable_gaze.cli import main
+    from wearable_gaze.pipeline import sfm
 
     monkeypatch.setattr(sfm, "build_sfm_files", lambda *a, **k: None)
     monkeypatch.setattr(sfm, "format_sfm_report", lambda build: [])
@@ -328,7 +328,7 @@ def test_map_markerless_names_its_folder_as_given(tmp_path, monkeypatch, capsys)
 def test_scenario_fields_table_is_the_defaults():
     """docs/scenarios.md's table of fields names every default of the simulator's scenarios
     (``sim.scenario.DEFAULTS``) and nothing else (``moved_marker`` has no default)."""
-    from wearable_gaze.sim.scenario import DEFAULTS  # noqa: PLC0415
+    from wearable_gaze.sim.scenario import DEFAULTS
 
     def flat(d, prefix=""):
         for k, v in d.items():

@@ -54,7 +54,7 @@ def test_the_real_invisible_export_imports_as_cyclopean_lines(real_data, tmp_pat
 
 
 def test_write_then_read_gives_the_written_directions(tmp_path):
-    from helpers import walkabout_recording  # noqa: PLC0415
+    from helpers import walkabout_recording
 
     sim = walkabout_recording(tmp_path / "sim")
     pupil_cloud.write_recording(sim, tmp_path / "rec")
@@ -75,7 +75,7 @@ def test_write_then_read_gives_the_written_directions(tmp_path):
 
 
 def test_damaged_exports_are_one_line(tmp_path):
-    from helpers import walkabout_recording  # noqa: PLC0415
+    from helpers import walkabout_recording
 
     sim = walkabout_recording(tmp_path / "sim")
     pupil_cloud.write_recording(sim, tmp_path / "rec")
@@ -94,15 +94,15 @@ def test_a_walking_2d_only_session_finds_its_targets_within_twice_the_binocular_
     """Issue 26: the simulated walk exported with 2D gaze only (one cyclopean line per sample),
     its scene video tracked with the room's markers: the head's motion alone fixes each target,
     within 2x the RMS error of the same session's binocular processing."""
-    from roundtrip import rms, roundtrip_errors  # noqa: PLC0415
+    from roundtrip import rms, roundtrip_errors
 
     nat, got, report = roundtrip_errors("pupil-cloud", tmp_path_factory.getbasetemp(), tmp_path)
     assert report["pose_source"] == "scene_video" and report["rays"] == "cyclopean"
     assert np.all(np.isfinite(got)) and rms(got) <= 2.0 * rms(nat), (got, nat)
     # the report says where the depth came from, and how far the head moved in each fixation
-    import re  # noqa: PLC0415
+    import re
 
-    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
+    from wearable_gaze.pipeline.process import process_session
 
     process_session(tmp_path / "imported", tmp_path / "out", overlay=False)
     page = (tmp_path / "out" / "report.html").read_text()
@@ -118,7 +118,7 @@ def test_an_export_with_neon_eye_states_gives_per_eye_visual_axes(tmp_path):
     """With ``3d_eye_states.csv`` (Neon) each eye is its own line, turned into a visual axis by
     the kappa offset fitted on the export's gaze ray at 1 m: the simulated eyes' axes already
     point at the target, so the fitted offsets are small and the rays meet in front."""
-    from helpers import walkabout_recording  # noqa: PLC0415
+    from helpers import walkabout_recording
 
     sim = walkabout_recording(tmp_path / "sim")
     pupil_cloud.write_recording(sim, tmp_path / "rec", eye_states=True)
@@ -139,9 +139,9 @@ def test_export_recording_eye_states_writes_a_neon_export_that_imports_per_eye(t
     """``export-recording --format pupil-cloud --eye-states`` (the CLI) writes the Neon layout
     with ``3d_eye_states.csv``; without the option, Invisible's (2D gaze only): each imports
     as what it is, binocular or cyclopean."""
-    from helpers import walkabout_recording  # noqa: PLC0415
+    from helpers import walkabout_recording
 
-    from wearable_gaze.cli import main  # noqa: PLC0415
+    from wearable_gaze.cli import main
 
     walkabout_recording(tmp_path / "sim")
     for extra, rays in (([], "cyclopean"), (["--eye-states"], "binocular")):
@@ -157,7 +157,7 @@ def test_the_real_invisible_export_goes_through_process_with_a_direction_per_tar
     fixation's direction, never its depth: every fixation the segmenter finds is a
     direction-only target whose depth interval is the whole of it (before: no target at all,
     exit status 2)."""
-    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
+    from wearable_gaze.pipeline.process import process_session
 
     run_import(pupil_cloud, real_data / FOLLOW, tmp_path / "s")
     res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)

@@ -64,7 +64,7 @@ def test_g2_real_counts_match_the_recording(g2_real):
 def test_g2_real_format_is_detected(g2_real):
     """The Tobii project folder and the recording folder inside it are both tobii-g2 (and no
     other format's files match them)."""
-    from wearable_gaze.formats.devices import detect_format  # noqa: PLC0415
+    from wearable_gaze.formats.devices import detect_format
 
     root = g2_real[0] / "recording"
     assert detect_format(root) == "tobii-g2" == detect_format(root / "recordings" / "t3ic6aq")
@@ -467,7 +467,7 @@ def test_roundtrip_through_process_finds_the_targets(fmt, tmp_path_factory, tmp_
     """Simulator -> Tobii recording -> import (scene video + the unit's camera + the room's
     markers: poses tracked by process) -> process finds the simulated targets as well as the
     native session does (RMS error within 1.1x, issue 14)."""
-    from roundtrip import rms, roundtrip_errors  # noqa: PLC0415
+    from roundtrip import rms, roundtrip_errors
 
     nat, got, report = roundtrip_errors(fmt, tmp_path_factory.getbasetemp(), tmp_path)
     assert report["pose_source"] == "scene_video"

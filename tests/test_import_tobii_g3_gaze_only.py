@@ -96,7 +96,7 @@ def test_g3_answers_every_fixation_of_its_still_head(g3):
     """Issue 27: with a still head the eyes' vergence alone fixes depth, and a far fixation's rays
     meet behind the head or not at all: such a fixation was dropped ('degenerate', no target);
     now every static fixation is a target with its direction, and those are direction-only."""
-    from wearable_gaze.formats.fixations_table import read_fixations_csv  # noqa: PLC0415
+    from wearable_gaze.formats.fixations_table import read_fixations_csv
 
     _, s, _, _ = g3
     out = s.parent / "out"

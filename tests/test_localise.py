@@ -155,11 +155,11 @@ def test_a_markerless_map_records_its_markers_and_the_truth_is_moved_into_its_wo
     ``process --map`` moves a simulated truth into the map's world through them. Placed by the
     room's true map: nothing to move; placed by one marker (its frame the world), or a map of
     before (no corners: its origin marker's square): the truth moved by that marker's inverse pose."""
-    from types import SimpleNamespace  # noqa: PLC0415
+    from types import SimpleNamespace
 
-    from tracking.markermap import square_corners  # noqa: PLC0415
-    from wearable_gaze.formats.markermap import load_marker_map  # noqa: PLC0415
-    from wearable_gaze.pipeline.process_options import truth_frame  # noqa: PLC0415
+    from tracking.markermap import square_corners
+    from wearable_gaze.formats.markermap import load_marker_map
+    from wearable_gaze.pipeline.process_options import truth_frame
 
     sess, sfm, _ = survey
     meta = json.loads((sfm / "sfm_map.json").read_text())

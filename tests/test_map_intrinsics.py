@@ -146,8 +146,8 @@ def test_a_survey_mapped_with_its_own_8_view_calibration_flags_nothing_and_place
     B = np.concatenate([truth[i] for i in ids])
     e_ref, _ = similarity_errors(A, B)
     # the map of the same views with the true intrinsics, as they are
-    from tracking.markers import MarkerDetector, split_repeated  # noqa: PLC0415
-    from wearable_gaze.pipeline.calibrate import read_frames  # noqa: PLC0415
+    from tracking.markers import MarkerDetector, split_repeated
+    from wearable_gaze.pipeline.calibrate import read_frames
 
     det = MarkerDetector(true_map.dictionary)
     views = [split_repeated(det.detect(g))[0] for _, g in read_frames([root / "scene.mp4"], 300)]
@@ -166,10 +166,10 @@ def test_map_extend_starts_from_the_earlier_maps_refined_intrinsics(survey_corne
     extended map is as good as the same extension with the true intrinsics; from the
     calibration's as they are it was 48.7 mm (median) off. Another calibration is not taken for
     this one."""
-    from calibration.camera import CameraCalibration  # noqa: PLC0415
-    from tracking.markermap import MarkerMap  # noqa: PLC0415
-    from wearable_gaze.formats.markermap import marker_map_dict, write_marker_map  # noqa: PLC0415
-    from wearable_gaze.pipeline.mapping import intrinsics_json, start_intrinsics  # noqa: PLC0415
+    from calibration.camera import CameraCalibration
+    from tracking.markermap import MarkerMap
+    from wearable_gaze.formats.markermap import marker_map_dict, write_marker_map
+    from wearable_gaze.pipeline.mapping import intrinsics_json, start_intrinsics
 
     views, cam, truth, side = survey_corners
     K_rough = cam.camera_matrix.copy()

@@ -25,7 +25,7 @@ class _Detector:
     def __init__(self, corners, ids):
         self.out = (corners, ids, ())
 
-    def detectMarkers(self, image):  # noqa: N802 (OpenCV's name)
+    def detectMarkers(self, image):  # OpenCV's name
         return self.out
 
 
@@ -102,7 +102,7 @@ def _blank_ends(video, n_blank):
 def blank_ended_session(tmp_path_factory):
     """A 3 s simulated session at 320x180 whose video starts and ends with 10 frames without any
     marker (the case that stopped ``track`` under OpenCV 5.1)."""
-    from wearable_gaze.sim.simulate import simulate_scenario  # noqa: PLC0415
+    from wearable_gaze.sim.simulate import simulate_scenario
 
     root = tmp_path_factory.mktemp("nomark") / "s"
     simulate_scenario({"base": "lab-walkabout", "duration_s": 3.0, "calibration": {"camera_views": 6}}, root,
@@ -127,7 +127,7 @@ def test_track_a_video_that_starts_and_ends_without_markers(blank_ended_session,
 
 
 def test_process_a_session_whose_video_starts_and_ends_without_markers(blank_ended_session, tmp_path):
-    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
+    from wearable_gaze.pipeline.process import process_session
 
     root, n = blank_ended_session
     res = process_session(root, tmp_path / "out")

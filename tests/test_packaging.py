@@ -69,7 +69,7 @@ def test_wheel_installs_the_console_script(wheel):
 
 def _requirement_floors(lines) -> dict:
     """{name: version} of 'name>=version' (pyproject) or 'name==version' (a constraints file)."""
-    import re  # noqa: PLC0415
+    import re
 
     out = {}
     for line in lines:

@@ -123,7 +123,7 @@ def test_on_a_terminal_the_bar_is_redrawn_while_a_blocking_call_runs(monkeypatch
 def _room_views():
     """8 markers on two walls, seen from 40 views of a camera walking past (tests/test_mapbuild's
     survey), marker 5 moved 80 mm halfway."""
-    from tests.test_mapbuild import _room, _views  # noqa: PLC0415
+    from tests.test_mapbuild import _room, _views
 
     return _views(_room(), moved=(5, np.array([0.0, 0.0, 80.0])))
 
@@ -182,10 +182,10 @@ def test_process_build_map_names_the_maps_adjustment_in_its_lines(every, monkeyp
     """``process --build-map`` (a 2 s simulated session without its marker map): the map was
     built without a progress callback, so a log showed only "tracking: still running" (or, before,
     nothing) while the map's adjustment ran; now its lines name it."""
-    import json  # noqa: PLC0415
+    import json
 
-    from wearable_gaze.pipeline.process import process_session  # noqa: PLC0415
-    from wearable_gaze.sim.simulate import simulate_scenario  # noqa: PLC0415
+    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.sim.simulate import simulate_scenario
 
     root = tmp_path / "s"
     simulate_scenario({"base": "lab-walkabout", "duration_s": 2.0, "calibration": {"camera_views": 0}}, root, seed=3,
@@ -206,9 +206,9 @@ def test_process_build_map_names_the_maps_adjustment_in_its_lines(every, monkeyp
 def test_estimate_prints_lines_while_it_estimates(every, monkeypatch, tmp_path):
     """``estimate`` on a long view-line file printed nothing until its table; made slow here
     (1 s), its log shows "estimating: still running" every interval, and the table on stdout."""
-    import wearable_gaze.pipeline.estimate as estimate_module  # noqa: PLC0415
-    from wearable_gaze.formats.viewlines import write_viewlines_csv  # noqa: PLC0415
-    from wearable_gaze.sim.protocol import simulate_lines  # noqa: PLC0415
+    import wearable_gaze.pipeline.estimate as estimate_module
+    from wearable_gaze.formats.viewlines import write_viewlines_csv
+    from wearable_gaze.sim.protocol import simulate_lines
 
     path = tmp_path / "lines.csv"
     write_viewlines_csv(path, simulate_lines([0, 0, 1500.0], np.random.default_rng(0)), segment=None)
@@ -239,7 +239,7 @@ def test_commands_over_a_whole_recording_print_lines_while_they_run(every, monke
     """``fixations``, ``viewlines`` and ``export-recording`` work through a whole recording in one
     call and printed nothing until their last line; made slow here (1 s), each prints a line
     every interval while it runs."""
-    import importlib  # noqa: PLC0415
+    import importlib
 
     slow_down(monkeypatch, importlib.import_module(module), name, result=result)
     monkeypatch.chdir(tmp_path)

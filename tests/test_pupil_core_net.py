@@ -206,9 +206,9 @@ def test_device_url_and_an_absent_device_are_one_line():
     (["--serial", "socket://127.0.0.1:9"], "--serial needs --camera and --eyes"),
 ])
 def test_live_device_options_are_checked_in_one_line(tmp_path, capsys, extra, says):
-    from wearable_gaze.cli import main  # noqa: PLC0415
-    from wearable_gaze.formats.camera import camera_dict, write_camera  # noqa: PLC0415
-    from wearable_gaze.formats.markermap import marker_map_dict, write_marker_map  # noqa: PLC0415
+    from wearable_gaze.cli import main
+    from wearable_gaze.formats.camera import camera_dict, write_camera
+    from wearable_gaze.formats.markermap import marker_map_dict, write_marker_map
 
     K = np.array([[300.0, 0, 32], [0, 300, 24], [0, 0, 1]])
     write_camera(tmp_path / "camera.json", camera_dict(K, np.zeros(5), (W, H)))
@@ -220,9 +220,9 @@ def test_live_device_options_are_checked_in_one_line(tmp_path, capsys, extra, sa
 
 
 def test_emulate_as_pupil_core_refuses_a_session_without_eye_rays_in_one_line(tmp_path, capsys):
-    import json  # noqa: PLC0415
+    import json
 
-    from wearable_gaze.cli import main  # noqa: PLC0415
+    from wearable_gaze.cli import main
 
     s = _stream(tmp_path)                                # writes tmp_path/scene.avi
     (tmp_path / "scene_timestamps.csv").write_text("frame,t\n" + "".join(f"{i},{t:.6f}\n"

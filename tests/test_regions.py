@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimator.errormodel import FAR_SIDE_K, Sight
+from estimator.errormodel import FAR_SIDE_K, K95, Sight
 from estimator.region import ray_exit, region_mesh, region_of_direction
 from wearable_gaze.formats.targets import record_region, target_record
 from wearable_gaze.pipeline import report, report_plots
@@ -21,7 +21,6 @@ from wearable_gaze.pipeline.regions import region_lines, scene_box
 from wearable_gaze.pipeline.report import ReportData
 from wearable_gaze.pipeline.types import Poses, Target
 
-K95 = float(np.sqrt(chi2.ppf(0.95, 3)))
 SEEN_FROM = np.array([-15.0, 69.0, -22.0])
 FAR = np.array([1461.0, 221.0, 3324.0])         # the demo's target 2, mm
 HEAD = np.column_stack([np.linspace(-150, 150, 61), np.zeros(61), np.linspace(-50, 50, 61)]) + SEEN_FROM

@@ -535,7 +535,7 @@ def test_first_surface_finds_the_nearest_wall_along_each_ray(rng):
 
 
 def test_nearest_in_time_answers_the_nearest_sample_within_the_gap():
-    from tracking.timeline import nearest_in_time  # noqa: PLC0415
+    from tracking.timeline import nearest_in_time
 
     t = np.array([0.0, 1.0, 2.0])
     v = np.array([[10.0], [11.0], [12.0]])

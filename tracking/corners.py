@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from estimator._checks import check_array
 
 
-def refine_markers(image, corners, modules: int, span=(0.06, 0.4), samples: int = 12, n_offsets: int = 25):
+def refine_markers(image, corners: ArrayLike, modules: int, span=(0.06, 0.4), samples: int = 12, n_offsets: int = 25):
     """Refine many square markers' corners at once, from their outer edges.
 
     Args:
@@ -99,7 +100,7 @@ def refine_markers(image, corners, modules: int, span=(0.06, 0.4), samples: int 
     return out
 
 
-def refine_marker_corners(image, corners, modules: int, span=(0.06, 0.4), samples: int = 12) -> np.ndarray:
+def refine_marker_corners(image, corners: ArrayLike, modules: int, span=(0.06, 0.4), samples: int = 12) -> np.ndarray:
     """Refine one square marker's four corners (4, 2) px, in ``cv2.aruco`` order, from its
     outer edges (``refine_markers`` for one marker)."""
     return refine_markers(image, check_array(corners, "corners", (4, 2))[None], modules, span, samples)[0]

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calibration.camera import CameraCalibration
 from estimator.frames import invert
@@ -129,7 +130,7 @@ class FeatureLocaliser:
         self._index = cv2.flann_Index(feature_map.descriptors, {"algorithm": 1, "trees": 4})
         self._checks = checks
         self.scales = (scale,) if scale == FEATURE_SCALE else (scale, FEATURE_SCALE)
-        import pycolmap  # noqa: PLC0415  (made once: pose() runs on every frame)
+        import pycolmap  # made once: pose() runs on every frame
 
         w, h = (int(v) for v in camera.image_size)
         self._pinhole = pycolmap.Camera(model="PINHOLE", width=w, height=h, params=[self.f, self.f, 0.0, 0.0])
@@ -171,9 +172,9 @@ class FeatureLocaliser:
                 break
         return res
 
-    def pose(self, px, pts_world) -> PoseResult:
+    def pose(self, px: np.ndarray, pts_world: np.ndarray) -> PoseResult:
         """Pose from matched distorted pixels (K, 2) and world points (K, 3) mm."""
-        import pycolmap  # noqa: PLC0415
+        import pycolmap
 
         x = self.camera.undistort_points(px)
         r = pycolmap.estimate_and_refine_absolute_pose(x * self.f, pts_world, self._pinhole, self._options)
@@ -195,7 +196,7 @@ class FeatureLocaliser:
         return PoseResult(invert(T_cw), OK, "", n_points=n, reproj_rms_px=rms, covariance=cov)
 
 
-def triangulate(T_cam_from_world, x_norm) -> np.ndarray:
+def triangulate(T_cam_from_world: ArrayLike, x_norm: ArrayLike) -> np.ndarray:
     """The point (3,) whose projections best fit its undistorted normalised observations
     ``x_norm`` (V, 2) in V >= 2 views posed by ``T_cam_from_world`` (V, 4, 4) (linear DLT, each
     row scaled by the view's depth estimate once, so every view weighs as its image error)."""

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -44,7 +45,7 @@ HUBER_PX = 1.0
 """The bundle adjustment's robust loss turns from squares to absolute values past this, pixels."""
 
 
-def ippe(corners_norm, side: float) -> list:
+def ippe(corners_norm: ArrayLike, side: float) -> list:
     """IPPE's solutions for one marker seen alone: [(reprojection RMS in normalised units,
     T_cam_from_marker (4, 4)), ...], the best first (planar IPPE: our corners, y down, are not in
     IPPE_SQUARE's order)."""
@@ -96,7 +97,7 @@ def pack_pose(T) -> np.ndarray:
     return np.concatenate([rvec.ravel(), T[:3, 3]])
 
 
-def adjustment_problem(obs, size, origin, markers, cams, T_origin) -> dict:
+def adjustment_problem(obs, size, origin, markers, cams, T_origin: ArrayLike) -> dict:
     """The observations of every posed view (``cams``) of a placed marker (``markers``) as arrays:
     ``cam_keys``, ``marker_keys`` (the origin left out: it stays at ``T_origin``), ``pairs``
     [(view, marker)], and per pair its view row ``cam``, marker row ``marker`` (-1: the origin),
@@ -218,7 +219,8 @@ def marker_covariances(adj: Adjusted) -> dict:
     return {i: C[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j, i in enumerate(adj.marker_keys)}
 
 
-def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin, tally: StepTally | None = None
+def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin: np.ndarray,
+                      tally: StepTally | None = None
                       ) -> tuple[Adjusted, dict, float]:
     """``_adjust``, and then while a marker (not the origin) moved during the survey (``_moved``),
     one marker becomes two for another adjustment: its views after the move see a second marker

@@ -90,7 +90,7 @@ def refined_names(model: str) -> tuple:
     return FISHEYE if model == "fisheye" else PINHOLE
 
 
-def intrinsics_values(K, dist, model: str = "pinhole") -> dict:
+def intrinsics_values(K: np.ndarray, dist, model: str = "pinhole") -> dict:
     """{fx, fy, cx, cy (px), then the distortion coefficients by name} (``refined_names``) of a
     camera matrix (3, 3) and distortion coefficients (missing ones 0)."""
     names = refined_names(model)

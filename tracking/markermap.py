@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 class MarkerMapError(ValueError):
@@ -23,7 +24,7 @@ def square_corners(side_mm: float) -> np.ndarray:
     return np.array([[-s, -s, 0], [s, -s, 0], [s, s, 0], [-s, s, 0.0]])
 
 
-def marker_corners_world(side_mm: float, T_world_from_marker) -> np.ndarray:
+def marker_corners_world(side_mm: float, T_world_from_marker: ArrayLike) -> np.ndarray:
     """(4, 3) world corners, mm, of a marker of side ``side_mm`` placed at ``T_world_from_marker``
     (4, 4), cv2.aruco order: top-left, top-right, bottom-right, bottom-left."""
     T = np.asarray(T_world_from_marker, float)

@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 SIGMA_FLOOR_PX = 0.05   # the noise assumed at least, pixels: a perfect fit must not claim zero covariance
 
 
-def transform_from_rvec_tvec(rvec, tvec) -> np.ndarray:
+def transform_from_rvec_tvec(rvec: ArrayLike, tvec: ArrayLike) -> np.ndarray:
     """``T_cam_from_obj`` (4, 4) of OpenCV's rotation vector (3,) and translation (3,), mm."""
     R, _ = cv2.Rodrigues(np.asarray(rvec, float))
     T = np.eye(4)
@@ -23,19 +24,19 @@ def transform_from_rvec_tvec(rvec, tvec) -> np.ndarray:
     return T
 
 
-def reprojection_residuals(obj_pts, x_norm, rvec, tvec) -> np.ndarray:
+def reprojection_residuals(obj_pts: ArrayLike, x_norm: ArrayLike, rvec: ArrayLike, tvec: ArrayLike) -> np.ndarray:
     """Residuals (N, 2), normalised image coordinates, of object points (N, 3) mm projected with
     (rvec, tvec) minus their observations ``x_norm`` (N, 2) (undistorted, K = I)."""
     proj, _ = cv2.projectPoints(obj_pts, rvec, tvec, np.eye(3), None)
     return proj.reshape(-1, 2) - x_norm
 
 
-def rms_px(residuals, focal_px: float) -> float:
+def rms_px(residuals: np.ndarray, focal_px: float) -> float:
     """RMS length, pixels, of normalised residuals (N, 2) on a camera of focal length ``focal_px``."""
     return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1)))) * focal_px
 
 
-def pose_fault(T_cam_from_obj, pts_obj, rms: float, max_reproj_px: float, what: str) -> str:
+def pose_fault(T_cam_from_obj: ArrayLike, pts_obj: ArrayLike, rms: float, max_reproj_px: float, what: str) -> str:
     """Why a solved pose fails the sanity checks every solver applies, or '' when it passes: a
     point of ``pts_obj`` (N, 3), object frame, behind the camera (``what`` names the points in
     the message), or the inliers' reprojection RMS ``rms`` over ``max_reproj_px`` pixels."""
@@ -46,7 +47,8 @@ def pose_fault(T_cam_from_obj, pts_obj, rms: float, max_reproj_px: float, what: 
     return f"reprojection RMS {rms:.1f} px > {max_reproj_px} px" if rms > max_reproj_px else ""
 
 
-def covariance_cam_from_obj(obj_pts, rvec, tvec, residuals, focal_px: float) -> np.ndarray:
+def covariance_cam_from_obj(obj_pts: ArrayLike, rvec: ArrayLike, tvec: ArrayLike, residuals: ArrayLike,
+                            focal_px: float) -> np.ndarray:
     """(6, 6) covariance of OpenCV's (rvec rad, tvec mm) of ``T_cam_from_obj`` from a least-squares
     fit: ``sigma^2 (J^T J)^-1`` with ``J`` the projection Jacobian at the inliers ``obj_pts`` (N, 3)
     and ``sigma`` the residuals' (N, 2) standard deviation (``2N - 6`` degrees of freedom), at least
@@ -61,7 +63,7 @@ def covariance_cam_from_obj(obj_pts, rvec, tvec, residuals, focal_px: float) -> 
         return np.full((6, 6), np.inf)
 
 
-def world_pose_jacobian(rvec, tvec, T_world_from_obj=None) -> np.ndarray:
+def world_pose_jacobian(rvec: ArrayLike, tvec: ArrayLike, T_world_from_obj: ArrayLike | None = None) -> np.ndarray:
     """(6, 6) Jacobian of (rotation vector, translation mm) of ``T_world_from_cam =
     T_world_from_obj @ inv(T_cam_from_obj)`` with respect to (rvec, tvec) of ``T_cam_from_obj``.
 
@@ -84,7 +86,8 @@ def world_pose_jacobian(rvec, tvec, T_world_from_obj=None) -> np.ndarray:
     return A
 
 
-def covariance_world_from_cam(cov_cam_from_obj, rvec, tvec, T_world_from_obj=None) -> np.ndarray:
+def covariance_world_from_cam(cov_cam_from_obj: ArrayLike, rvec: ArrayLike, tvec: ArrayLike,
+                              T_world_from_obj: ArrayLike | None = None) -> np.ndarray:
     """The (6, 6) covariance of (rvec, tvec) of ``T_cam_from_obj`` propagated (first order) to
     (rotation vector rad, translation mm) of ``T_world_from_cam = T_world_from_obj @
     inv(T_cam_from_obj)``, the pose a result carries: the translation block is the covariance of the
@@ -96,7 +99,8 @@ def covariance_world_from_cam(cov_cam_from_obj, rvec, tvec, T_world_from_obj=Non
     return A @ C @ A.T
 
 
-def pose_covariance(obj_pts, rvec, tvec, residuals, focal_px: float, T_world_from_obj=None) -> np.ndarray:
+def pose_covariance(obj_pts: ArrayLike, rvec: ArrayLike, tvec: ArrayLike, residuals: ArrayLike, focal_px: float,
+                    T_world_from_obj: ArrayLike | None = None) -> np.ndarray:
     """The covariance a ``PoseResult`` carries: ``covariance_cam_from_obj`` of the fit (inliers
     ``obj_pts`` (N, 3) mm, ``residuals`` (N, 2) normalised) propagated to ``T_world_from_cam`` by
     ``covariance_world_from_cam``; (6, 6), (rotation vector rad, camera position mm)."""

@@ -224,7 +224,7 @@ class MarkerPoseEstimator:
         return self._finish([marker_id], obj, x, rvec, T_cw[:3, 3].copy(), np.ones(4, bool), ambiguous)
 
     def _pycolmap(self, ids, obj, x) -> PoseResult:
-        import pycolmap  # noqa: PLC0415
+        import pycolmap
 
         f = self.f
         cam = pycolmap.Camera(model="PINHOLE", width=int(self.camera.image_size[0]),

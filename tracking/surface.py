@@ -7,12 +7,13 @@ grazing angles a 1 deg error moves it along the surface.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from estimator._checks import check_points
+from estimator._checks import check_points, check_same_rows
 
 
-def first_surface(points_mm, origins_mm, directions, cone_deg: float = 1.5, bin_mm: float = 50.0,
-                  min_points: int = 5, min_dist_mm: float = 100.0) -> np.ndarray:
+def first_surface(points_mm: ArrayLike, origins_mm: ArrayLike, directions: ArrayLike, cone_deg: float = 1.5,
+                  bin_mm: float = 50.0, min_points: int = 5, min_dist_mm: float = 100.0) -> np.ndarray:
     """Depth along each ray of the nearest surface of a point cloud.
 
     Per ray: the points within ``cone_deg`` of it and more than ``min_dist_mm`` along it, sorted
@@ -30,8 +31,7 @@ def first_surface(points_mm, origins_mm, directions, cone_deg: float = 1.5, bin_
     pts = check_points(points_mm, "points_mm")
     o = check_points(origins_mm, "origins_mm")
     d = check_points(directions, "directions")
-    if len(o) != len(d):
-        raise ValueError(f"origins_mm and directions must have as many rows, got {len(o)} and {len(d)}")
+    check_same_rows(o, d, "origins_mm", "directions")
     cos_max = np.cos(np.deg2rad(cone_deg))
     out = np.full(len(o), np.nan)
     for i in range(len(o)):

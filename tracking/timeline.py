@@ -6,11 +6,16 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation, Slerp
 
-from estimator._checks import check_array
+from estimator._checks import check_array, check_same_rows
 
 log = logging.getLogger(__name__)
+
+MAX_POSE_GAP_S = 0.1
+"""A sample gets a head pose only between two valid poses this close to it, s (``interpolate_poses``'
+``max_gap_s``): the view-line step's, the exports' and the person step's, referenced from here."""
 
 
 def _times_and_poses(t, T, t_name: str, T_name: str):
@@ -19,12 +24,11 @@ def _times_and_poses(t, T, t_name: str, T_name: str):
     T = T.reshape(0, 4, 4) if T.size == 0 else check_array(T, T_name, (None, 4, 4))
     t = np.asarray(t, float)
     t = t.reshape(0) if t.size == 0 else check_array(t, t_name, (None,))
-    if len(t) != len(T):
-        raise ValueError(f"{t_name} and {T_name} must have one entry per pose, got {len(t)} and {len(T)}")
+    check_same_rows(t, T, t_name, T_name, "one entry per pose")
     return t, T
 
 
-def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
+def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = MAX_POSE_GAP_S) -> tuple[np.ndarray, np.ndarray]:
     """``T_world_from_cam`` at query times: SLERP for rotation, linear for translation, between
     the two valid poses around each query.
 
@@ -72,7 +76,7 @@ def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = 0.1):
     return out, ok
 
 
-def nearest_in_time(t_src, values, t_query, max_dt, inclusive: bool = False) -> np.ndarray:
+def nearest_in_time(t_src, values, t_query, max_dt: float, inclusive: bool = False) -> np.ndarray:
     """The value of the sample nearest each query time, or NaN where none is nearer than
     ``max_dt`` (or as near, ``inclusive``).
 
@@ -100,7 +104,7 @@ def nearest_in_time(t_src, values, t_query, max_dt, inclusive: bool = False) -> 
     return out
 
 
-def extrapolate_pose(t_a: float, T_a, t_b: float, T_b, t: float) -> np.ndarray:
+def extrapolate_pose(t_a: float, T_a: ArrayLike, t_b: float, T_b: ArrayLike, t: float) -> np.ndarray:
     """``T_world_from_cam`` (4, 4) at ``t`` >= ``t_b`` continued from two poses at ``t_a`` < ``t_b``
     (s) at their constant velocity: the rotation from ``T_a`` to ``T_b`` carried on at the same
     rate (about the same axis), the translation linearly. For a live session, where a sample
@@ -125,7 +129,8 @@ SPIKE_DEG = 5.0
 """... or turned farther than this from their SLERP (degrees; 3000 deg/s^2: 1.7 deg)."""
 
 
-def pose_spikes(t, T, max_gap_s: float = 0.2, spike_mm: float = SPIKE_MM, spike_deg: float = SPIKE_DEG):
+def pose_spikes(t, T, max_gap_s: float = 0.2, spike_mm: float = SPIKE_MM,
+                spike_deg: float = SPIKE_DEG) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which poses jump away from both neighbours and back: a marker pose fixed on one or two
     markers (a single marker's two IPPE solutions, a wrong corner) can land hundreds of mm off
     while the head moves smoothly.
@@ -188,7 +193,7 @@ def _extrapolate_back(t_far: float, T_far, t_near: float, T_near, t: float) -> n
     return extrapolate_pose(-t_far, T_far, -t_near, T_near, -t)
 
 
-def smooth_poses(t, T, window_s: float, causal: bool = False):
+def smooth_poses(t, T, window_s: float, causal: bool = False) -> np.ndarray:
     """Moving-average smoothing of poses (N, 4, 4) at times t (N,): translations averaged,
     rotations averaged as sign-aligned quaternions, over ``window_s`` seconds.
 

@@ -11,6 +11,16 @@ class UserError(Exception):
     how to fix it."""
 
 
+def one_line(text: object, limit: int | None = None) -> str:
+    """``text`` (any object, as ``str``) as one printable line: whitespace runs become one space,
+    control characters (a terminal escape in a file name or a header) are shown escaped; cut to
+    ``limit`` characters, the last three ``...``, when given. The one home of the one-line
+    messages: the CLI's errors and batch's status reasons."""
+    text = " ".join(str(text).split())
+    text = "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+    return text if limit is None or len(text) <= limit else text[:limit - 3] + "..."
+
+
 def same_file(a, b) -> bool:
     """Whether two paths name one file: ``os.path.samefile`` when both exist, else their resolved
     paths compared."""

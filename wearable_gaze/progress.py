@@ -108,7 +108,7 @@ class StepProgress:
 
 
 def _bar(description: str, total: int, stream):
-    from tqdm import tqdm  # noqa: PLC0415
+    from tqdm import tqdm
 
     return tqdm(total=total if total > 0 else None, desc=description, unit="step", file=stream, leave=False)
 

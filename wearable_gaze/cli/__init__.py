@@ -11,9 +11,9 @@ import logging
 import os
 import sys
 
-from ..errors import UserError
+from ..errors import UserError, one_line
 from . import aoi, batch, calibrate, estimate, fixations, importer, live, paper, person, process, safety, sim, track
-from .args import Parser, one_line
+from .args import Parser
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,12 +34,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version  # noqa: PLC0415
+    from importlib.metadata import PackageNotFoundError, version
 
     try:
         return version("wearable-gaze")
     except PackageNotFoundError:
-        from .. import __version__  # noqa: PLC0415
+        from .. import __version__
 
         return __version__
 

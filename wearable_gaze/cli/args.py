@@ -5,12 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-
-def one_line(text: str) -> str:
-    """``text`` as one printable line: whitespace runs become one space, control characters
-    (a terminal escape in a file name or a header) are shown escaped."""
-    text = " ".join(text.split())
-    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+from ..errors import one_line
 
 
 class Parser(argparse.ArgumentParser):
@@ -78,7 +73,7 @@ def non_negative_int(text):
 def marker_dictionary(text):
     """A ``cv2.aruco`` predefined dictionary name (checked here, at the command line, so that a
     step that may not need it does not run first)."""
-    from calibration.camera import aruco_dictionary  # noqa: PLC0415  (OpenCV only when this option is given)
+    from calibration.camera import aruco_dictionary  # OpenCV only when this option is given
 
     try:
         aruco_dictionary(text)
@@ -97,8 +92,8 @@ def seed(text):
 def publish_url(text):
     """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` with a port 1-65535, as the publisher's own
     ``parse_publish_url`` reads it (one parser: a URL passed here is one the publisher takes)."""
-    from ..errors import UserError  # noqa: PLC0415
-    from ..live.publish import parse_publish_url  # noqa: PLC0415
+    from ..errors import UserError
+    from ..live.publish import parse_publish_url
 
     try:
         parse_publish_url(text)

@@ -8,9 +8,8 @@ from pathlib import Path
 
 from estimator import METHODS
 
-from ..errors import check_output
+from ..errors import check_output, one_line
 from . import args as A
-from .args import one_line
 
 
 def scheduler_address(text):
@@ -26,11 +25,11 @@ def scheduler_address(text):
 
 
 def cmd_batch(args) -> int:
-    from ..formats.aois import read_aois  # noqa: PLC0415
-    from ..pipeline.batch import BatchSettings, format_summary, run_batch  # noqa: PLC0415
-    from ..pipeline.process_options import check_map_options  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
-    from .process import build_map_option  # noqa: PLC0415
+    from ..formats.aois import read_aois
+    from ..pipeline.batch import BatchSettings, format_summary, run_batch
+    from ..pipeline.process_options import check_map_options
+    from ..progress import progress_bar
+    from .process import build_map_option
 
     check_output(args.out, [*args.sessions, args.camera, args.eyes, args.markers, args.aois], "-o", folder=True)
     check_map_options(args.markers, args.build_map, None, True, False)        # before any session

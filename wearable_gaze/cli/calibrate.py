@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import json
 
+from tracking.timeline import MAX_POSE_GAP_S
+
 from . import args as A
 
 
 def cmd_calibrate_camera(args) -> int:
-    from ..formats.camera import calibration_dict  # noqa: PLC0415
-    from ..pipeline.calibrate import calibrate_camera_files, format_camera_report  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..formats.camera import calibration_dict
+    from ..pipeline.calibrate import calibrate_camera_files, format_camera_report
+    from ..progress import progress_bar
 
     with progress_bar("detecting the board", 1) as cb:
         cal, paths = calibrate_camera_files(args.inputs, args.board, args.out, args.model, args.max_views, cb)
@@ -25,8 +27,8 @@ def cmd_calibrate_camera(args) -> int:
 
 
 def cmd_calibrate_eyes(args) -> int:
-    from ..pipeline.calibrate import calibrate_eyes_files, format_eyes_report  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..pipeline.calibrate import calibrate_eyes_files, format_eyes_report
+    from ..progress import progress_bar
 
     with progress_bar("calibrating the eyes", 1) as cb:
         result = calibrate_eyes_files(args.source, args.camera, args.out, args.model, progress=cb)
@@ -36,8 +38,8 @@ def cmd_calibrate_eyes(args) -> int:
 
 
 def cmd_viewlines(args) -> int:
-    from ..pipeline.calibrate import viewlines_files  # noqa: PLC0415
-    from ..progress import heartbeat  # noqa: PLC0415
+    from ..pipeline.calibrate import viewlines_files
+    from ..progress import heartbeat
 
     with heartbeat("view lines"):               # a long recording: a line every few seconds in a log
         counts = viewlines_files(args.eye, args.eyes, args.poses, args.out, args.max_gap, args.person)
@@ -83,8 +85,8 @@ def add_viewlines(sub) -> None:
     vl.add_argument("--eyes", required=True, metavar="eyes.json", help="from calibrate-eyes")
     vl.add_argument("--poses", required=True, metavar="POSES.csv", help="head poses (docs/formats.md)")
     vl.add_argument("-o", "--out", required=True, metavar="viewlines.csv", help="view-line CSV to write")
-    vl.add_argument("--max-gap", type=A.positive_float, default=0.1, metavar="S",
-                    help="use a sample only with head poses within S seconds on both sides (default 0.1)")
+    vl.add_argument("--max-gap", type=A.positive_float, default=MAX_POSE_GAP_S, metavar="S",
+                    help=f"use a sample only with head poses within S seconds on both sides (default {MAX_POSE_GAP_S})")
     vl.add_argument("--person", metavar="person.json",
                     help="apply this person's per-eye gaze correction (from learn-bias)")
     vl.set_defaults(func=cmd_viewlines)

@@ -14,9 +14,9 @@ from . import args as A
 
 
 def cmd_estimate(args) -> int:
-    from ..pipeline import estimate as est  # noqa: PLC0415
-    from ..pipeline.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note  # noqa: PLC0415
-    from ..progress import heartbeat  # noqa: PLC0415
+    from ..pipeline import estimate as est
+    from ..pipeline.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note
+    from ..progress import heartbeat
 
     if args.export_density and args.method not in ("voxel", "paper"):
         raise UserError("--export-density needs --method voxel or --method paper (the other methods keep no "

@@ -9,8 +9,8 @@ SETTINGS = {"window": "window", "jump_deg": "jump_deg", "min_fixation_s": "min_f
 
 
 def cmd_fixations(args) -> int:
-    from ..pipeline.segmentation import fixations_file  # noqa: PLC0415
-    from ..progress import heartbeat  # noqa: PLC0415
+    from ..pipeline.segmentation import fixations_file
+    from ..progress import heartbeat
 
     settings = {field: getattr(args, attr) for attr, field in SETTINGS.items() if getattr(args, attr) is not None}
     with heartbeat("segmenting"):               # a long recording: a line every few seconds in a log

@@ -11,9 +11,9 @@ FORMATS = tuple(MODULES)
 
 
 def cmd_import(args) -> int:
-    from ..formats.devices.common import ImportOptions  # noqa: PLC0415
-    from ..pipeline.importer import format_import, import_recording  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..formats.devices.common import ImportOptions
+    from ..pipeline.importer import format_import, import_recording
+    from ..progress import progress_bar
 
     opts = ImportOptions(markers=args.markers and Path(args.markers), camera=args.camera and Path(args.camera),
                          marker_size_mm=args.marker_size_mm,
@@ -26,8 +26,8 @@ def cmd_import(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from ..pipeline.importer import export_recording  # noqa: PLC0415
-    from ..progress import heartbeat  # noqa: PLC0415
+    from ..pipeline.importer import export_recording
+    from ..progress import heartbeat
 
     with heartbeat("exporting"):                # a long session: a line every few seconds in a log
         command = export_recording(args.session, args.out, args.format, args.eye_states)

@@ -24,8 +24,8 @@ def _check_inputs(args) -> None:
 
 
 def cmd_live(args) -> int:
-    from ..live.app import run_live  # noqa: PLC0415
-    from ..live.device_app import run_device_live  # noqa: PLC0415
+    from ..live.app import run_live
+    from ..live.device_app import run_device_live
 
     _check_inputs(args)
     check_rerun(args, [args.camera_calib, args.eyes, args.markers])

@@ -8,8 +8,8 @@ from . import args as A
 
 
 def cmd_reproduce(args) -> int:
-    from ..paper.reproduce import reproduce_figure5, reproduce_table1  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..paper.reproduce import reproduce_figure5, reproduce_table1
+    from ..progress import progress_bar
 
     out = Path(args.out)
     if args.what == "table1":
@@ -17,8 +17,8 @@ def cmd_reproduce(args) -> int:
             result, paths = reproduce_table1(out, args.trials, args.seed, progress=cb)
         print(result.format())
     elif args.what == "calibration":
-        from ..formats.atomic import write_text  # noqa: PLC0415
-        from ..paper.calstudy import run_calibration_study  # noqa: PLC0415
+        from ..formats.atomic import write_text
+        from ..paper.calstudy import run_calibration_study
 
         with progress_bar("calibration trials", args.trials) as cb:
             result = run_calibration_study(trials=args.trials, seed=args.seed, progress=cb)

@@ -18,8 +18,8 @@ def check_rerun(args, inputs=()) -> None:
         if getattr(args, "rerun_frames", 0):
             raise UserError("--rerun-frames needs --rerun (out.rrd, a viewer's address, or nothing to spawn one)")
         return
-    from ..errors import check_output  # noqa: PLC0415
-    from ..pipeline.rerun_view import parse_rerun_dest, require_rerun  # noqa: PLC0415
+    from ..errors import check_output
+    from ..pipeline.rerun_view import parse_rerun_dest, require_rerun
 
     kind, where = parse_rerun_dest(args.rerun)
     require_rerun()
@@ -33,13 +33,13 @@ EXIT_STATUS = ("exit status: 0 targets estimated and every step that ran succeed
 
 
 def cmd_process(args) -> int:
-    from ..pipeline.process import process_session  # noqa: PLC0415
-    from ..pipeline.steps import format_result  # noqa: PLC0415
-    from ..progress import step_bars  # noqa: PLC0415
+    from ..pipeline.process import process_session
+    from ..pipeline.steps import format_result
+    from ..progress import step_bars
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
     if args.aois is not None:
-        from ..formats.aois import read_aois  # noqa: PLC0415
+        from ..formats.aois import read_aois
 
         read_aois(args.aois)                    # a bad AOI file: one line before OUT is made
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
@@ -59,7 +59,7 @@ def cmd_process(args) -> int:
 def build_map_option(args) -> tuple | None:
     """``--build-map MM [--map-dict DICT]`` as (side mm, dictionary), or None; ``--map-dict``
     alone, which nothing would use, refused."""
-    from ..pipeline.mapping import DEFAULT_DICT  # noqa: PLC0415
+    from ..pipeline.mapping import DEFAULT_DICT
 
     if args.build_map is None:
         if args.map_dict is not None:
@@ -70,7 +70,7 @@ def build_map_option(args) -> tuple | None:
 
 
 def cmd_demo(args) -> int:
-    from ..pipeline.demo import run_demo  # noqa: PLC0415
+    from ..pipeline.demo import run_demo
 
     return run_demo(None if args.out is None else Path(args.out), args.seed, args.duration, args.reuse)
 
@@ -114,7 +114,7 @@ def add_process(sub) -> None:
 
 def add_rerun_option(parser, help_text: str) -> None:
     """``--rerun [DEST]``: no value spawns a viewer (or connects to the local one)."""
-    from ..pipeline.rerun_view import SPAWN  # noqa: PLC0415
+    from ..pipeline.rerun_view import SPAWN
 
     parser.add_argument("--rerun", nargs="?", const=SPAWN, default=None, metavar="out.rrd|URL", help=help_text)
 

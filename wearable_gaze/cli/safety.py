@@ -63,7 +63,7 @@ def check_outputs(args) -> None:
 
 def _named_scenario(value) -> bool:
     """A named scenario (``simulate`` reads it, not a file of that name)."""
-    from ..sim.scenario import NAMED  # noqa: PLC0415
+    from ..sim.scenario import NAMED
 
     return value in NAMED
 
@@ -85,7 +85,7 @@ def quiet_opencv() -> None:
     imported earlier in the same process."""
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")        # AV_LOG_QUIET
-    from calibration.cvcompat import silence_logging  # noqa: PLC0415
+    from calibration.cvcompat import silence_logging
 
     silence_logging()
 

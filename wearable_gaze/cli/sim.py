@@ -11,8 +11,8 @@ DEFAULT_LISTEN = ("127.0.0.1", 5555)
 
 
 def cmd_simulate(args) -> int:
-    from ..progress import progress_bar  # noqa: PLC0415
-    from ..sim.simulate import simulate_scenario  # noqa: PLC0415
+    from ..progress import progress_bar
+    from ..sim.simulate import simulate_scenario
 
     with progress_bar("rendering", 1) as cb:
         manifest = simulate_scenario(args.scenario, args.out, args.seed, args.duration, args.resolution, cb)
@@ -26,8 +26,8 @@ def cmd_simulate(args) -> int:
 def cmd_emulate(args) -> int:
     if args.device == "pupil-core":
         return _emulate_pupil_core(args)
-    from ..formats.session import load_session  # noqa: PLC0415
-    from ..sim.emulate import RecorderEmulator  # noqa: PLC0415
+    from ..formats.session import load_session
+    from ..sim.emulate import RecorderEmulator
 
     sess = load_session(args.session)
     path = sess.path("eye_serial")
@@ -51,7 +51,7 @@ def cmd_emulate(args) -> int:
 
 
 def _emulate_pupil_core(args) -> int:
-    from ..sim.pupil_core_emu import PupilCoreEmulator, device_stream  # noqa: PLC0415
+    from ..sim.pupil_core_emu import PupilCoreEmulator, device_stream
 
     if args.pty or args.loop:
         raise UserError(f"--as pupil-core serves Pupil Capture's network API over TCP: drop "

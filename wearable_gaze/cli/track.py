@@ -7,8 +7,8 @@ from . import args as A
 
 
 def cmd_track(args) -> int:
-    from ..pipeline.track import track_video_files  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..pipeline.track import track_video_files
+    from ..progress import progress_bar
 
     with progress_bar("tracking", 1) as cb:
         counts = track_video_files(args.video, args.camera, args.out, markers=args.markers, reference=args.reference,
@@ -20,7 +20,7 @@ def cmd_track(args) -> int:
 
 
 def cmd_markers(args) -> int:
-    from ..pipeline.marker_sheets import parse_ids, write_marker_sheets  # noqa: PLC0415
+    from ..pipeline.marker_sheets import parse_ids, write_marker_sheets
 
     for p in write_marker_sheets(args.dict, parse_ids(args.ids), args.size_mm, args.out, args.page, args.dpi):
         print(f"wrote {p}")
@@ -60,8 +60,8 @@ def add_markers(sub) -> None:
 
 
 def cmd_map(args) -> int:
-    from ..pipeline.mapping import build_map_files, format_map_report, map_plot_path, parse_sizes  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..pipeline.mapping import build_map_files, format_map_report, map_plot_path, parse_sizes
+    from ..progress import progress_bar
 
     if args.markerless:
         return _cmd_markerless(args)
@@ -79,8 +79,8 @@ def cmd_map(args) -> int:
 
 
 def _cmd_markerless(args) -> int:
-    from ..pipeline.sfm import build_sfm_files, format_sfm_report  # noqa: PLC0415
-    from ..progress import progress_bar  # noqa: PLC0415
+    from ..pipeline.sfm import build_sfm_files, format_sfm_report
+    from ..progress import progress_bar
 
     if args.extend is not None or args.sizes or args.fixed_intrinsics:
         raise UserError("map --markerless: --extend, --sizes and --fixed-intrinsics are for marker maps; a markerless "

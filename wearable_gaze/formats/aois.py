@@ -105,7 +105,7 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     if path.suffix.lower() == ".obj":
         v, f = _read_obj(path)
     else:
-        from estimator._open3d import import_open3d  # noqa: PLC0415  (large; only for .ply meshes)
+        from estimator._open3d import import_open3d  # large; only for .ply meshes
 
         m = import_open3d().io.read_triangle_mesh(str(path))
         v, f = np.asarray(m.vertices, float), np.asarray(m.triangles, int)

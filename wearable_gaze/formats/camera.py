@@ -88,7 +88,7 @@ def load_camera(path) -> CameraCalibration:
 
 def _read_opencv_camera(path: Path) -> dict:
     """The fields of an OpenCV FileStorage camera file as a camera-JSON dict (not yet checked)."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     bad = UserError(f"{path}: not a camera JSON or an OpenCV YAML/XML camera file OpenCV can parse; pass "
                     "camera.json from 'wearable-gaze calibrate-camera' (docs/calibration.md)")

@@ -39,8 +39,8 @@ def schema(name: str) -> dict:
 
 @cache
 def _validator(name: str):
-    from jsonschema import Draft202012Validator  # noqa: PLC0415
-    from referencing import Registry, Resource  # noqa: PLC0415  (jsonschema's own dependency)
+    from jsonschema import Draft202012Validator
+    from referencing import Registry, Resource  # jsonschema's own dependency
 
     s = schema(name)
     Draft202012Validator.check_schema(s)
@@ -147,7 +147,7 @@ def validate(obj, name: str, source) -> None:
     Raises:
         UserError: one line naming ``source``, the JSON path, what was expected and the fix.
     """
-    from jsonschema.exceptions import best_match  # noqa: PLC0415
+    from jsonschema.exceptions import best_match
 
     bad = _non_finite(obj)
     if bad is not None:
@@ -268,7 +268,7 @@ def _check_eyes(d: dict, source) -> None:
 
 
 def _check_dictionary(name: str, value: str, source, where) -> None:
-    from calibration.camera import ARUCO_DICTS  # noqa: PLC0415
+    from calibration.camera import ARUCO_DICTS
 
     if value not in ARUCO_DICTS:
         raise fail(source, name, where, f"unknown marker dictionary {short(value)}: use a cv2.aruco name such as "

@@ -31,7 +31,7 @@ log = logging.getLogger(__name__)
 
 def grey_frames(path):
     """Yield every frame of a video as a (H, W) uint8 grey image."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     cap = cv2.VideoCapture(str(path))
     try:
@@ -46,7 +46,7 @@ def grey_frames(path):
 
 def video_fps(path) -> float:
     """A video's frame rate (30 when it does not say)."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     cap = cv2.VideoCapture(str(path))
     try:
@@ -58,7 +58,7 @@ def video_fps(path) -> float:
 def grey_frames_at(path, frames) -> dict:
     """{frame index: (H, W) uint8 grey image} of the frames ``frames`` (indices from 0) of a video,
     decoded in order (the frames between are skipped undecoded); an index past its end is absent."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     want, out = set(int(i) for i in frames), {}
     cap = cv2.VideoCapture(str(path))
@@ -83,7 +83,7 @@ def sampled_grey_frames(path, max_frames: int, refused: str | None = None):
     Raises:
         UserError: OpenCV cannot open ``path`` as a video (``refused`` is the message, naming the fix).
     """
-    import cv2  # noqa: PLC0415
+    import cv2
 
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
@@ -108,7 +108,7 @@ def open_video(video: Path, image_size):
     Raises:
         UserError: no such file, a video OpenCV cannot open, or frames of another size.
     """
-    import cv2  # noqa: PLC0415
+    import cv2
 
     if not video.is_file():
         raise UserError(f"{video}: no such video; check the path")
@@ -132,7 +132,7 @@ def open_video_writer(path, codec: str, fps: float, size, is_color: bool = True,
     Raises:
         UserError: OpenCV refused to open it (``refused`` is the message, naming the fix).
     """
-    import cv2  # noqa: PLC0415
+    import cv2
 
     writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*codec), float(fps),
                              tuple(int(v) for v in size), isColor=is_color)
@@ -164,10 +164,10 @@ class BrowserVideoWriter:
     """
 
     def __init__(self, path, fps: float, size):
-        from fractions import Fraction  # noqa: PLC0415
+        from fractions import Fraction
 
         try:
-            import av  # noqa: PLC0415
+            import av
         except ImportError:
             raise UserError("the overlay video needs PyAV: pip install av") from None
         if BROWSER_CODEC not in av.codecs_available:

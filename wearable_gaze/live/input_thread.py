@@ -28,7 +28,7 @@ class InputThread(threading.Thread):
     def run(self):
         try:
             self._run()
-        except Exception as exc:  # noqa: BLE001  (the live loop reports it and ends the session)
+        except Exception as exc:  # the live loop reports it and ends the session
             self.failure = f"{type(exc).__name__}: {exc}"
             log.debug("%s failed", self.name, exc_info=True)
 

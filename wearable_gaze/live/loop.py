@@ -51,7 +51,7 @@ class TargetWorker(threading.Thread):
                 target = self.finish(done)
                 if target is not None:
                     self.publish(target)
-            except Exception as exc:  # noqa: BLE001  (the loop raises it: the session ends, the recording kept)
+            except Exception as exc:  # the loop raises it: the session ends, the recording kept
                 log.debug("the target worker failed", exc_info=True)
                 self.failure = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
@@ -163,7 +163,7 @@ class LiveSession:
             self.worker.drain()                      # every target published and recorded
             if self.worker.failure:
                 raise RuntimeError(f"the target worker failed: {self.worker.failure}")
-        except Exception as exc:  # noqa: BLE001  (one line to the user; the recording kept, not complete)
+        except Exception as exc:  # one line to the user; the recording kept, not complete
             log.debug("live session failed", exc_info=True)
             failure = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
         finally:

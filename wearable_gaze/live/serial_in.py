@@ -195,7 +195,7 @@ class EyeReader(InputThread):
             finally:
                 try:
                     link.close()
-                except Exception:  # noqa: BLE001
+                except Exception:
                     pass
             if not self.stop_event.is_set():
                 time.sleep(self.reconnect_s)

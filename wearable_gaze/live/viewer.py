@@ -30,7 +30,7 @@ class RerunViewer(Subscriber):
 
     def __init__(self, dest, camera=None, marker_map=None, maxsize: int = 5000):
         super().__init__("rerun", maxsize=maxsize)
-        from ..pipeline.rerun_view import log_scene, open_recording  # noqa: PLC0415
+        from ..pipeline.rerun_view import log_scene, open_recording
 
         self.rec = open_recording(dest, "wearable-gaze live")
         log_scene(self.rec, camera, marker_map)
@@ -49,13 +49,13 @@ class RerunViewer(Subscriber):
         self.put(("target", target, lines))
 
     def _send(self, batch) -> None:
-        from ..pipeline.rerun_view import log_estimate, log_head_pose, log_target  # noqa: PLC0415
-        from .estimation import lines_to_samples  # noqa: PLC0415
+        from ..pipeline.rerun_view import log_estimate, log_head_pose, log_target
+        from .estimation import lines_to_samples
 
         for item in batch:
             try:
                 self._log(item, log_estimate, log_head_pose, log_target, lines_to_samples)
-            except Exception as exc:  # noqa: BLE001  (the viewer is disconnected, the session goes on)
+            except Exception as exc:  # the viewer is disconnected, the session goes on
                 log.debug("rerun logging failed", exc_info=True)
                 raise OSError(f"{type(exc).__name__}: {exc}") from None
 
@@ -71,8 +71,8 @@ class RerunViewer(Subscriber):
                        path=f"world/targets/{target.index}/fixation_{target.fixations[0]}")
 
     def _close_transport(self) -> None:
-        from ..errors import UserError  # noqa: PLC0415
-        from ..pipeline.rerun_view import close_recording  # noqa: PLC0415
+        from ..errors import UserError
+        from ..pipeline.rerun_view import close_recording
 
         try:
             close_recording(self.rec, timeout_s=self.stuck_s)

@@ -140,9 +140,9 @@ def convergence(depth_mm: float, seed: int, protocol: Protocol = Protocol(), met
 def plot_fig11(out_path, seed: int = 0, protocol: Protocol = Protocol(), depths_mm=(1000.0, 3000.0, 5000.0)):
     """Density slices at y = 0 after all 200 samples (like the paper's Fig. 11): the paper's
     voxel space (top) and our Bayesian log-likelihood (bottom, evaluated from the kept lines)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, len(depths_mm), figsize=(4.2 * len(depths_mm), 8), squeeze=False)
     for col, z in enumerate(depths_mm):
@@ -190,9 +190,9 @@ def plot_fig11(out_path, seed: int = 0, protocol: Protocol = Protocol(), depths_
 
 def plot_fig13(out_path, seed: int = 0, protocol: Protocol = Protocol(), depths_mm=PAPER_DEPTHS_MM):
     """Estimated depth against the number of observations (like the paper's Fig. 13)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(TABLE_METHODS), figsize=(4.2 * len(TABLE_METHODS), 4.2), sharey=True)
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(depths_mm)))
@@ -251,9 +251,9 @@ def run_figure5(seed: int = 0, distances_mm=(1200.0, 1600.0, 2400.0, 3300.0), du
 
 
 def plot_figure5(result: Figure5Result, out_path):
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
     colors = plt.cm.plasma(np.linspace(0, 0.85, len(result.depths_mm)))
@@ -271,9 +271,9 @@ def plot_figure5(result: Figure5Result, out_path):
 
 
 def _save(fig, out_path):
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
-    from ..formats.atomic import atomic_path  # noqa: PLC0415
+    from ..formats.atomic import atomic_path
 
     with atomic_path(out_path) as tmp:
         fig.savefig(tmp, dpi=110, format=Path(out_path).suffix.lstrip(".") or "png")
@@ -284,9 +284,9 @@ def reproduce_table1(out_dir, trials: int = 20, seed: int = 0,
                      progress: Progress | None = None) -> tuple[Table1Result, list[Path]]:
     """Run Table 1, write ``table1.txt``, ``table1.json``, ``fig11_density_slices.png`` and
     ``fig13_convergence.png`` into ``out_dir``; return the result and the written paths."""
-    import json  # noqa: PLC0415
+    import json
 
-    from ..formats.atomic import write_text  # noqa: PLC0415
+    from ..formats.atomic import write_text
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

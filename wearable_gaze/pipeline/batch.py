@@ -25,12 +25,12 @@ from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..errors import UserError
+from ..errors import UserError, one_line
 from ..formats.atomic import remove_temporaries
 from ..formats.batch_status import STATUS_FILE, earlier_statuses, lock_owner, read_status, write_index, write_status
 from ..formats.session import MANIFEST
 from .batch_report import write_batch_report
-from .batch_workers import DaskRunner, LocalRunner, SessionTask, WorkerLost, one_line
+from .batch_workers import REASON_CHARS, DaskRunner, LocalRunner, SessionTask, WorkerLost
 from .steps import EXIT_PARTIAL, missing_output
 
 log = logging.getLogger(__name__)
@@ -247,7 +247,7 @@ def _lost(task: SessionTask, exc: BaseException) -> dict:
         f"its worker died while processing it too often (Dask {kind}: killed, or out of memory?)"
         if kind == "KilledWorker" else f"the cluster lost it ({kind}: {exc})")
     st = dict(read_status(Path(task.out)) or {}, version=1, name=task.name, session=task.session,
-              fingerprint=task.fingerprint, state="failed", reason=one_line(why), finished=time.time())
+              fingerprint=task.fingerprint, state="failed", reason=one_line(why, REASON_CHARS), finished=time.time())
     write_status(Path(task.out), st)
     return st
 

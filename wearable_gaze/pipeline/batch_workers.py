@@ -17,7 +17,7 @@ import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ..errors import UserError
+from ..errors import UserError, one_line
 from ..formats.batch_status import (
     LOCK_FILE,
     STATUS_FILE,
@@ -58,16 +58,15 @@ def _memory_mb() -> tuple[float | None, float | None]:
         return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
     except (OSError, KeyError, ValueError):
         try:
-            import resource  # noqa: PLC0415
+            import resource
 
             return None, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         except ImportError:
             return None, None
 
 
-def one_line(text: str, limit: int = 500) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+REASON_CHARS = 500
+"""A status's ``reason``, cut to this many characters (``one_line``)."""
 
 
 def run_session(task: SessionTask) -> dict:
@@ -77,7 +76,7 @@ def run_session(task: SessionTask) -> dict:
     the session unreadable, or no target estimated, as ``process`` exits 2, or an internal error,
     its traceback kept in the status as ``traceback``); return the final status. Never raises for
     a bad session; Ctrl-C and a killed worker leave the status ``running``."""
-    from .process import process_session  # noqa: PLC0415  (the worker's heavy import, once)
+    from .process import process_session  # the worker's heavy import, once
 
     out = Path(task.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -103,15 +102,15 @@ def _run_locked(task: SessionTask, out: Path, process_session) -> dict:
     try:
         res = process_session(task.session, out, **task.settings.process_kwargs())
     except UserError as exc:
-        status.update(state="failed", reason=one_line(exc))
-    except Exception as exc:  # noqa: BLE001  (a bug on one session must not stop the others)
+        status.update(state="failed", reason=one_line(exc, REASON_CHARS))
+    except Exception as exc:  # a bug on one session must not stop the others
         log.exception("session %s: internal error", task.session)
         status.update(state="failed", reason=one_line(f"internal error ({type(exc).__name__}: {exc}); this is a "
-                                                      f"bug: its traceback is in {STATUS_FILE}"),
+                                                      f"bug: its traceback is in {STATUS_FILE}", REASON_CHARS),
                       traceback=traceback.format_exc())
     else:
         state = {"ok": "done", "partial": "partial"}.get(res.outcome, "failed")
-        status.update(state=state, reason=None if state == "done" else one_line("; ".join(res.problems)),
+        status.update(state=state, reason=None if state == "done" else one_line("; ".join(res.problems), REASON_CHARS),
                       n_targets=sum(t.fixated for t in res.found), problems=res.problems, failed_steps=res.failed,
                       steps_skipped=res.skipped)
     status["duration_s"] = round(time.perf_counter() - t0, 3)
@@ -126,13 +125,13 @@ def _init_local_worker(coordinator: str) -> None:
     """A local worker: Ctrl-C is the coordinator's to handle (it stops the workers); the worker
     ends when its ``coordinator`` (``HOST:PID:START``) does, killed or not (``_watch``); one
     thread for OpenCV (the batch runs one worker per core)."""
-    import signal  # noqa: PLC0415
-    import threading  # noqa: PLC0415
+    import signal
+    import threading
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_watch, args=(coordinator,), name="coordinator-watch", daemon=True).start()
     with contextlib.suppress(ImportError):
-        import cv2  # noqa: PLC0415
+        import cv2
 
         cv2.setNumThreads(1)
 
@@ -178,7 +177,7 @@ it until the next session ends)."""
 
 def _as_completed(futures):
     """``concurrent.futures.as_completed``, waking every ``POLL_S`` s (see there)."""
-    from concurrent.futures import FIRST_COMPLETED, wait  # noqa: PLC0415
+    from concurrent.futures import FIRST_COMPLETED, wait
 
     pending = set(futures)
     while pending:
@@ -189,7 +188,7 @@ def _as_completed(futures):
 def _context():
     """The start method of local workers: forked from a server that has imported the pipeline
     (with one-thread numerical libraries: it starts inside ``_single_threaded_children``)."""
-    import multiprocessing  # noqa: PLC0415
+    import multiprocessing
 
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
@@ -218,8 +217,8 @@ class LocalRunner:
 
     def run(self, tasks):
         """Yield (task, status dict or exception) as sessions finish."""
-        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
-        from concurrent.futures.process import BrokenProcessPool  # noqa: PLC0415
+        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures.process import BrokenProcessPool
 
         todo = list(tasks)
         with _single_threaded_children():               # the workers are started on demand, and replaced
@@ -281,7 +280,7 @@ def _quiet_end(pool, manager):
     """While a stopped pool's manager thread ends: its ``TypeError`` from counting the workers the
     pool has let go of (``_processes`` None) is that end, not an error, and is not printed (it
     was, as a traceback, when Ctrl-C met a worker's exit); any other exception is."""
-    import threading  # noqa: PLC0415
+    import threading
 
     previous = threading.excepthook
 
@@ -306,7 +305,7 @@ class DaskRunner:
 
     def __init__(self, address: str, connect_timeout_s: float = 10.0):
         try:
-            import distributed  # noqa: PLC0415
+            import distributed
         except ImportError:
             raise UserError(f"--scheduler needs Dask's distributed scheduler (an optional extra): {DASK_EXTRA}") \
                 from None
@@ -337,7 +336,7 @@ class DaskRunner:
             for fut in ready:
                 try:
                     result = fut.result()
-                except Exception as exc:  # noqa: BLE001  (KilledWorker, a lost scheduler: that session fails)
+                except Exception as exc:  # KilledWorker, a lost scheduler: that session fails
                     result = exc
                 task = self.futures.pop(fut)
                 # released at once: a finished task whose worker dies later would otherwise be

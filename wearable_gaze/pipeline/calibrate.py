@@ -33,7 +33,7 @@ from calibration.kappa import apply_kappa
 from estimator import BinocularSamples
 from estimator.frames import rotate_directions, transform_points
 from tracking.markers import MarkerDetector
-from tracking.timeline import interpolate_poses
+from tracking.timeline import MAX_POSE_GAP_S, interpolate_poses
 
 from ..errors import UserError, check_output
 from ..formats.camera import calibration_dict, is_preview, load_camera, preview_path, write_camera
@@ -376,7 +376,7 @@ def format_eyes_report(result: dict) -> str:
 
 # --- viewlines ---------------------------------------------------------------------------------
 
-def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1, person=None) -> dict:
+def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = MAX_POSE_GAP_S, person=None) -> dict:
     """``view_lines`` from files: writes the view-line CSV and returns the counts. ``person``: a
     person.json whose per-eye correction is applied (docs/calibration.md, per-person bias)."""
     check_output(out, [eye_csv, eyes_json, poses_csv] + ([person] if person else []), "-o")
@@ -388,7 +388,7 @@ def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = 0.1, 
     return result.counts
 
 
-def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = 0.1, source="the poses",
+def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = MAX_POSE_GAP_S, source="the poses",
                correction_deg=None) -> ViewLinesResult:
     """Raw eye samples -> world view lines (eq. 1-8) with the head poses interpolated to each
     sample; samples without a pose within ``max_gap_s`` are dropped and counted, invalid eyes
@@ -417,7 +417,7 @@ def correct_head_lines(head: BinocularSamples, correction_deg) -> BinocularSampl
                                         head.left_valid, head.right_valid, frame=head.frame)
 
 
-def head_lines_to_world(head: BinocularSamples, poses: Poses, max_gap_s: float = 0.1, source="the poses",
+def head_lines_to_world(head: BinocularSamples, poses: Poses, max_gap_s: float = MAX_POSE_GAP_S, source="the poses",
                         correction_deg=None) -> ViewLinesResult:
     """View lines in the head frame (``frame="head"``: calibrated eye samples, or a device's
     eye rays) -> world view lines, with the head poses ``T_world_from_cam`` interpolated to each

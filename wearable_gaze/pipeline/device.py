@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from tracking.surface import first_surface
-from tracking.timeline import interpolate_poses, nearest_in_time
+from tracking.timeline import MAX_POSE_GAP_S, interpolate_poses, nearest_in_time
 
 from ..errors import UserError
 from ..formats.devices.common import read_import_report
@@ -99,7 +99,7 @@ def device_comparison(device_gaze: Path, samples, targets: list, poses: Poses, o
         if tg.samples is None or not np.all(np.isfinite(tg.position_mm)):
             continue
         ts = samples.t_s[tg.samples]
-        T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, ts, 0.1)
+        T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, ts, MAX_POSE_GAP_S)
         head = T[ok, :3, 3]
         ours = float(np.median(np.linalg.norm(tg.position_mm - head, axis=1))) if ok.any() else np.nan
         depth = np.linalg.norm(nearest_in_time(t_g, p_g, ts, 0.1), axis=1)
@@ -119,7 +119,7 @@ def surface_reference(points_mm, device_gaze: Path, poses: Poses, t) -> tuple[np
     frame, mm; NaN where the device gave no gaze, no pose is near, or no surface is found."""
     t = np.asarray(t, float)
     t_g, p_g = read_device_gaze(device_gaze)
-    T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, t, 0.1)
+    T, ok = interpolate_poses(poses.t, poses.T_world_from_cam, t, MAX_POSE_GAP_S)
     d_head = np.where(ok[:, None], nearest_in_time(t_g, p_g, t, 1e-4), np.nan)     # the same samples' gaze
     with np.errstate(invalid="ignore", divide="ignore"):
         d_head = d_head / np.linalg.norm(d_head, axis=1, keepdims=True)

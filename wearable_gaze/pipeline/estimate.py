@@ -177,7 +177,7 @@ def covariance_model(method: str, error_model: ErrorModel | None) -> str:
 
 def _write_density(est, target: Path) -> Path:
     pc = density_point_cloud(est)
-    from estimator._open3d import import_open3d  # noqa: PLC0415
+    from estimator._open3d import import_open3d
     o3d = import_open3d()
     with atomic_path(target) as tmp:
         if not o3d.t.io.write_point_cloud(str(tmp), pc):
@@ -225,7 +225,7 @@ def targets_of_segments(path, method: str, sigma_deg: float, error_model: ErrorM
     target record of targets.json, ``formats.targets.target_record``, with ``fixations`` as the
     file's segment labels, and ``covariance_model``), then the skipped entry of the rows of
     segment -1 if any. ``error_model``: as in ``find_targets``."""
-    from .fixations import find_targets  # noqa: PLC0415  (fixations imports this module)
+    from .fixations import find_targets  # fixations imports this module
 
     samples, keys = read_in_time_order(path)
     bad = next((k for k in keys if isinstance(k, bool) or not isinstance(k, int) or k < NO_FIXATION), None)

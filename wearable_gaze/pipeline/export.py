@@ -14,7 +14,7 @@ from estimator import BinocularSamples
 from estimator.frames import rotate_directions, transform_points
 from estimator.region import ray_exit, region_mesh
 from estimator.result import covariance_ellipsoid
-from tracking.timeline import interpolate_poses
+from tracking.timeline import MAX_POSE_GAP_S, interpolate_poses
 
 from ..errors import UserError
 from ..formats.fixations_table import write_fixations_csv
@@ -27,8 +27,6 @@ from .types import Poses, Target, TargetsResult
 
 log = logging.getLogger(__name__)
 
-MAX_POSE_GAP_S = 0.1
-"""A sample's world view lines need a head pose within this (the view-line step's ``max_gap_s``)."""
 COLOURS = np.array([[214, 39, 40], [31, 119, 180], [44, 160, 44], [148, 103, 189], [255, 127, 14], [140, 86, 75],
                     [227, 119, 194], [23, 190, 207]], np.uint8)
 """The targets' colours, in turn (the report's)."""

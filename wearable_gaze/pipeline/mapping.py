@@ -156,7 +156,7 @@ def write_map_plot(built: BuiltMap, path: Path) -> None:
     """A top view (world x, z; the origin marker's frame) of the built map: each marker as its
     side seen from above with its id (red: flagged), and the survey's camera path (the posed
     views' positions, in order)."""
-    from .report import _plt, _save  # noqa: PLC0415  (matplotlib only when plotting)
+    from .report import _plt, _save  # matplotlib only when plotting
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))

@@ -122,9 +122,9 @@ def _layout(dic, size_mm: float, page: str, margin_mm: float) -> _Layout:
 
 
 def _plt():
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
     return plt
 
 
@@ -133,7 +133,7 @@ def _write_pages(out: Path, pages, dic, dictionary: str, lay: _Layout, dpi: int)
     plt = _plt()
     written = []
     if out.suffix.lower() == ".pdf":
-        from matplotlib.backends.backend_pdf import PdfPages  # noqa: PLC0415
+        from matplotlib.backends.backend_pdf import PdfPages
         with atomic_path(out) as tmp, PdfPages(tmp) as pdf:
             for p in pages:
                 fig = _draw_page(p, dic, dictionary, lay, dpi)

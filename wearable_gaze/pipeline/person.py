@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.kappa import angular_errors_deg, apply_kappa, fit_kappa_targets
-from tracking.timeline import interpolate_poses
+from tracking.timeline import MAX_POSE_GAP_S, interpolate_poses
 
 from ..errors import UserError, check_output
 from ..formats.eye_rays import read_eye_rays
@@ -32,7 +32,6 @@ from .calibrate import head_view_lines
 log = logging.getLogger(__name__)
 
 SETTLE_S = 0.1          # left out at the start of each fixation interval: the eye is still landing
-MAX_GAP_S = 0.1         # a sample needs a head pose this close
 
 
 def _head_samples(s, processed: Path, eyes):
@@ -74,7 +73,7 @@ def validation_pairs(head, poses_t, T_world_from_cam, targets, settle_s: float =
     idx, tgt = np.concatenate(idx), np.concatenate(tgt)
     if not len(idx):
         return idx, np.zeros((0, 3)), tgt
-    T_wc, ok = interpolate_poses(poses_t, T_world_from_cam, head.t_s[idx], MAX_GAP_S)
+    T_wc, ok = interpolate_poses(poses_t, T_world_from_cam, head.t_s[idx], MAX_POSE_GAP_S)
     idx, tgt, T_wc = idx[ok], tgt[ok], T_wc[ok]
     pos = np.array([t["position_mm"] for t in targets], float)
     R, p = T_wc[:, :3, :3], T_wc[:, :3, 3]

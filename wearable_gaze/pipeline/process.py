@@ -17,6 +17,7 @@ from pathlib import Path
 
 from estimator.segments import SegmentConfig
 from estimator.slippage import seen_bias
+from tracking.timeline import MAX_POSE_GAP_S
 
 from ..errors import UserError
 from ..formats.atomic import remove_temporaries
@@ -244,7 +245,7 @@ def _view_in_rerun(rerun: str, frames_every: int, res: ProcessResult, s, f: _Ses
                    cam_path: Path) -> None:
     """The results logged to rerun (``pipeline.rerun_view``); a viewer that cannot be reached is a
     problem, the results are kept."""
-    from .rerun_view import view_processed  # noqa: PLC0415  (rerun-sdk: an optional extra)
+    from .rerun_view import view_processed  # rerun-sdk: an optional extra
     try:
         res.summary["rerun"] = view_processed(rerun, out, res.found or None, cam_path, f.markers or out / BUILT_MAP,
                                               s.path("truth_targets"), s.path("truth_head_poses"), f.video, f.stamps,
@@ -301,9 +302,10 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     def do_viewlines(cb):
         if f.eye_rays is not None:
-            result = head_lines_to_world(vals["eye_rays"], vals["poses"], 0.1, poses_path, correction)
+            result = head_lines_to_world(vals["eye_rays"], vals["poses"], MAX_POSE_GAP_S, poses_path, correction)
         else:
-            result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], 0.1, poses_path, correction)
+            result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], MAX_POSE_GAP_S, poses_path,
+                                correction)
         write_viewlines_csv(raw_vl, result.samples)
         write_json(counts_path, result.counts)
     eye_inputs = [f.eye_rays] if f.eye_rays is not None else [f.eye_samples, eyes_path]

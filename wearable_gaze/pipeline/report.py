@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2
 
 from estimator import fisher_information
+from estimator.errormodel import K95  # the 95 % ellipsoid's semi-axes over the standard deviations
 from tracking.markermap import MarkerMap
 
 from ..formats.atomic import write_text
@@ -56,7 +56,6 @@ PLOTS = report_plots.PLOTS
 REPORT_FILES = ("report.html", *PLOTS, PREVIEW_NAME, VIDEO_NAME, "overlay_error.txt")   # all write_report writes
 OPTIONAL_FILES = (PREVIEW_NAME, VIDEO_NAME, "overlay_error.txt")                        # ... not always
 COLOURS = report_plots.COLOURS
-K95 = float(np.sqrt(chi2.ppf(0.95, 3)))       # the 95 % ellipsoid's semi-axes over the standard deviations
 
 __all__ = ["OverlayInputs", "ReportTruth", "write_report", "load_truth", "REPORT_FILES", "PLOTS"]
 
@@ -185,7 +184,7 @@ class ReportData:
 
 def report_data(out: Path, T_p: np.ndarray, truth: ReportTruth | None = None) -> ReportData:
     """The outputs in ``out`` read for the report; ``T_p`` (M, 4, 4) the head poses."""
-    from estimator import BinocularSamples  # noqa: PLC0415
+    from estimator import BinocularSamples
 
     records = read_targets(out / "targets.json")
     targets = [Target.from_row(r) for r in records]
@@ -278,7 +277,7 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
         try:
             targets = OverlayTargets(d.targets, d.samples.t_s, d.tlabels, d.paths)
             names = write_overlays(out, overlay(), targets, t_p, frame_p, T_p, overlay_video)
-        except Exception as exc:  # noqa: BLE001  (a report without a video is still a report)
+        except Exception as exc:  # a report without a video is still a report
             write_text(out / "overlay_error.txt", f"{type(exc).__name__}: {exc}\n")
     if progress:
         progress(4, 5)
@@ -292,7 +291,7 @@ def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | Non
     """The 3D view's scene: the map's markers (and a markerless map's points), the head path, per
     target its lines, estimate, credible region (its ellipsoid when it has none), path and truth,
     and the box the view is scaled to."""
-    from .report_plots import line_segments  # noqa: PLC0415
+    from .report_plots import line_segments
 
     targets, (lo, hi) = [], d.box()
     for tg in d.targets:

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator import angular_log_likelihood
+from estimator.errormodel import K95
 
 from ..formats.atomic import atomic_path
 from .regions import region_lines
@@ -25,9 +26,9 @@ TRUTH_STYLE = {"marker": "s", "mfc": "none", "mew": 1.5, "ms": 8, "ls": "none"}
 
 
 def _plt():
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
     return plt
 
 
@@ -259,7 +260,7 @@ def figure_top(d, colour):
     region seen from above (a target without one: its 95 % ellipsoid's shadow; a moving target:
     its path, with its 95 % ellipsoid's shadow at every 10th knot); the truth. The axes hold the
     head path and the targets (``top_limits``), not the regions' far ends."""
-    from matplotlib.patches import Ellipse  # noqa: PLC0415
+    from matplotlib.patches import Ellipse
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.5, 6.5), layout="constrained")
@@ -278,7 +279,7 @@ def figure_top(d, colour):
             _, P, cov = d.paths[tg.index]
             ax.plot(P[:, 0], P[:, 2], "-", color=c, lw=2, label=f"target {tg.index} (moving: its path)")
             for k in range(0, len(P), 10):
-                ax.add_patch(_shadow(Ellipse, P[k], 7.8147 * cov[k], c, 0.5))
+                ax.add_patch(_shadow(Ellipse, P[k], K95 ** 2 * cov[k], c, 0.5))
         elif np.all(np.isfinite(X)):
             E = d.ellipsoid(tg) if tg.index not in d.regions else None
             if E is not None:
@@ -307,7 +308,7 @@ def _region_top(ax, r, c: str, span_mm: float) -> None:
     """A region's lines (``regions.RegionLines``) seen from above: the outline of its x-z shadow
     (the convex hull of its end rings) shaded, its line of sight; where cut, an arrow at the
     axes' edge and, when it has one, its far end beside it."""
-    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415
+    from scipy.spatial import ConvexHull, QhullError
 
     P = r.hull[:, [0, 2]]
     try:

@@ -73,7 +73,7 @@ def require_rerun() -> None:
         UserError: ``RERUN_MISSING``.
     """
     try:
-        import rerun  # noqa: F401, PLC0415
+        import rerun  # noqa: F401
     except ImportError:
         raise UserError(RERUN_MISSING) from None
 
@@ -215,7 +215,7 @@ def open_recording(dest: str | None, name: str = "wearable-gaze"):
     """
     kind, where = parse_rerun_dest(dest)
     require_rerun()
-    import rerun as rr  # noqa: PLC0415
+    import rerun as rr
 
     rec = rr.RecordingStream("wearable_gaze")
     rec.send_recording_name(name)
@@ -269,7 +269,7 @@ def log_scene(rec, camera=None, marker_map=None, truth_targets=None, truth_head=
     the markers' outlines (a ``tracking.MarkerMap``), and when known the truth: targets (rows of
     truth/targets.json: ``position_mm``, or a moving one's ``path_mm``) and the head's true path
     (poses (N, 4, 4))."""
-    import rerun as rr  # noqa: PLC0415
+    import rerun as rr
 
     if camera is not None:
         rec.log("world/head/camera", rr.Pinhole(**pinhole_of(camera), camera_xyz=rr.ViewCoordinates.RDF,
@@ -296,7 +296,7 @@ def log_scene(rec, camera=None, marker_map=None, truth_targets=None, truth_head=
 def log_head_pose(rec, t_s: float, T_world_from_cam) -> None:
     """The head (scene camera) at session time ``t_s``: ``world/head`` gets ``T_world_from_cam``
     (4, 4), mm (rerun's Transform3D maps the child, the camera, into its parent, the world)."""
-    import rerun as rr  # noqa: PLC0415
+    import rerun as rr
 
     T = np.asarray(T_world_from_cam, float)
     rec.set_time(TIMELINE, duration=float(t_s))
@@ -305,8 +305,8 @@ def log_head_pose(rec, t_s: float, T_world_from_cam) -> None:
 
 def log_frame(rec, t_s: float, image, jpeg_quality: int = 80) -> None:
     """A scene frame (H, W) or (H, W, 3) BGR uint8 at ``t_s``, JPEG-encoded, in the camera's pinhole."""
-    import cv2  # noqa: PLC0415
-    import rerun as rr  # noqa: PLC0415
+    import cv2
+    import rerun as rr
 
     ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
     if ok:
@@ -316,7 +316,7 @@ def log_frame(rec, t_s: float, image, jpeg_quality: int = 80) -> None:
 
 def log_estimate(rec, t_s: float, position_mm, fixation: int) -> None:
     """The running estimate of the current fixation at ``t_s`` (``world/gaze/estimate``)."""
-    import rerun as rr  # noqa: PLC0415
+    import rerun as rr
 
     rec.set_time(TIMELINE, duration=float(t_s))
     rec.log("world/gaze/estimate", rr.Points3D([position_mm], radii=12.0, colors=[255, 160, 0],
@@ -328,7 +328,7 @@ def log_target(rec, target, lines=None, viewpoint_mm=None, path: str | None = No
     (``target_ellipsoids``; from its covariance, else along the line of sight from
     ``viewpoint_mm``), and its fixation's view lines (``lines``: ``BinocularSamples``) under
     ``path``/view_lines (default path ``world/targets/<index>``)."""
-    import rerun as rr  # noqa: PLC0415
+    import rerun as rr
 
     path = path or f"world/targets/{target.index}"
     rec.set_time(TIMELINE, duration=float(target.t_end))
@@ -372,10 +372,10 @@ def view_processed(dest: str | None, out, targets=None, camera=None, markers=Non
     Returns:
         what was written to: the file, the address, or 'a spawned viewer'.
     """
-    from ..formats.camera import load_camera  # noqa: PLC0415
-    from ..formats.markermap import load_marker_map  # noqa: PLC0415
-    from ..formats.poses import read_poses_csv  # noqa: PLC0415
-    from ..formats.truth import read_truth_targets  # noqa: PLC0415
+    from ..formats.camera import load_camera
+    from ..formats.markermap import load_marker_map
+    from ..formats.poses import read_poses_csv
+    from ..formats.truth import read_truth_targets
 
     out = Path(out)
     rec = open_recording(dest, f"wearable-gaze process {out}")
@@ -403,7 +403,7 @@ def view_processed(dest: str | None, out, targets=None, camera=None, markers=Non
 
 
 def _log_head(rec, t, T_world_from_cam) -> None:
-    import rerun as rr  # noqa: PLC0415
+    import rerun as rr
 
     strips = head_path(T_world_from_cam)
     if strips:
@@ -414,9 +414,9 @@ def _log_head(rec, t, T_world_from_cam) -> None:
 
 
 def _log_frames(rec, video, frame_stamps, every: int) -> None:
-    import cv2  # noqa: PLC0415
+    import cv2
 
-    from ..formats.video import read_frame_times  # noqa: PLC0415
+    from ..formats.video import read_frame_times
 
     times = read_frame_times(frame_stamps)[1] if frame_stamps is not None else None
     cap = cv2.VideoCapture(str(video))
@@ -434,7 +434,7 @@ def _log_frames(rec, video, frame_stamps, every: int) -> None:
 
 
 def _log_estimates(rec, path: Path) -> None:
-    from ..formats.targets import read_estimates  # noqa: PLC0415
+    from ..formats.targets import read_estimates
 
     if not path.is_file():
         return
@@ -447,9 +447,9 @@ def _log_targets(rec, out: Path, targets) -> None:
     """Each target with the view lines of its fixations (viewlines.csv's segments); a target
     read from targets.json gets its ellipsoid along the line of sight from the head's mean
     position over its samples."""
-    from ..formats.targets import read_targets  # noqa: PLC0415
-    from ..formats.viewlines import read_viewlines_csv  # noqa: PLC0415
-    from .types import Target  # noqa: PLC0415
+    from ..formats.targets import read_targets
+    from ..formats.viewlines import read_viewlines_csv
+    from .types import Target
 
     if targets is None or any(t.covariance_mm2 is None for t in targets):
         if not (out / "targets.json").is_file():
@@ -468,7 +468,7 @@ def _log_targets(rec, out: Path, targets) -> None:
 
 
 def _concat(parts: list):
-    from estimator import BinocularSamples  # noqa: PLC0415
+    from estimator import BinocularSamples
 
     if len(parts) == 1:
         return parts[0]

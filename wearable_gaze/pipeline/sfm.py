@@ -152,7 +152,7 @@ def _reconstruct(tmp: Path, cam: CameraCalibration, frames: dict, progress):
     """pycolmap's largest reconstruction of the frames, in its own frame and scale. The
     keypoints are undistorted onto a pinhole camera of the calibration's K (COLMAP's pixel
     centres are at +0.5)."""
-    import pycolmap  # noqa: PLC0415
+    import pycolmap
 
     if not log.isEnabledFor(logging.DEBUG):                # COLMAP's own log lines: with -vv only
         pycolmap.logging.minloglevel = 2                   # glog's ERROR
@@ -305,7 +305,7 @@ def _meta(build: SfmBuild, cam: CameraCalibration, T_world_from_sfm) -> dict:
 
 def write_sfm_plot(build: SfmBuild, path: Path) -> None:
     """A top view (world x, z) of the map's points and the survey's camera path."""
-    from .report import _plt, _save  # noqa: PLC0415  (matplotlib only when plotting)
+    from .report import _plt, _save  # matplotlib only when plotting
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))

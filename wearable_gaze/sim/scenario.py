@@ -153,7 +153,7 @@ def check_scenario(s: dict, source="scenario") -> None:
     Raises:
         UserError: one line naming the field.
     """
-    from calibration.camera import ARUCO_DICTS  # noqa: PLC0415
+    from calibration.camera import ARUCO_DICTS
 
     def bad(where, detail):
         return fail(source, "scenario", where, detail)

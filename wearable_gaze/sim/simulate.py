@@ -86,7 +86,7 @@ def build_world(scn: dict, rng: np.random.Generator, targets) -> World:  # noqa:
                          int(room["markers_per_wall"]), room["dictionary"], room["marker_size_mm"],
                          int(room["posters_per_wall"]))
     else:
-        from .world import World  # noqa: PLC0415
+        from .world import World
         world = World(dictionary=room["dictionary"], marker_size_mm=room["marker_size_mm"])
     world.targets = list(targets)
     mv = scn.get("moved_marker")
@@ -125,7 +125,7 @@ def _board_views(camera: Camera, spec: dict, n: int, rng: np.random.Generator):
         T = look_at(centre, 2 * centre)                   # facing the camera, z away from it
         axis = rng.normal(size=3)
         axis[2] = 0
-        from estimator.frames import rotation_about_axis  # noqa: PLC0415
+        from estimator.frames import rotation_about_axis
         T[:3, :3] = rotation_about_axis(axis, np.deg2rad(rng.uniform(10, 40))) @ T[:3, :3]
         T[:3, 3] = centre - T[:3, :3] @ ((obj.min(axis=0) + obj.max(axis=0)) / 2)
         pts = (T[:3, :3] @ obj.T).T + T[:3, 3]
@@ -140,7 +140,7 @@ def _board_views(camera: Camera, spec: dict, n: int, rng: np.random.Generator):
 def load_scenario(spec) -> dict:
     """A named scenario or the path of a scenario JSON file -> the parsed scenario (not yet
     resolved). Raises ``UserError`` for a missing or malformed file."""
-    from .scenario import NAMED  # noqa: PLC0415
+    from .scenario import NAMED
 
     if spec in NAMED:
         return spec
@@ -153,7 +153,7 @@ def load_scenario(spec) -> dict:
 def simulate_scenario(scenario, out_dir, seed: int = 0, duration_s=None, resolution=None, progress=None) -> dict:
     """``wearable-gaze simulate``: resolve a named scenario or JSON file with the command-line
     overrides and write its session. Returns the manifest."""
-    from .scenario import NAMED, resolve  # noqa: PLC0415
+    from .scenario import NAMED, resolve
 
     is_file = isinstance(scenario, (str, Path)) and str(scenario) not in NAMED
     scn = resolve(load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario,

@@ -171,7 +171,7 @@ class SessionImport:
     def add_device_points(self, points_mm) -> None:
         """The device's own map of the room (Aria's semi-dense SLAM points): (P, 3) world frame,
         mm -> ``device_points.ply`` (vertices only), drawn in the report's 3D view."""
-        from ..ply import PlyMesh, write_ply  # noqa: PLC0415
+        from ..ply import PlyMesh, write_ply
 
         pts = np.asarray(points_mm, float).reshape(-1, 3)
         write_ply(self.out / "device_points.ply", PlyMesh(pts, np.full((len(pts), 3), 128, np.uint8),

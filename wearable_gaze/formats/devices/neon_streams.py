@@ -40,8 +40,8 @@ CALIBRATION_BYTES = 803
 def vendor():
     """Pupil Labs' reader module, or a UserError saying which extra to install."""
     try:
-        import pupil_labs.neon_recording as nr  # noqa: PLC0415
-        import pupil_labs.neon_recording.utils  # noqa: F401, PLC0415
+        import pupil_labs.neon_recording as nr
+        import pupil_labs.neon_recording.utils  # noqa: F401
     except ImportError:
         raise UserError("the pupil-neon importer needs Pupil Labs' reader: pip install 'wearable-gaze[neon]'") from None
     return nr

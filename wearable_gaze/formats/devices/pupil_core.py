@@ -438,7 +438,7 @@ def write_recording(sim: SimulatedRecording, dst: Path) -> None:
 
 def _project(sim: SimulatedRecording, p_mm: np.ndarray) -> np.ndarray:
     """(n, 2) pixels of head-frame points through the simulated scene camera (NaN behind it)."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     cam, p = sim.camera, np.asarray(p_mm, float).reshape(-1, 1, 3)
     project = cv2.fisheye.projectPoints if cam.model == "fisheye" else cv2.projectPoints

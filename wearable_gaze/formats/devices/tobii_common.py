@@ -112,7 +112,7 @@ def apply(T, points) -> np.ndarray:
 def project_norm(points_cam, cam: GlassesCamera) -> np.ndarray:
     """Points (n, 3) mm in the camera frame -> normalised image coordinates (n, 2) (0..1, origin
     top-left, as Tobii's gp / gaze2d)."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     p = np.ascontiguousarray(points_cam, float).reshape(-1, 1, 3)
     px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), cam.camera_matrix, cam.dist_coeffs)
@@ -281,7 +281,7 @@ class RayChunks:
 
 def video_frame_times(video: Path) -> tuple[np.ndarray, tuple]:
     """(frame times (N,) s from the video's own clock (frame i at i / fps), (width, height))."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     cap = cv2.VideoCapture(str(video))
     if not cap.isOpened():
