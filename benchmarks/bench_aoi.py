@@ -4,7 +4,9 @@
 time against the truth's (the time the simulator's per-sample target is that target in a
 fixation) and its time to first fixation against the truth's first fixation sample.
 
-    python benchmarks/bench_aoi.py [--sessions 3] [--seed 1]
+    python benchmarks/bench_aoi.py [--sessions 3] [--seed 1] [--work DIR]
+
+``--work``: simulate and process into DIR and keep it (default: a temporary folder, removed).
 
 Targets (issue 28): each area's dwell within 10 % or 0.2 s of the truth's, time to first fixation
 within 0.2 s, the empty area 0 s; the batch's sessions x areas table holds every session.
@@ -12,13 +14,13 @@ within 0.2 s, the empty area 0 s; the batch's sessions x areas table holds every
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from _args import size_and_seed
 
 from wearable_gaze.formats.aoi_tables import read_aoi_metrics
 from wearable_gaze.formats.truth import read_truth_targets
@@ -55,8 +57,14 @@ def aois_of(session: Path) -> dict:
 
 
 def main():
-    args = size_and_seed(__doc__, "--sessions", int, 3, 1, "simulated sessions")
-    with tempfile.TemporaryDirectory() as tmp:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sessions", type=int, default=3, help="simulated sessions (default 3)")
+    ap.add_argument("--seed", type=int, default=1, help="random seed of the first session (default 1)")
+    ap.add_argument("--work", type=Path, default=None, help="a folder to work in, kept (default: a temporary one)")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = args.work or Path(scratch)
+        tmp.mkdir(parents=True, exist_ok=True)
         root = Path(tmp) / "study"
         sessions = [root / f"s{i}" for i in range(args.sessions)]
         for i, s in enumerate(sessions):
