@@ -76,10 +76,23 @@ def _pixels(img, hex_colour: str, tol: int = 40) -> int:
     return int(np.sum(np.all(np.abs(img.astype(int) - [b, g, r]) <= tol, axis=2)))
 
 
+def _lab_distance(colours: list) -> float:
+    """The least CIE76 colour difference between two of ``colours`` ('#rrggbb'; 2.3 is one just
+    noticeable difference, over 10 two colours no one confuses side by side)."""
+    import cv2
+
+    rgb = np.array([[[int(c[k:k + 2], 16) for k in (1, 3, 5)] for c in colours]], np.uint8)
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB)[0].astype(float)
+    lab[:, 0] *= 100 / 255
+    lab[:, 1:] -= 128
+    return min(float(np.linalg.norm(a - b)) for i, a in enumerate(lab) for b in lab[i + 1:])
+
+
 def _check_targets(got: dict, n: int) -> None:
     """``n`` targets, each in a colour of its own, the same in the legend, the table and the view."""
     colours = [t["colour"] for t in got["scene"]["targets"]]
     assert len(colours) == n and len(set(colours)) == n, colours
+    assert n < 2 or _lab_distance(colours) > 10
     assert [_rgb(c) for c in got["legend"]] == colours and [_rgb(c) for c in got["table"]] == colours
     for t in got["scene"]["targets"]:
         assert _pixels(got["shot"], t["colour"], tol=20) >= 10, t["label"]
