@@ -4,7 +4,10 @@
 time against the truth's (the time the simulator's per-sample target is that target in a
 fixation) and its time to first fixation against the truth's first fixation sample.
 
-    python benchmarks/bench_aoi.py [--sessions 3] [--seed 1]
+    python benchmarks/bench_aoi.py [--sessions 3] [--seed 1] [--work DIR]
+
+``--work``: simulate and process into DIR and keep it (default: a temporary folder, removed); run
+again with the same DIR, it reuses the sessions and the steps that did not change.
 
 Targets (issue 28): each area's dwell within 10 % or 0.2 s of the truth's, time to first fixation
 within 0.2 s, the empty area 0 s; the batch's sessions x areas table holds every session.
@@ -12,15 +15,15 @@ within 0.2 s, the empty area 0 s; the batch's sessions x areas table holds every
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from _args import size_and_seed
 
-from wearable_gaze.formats.aoi_tables import read_aoi_metrics
+from wearable_gaze.formats.aoi_tables import read_aoi_fixations, read_aoi_metrics
 from wearable_gaze.formats.truth import read_truth_targets
 from wearable_gaze.pipeline.batch import BatchSettings, run_batch
 from wearable_gaze.sim.simulate import simulate_scenario
@@ -34,18 +37,57 @@ BOX_MM = 300.0
 NOBODY = {"name": "nobody", "sphere": {"center_mm": [0.0, -3000.0, 0.0], "radius_mm": 200.0}}
 
 
-def truth_measures(session: Path) -> dict:
-    """{target index: (dwell s, first fixation s)} from truth/gaze.csv's per-sample target."""
+def truth_runs(session: Path) -> tuple[list, float]:
+    """([(target, start s, end s)] of each run of samples the simulator has in a fixation of a
+    target (truth/gaze.csv's per-sample ``target`` and ``phase``; blinks and saccades are not in
+    one), each run ending one sample interval after its last sample; that interval, s)."""
     with open(session / "truth" / "gaze.csv", newline="") as fh:
         rows = [(float(r["t"]), int(r["target"]), r["phase"]) for r in csv.DictReader(fh)]
-    t = np.array([r[0] for r in rows])
-    dt = float(np.median(np.diff(t)))
-    out = {}
-    for k in {r[1] for r in rows if r[1] >= 0}:
-        on = np.array([r[1] == k and r[2] == "fixation" for r in rows])
-        if on.any():
-            out[k] = (float(on.sum() * dt), float(t[on][0] - t[0]))
-    return out
+    dt = float(np.median(np.diff([r[0] for r in rows])))
+    runs, prev = [], None
+    for t, k, phase in rows:
+        key = (k, phase) if k >= 0 and phase == "fixation" else None
+        if key is not None and key == prev:
+            runs[-1][2] = t - rows[0][0] + dt
+        elif key is not None:
+            runs.append([k, t - rows[0][0], t - rows[0][0] + dt])
+        prev = key
+    return [tuple(r) for r in runs], dt
+
+
+def truth_measures(session: Path) -> dict:
+    """{target index: (dwell s, first fixation s)} from truth/gaze.csv's per-sample target: the
+    time its samples are in a fixation of it (sample count x interval), and the first one's time."""
+    runs, _ = truth_runs(session)
+    return {k: (sum(b - a for j, a, b in runs if j == k), min(a for j, a, _ in runs if j == k))
+            for k in {r[0] for r in runs}}
+
+
+def why(session: Path, fx: dict, name: str, k: int) -> str:
+    """Where an area's dwell differs from the truth's (``fx``: aoi_fixations.csv): per assigned
+    fixation, its start after the first true fixation of target ``k`` it overlaps and its end
+    before the last one's (mean, s), the blinks between those true fixations it spans (counted
+    by it, not by the truth); the true fixations no assigned one overlaps; the assigned time
+    over no true fixation; the least assignment probability."""
+    runs = [(a, b) for j, a, b in truth_runs(session)[0] if j == k]
+    mine = [(a, b, p) for a, b, area, p in zip(fx["start_s"], fx["end_s"], fx["aoi"], fx[f"p_{name}"], strict=True)
+            if area == name]
+    lag, early, bridged, extra = [], [], 0.0, 0.0
+    for s, e, _ in mine:
+        over = [(a, b) for a, b in runs if s < b and e > a]
+        if not over:
+            extra += e - s
+            continue
+        lag.append(s - over[0][0])
+        early.append(over[-1][1] - e)
+        bridged += sum(a2 - b1 for (_, b1), (a2, _) in zip(over, over[1:], strict=False))
+    missed = [b - a for a, b in runs if not any(s < b and e > a for s, e, _ in mine)]
+    parts = [f"starts {np.mean(lag):+.2f} s, ends {-np.mean(early):+.2f} s" if lag else "",
+             f"spans blinks {bridged:.2f} s" if bridged else "",
+             f"true fixations missed {', '.join(f'{m:.2f}' for m in missed)} s" if missed else "",
+             f"assigned outside any true fixation {extra:.2f} s" if extra else "",
+             f"least p {min(p for *_, p in mine):.2f}" if mine else ""]
+    return "; ".join(x for x in parts if x)
 
 
 def aois_of(session: Path) -> dict:
@@ -55,21 +97,29 @@ def aois_of(session: Path) -> dict:
 
 
 def main():
-    args = size_and_seed(__doc__, "--sessions", int, 3, 1, "simulated sessions")
-    with tempfile.TemporaryDirectory() as tmp:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sessions", type=int, default=3, help="simulated sessions (default 3)")
+    ap.add_argument("--seed", type=int, default=1, help="random seed of the first session (default 1)")
+    ap.add_argument("--work", type=Path, default=None, help="a folder to work in, kept (default: a temporary one)")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = args.work or Path(scratch)
+        tmp.mkdir(parents=True, exist_ok=True)
         root = Path(tmp) / "study"
         sessions = [root / f"s{i}" for i in range(args.sessions)]
         for i, s in enumerate(sessions):
-            simulate_scenario(SCENARIO, s, seed=args.seed + i)
+            if not (s / "session.json").is_file():         # --work again: its sessions and steps reused
+                simulate_scenario(SCENARIO, s, seed=args.seed + i)
         aois = [aois_of(s) for s in sessions]
         assert all(a == aois[0] for a in aois), "the sessions' targets differ: one AOI file cannot hold them"
         (Path(tmp) / "aois.json").write_text(json.dumps(aois[0]))
         res = run_batch([root], Path(tmp) / "out", BatchSettings(overlay=False, aois=str(Path(tmp) / "aois.json")))
         assert not res.failed, res.failed
         fails = 0
-        print(f"{'session':<8} {'area':<10} {'truth dwell':>11} {'ours':>6} {'truth 1st':>9} {'ours':>6}  ok")
+        print(f"{'session':<8} {'area':<10} {'truth dwell':>11} {'ours':>6} {'truth 1st':>9} {'ours':>6}  ok   why")
         for s in sessions:
             m = read_aoi_metrics(Path(tmp) / "out" / s.name / "aoi_metrics.csv")
+            fx = read_aoi_fixations(Path(tmp) / "out" / s.name / "aoi_fixations.csv")
             truth = truth_measures(s)
             for j, name in enumerate(m["aoi"]):
                 k = int(name.split()[-1]) if name.startswith("target") else None
@@ -79,7 +129,8 @@ def main():
                     abs(m["first_fixation_s"][j] - first) <= 0.2
                 fails += not (ok_dwell and ok_first)
                 print(f"{s.name:<8} {name:<10} {dwell:>11.2f} {m['dwell_s'][j]:>6.2f} {first:>9.2f} "
-                      f"{m['first_fixation_s'][j]:>6.2f}  {'yes' if ok_dwell and ok_first else 'NO'}")
+                      f"{m['first_fixation_s'][j]:>6.2f}  {'yes' if ok_dwell and ok_first else 'NO '}  "
+                      + (why(s, fx, name, k) if k is not None else ""))
         table = (Path(tmp) / "out" / "batch_aoi_metrics.csv").read_text().splitlines()
         print(f"batch_aoi_metrics.csv: {len(table) - 1} rows ({args.sessions} sessions x {len(aois[0]['aois'])} areas)")
         print(f"{fails} area(s) outside the targets")

@@ -70,3 +70,24 @@ def processed(tmp_path_factory):
     simulate_scenario(PROCESS_SCENARIO, root, seed=321)
     res = process_session(root, base / "out")
     return root, base / "out", res
+
+
+AOIS = Path(__file__).resolve().parent / "data" / "aois"
+"""AOI files of the real samples (tests/data/aois/README.md)."""
+G2_SAMPLE = "glassesvalidator_tobii_g2_example"
+
+
+@pytest.fixture(scope="session")
+def g2_processed(tmp_path_factory):
+    """The real Tobii G2 sample (12 targets) imported and processed once per run with its poster's
+    areas of interest (``AOIS``): (base folder, its ``s`` the session and ``out`` the outputs;
+    ``ProcessResult``). Shared by tests/test_import_real.py and tests/test_report_browser.py."""
+    from wearable_gaze.pipeline.importer import import_recording
+    from wearable_gaze.pipeline.process import process_session
+
+    src = real_data_root() / G2_SAMPLE
+    if not src.is_dir():
+        pytest.skip(f"the real Tobii G2 sample is not at {src}")
+    base = tmp_path_factory.mktemp("g2")
+    import_recording(src / "recording", base / "s")
+    return base, process_session(base / "s", base / "out", aois=AOIS / "tobii_g2_glassesvalidator_poster.json")

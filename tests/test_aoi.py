@@ -204,18 +204,25 @@ def _truth_aois(session, path):
     return path
 
 
-def test_process_and_batch_with_aois(tmp_path, capsys):
+def test_process_and_batch_with_aois(tmp_path, capsys, monkeypatch):
     """``process --aois`` runs the AOI step (marker areas placed by the session's map; re-run: the
-    step is cached), a bad AOI file stops ``process`` before any step, and ``batch --aois`` adds
-    the sessions x areas table and its plots."""
+    step is cached) and reads the AOI file once (the CLI's check, the marker check, the step and
+    the 3D view read it four times); a changed AOI file redraws the report's 3D view (its areas
+    were not among the report's inputs); a bad AOI file stops ``process`` before any step, and
+    ``batch --aois`` adds the sessions x areas table and its plots."""
     from wearable_gaze.cli import main
+    from wearable_gaze.formats import aois as aois_format
     from wearable_gaze.sim.simulate import simulate_scenario
 
     session = tmp_path / "study" / "s1"
     simulate_scenario({"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [320, 180]}}, session,
                       seed=0)
     aois = _truth_aois(session, tmp_path / "aois.json")
+    reads = []
+    load_json = aois_format.load_json
+    monkeypatch.setattr(aois_format, "load_json", lambda path, *a: reads.append(path) or load_json(path, *a))
     assert main(["process", str(session), "-o", str(tmp_path / "p"), "--no-overlay", "--aois", str(aois)]) == 0
+    assert len(reads) == 1
     from wearable_gaze.formats.fixations_table import read_fixations_csv
 
     m = read_aoi_metrics(tmp_path / "p" / "aoi_metrics.csv")
@@ -231,6 +238,12 @@ def test_process_and_batch_with_aois(tmp_path, capsys):
             check_output(f)                     # the AOI tables as their writers checked them
     assert main(["process", str(session), "-o", str(tmp_path / "p"), "--no-overlay", "--aois", str(aois)]) == 0
     assert "aoi" in json.loads((tmp_path / "p" / "summary.json").read_text())["steps_skipped"]
+    renamed = json.loads(aois.read_text())
+    renamed["aois"][-1]["name"] = "nobody at all"
+    aois.write_text(json.dumps(renamed))
+    assert main(["process", str(session), "-o", str(tmp_path / "p"), "--no-overlay", "--aois", str(aois)]) == 0
+    page = (tmp_path / "p" / "report.html").read_text()
+    assert '"name":"nobody at all"' in page
     capsys.readouterr()
     (tmp_path / "bad.json").write_text('{"aois": []}')
     assert main(["process", str(session), "-o", str(tmp_path / "q"), "--aois", str(tmp_path / "bad.json")]) == 2

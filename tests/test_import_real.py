@@ -6,19 +6,11 @@ import csv
 import html
 
 import numpy as np
-import pytest
-
-from wearable_gaze.pipeline.importer import import_recording
-from wearable_gaze.pipeline.process import process_session
 
 G2 = "glassesvalidator_tobii_g2_example"
 
 
-@pytest.fixture(scope="module")
-def g2_processed(tmp_path_factory, real_data_module):
-    base = tmp_path_factory.mktemp("g2")
-    import_recording(real_data_module / G2 / "recording", base / "s")
-    return base, process_session(base / "s", base / "out")
+# the fixture ``g2_processed`` (tests/conftest.py): the sample imported and processed once per run
 
 
 def test_g2_process_finds_one_target_per_published_interval(g2_processed, real_data_module):

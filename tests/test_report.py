@@ -185,6 +185,35 @@ def test_overlay_video_is_full_resolution_and_the_preview_small(tmp_path):
     assert len(small) == len(range(0, n, round(30.0 / ov.PREVIEW_FPS)))
 
 
+def test_the_preview_alone_finds_its_markers_without_refining_their_corners(tmp_path, monkeypatch):
+    """The markers are drawn where found; at the preview's 640 px their corners' sub-pixel
+    refinement shows nothing and cost a third of the overlay's marker detection. Without the
+    full-resolution video it is not run (bench_report_cost.py), and the markers are still found."""
+    import tracking.markers as markers
+
+    def refuse(*a, **k):
+        raise AssertionError("corners refined for the preview")
+    found = []
+    detect = markers.MarkerDetector.detect
+    monkeypatch.setattr(markers, "refine_markers", refuse)
+    monkeypatch.setattr(markers.MarkerDetector, "detect",
+                        lambda self, img: found.append(detect(self, img)) or found[-1])
+    video = tmp_path / "scene.mp4"
+    n = 4
+    wr = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (W, H))
+    for _ in range(n):
+        wr.write(_marker_frame())
+    wr.release()
+    mm = MarkerMap("DICT_4X4_50", 100.0, {3: np.eye(4)}, {})
+    inp = _inputs(mm)
+    inp = ov.OverlayInputs(inp.camera, inp.eyes, inp.eye_samples, mm, video)
+    t = np.arange(n) / 30.0
+    targets = ov.OverlayTargets([], t, np.full(n, -1))
+    names = ov.write_overlays(tmp_path, inp, targets, t, np.arange(n), np.repeat(np.eye(4)[None], n, axis=0))
+    assert names == (ov.PREVIEW_NAME, None)
+    assert found and all([d.marker_id for d in f] == [3] for f in found)
+
+
 def test_the_3d_views_data_survives_its_embedding():
     tg = view3d.SceneTarget(2, "#2ca02c", np.array([1.0, 2.0, 3000.0]), np.diag([10.0, 20.0, 300.0]),
                             np.array([[[0, 0, 0], [1, 2, 3000]]], float), truth_mm=np.array([0.0, 0.0, 2900.0]))

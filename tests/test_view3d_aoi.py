@@ -73,3 +73,30 @@ def test_the_view_draws_the_areas_and_pans(tmp_path):
         ys, xs = np.nonzero(np.all(np.abs(img.astype(int) - [0x8f, 0x83, 0x00]) <= 40, axis=2))
         return xs.mean()
     assert centre_x(panned) - centre_x(before) > 20     # followed the pointer right (less: beyond the focus)
+
+
+def test_labels_of_areas_on_top_of_each_other_are_not_drawn_over_each_other(tmp_path):
+    """The real G2 poster's nine areas lie within 0.3 m, seen from 2 m: their names were drawn over
+    each other, none readable. A name that would cover one already drawn is left out; areas
+    apart keep theirs."""
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is in the test extra")
+    from estimator.aoi import Box
+
+    def box(name, x):
+        return Area(name, None, Box(np.array([x, 0.0, 2000]), np.array([30.0, 30, 30]), np.eye(3)))
+    areas = [box("poster target 1", 0.0), box("poster target 2", 15.0), box("far to the side", 1500.0)]
+    scene = view3d.scene([], np.array([[0.0, 0, 0], [300, 0, 0]]),
+                         aois=[(a.name, AOI_COLOUR, area_outline(a)) for a in areas])
+    (tmp_path / "v.html").write_text(f"<!DOCTYPE html><html><body>{view3d.html_block(scene, False)}</body></html>")
+    with sync_api.sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=browser, args=CHROMIUM_ARGS)
+        try:
+            page = b.new_page(viewport={"width": 900, "height": 700})
+            page.goto((tmp_path / "v.html").as_uri(), wait_until="load")
+            labels = page.locator("#view3d").get_attribute("data-aoi-labels")
+        finally:
+            b.close()
+    assert labels == "2"

@@ -38,10 +38,6 @@ def cmd_process(args) -> int:
     from ..progress import step_bars
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
-    if args.aois is not None:
-        from ..formats.aois import read_aois
-
-        read_aois(args.aois)                    # a bad AOI file: one line before OUT is made
     res = process_session(args.session, args.out, args.method, args.camera, args.eyes, args.force,
                           overlay=not args.no_overlay, track_every=args.track_every,
                           progress_factory=step_bars(), person=args.person,

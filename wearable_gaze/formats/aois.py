@@ -43,6 +43,7 @@ class AoiSpec:
         params: the kind's object from the file (mm, degrees), with the area's
             ``transparent`` and ``depth_tolerance_mm`` when the file gives them.
         vertices_mm, faces: a mesh's (V, 3) vertices, mm, and (F, 3) triangles; None for others.
+        mesh_path: a mesh's file (the AOI file's folder joined with its ``path``); None for others.
     """
 
     name: str
@@ -51,6 +52,7 @@ class AoiSpec:
     params: dict = field(default_factory=dict)
     vertices_mm: np.ndarray | None = None
     faces: np.ndarray | None = None
+    mesh_path: Path | None = None
 
 
 def read_aois(path) -> list[AoiSpec]:
@@ -76,7 +78,7 @@ def read_aois(path) -> list[AoiSpec]:
         if kind == "mesh":
             mesh = inside(path.parent, a["mesh"]["path"], path, "aois", ["aois", i, "mesh", "path"])
             v, f = read_mesh(mesh)
-            spec = AoiSpec(spec.name, spec.group, kind, spec.params, v, f)
+            spec = AoiSpec(spec.name, spec.group, kind, spec.params, v, f, mesh)
         out.append(spec)
     return out
 

@@ -249,12 +249,10 @@ def area_outline(area: Area) -> np.ndarray:
     return np.asarray(g.vertices_mm, float)[edges]
 
 
-def aoi_outlines(aois_path, marker_map=None) -> list:
-    """[(name, colour, segments (K, 2, 3) mm)] of an AOI file's areas for the report's 3D view
-    (``view3d.scene``'s ``aois``); [] without a file."""
-    if aois_path is None:
-        return []
-    return [(a.name, AOI_COLOUR, area_outline(a)) for a in areas_of(read_aois(aois_path), marker_map)]
+def aoi_outlines(specs, marker_map=None) -> list:
+    """[(name, colour, segments (K, 2, 3) mm)] of an AOI file's areas (``specs``: ``read_aois``'s)
+    for the report's 3D view (``view3d.scene``'s ``aois``); [] without any."""
+    return [(a.name, AOI_COLOUR, area_outline(a)) for a in areas_of(list(specs or ()), marker_map)]
 
 
 def _grown_hull(corners, margin_mm: float) -> np.ndarray:
@@ -329,28 +327,22 @@ AOI_OUTPUTS = ("aoi_fixations.csv", "aoi_metrics.csv", "aoi_transitions.csv", *A
 """What ``aoi_folder`` writes."""
 
 
-def check_aois(aois_path, has_marker_map: bool) -> None:
-    """Read the AOI file (``read_aois``: one line on a bad one) and refuse marker areas for a
-    session tracked in no marker map.
+def check_aois(specs, aois_path, has_marker_map: bool) -> None:
+    """Refuse marker areas (``specs``: ``read_aois``'s of ``aois_path``) for a session tracked in
+    no marker map.
 
     Raises:
-        UserError: a bad file, or marker areas without a map to place them.
+        UserError: marker areas without a map to place them.
     """
-    specs = read_aois(aois_path)
     named = [s.name for s in specs if s.kind in ("marker", "markers")]
     if named and not has_marker_map:
         raise UserError(f"--aois {aois_path}: area(s) {', '.join(named)} name markers, but this session's head "
                         "poses come from no marker map; give those areas as boxes or polygons in its world")
 
 
-def mesh_paths(aois_path) -> list[Path]:
-    """The mesh files an AOI file names (what its areas' geometry also depends on); none when the
-    file cannot be read (its reader will say why)."""
-    try:
-        doc = json.loads(Path(aois_path).read_text(encoding="utf-8"))
-        return [Path(aois_path).parent / a["mesh"]["path"] for a in doc["aois"] if "mesh" in a]
-    except (OSError, ValueError, KeyError, TypeError):
-        return []
+def mesh_paths(specs) -> list[Path]:
+    """The mesh files of an AOI file's areas (``specs``), what their geometry also depends on."""
+    return [s.mesh_path for s in specs if s.mesh_path is not None]
 
 
 def session_marker_map(processed: Path, markers=None):
@@ -370,11 +362,15 @@ def aoi_folder(processed, aois_path, out=None, markers=None, conf: AoiConfig = A
     """The AOI step on a processed folder (fixations.csv, viewlines.csv, targets.json): reads the areas of
     ``aois_path`` (marker areas placed by ``markers`` or the session's map), writes
     ``AOI_OUTPUTS`` into ``out`` (default: the processed folder) and returns the result."""
+    return aoi_step(processed, read_aois(aois_path), out, markers, conf)
+
+
+def aoi_step(processed, specs, out=None, markers=None, conf: AoiConfig = AoiConfig()) -> AoiResult:
+    """``aoi_folder`` with the AOI file's areas already read (``specs``: ``read_aois``'s)."""
     processed = Path(processed)
     out = Path(out) if out is not None else processed
-    specs = read_aois(aois_path)
     needs_map = any(s.kind in ("marker", "markers") for s in specs)
-    areas = areas_of(specs, session_marker_map(processed, markers) if needs_map else None)
+    areas = areas_of(list(specs), session_marker_map(processed, markers) if needs_map else None)
     segments = read_viewlines_csv(processed / "viewlines.csv")
     t = np.concatenate([s.samples.t_s for s in segments])
     fixations = fixation_gaze(read_fixations_csv(processed / "fixations.csv"), segments,

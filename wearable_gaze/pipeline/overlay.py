@@ -255,7 +255,10 @@ def write_overlays(out: Path, inp: OverlayInputs, targets: OverlayTargets, t_p, 
     step = max(int(round(fps / PREVIEW_FPS)), 1)
     w, h = inp.camera.image_size
     size = (PREVIEW_WIDTH, int(round(h * PREVIEW_WIDTH / w)))
-    detector = MarkerDetector(inp.marker_map.dictionary) if inp.marker_map is not None else None
+    # the markers are drawn where found; at the preview's 640 px the corners' sub-pixel refinement
+    # (a third of the detection's cost) shows nothing: only the full-resolution video gets it
+    detector = MarkerDetector(inp.marker_map.dictionary, refine="edges" if video else "none") \
+        if inp.marker_map is not None else None
     r_max = field_radius(inp.camera)
     try:
         _write_videos(out, cap, fps, row, step, size, (w, h), video,

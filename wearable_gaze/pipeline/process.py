@@ -20,6 +20,7 @@ from estimator.slippage import seen_bias
 from tracking.timeline import MAX_POSE_GAP_S
 
 from ..errors import UserError
+from ..formats.aois import read_aois
 from ..formats.atomic import remove_temporaries
 from ..formats.board import BOARD_FILE, read_board
 from ..formats.camera import load_camera
@@ -38,7 +39,7 @@ from ..formats.sfmmap import load_sfm_map
 from ..formats.targets import read_targets
 from ..formats.viewlines import read_viewlines_csv, write_viewlines_csv
 from ..formats.walls import read_walls
-from .aoi import aoi_folder, aoi_outlines, mesh_paths
+from .aoi import aoi_outlines, aoi_step, mesh_paths
 from .calibrate import (
     calibrate_camera_files,
     calibrate_eyes,
@@ -80,6 +81,7 @@ class _Settings:
     overlay_video: bool = False         # the report also writes the full-resolution overlay_full.mp4
     map_kind: str = "session"           # the map tracked in: session, given, built, markerless
     aois: Path | None = None            # an AOI file (docs/aois.md): the AOI step runs
+    aoi_specs: tuple = ()               # ... its areas, read once (``formats.aois.read_aois``)
 
 
 @dataclass(frozen=True)
@@ -185,6 +187,7 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
     markers = check_map_options(markers, build_map, sfm_map, overlay, overlay_video)       # before any step
     person = Path(person) if person is not None else None
     correction = person_correction_deg(read_person(person)) if person else None       # checked before any step
+    aoi_specs = tuple(read_aois(aois)) if aois is not None else ()                   # ... read once
     out = _output_folder(s.root, out, s.manifest["files"].values())
     res = ProcessResult(out)
     camera, eyes = _recorded_calibrations(s, camera, eyes)
@@ -198,7 +201,8 @@ def process_session(session, out=None, method: str = "voxel", camera=None, eyes=
         segment_config = SegmentConfig.for_rate(f.eye_rate_hz) if f.eye_rate_hz else SegmentConfig()
     cfg = _Settings(method, sigma_deg, overlay, report, track_every, segment_config, person,
                     None if build_map is None else (float(build_map[0]), str(build_map[1])),
-                    None if sfm_map is None else Path(sfm_map), overlay_video, aois=aois and Path(aois))
+                    None if sfm_map is None else Path(sfm_map), overlay_video, aois=aois and Path(aois),
+                    aoi_specs=aoi_specs)
     f, cfg, res.summary["notes"] = applicable(f, cfg, markers, eyes is not None, rerun_frames)
     if correction is not None:
         res.summary["person"] = {"file": str(cfg.person), "correction_deg": correction.tolist()}
@@ -338,19 +342,19 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
                                 f"{cfg.segment_config.min_fixation_s:g} s or more gave an estimate or a direction)")
     _export_step(f, out, steps, vals, cam_path, eye_inputs, correction)
     if cfg.aois is not None:
-        _aoi_step(f, out, steps, vals, cfg.aois)
+        _aoi_step(f, out, steps, cfg.aois, cfg.aoi_specs)
     if cfg.report:
         _report_step(f, out, steps, vals, eyes_path, cfg, frame)
 
 
-def _aoi_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, aois: Path) -> None:
+def _aoi_step(f: _SessionFiles, out: Path, steps: Steps, aois: Path, specs: tuple) -> None:
     """7. the areas of interest (``pipeline.aoi``): their tables and plot, marker areas placed by
     the map the video was tracked in."""
     built = out / BUILT_MAP
     marker_map = f.markers if f.markers is not None else built if built.is_file() else None
-    inputs = [aois, *mesh_paths(aois), *(out / n for n in ("fixations.csv", "viewlines.csv", "targets.json"))]
+    inputs = [aois, *mesh_paths(specs), *(out / n for n in ("fixations.csv", "viewlines.csv", "targets.json"))]
     steps.run("aoi", inputs + ([marker_map] if marker_map else []), {},
-              lambda cb: aoi_folder(out, aois, out, marker_map))
+              lambda cb: aoi_step(out, specs, out, marker_map))
 
 
 def _export_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, cam_path: Path, eye_inputs: list,
@@ -421,6 +425,7 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
                                                                                  else [])
     extra = [p for p in (f.import_report, f.truth_targets, f.truth_head_poses, f.markers) if p]
     extra += [cfg.sfm_map / SFM_FEATURES] if cfg.sfm_map is not None else []
+    extra += [cfg.aois, *mesh_paths(cfg.aoi_specs)] if cfg.aois is not None else []      # the 3D view's areas
 
     def do_report(cb):
         truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
@@ -430,9 +435,9 @@ def _report_step(f: _SessionFiles, out: Path, steps: Steps, vals: _Values, eyes_
         notes += targets_bias_note(out / "targets.json")
         write_report(out, session_title(f.root), overlay_inputs if cfg.overlay and cam_ok else None, cb,
                      notes + truth_notes, truth, mm, cfg.overlay_video, points,
-                     world=world_words(f.pose_source, cfg.map_kind), aois=aoi_outlines(cfg.aois, mm))
+                     world=world_words(f.pose_source, cfg.map_kind), aois=aoi_outlines(cfg.aoi_specs, mm))
     steps.run("report", inputs + extra, {"overlay": cfg.overlay, "pose_source": f.pose_source}
-              | ({"overlay_video": True} if cfg.overlay_video else {})
+              | ({"overlay_video": True} if cfg.overlay_video else {}) | ({"aois": True} if cfg.aois else {})
               | ({"truth_frame": frame.record()} if frame else {}), do_report)
 
 

@@ -89,7 +89,7 @@ def applicable(f, cfg, markers: Path | None, eyes_given: bool, rerun_frames: int
     if rerun_frames and not video:
         notes.append("--rerun-frames: no scene frames to show: the session has no scene video")
     if cfg.aois is not None:                # a bad AOI file stops the run before any step
-        check_aois(cfg.aois, has_marker_map=f.markers is not None or kind == "built")
+        check_aois(cfg.aoi_specs, cfg.aois, has_marker_map=f.markers is not None or kind == "built")
     cfg = dataclasses.replace(cfg, build_map=build_map, sfm_map=sfm_map, overlay=overlay, overlay_video=overlay_video,
                               map_kind=kind)
     return f, cfg, notes

@@ -32,11 +32,12 @@ def _plt():
     return plt
 
 
-def _save(fig, path: Path):
+def _save(fig, path: Path, fixed: bool = False):
     """Write ``fig`` (PNG, 110 dpi) and close it; a figure with a layout engine is laid out by it
-    (measuring every artist's extent again for a tight box doubled the plots' time)."""
+    (measuring every artist's extent again for a tight box doubled the plots' time), one laid out
+    by hand (``fixed``: ``_grid``'s) as it is, else it is cut to its tight box."""
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches=None if fig.get_layout_engine() is not None else "tight")
+        fig.savefig(tmp, dpi=110, bbox_inches=None if fixed or fig.get_layout_engine() is not None else "tight")
     _plt().close(fig)
 
 
@@ -67,11 +68,31 @@ MAX_PANELS = 24
 """... and at most this many (the first, by number); the caption says when some are left out."""
 
 
+GRID_MARGINS_IN = (0.75, 0.15, 0.6, 0.3)
+"""The panel grids' margins (left, right, bottom, top), inches: room for the shared axis labels."""
+GRID_GAPS_IN = (0.75, 0.7)
+"""... and the gaps between their panels (across, down), inches: a panel's tick labels, axis label and title."""
+
+
 def _grid(plt, n: int, w: float, h: float):
-    """A figure of ``n`` panels (at least one), ``PANELS_PER_ROW`` a row; (fig, flat axes)."""
+    """A figure of ``n`` panels (at least one) of ``w`` x ``h`` inches each, ``PANELS_PER_ROW`` a row,
+    laid out by hand (``GRID_MARGINS_IN``, ``GRID_GAPS_IN``; save it with ``_save(..., fixed=True)``)
+    with at most 4 ticks an axis: a layout engine measured every panel's text twice, which with 12
+    or 24 panels was most of the report's time; (fig, flat axes)."""
+    from matplotlib.ticker import MaxNLocator
+
     cols = min(max(n, 1), PANELS_PER_ROW)
     rows = -(-max(n, 1) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(w * cols, h * rows), squeeze=False, layout="constrained")
+    left, right, bottom, top = GRID_MARGINS_IN
+    W, H = w * cols + left + right, h * rows + bottom + top
+    fig, axes = plt.subplots(rows, cols, figsize=(W, H), squeeze=False)
+    panel_w = (W - left - right - (cols - 1) * GRID_GAPS_IN[0]) / cols
+    panel_h = (H - bottom - top - (rows - 1) * GRID_GAPS_IN[1]) / rows
+    fig.subplots_adjust(left=left / W, right=1 - right / W, bottom=bottom / H, top=1 - top / H,
+                        wspace=GRID_GAPS_IN[0] / panel_w, hspace=GRID_GAPS_IN[1] / panel_h)
+    for ax in axes.ravel():
+        ax.xaxis.set_major_locator(MaxNLocator(4))
+        ax.yaxis.set_major_locator(MaxNLocator(4))
     for ax in axes.ravel()[n:]:
         ax.set_visible(n == 0 and ax is axes.ravel()[0])
     return fig, axes.ravel()
@@ -120,7 +141,7 @@ def _plot_depth(d, out: Path, colour) -> tuple[str, str]:
         ax.tick_params(labelsize=7)
     fig.supxlabel("view lines of the fixation fed in (binocular samples)", fontsize=9)
     fig.supylabel("distance from the head (m)", fontsize=9)
-    _save(fig, out / PLOTS[0])
+    _save(fig, out / PLOTS[0], fixed=True)
     return (PLOTS[0], "Running estimate per fixation, one panel per target in its colour (band: 95 % radius"
             + ("; dashed: the truth" if d.truth else "") + ")" + _left_out(len(shown), len(groups), "panels"))
 
@@ -170,7 +191,7 @@ def _plot_density(d, out: Path) -> tuple[str, str]:
         ax.tick_params(labelsize=7)
     if not static:
         _empty(axes[0], "no static target")
-    _save(fig, out / PLOTS[1])
+    _save(fig, out / PLOTS[1], fixed=True)
     return (PLOTS[1], "Log-likelihood of the gazed point (to -30) in the plane through each target along its view "
             "lines: narrow across them, long along them" + (" (white square: the truth)" if d.truth else "")
             + _left_out(len(static), len(every), "static targets"))

@@ -148,6 +148,7 @@
     ctx.fillStyle = "#ffffff";
     ctx.fillRect(0, 0, W, H);
     ctx.beginPath();
+    let points = 0, aois = 0;                  // what each layer drew (tests and benchmarks read them)
     if (show.markers) {
       scene.markers.forEach(m => polyline(m.corners, true));
       stroke("#555555", 1.2, 0.9);
@@ -158,6 +159,7 @@
         const s = screen(v);
         ctx.rect(s[0] - r, s[1] - r, 2 * r, 2 * r);
         drawn += 1;
+        points += 1;
       });
       ctx.globalAlpha = 0.45;
       ctx.fillStyle = "#8a8f96";
@@ -199,15 +201,28 @@
       if (show.truth && t.truth) dotAt(t.truth, t.colour, 5, "square");
       label(s, t.label, t.colour);
     });
+    const named = [];                          // the areas' labels placed: [x, y, width] px
     if (show.aois) (scene.aois || []).forEach(a => {
+      const before = drawn;
       a.segments.forEach(l => segment(l[0], l[1]));
+      aois += drawn - before;
       stroke(a.colour, 1.6, 0.9, [5, 3]);
       const c = [0, 1, 2].map(k => a.segments.reduce((acc, l) => acc + l[0][k] + l[1][k], 0) / (2 * a.segments.length));
       const v = toView(c);
-      if (v[2] > near()) label(screen(v), a.name, a.colour);
+      if (v[2] <= near()) return;
+      // a label over one already placed would make both unreadable: it is left out (zoom in to see it)
+      const s = screen(v), r = window.devicePixelRatio || 1;
+      ctx.font = `${Math.round(12 * r)}px sans-serif`;
+      const w = ctx.measureText(a.name).width;
+      if (named.some(([x, y, wn]) => s[0] < x + wn && x < s[0] + w && Math.abs(s[1] - y) < 14 * r)) return;
+      named.push([s[0], s[1], w]);
+      label(s, a.name, a.colour);
     });
     if (show.truth) (scene.other_truth || []).forEach(u => label(dotAt(u.position, "#000000", 5, "square"), u.label, "#000000"));
     canvas.dataset.drawn = String(drawn);
+    canvas.dataset.drawnPoints = String(points);
+    canvas.dataset.drawnAois = String(aois);
+    canvas.dataset.aoiLabels = String(named.length);
   }
 
   function redraw() { resize(); draw(); }
