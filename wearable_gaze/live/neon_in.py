@@ -45,6 +45,7 @@ STALL_S = 1.0             # a stream silent this long is opened again
 RETRY_S = 0.25            # then the phone is asked again this often until it answers
 REQUEST_TIMEOUT_S = 2.0   # the status and the clock sync must answer within this
 SYNC_ECHOES = 20
+TEARDOWN_S = 0.1          # a closed stream's RTSP TEARDOWN gets this long to be answered
 CLIENT_LOG_LEVEL = logging.WARNING   # the client's RTSP reader (aiortsp) logs each connection step at INFO
 EXTRA = "the [neon] extra (pip install 'wearable-gaze[neon]': Pupil Labs' pupil-labs-realtime-api) is not installed"
 
@@ -179,6 +180,7 @@ class _Stream(InputThread):
                 await asyncio.sleep(0.02)
             task.cancel()
             why = (await asyncio.gather(task, return_exceptions=True))[0]
+            await asyncio.sleep(TEARDOWN_S)          # the client's RTSP TEARDOWN answered before its loop ends
             if self.stop_event.is_set():
                 return
             what = f"ended ({type(why).__name__}: {why})" if isinstance(why, Exception) else (

@@ -3,13 +3,16 @@ scene video as H.264, sent over RTP at their own pace to every subscriber that h
 with RTCP sender reports that give the phone's clock (layouts: ``formats.devices.neon_rtp``).
 
 One thread plays both streams from one schedule (the eye samples' and the frames' times merged);
-a subscriber is sent to over UDP (``client_port``) or interleaved on its RTSP connection. A video
-subscriber gets frames from the next keyframe on (the encoder makes one when a subscriber joins).
+a subscriber is sent to over UDP (``client_port``) or interleaved on its RTSP connection. The
+frames are encoded ahead of their time in a thread of their own (as the phone's hardware encoder
+takes a few ms, the emulator's encoding is kept out of the stream's timing); a video subscriber
+gets frames from the next keyframe on (one every ``GOP`` frames).
 """
 
 from __future__ import annotations
 
 import heapq
+import queue
 import threading
 import time
 from dataclasses import dataclass, field
@@ -32,7 +35,8 @@ from ..formats.devices.neon_rtp import (
 from ..formats.devices.pupil_net import _nearest_point
 
 SR_EVERY_S = 1.0          # an RTCP sender report to each subscriber this often (and before its first packet)
-GOP = 30                  # frames between keyframes
+GOP = 15                  # frames between keyframes: a new video subscriber waits at most this many
+AHEAD = 30                # frames encoded ahead of their time (the encoder's own thread)
 AUD = b"\x09\xf0"           # an access unit delimiter (H.264 7.3.2.4): sent after each frame, it is the next one's
 # start, so that the client's parser (FFmpeg's, which finds a frame's end at the next one's start) hands the
 # frame on at once instead of when the next frame comes, a frame period later
@@ -61,7 +65,6 @@ class H264Encoder:
     def __init__(self, size, fps: float):
         self.size, self.fps = tuple(size), fps
         self.ctx = self._open()
-        self.force_key = False
         probe = self._open()
         sps = pps = None
         for unit in self._units(probe, np.zeros((size[1], size[0], 3), np.uint8), True):
@@ -90,8 +93,7 @@ class H264Encoder:
 
     def encode(self, bgr) -> tuple[list[bytes], bool]:
         """(NAL units, is a keyframe) of one frame (H, W, 3) BGR."""
-        units = self._units(self.ctx, bgr, self.force_key)
-        self.force_key = False
+        units = self._units(self.ctx, bgr, False)
         return units, any(u[0] & 0x1F == 5 for u in units)
 
 
@@ -137,8 +139,6 @@ class Player:
     def add(self, sub: Subscriber) -> None:
         with self.lock:
             self.subscribers.append(sub)
-            if sub.kind == "world":
-                self.encoder.force_key = True
         self.started.set()
 
     def remove(self, sub: Subscriber) -> None:
@@ -159,7 +159,8 @@ class Player:
 
     def run(self) -> None:
         """The playing thread: waits for a first subscriber, then plays the schedule once."""
-        cap = cv2.VideoCapture(str(self.stream.video))
+        encoded: queue.Queue = queue.Queue(maxsize=AHEAD)
+        threading.Thread(target=self._encode, args=(encoded,), daemon=True, name="neon-encoder").start()
         try:
             while not self.started.wait(0.05):
                 if self.stop_event.is_set():
@@ -174,14 +175,33 @@ class Player:
                     return
                 if kind == 0:
                     self._gaze(i, p0 + dt)
-                else:
-                    ok, img = cap.read()
-                    if ok:
-                        self._frame(img, p0 + dt)
+                elif (item := encoded.get()) is not None:
+                    self._frame(*item, p0 + dt)
             self.stop_event.wait(0.3)
         finally:
-            cap.release()
             self.finished.set()
+
+    def _encode(self, out: queue.Queue) -> None:
+        """The encoder's thread: each frame of the video as (NAL units, keyframe) on ``out``, in order,
+        None at the end."""
+        cap = cv2.VideoCapture(str(self.stream.video))
+        try:
+            while not self.stop_event.is_set():
+                ok, img = cap.read()
+                if not ok:
+                    break
+                if img.shape[1::-1] != self.size:
+                    img = cv2.resize(img, self.size)
+                item = self.encoder.encode(img)
+                while not self.stop_event.is_set():
+                    try:
+                        out.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        pass
+        finally:
+            cap.release()
+            out.put(None)
 
     def _targets(self, kind: str) -> list[Subscriber]:
         with self.lock:
@@ -214,10 +234,7 @@ class Player:
             self._send(sub, GAZE_PT, ts, payload, True)
         self.sent += bool(subs)
 
-    def _frame(self, img, t_phone: float) -> None:
-        if img.shape[1::-1] != self.size:
-            img = cv2.resize(img, self.size)
-        units, key = self.encoder.encode(img)
+    def _frame(self, units: list[bytes], key: bool, t_phone: float) -> None:
         ts = self.rtp_time(t_phone)
         subs = self._targets("world")
         for sub in subs:
