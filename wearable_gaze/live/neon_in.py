@@ -296,10 +296,15 @@ class WorldFrames(_Stream):
 async def _probe(url: str, n: int) -> list:
     receive_video_frames = client()[3]
     out = []
-    async for frame in receive_video_frames(url, log_level=CLIENT_LOG_LEVEL):
-        out.append(((frame.av_frame.width, frame.av_frame.height), frame.timestamp_unix_seconds))
-        if len(out) >= n:
-            break
+    frames = receive_video_frames(url, log_level=CLIENT_LOG_LEVEL)
+    try:
+        async for frame in frames:
+            out.append(((frame.av_frame.width, frame.av_frame.height), frame.timestamp_unix_seconds))
+            if len(out) >= n:
+                break
+    finally:
+        await frames.aclose()
+        await asyncio.sleep(TEARDOWN_S)              # the client's RTSP TEARDOWN answered before the loop ends
     return out
 
 
