@@ -156,3 +156,15 @@ def test_rtcp_sender_report_and_fu_a_fragments():
     from pupil_labs.realtime_api.streaming.nal_unit import extract_payload_from_nal_unit
     joined = b"".join(bytes(extract_payload_from_nal_unit(p)) for p in parts)
     assert joined == b"\x00\x00\x00\x01" + nal and all(len(p) <= 1000 for p in parts)
+
+
+def test_gaze_without_eye_states_is_the_cyclopean_ray_through_its_pixel(session):
+    from pupil_labs.realtime_api.streaming.gaze import GazeData
+    cam = session_camera(session)
+    p = np.array([120.0, -60.0, 900.0])
+    px = cam.project(p[None])[0]
+    d = GazeData.from_raw(RTSPData(neon_rtp.GAZE_ONLY.pack(float(px[0]), float(px[1]), 255), 3.0))
+    assert not neon_rtp.has_eye_states(d)
+    rec = neon_rtp.cyclopean_sample(4, d.timestamp_unix_seconds, d, cam)
+    assert rec.left_valid and not rec.right_valid and rec.t == 3.0
+    assert np.allclose(rec.left[:3], 0) and np.allclose(rec.left[3:], p / np.linalg.norm(p), atol=1e-5)
