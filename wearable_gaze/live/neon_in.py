@@ -45,6 +45,8 @@ STALL_S = 1.0             # a stream silent this long is opened again
 RETRY_S = 0.25            # then the phone is asked again this often until it answers
 REQUEST_TIMEOUT_S = 2.0   # the status and the clock sync must answer within this
 SYNC_ECHOES = 20
+DRAIN_QUIET_S = 0.1       # at the session's end, a stream behind is read on until it reaches the end's time,
+DRAIN_MAX_S = 1.0         # is quiet this long, or this long has passed (everything sent before the end recorded)
 TEARDOWN_S = 0.1          # a closed stream's RTSP TEARDOWN gets this long to be answered
 CLIENT_LOG_LEVEL = logging.WARNING   # the client's RTSP reader (aiortsp) logs each connection step at INFO
 EXTRA = "the [neon] extra (pip install 'wearable-gaze[neon]': Pupil Labs' pupil-labs-realtime-api) is not installed"
@@ -165,6 +167,7 @@ class _Stream(InputThread):
         self.port = link.where
         self.last_t = -np.inf
         self._last = time.monotonic()
+        self._last_local = -np.inf             # the newest datum's local time
 
     def _run(self) -> None:
         asyncio.run(self._main())
@@ -178,6 +181,10 @@ class _Stream(InputThread):
             self.connected.set()
             while not (self.stop_event.is_set() or task.done() or time.monotonic() - self._last > STALL_S):
                 await asyncio.sleep(0.02)
+            stopped = time.monotonic()
+            while (self.stop_event.is_set() and not task.done() and self._last_local < stopped
+                   and time.monotonic() - stopped < DRAIN_MAX_S and time.monotonic() - self._last < DRAIN_QUIET_S):
+                await asyncio.sleep(0.01)            # a reader behind takes what was sent before the end
             task.cancel()
             why = (await asyncio.gather(task, return_exceptions=True))[0]
             await asyncio.sleep(TEARDOWN_S)          # the client's RTSP TEARDOWN answered before its loop ends
@@ -198,7 +205,7 @@ class _Stream(InputThread):
     def _session_time(self, t_phone: float) -> tuple[float, float]:
         """(local time, session time) of a datum stamped ``t_phone``; session times kept increasing
         (a new clock sync may step back by its error)."""
-        local = self.link.local_time(t_phone)
+        local = self._last_local = self.link.local_time(t_phone)
         t_s = max(local - self.link.t0, self.last_t + 1e-6)
         self.last_t = t_s
         return local, t_s
