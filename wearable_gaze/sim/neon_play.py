@@ -158,28 +158,51 @@ class Player:
             yield dt, kind, i
 
     def run(self) -> None:
-        """The playing thread: waits for a first subscriber, then plays the schedule once."""
+        """The playing thread: waits for a first subscriber, then plays the gaze once, while a
+        thread of its own sends the frames at their times (a slow encoder delays frames, never
+        gaze)."""
         encoded: queue.Queue = queue.Queue(maxsize=AHEAD)
         threading.Thread(target=self._encode, args=(encoded,), daemon=True, name="neon-encoder").start()
         try:
             while not self.started.wait(0.05):
                 if self.stop_event.is_set():
                     return
-            t0 = time.monotonic()
-            p0 = self.phone_time()
-            for dt, kind, i in self._schedule():
-                while (wait := t0 + dt - time.monotonic()) > 0:
-                    if self.stop_event.wait(min(wait, 0.05)):
-                        return
-                if self.stop_event.is_set():
-                    return
-                if kind == 0:
-                    self._gaze(i, p0 + dt)
-                elif (item := encoded.get()) is not None:
-                    self._frame(*item, p0 + dt)
+            t0, p0 = time.monotonic(), self.phone_time()
+            video = threading.Thread(target=self._play, args=(1, t0, p0, encoded), daemon=True, name="neon-video")
+            video.start()
+            self._play(0, t0, p0, encoded)
+            video.join()
             self.stop_event.wait(0.3)
         finally:
             self.finished.set()
+
+    def _play(self, which: int, t0: float, p0: float, encoded: queue.Queue) -> None:
+        """Send the gaze samples (``which`` 0) or the frames (1) at their times from ``t0``
+        (``time.monotonic()``), phone time ``p0``."""
+        for dt, kind, i in self._schedule():
+            if kind != which:
+                continue
+            while (wait := t0 + dt - time.monotonic()) > 0:
+                if self.stop_event.wait(min(wait, 0.05)):
+                    return
+            if self.stop_event.is_set():
+                return
+            if kind == 0:
+                self._gaze(i, p0 + dt)
+                continue
+            item = self._next(encoded)
+            if item is None:
+                return
+            self._frame(*item, p0 + dt)
+
+    def _next(self, encoded: queue.Queue):
+        """The next encoded frame, waiting for the encoder; None at the end or on stop."""
+        while not self.stop_event.is_set():
+            try:
+                return encoded.get(timeout=0.1)
+            except queue.Empty:
+                pass
+        return None
 
     def _encode(self, out: queue.Queue) -> None:
         """The encoder's thread: each frame of the video as (NAL units, keyframe) on ``out``, in order,
