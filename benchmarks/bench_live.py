@@ -21,6 +21,11 @@ recording gives the live targets within 1 mm.
 
     python benchmarks/bench_live.py --device pupil-core --seconds 60 [--subscriber stalled]
 
+``--device neon``: the same with the Neon emulator (``emulate --as neon``: 200 Hz gaze with eye
+states, 30 fps H.264 scene video) read through Pupil Labs' client (the [neon] extra).
+
+    python benchmarks/bench_live.py --device neon --seconds 60 [--subscriber stalled]
+
 Targets (issue 12), ``--subscriber both``: at 10x the eye rate (600 Hz), a TCP subscriber that
 never reads, then one that reads: 0 intact samples missing from the recording in either run,
 and the first run's p95 latency within 1.2x the second's.
@@ -277,6 +282,55 @@ def run_device(root: Path, tmp: Path, args) -> None:
           f"{'PASS' if dist and max(dist) <= 1.0 else 'FAIL'}")
 
 
+def run_neon(root: Path, tmp: Path, args) -> None:
+    """``--device neon``: as ``run_device``, with the Neon emulator and Pupil Labs' client."""
+    port = _free_port()
+    others = sorted(set(range(os.cpu_count() or 1)) - os.sched_getaffinity(0)) or sorted(os.sched_getaffinity(0))
+    emu = subprocess.Popen([sys.executable, "-m", "wearable_gaze", "emulate", str(root), "--as", "neon",
+                            "--listen", f"127.0.0.1:{port}"], stderr=subprocess.PIPE, text=True,
+                           preexec_fn=lambda: os.sched_setaffinity(0, set(others)))
+    time.sleep(5.0)                                  # the emulator's imports and its H.264 encoder
+    listener = TcpListener(False) if args.subscriber == "stalled" else None
+    rec = tmp / "rec-neon"
+    live, link = open_device_session(f"neon://127.0.0.1:{port}", root / "truth" / "camera.json",
+                                     root / "markers.json", record=rec, stdout=False,
+                                     publish=listener.url if listener else None)
+    try:
+        st = live.run(duration_s=args.seconds + 1.5)
+    finally:
+        link.close()
+        emu.terminate()
+        emu.wait(10)
+        if listener is not None:
+            listener.close()
+    r = read_eye_rays(rec / "eye_rays.csv")
+    rows = np.hstack([r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction])
+    expected, missing = _missing_from_recording(device_stream(root), rows)
+    h = st.latency_all
+    print(f"live --device neon [{args.subscriber}], {_onecore.CORES} core(s), {args.seconds:g} s of {args.resolution} "
+          f"H.264 frames at 30 fps and 200 Hz gaze with eye states, recorded"
+          + (", TCP subscriber that never reads" if listener else ""))
+    print(f"  latency phone sample time -> published estimate ({h.n} estimates): median {h.percentile(50):.1f} ms, "
+          f"p95 {h.percentile(95):.1f} ms, p99 {h.percentile(99):.1f} ms, max {h.percentile(100):.1f} ms")
+    print(f"  gaze samples received {st.eye_records} (reconnects {st.reconnects}), recorded {len(rows)}; stream "
+          f"samples from the first received on {expected}, missing from the recording {missing}")
+    print(f"  frames {st.frames} (skipped by tracking {st.frames_skipped}, missed {st.frames_missed}); messages "
+          f"{st.published}, dropped by publishing {st.publish_dropped}; Time Echo round trip {link.rtt_ms:.2f} ms")
+    print(f"  target p95 <= 25 ms and nothing received missing: "
+          f"{'PASS' if h.percentile(95) <= 25 and missing == 0 else 'FAIL'}")
+    live_targets = {}
+    for line in (rec / "live.jsonl").read_text().splitlines():
+        if '"type":"target"' in line.replace(" ", ""):
+            m = json.loads(line)
+            live_targets[m["target"]] = m
+    res = process_session(rec, tmp / "processed-neon", report=False)
+    dist = [min((np.linalg.norm(np.subtract(m["position_mm"], t["position_mm"])) for t in res.targets),
+                default=float("inf")) for m in live_targets.values()]
+    print(f"  process on the recording: {len(res.targets)} targets; live {len(live_targets)}; each live target to "
+          f"the nearest offline one: {', '.join(f'{d:.2f}' for d in dist)} mm; within 1 mm: "
+          f"{'PASS' if dist and max(dist) <= 1.0 else 'FAIL'}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=2.0)
@@ -290,8 +344,9 @@ def main():
                          "(stalled first) with their p95 ratio")
     ap.add_argument("--repeat", type=int, default=1, metavar="N",
                     help="with --subscriber both: N pairs of runs, alternating; p95 over each kind's pooled estimates")
-    ap.add_argument("--device", choices=["pupil-core"], default=None,
-                    help="the Pupil Core emulator at Core's rates, not the serial recorder (--seconds, default 60)")
+    ap.add_argument("--device", choices=["pupil-core", "neon"], default=None,
+                    help="the Pupil Core or Neon emulator at the device's rates, not the serial recorder (--seconds, "
+                         "default 60)")
     ap.add_argument("--resolution", default="640x360", help="--device: the scene frames' size (default 640x360)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -302,7 +357,7 @@ def main():
             w, h = (int(x) for x in args.resolution.split("x"))
             simulate_scenario({"base": "lab-walkabout", "duration_s": args.seconds, "eyes": {"rate_hz": 200.0},
                                "camera": {"resolution": [w, h]}, "calibration": {"camera_views": 0}}, root, args.seed)
-            run_device(root, tmp, args)
+            (run_neon if args.device == "neon" else run_device)(root, tmp, args)
             return
         simulate_scenario({"base": "lab-walkabout", "duration_s": 20.0, "eyes": {"rate_hz": 60.0 * args.eye_rate_x}},
                           root, args.seed)

@@ -200,7 +200,7 @@ def test_device_url_and_an_absent_device_are_one_line():
 
 
 @pytest.mark.parametrize(("extra", "says"), [
-    (["--device", "neon://127.0.0.1:8080"], "expected pupil-core://HOST:PORT"),
+    (["--device", "tobii://127.0.0.1:8080"], "expected pupil-core://HOST:PORT or neon://HOST[:PORT]"),
     (["--device", "pupil-core://127.0.0.1:9"], "did not answer"),
     (["--device", "pupil-core://127.0.0.1:9", "--eyes", "eyes.json"], "drop --eyes"),
     (["--serial", "socket://127.0.0.1:9"], "--serial needs --camera and --eyes"),

@@ -60,7 +60,8 @@ def add_live(sub) -> None:
     src.add_argument("--device", metavar="pupil-core://HOST:PORT",
                      help="a networked eye tracker: Pupil Core through Pupil Capture's network API (Pupil Remote's "
                           "address; its 3D gaze and the Frame Publisher's scene frames, raw BGR, or JPEG with "
-                          "?frames=jpeg; docs/live.md)")
+                          "?frames=jpeg), or Pupil Neon through its real-time API (neon://HOST[:PORT], the Companion "
+                          "app's address; needs the [neon] extra); docs/live.md")
     lv.add_argument("--baud", type=A.positive_int, default=None, metavar="N", help="baud rate (default 115200)")
     lv.add_argument("--camera", metavar="SOURCE", help="camera index, device path, URL or video file (--serial)")
     lv.add_argument("--camera-calib", required=True, metavar="camera.json", help="scene-camera calibration")

@@ -26,6 +26,8 @@ def cmd_simulate(args) -> int:
 def cmd_emulate(args) -> int:
     if args.device == "pupil-core":
         return _emulate_pupil_core(args)
+    if args.device == "neon":
+        return _emulate_neon(args)
     from ..formats.session import load_session
     from ..sim.emulate import RecorderEmulator
 
@@ -72,6 +74,29 @@ def _emulate_pupil_core(args) -> int:
     return 0
 
 
+def _emulate_neon(args) -> int:
+    from ..sim.neon_emu import NeonEmulator, session_camera
+    from ..sim.pupil_core_emu import device_stream
+
+    if args.pty or args.loop:
+        raise UserError(f"--as neon serves the Companion app's real-time API over the network: drop "
+                        f"{'--pty' if args.pty else '--loop'}")
+    emu = NeonEmulator(device_stream(args.session), session_camera(args.session), duration_s=args.duration)
+    where = emu.listen(*(args.listen or ("127.0.0.1", 8080)))
+    print(f"emulating the Neon Companion app's real-time API of {args.session} on {where} (RTSP on port "
+          f"{emu.rtsp_port}, Time Echo on {emu.echo_port}; {len(emu.stream.t)} gaze samples, "
+          f"{len(emu.stream.frame_times)} frames; the streams start at the first PLAY); Ctrl-C stops. Try "
+          f"(docs/live.md):\n  wearable-gaze live --device {where} --camera-calib CAL/camera.json --markers "
+          f"{args.session}/markers.json", file=sys.stderr, flush=True)
+    try:
+        while not emu.finished.wait(0.2):
+            pass
+    finally:
+        emu.stop()
+    print(f"emulate: {emu.sent} gaze samples, {emu.frames_sent} frames sent", file=sys.stderr)
+    return 0
+
+
 def add_simulate(sub) -> None:
     """Declare the command and its arguments."""
     sm = sub.add_parser("simulate", help="write a synthetic session (video, eye data, calibration, truth)")
@@ -95,11 +120,13 @@ def add_emulate(sub) -> None:
     where = em.add_mutually_exclusive_group()
     where.add_argument("--listen", type=A.host_port, default=None, metavar="HOST:PORT",
                        help="serve one reader over TCP (default 127.0.0.1:5555; --as pupil-core: Pupil Remote's "
-                            "address, default 127.0.0.1:50020); 'live --serial socket://HOST:PORT'")
+                            "address, default 127.0.0.1:50020; --as neon: the Companion app's HTTP API, default "
+                            "127.0.0.1:8080); 'live --serial socket://HOST:PORT'")
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal, read as a serial port")
-    em.add_argument("--as", dest="device", choices=("serial", "pupil-core"), default="serial",
-                    help="the eye tracker to be: 'serial' (the EMR-8-style recorder, default) or 'pupil-core' (Pupil "
-                         "Capture's network API: Pupil Remote, 3D gaze, Frame Publisher; 'live --device')")
+    em.add_argument("--as", dest="device", choices=("serial", "pupil-core", "neon"), default="serial",
+                    help="the eye tracker to be: 'serial' (the EMR-8-style recorder, default), 'pupil-core' (Pupil "
+                         "Capture's network API: Pupil Remote, 3D gaze, Frame Publisher; 'live --device') or 'neon' "
+                         "(the Companion app's real-time API: status, gaze with eye states, H.264 scene video)")
     em.add_argument("--loop", action="store_true", help="start again at the end, clock and counter running on")
     em.add_argument("--duration", type=A.positive_float, default=None, metavar="S", help="stop after S seconds")
     em.set_defaults(func=cmd_emulate)

@@ -12,21 +12,32 @@ from pathlib import Path
 from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.markermap import load_marker_map
+from . import pupil_core_in
 from .allocator import bound_heap
 from .app import run_session
 from .estimation import GazeEstimation, warm_up
 from .head import HeadTracker
 from .loop import LiveSession
 from .publish import Publisher
-from .pupil_core_in import GazeReader, RayEyes, WorldFrames, open_link, probe_frames
+from .pupil_core_in import RayEyes
 from .record import Recorder
 from .stats import LiveStats
 from .viewer import RerunViewer
 
 log = logging.getLogger(__name__)
 
-DEVICES = ("pupil-core",)
+DEVICES = ("pupil-core", "neon")
 """The ``--device`` schemes ``live`` reads (``SCHEME://HOST:PORT``)."""
+RECORDED_AS = {"pupil-core": "pupil-core", "neon": "pupil-neon"}
+"""The device a recording's manifest names (the importers' names: ``formats.devices.MODULES``)."""
+
+
+def _reader_module(name: str):
+    """The module with the device's ``open_link``, ``probe_frames``, ``GazeReader``, ``WorldFrames``."""
+    if name == "neon":
+        from . import neon_in
+        return neon_in
+    return pupil_core_in
 
 
 def device_scheme(url: str) -> str:
@@ -37,8 +48,7 @@ def device_scheme(url: str) -> str:
     """
     scheme = url.split("://", 1)[0] if "://" in url else ""
     if scheme not in DEVICES:
-        raise UserError(f"--device {url}: expected {' or '.join(d + '://HOST:PORT' for d in DEVICES)} (Neon's "
-                        "real-time API is not supported yet; docs/live.md)")
+        raise UserError(f"--device {url}: expected pupil-core://HOST:PORT or neon://HOST[:PORT] (docs/live.md)")
     return scheme
 
 
@@ -61,10 +71,11 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
     camera = load_camera(camera_calib)
     marker_map = load_marker_map(markers_path)
     warm_up(method)                        # before connecting: the device streams meanwhile
-    link = open_link(device_url)
+    dev = _reader_module(name)
+    link = dev.open_link(device_url, camera) if name == "neon" else dev.open_link(device_url)
     closers = [link.close]
     try:
-        size, fps = probe_frames(link)
+        size, fps = dev.probe_frames(link)
         if tuple(size) != tuple(camera.image_size):
             raise UserError(f"--device {device_url} sends {size[0]}x{size[1]} scene frames but the calibration is for "
                             f"{camera.image_size[0]}x{camera.image_size[1]}; calibrate that camera at that resolution")
@@ -73,14 +84,14 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
         viewer = RerunViewer(rerun, camera, marker_map) if rerun is not None else None
         if viewer is not None:
             closers.append(lambda: viewer.close(0.1))
-        recorder = (Recorder(Path(record), size, fps, camera_calib, None, marker_map, device=name)
+        recorder = (Recorder(Path(record), size, fps, camera_calib, None, marker_map, device=RECORDED_AS[name])
                     if record else None)
         if recorder is not None:
             closers.append(lambda: recorder.close(complete=False))
-        frames = WorldFrames(link, size, fps)
+        frames = dev.WorldFrames(link, size, fps)
         if recorder is not None:
             frames.sink = recorder.frame
-        reader = GazeReader(link, on_record=recorder.eye_sample if recorder else None)
+        reader = dev.GazeReader(link, on_record=recorder.eye_sample if recorder else None)
         head = HeadTracker.for_map(marker_map, camera, hold_s)
         estimation = GazeEstimation([RayEyes(), RayEyes()], method)
     except BaseException:
