@@ -20,7 +20,7 @@ from scipy.optimize import minimize
 from .frames import angle_deg
 from .likelihood import gnomonic_residuals
 from .lines import BinocularSamples
-from .mergeform import GN_STEPS, MergeForm, _eye_lines, fixation_form, least_chi2
+from .mergeform import GN_STEPS, Chart, MergeForm, _eye_lines, fixation_form, least_chi2
 from .result import GazeEstimate
 
 if TYPE_CHECKING:
@@ -135,15 +135,16 @@ class TargetMerger:
             g.pooled.retract()
         pooled = self.pooled()
         pooled.keep(lines)
-        form = self._form(lines, estimate.position_mm)
+        chart = Chart.toward(origin, estimate.position_mm)
+        form = self._form(lines, chart, chart.coords(estimate.position_mm))
         self.groups.append(MergeGroup([lines], [key], estimate, pooled, form, form.n_lines))
         if len(self.groups) > len(self._points):
             self._points = np.concatenate([self._points, np.zeros((len(self._points) + 1, 3))])
         self._points[len(self.groups) - 1] = estimate.position_mm
         return len(self.groups) - 1
 
-    def _form(self, lines: BinocularSamples, x_mm) -> MergeForm:
-        return fixation_form(lines, x_mm, np.deg2rad(self.sigma_deg), MERGE_FIXATION_DEG, self.pose_deg)
+    def _form(self, lines: BinocularSamples, chart: Chart, p) -> MergeForm:
+        return fixation_form(lines, chart, p, np.deg2rad(self.sigma_deg), MERGE_FIXATION_DEG, self.pose_deg)
 
     def _join(self, g: MergeGroup, lines: BinocularSamples, key, merged: GazeEstimate) -> None:
         """``lines`` join ``g``, whose estimate becomes ``merged``; its form grows by theirs, or
@@ -151,9 +152,10 @@ class TargetMerger:
         g.parts.append(lines)
         g.members.append(key)
         g.estimate = merged
-        g.form = g.form.plus(self._form(lines, g.form.x0))
+        chart = g.form.chart
+        g.form = g.form.plus(self._form(lines, chart, g.form.p0))
         if g.form.n_lines >= RELINEARISE_GROWTH * g.form_lines:
-            forms = [self._form(part, merged.position_mm) for part in g.parts]
+            forms = [self._form(part, chart, chart.coords(merged.position_mm)) for part in g.parts]
             g.form = functools.reduce(MergeForm.plus, forms)
             g.form_lines = g.form.n_lines
 
@@ -166,10 +168,10 @@ def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm, sigma_deg
     point of then (the group's form is a quadratic already). O(the fixation's lines)."""
     sigma = np.deg2rad(sigma_deg)
 
-    def own(x):
-        return fixation_form(lines, x, sigma, MERGE_FIXATION_DEG, pose_deg)
+    def own(p):
+        return fixation_form(lines, form.chart, p, sigma, MERGE_FIXATION_DEG, pose_deg)
 
-    xb, x = np.asarray(start_mm, float), form.x0
+    xb, x = form.chart.coords(start_mm), form.p0
     for _ in range(GN_STEPS):
         apart, (_, xb) = least_chi2([form, own(xb)], MERGE_BIAS_DEG)
     for _ in range(GN_STEPS):
@@ -208,9 +210,10 @@ def offset_chi2(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
     motion test's static model: a static point seen from a moving head through a biased eye
     calibration is not a moving point. ``GN_STEPS`` Gauss-Newton steps on the fixation's
     ``MergeForm`` (within 0.1 % of a BFGS search on the lines, a tenth of its cost)."""
-    x = np.asarray(start_mm, float)
+    chart = Chart.toward(samples.origin_mm(0), start_mm)
+    p = chart.coords(start_mm)
     for _ in range(GN_STEPS):
-        chi2, (x,) = least_chi2([fixation_form(samples, x, sigma_rad, MERGE_FIXATION_DEG, 0.0)], MERGE_BIAS_DEG)
+        chi2, (p,) = least_chi2([fixation_form(samples, chart, p, sigma_rad, MERGE_FIXATION_DEG, 0.0)], MERGE_BIAS_DEG)
     return chi2
 
 
