@@ -4,7 +4,7 @@ Pure numpy/scipy maths (Open3D holds the voxel densities); no file, device or ne
 Frames and units: see ``estimator.frames``.
 """
 
-from .api import METHODS, batch_options, density_point_cloud, estimate, make_estimator, run_estimator
+from .api import METHODS, PooledEstimate, batch_options, density_point_cloud, estimate, make_estimator, run_estimator
 from .likelihood import (
     MLConfig,
     angular_log_likelihood,
@@ -30,7 +30,7 @@ from .voxel import VoxelConfig, VoxelEstimator
 __all__ = [
     "METHODS", "NEAR_POINT_MM", "near_point_check",
     "BinocularSample", "BinocularSamples", "Ellipsoid", "GazeEstimate", "MLConfig",
-    "PairStatus", "PaperVoxelConfig", "PaperVoxelEstimator", "Status", "ViewLines", "VoxelConfig",
+    "PairStatus", "PaperVoxelConfig", "PooledEstimate", "PaperVoxelEstimator", "Status", "ViewLines", "VoxelConfig",
     "VoxelEstimator", "angular_log_likelihood", "batch_options", "calibration_plane_points", "closest_point_two_lines",
     "cramer_rao_bound",
     "density_point_cloud", "estimate", "fisher_information", "lse_point", "make_estimator",

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import logging
 
+import numpy as np
+
 from .direction import with_direction
 from .likelihood import MLConfig, ml_point
 from .lines import BinocularSample, BinocularSamples, samples_from_stream
@@ -129,6 +131,99 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
     log.info("%s: %d samples, %d lines: %s", method, result.n_samples, result.n_lines,
              f"{result.position_mm.round(1).tolist()} mm" if result.ok else f"{result.status.value}: {result.reason}")
     return est, result
+
+
+NEAR_CHECK_SAMPLES = 4096
+"""``PooledEstimate`` checks an answer's distance from the eyes (``near_point_check``: the median
+along the lines) over at most this many samples, evenly spread over all it kept."""
+
+
+class PooledEstimate:
+    """``run_estimator`` over lines that arrive in batches in time order (a target's fixations,
+    one after another), each answer that of one estimator fed all the lines so far.
+
+    For ``voxel`` the estimator is kept, and a batch is fed to it alone, at the cost of its own
+    lines (the voxel estimator's work over its kept lines is bounded, amortised, per line added):
+    ``batched`` (default) adds each batch at once, as ``running_estimate`` feeds a fixation's
+    chunks (the answer is the weighted likelihood's peak over all the lines, as
+    ``run_estimator``'s; the samples' reliability weights are set per batch instead of per
+    sample: on simulated sessions within 0.001 sd of the full re-run); else sample by sample as
+    ``run_estimator`` feeds them, which gives its answer exactly. The other methods are run again
+    over all the lines (``ml`` and the closed forms solve over every line anyway; ``paper`` seeds
+    from a count that depends on the batch's size). A batch older than the last line, or an
+    answer that is not usable (``retract`` then undoes it), makes the next answer a re-run over
+    all the lines, in time order.
+
+    Args:
+        method, sigma_deg, **options: as ``run_estimator``'s.
+        batched: see above (``voxel`` only).
+    """
+
+    def __init__(self, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0, batched: bool = True, **options):
+        self.method, self.sigma_deg, self.batched, self.options = method, float(sigma_deg), batched, options
+        self.parts: list[BinocularSamples] = []
+        self._stream = None                    # the kept voxel estimator, None: re-run at the next add
+        self.reruns = 0                        # answers made by a re-run over all the lines (for tests)
+
+    def __len__(self) -> int:
+        """The samples kept."""
+        return sum(len(p) for p in self.parts)
+
+    def add(self, samples: BinocularSamples) -> GazeEstimate:
+        """The estimate of all lines so far and ``samples`` (world frame, time order)."""
+        if samples.frame != "world":
+            raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
+        in_order = not self.parts or not len(samples) or samples.t_s[0] >= self.parts[-1].t_s[-1]
+        self.parts.append(samples)
+        est = self._stream
+        if est is None or not in_order or len(est) < est.config.seed_samples:
+            return self._rerun()
+        return self._checked(self._feed(est, samples))
+
+    def keep(self, samples: BinocularSamples) -> None:
+        """Keep ``samples`` (world frame, time order) without an answer: the next ``add`` is a
+        re-run over them and its own (a target's first fixation, which has its own estimate)."""
+        self.parts.append(samples)
+        self._stream = None
+
+    def retract(self) -> None:
+        """Undo the last ``add`` (its lines are forgotten; the next answer is a re-run)."""
+        self.parts.pop()
+        self._stream = None
+
+    def _feed(self, est, samples: BinocularSamples) -> GazeEstimate:
+        """``samples`` fed to the kept voxel estimator ``est`` (see ``batched``)."""
+        if self.batched:
+            return est.add(samples)
+        result = est.estimate()
+        for i in range(len(samples)):
+            result = est.update(samples.sample(i))
+        return result
+
+    def _rerun(self) -> GazeEstimate:
+        pooled = BinocularSamples.concatenate(self.parts)
+        order = np.argsort(pooled.t_s, kind="stable")
+        in_order = bool(np.all(order == np.arange(len(order))))
+        self.reruns += 1
+        if self.method != "voxel" or not self.batched:
+            self.parts = [pooled.select(order)]
+            est, result = run_estimator(self.parts[0], self.method, self.sigma_deg, **self.options)
+            self._stream = est if self.method == "voxel" else None
+            return result
+        self._stream = make_estimator("voxel", self.sigma_deg, **self.options)
+        if not in_order:
+            self.parts = [pooled.select(order)]
+        for part in self.parts:
+            result = self._feed(self._stream, part)
+        return self._checked(result)
+
+    def _checked(self, result: GazeEstimate) -> GazeEstimate:
+        """``near_point_check`` as ``run_estimator`` ends, over the kept lines of at most
+        ``NEAR_CHECK_SAMPLES`` samples evenly spread (a median: bounded cost per answer)."""
+        if not result.ok:
+            return result
+        lines = self._stream.view_lines(every=max(1, -(-len(self._stream) // NEAR_CHECK_SAMPLES)))
+        return near_point_check(result, lines.origins_mm, lines.directions)
 
 
 def estimate(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,

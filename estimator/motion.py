@@ -249,6 +249,9 @@ def _scatter(K: int, k0, k1, w0, w1, M, v):
     """Per-line blocks onto the knots: the path's point of line n is ``w0 X[k0] + w1 X[k1]``, so
     its (3, 3) block ``M[n]`` adds ``wa wb M[n]`` to knot pair (ka, kb) and its vector ``v[n]``
     adds ``wa v[n]`` to knot ka. Returns (3K, 3K) and (3K,)."""
+    if K == 1:                                  # one knot (a static point): plain sums
+        w = w0 + w1
+        return np.einsum("n,nij->ij", w * w, M), np.einsum("n,ni->i", w, v)
     H = np.zeros((K, K, 3, 3))
     g = np.zeros((K, 3))
     for ka, wa in ((k0, w0), (k1, w1)):
@@ -303,6 +306,7 @@ def _two_points(L: _Lines, sigma_rad: float, x_static, n_splits: int = 24):
     coarse = np.unique(np.linspace(margin, n - margin, n_splits).astype(int))
     step = int(np.max(np.diff(coarse))) if len(coarse) > 1 else 1
     tried = set()
+    start = [x_static, x_static]
     for cand in (coarse, None):
         if cand is None:
             c0 = int(np.searchsorted(ts, best[1]))
@@ -313,10 +317,12 @@ def _two_points(L: _Lines, sigma_rad: float, x_static, n_splits: int = 24):
             tried.add(c)
             split = 0.5 * (ts[c - 1] + ts[c])
             pts, chi = [], 0.0
-            for m in (L.t < split, L.t >= split):
-                Xk, _, ck = _fit_knots(L.subset(m), np.zeros(1), sigma_rad, x_static, iterations=8)
+            for side, m in enumerate((L.t < split, L.t >= split)):
+                # from the neighbouring split's point of this side (a few lines moved: a step or two)
+                Xk, _, ck = _fit_knots(L.subset(m), np.zeros(1), sigma_rad, start[side], iterations=8)
                 pts.append(Xk[0])
                 chi += ck
+            start = pts
             if chi < best[0]:
                 best = (chi, split, np.array(pts))
         if not np.isfinite(best[0]):

@@ -216,9 +216,13 @@ class VoxelEstimator:
             return failed(self.method, Status.INSUFFICIENT, "no samples yet", 0, 0)
         return self._last
 
-    def view_lines(self) -> ViewLines:
-        """All kept lines (world frame), with their sample indices."""
-        return self._buf.view_lines()
+    def view_lines(self, every: int = 1) -> ViewLines:
+        """All kept lines (world frame), with their sample indices; with ``every`` > 1, the lines
+        of every ``every``-th sample only."""
+        if every == 1:
+            return self._buf.view_lines()
+        o, d, si = self._buf.lines(slice(0, self._buf.n, every))
+        return ViewLines(o, d, "world", si)
 
     @property
     def weights(self) -> np.ndarray:

@@ -6,7 +6,7 @@ the same fixations the same partition into targets."""
 import numpy as np
 import pytest
 
-from estimator import BinocularSamples, estimate, perturb_directions
+from estimator import BinocularSamples, PooledEstimate, estimate, perturb_directions
 from estimator.merge import MERGE_LR_THRESHOLD, MERGE_POSE_DEG, TargetMerger, merge_statistic
 from estimator.result import Status, failed
 from estimator.segments import same_target
@@ -53,16 +53,22 @@ def _est(lines):
 
 
 class _Spy:
-    """The merger's estimator: records the pooled lines it is given."""
+    """The merger's group estimators (``PooledEstimate`` of ``ml`` with the default error model):
+    records the pooled lines each join is estimated from."""
 
     def __init__(self, fail=False):
         self.calls, self.fail = [], fail
 
-    def __call__(self, lines):
-        self.calls.append(lines)
-        if self.fail:
-            return failed("ml", Status.DEGENERATE, "planted", len(lines), 2 * len(lines))
-        return _est(lines)
+    def __call__(self):
+        spy = self
+
+        class Pooled(PooledEstimate):
+            def add(self, samples):
+                e = super().add(samples)
+                spy.calls.append(BinocularSamples.concatenate(self.parts))
+                return failed("ml", Status.DEGENERATE, "planted", 1, 2) if spy.fail else e
+
+        return Pooled("ml", SIGMA_DEG, error_model=DEFAULT_ERROR_MODEL)
 
 
 def test_a_revisit_joins_its_target_which_is_estimated_again_and_a_poorly_fixed_fixation_does_not():

@@ -8,6 +8,7 @@ import json
 import statistics
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from wearable_gaze.cli import main
@@ -15,6 +16,7 @@ from wearable_gaze.formats.gaze_export import read_gaze_csv
 from wearable_gaze.formats.outputs import check_output
 from wearable_gaze.formats.tables import MAX_ABS
 from wearable_gaze.formats.targets import read_target_paths, read_targets
+from wearable_gaze.pipeline import fixations
 
 G2B = Path("gazemapper_example2")
 FPS = 25.0          # coding.tsv counts scene-video frames at 25 fps; session time is scene-video time
@@ -27,7 +29,14 @@ def g2b(tmp_path_factory, real_data_module):
         pytest.skip(f"{lead}/ixinraw: the second G2 recording (gazeMapper example 2) is not there")
     base = tmp_path_factory.mktemp("g2b")
     assert main(["import", str(lead / "ixinraw"), "-o", str(base / "s")]) == 0
-    return base / "s", main(["process", str(base / "s")])
+    merged = fixations.merge_fixations
+    with pytest.MonkeyPatch.context() as mp:         # the merge's inputs kept for the test below
+        mp.setattr(fixations, "merge_fixations", lambda *a: MERGE_INPUTS.append(a) or merged(*a))
+        rc = main(["process", str(base / "s")])
+    return base / "s", rc
+
+
+MERGE_INPUTS = []
 
 
 def test_the_second_g2_recording_is_processed_with_no_failed_step(g2b, capsys):
@@ -66,3 +75,22 @@ def test_the_recordings_parent_folder_imports_the_one_recording_in_it_and_says_s
     assert "holds one recording, ixinraw/" in out, out
     rep = json.loads((tmp_path / "s" / "import_report.json").read_text())
     assert rep["device"] == "tobii-g2" and any("ixinraw" in n for n in rep["notes"])
+
+
+def test_the_linear_merge_gives_the_full_reruns_groups_on_the_recording(g2b):
+    """Issue 27: the targets step's merge (each target's test and estimate kept as a form and an
+    estimator fed each fixation's own lines) groups this recording's fixations (a still head, so
+    depth from vergence alone, 1 deg noise) as the full re-run does (every group's lines tested
+    and estimated again on each join), and each target's estimate lies within 0.1 sd of the full
+    re-run's (per axis of its covariance). The form quadratic in the point's position (not its
+    inverse depth) grouped them otherwise: 4 targets in the Validate episode where the full
+    re-run has 9."""
+    from tests.test_merge_linear import _sd_frame_error, full_rerun_groups
+
+    assert len(MERGE_INPUTS) == 1
+    fixes, samples, method, sigma_deg, error_model = MERGE_INPUTS[0]
+    ref = full_rerun_groups(fixes, samples, method, sigma_deg, error_model)
+    groups = fixations.merge_fixations(fixes, samples, method, sigma_deg, error_model)
+    assert [g.fixations for g in groups] == [m for m, _ in ref]
+    for g, (_, e) in zip(groups, ref, strict=True):
+        assert np.all(_sd_frame_error(g.estimate.position_mm, e.position_mm, e.covariance_mm2) < 0.1)

@@ -74,6 +74,10 @@ class MarkerDetector:
         downscale: find markers on an image this many times smaller (markers 24 px and up are
             still found), then refine their corners on the full image; default 2 for images 1200
             px wide or more, else 1. Finding is most of the cost, so this is ~3x faster at 720p.
+        small_frames: find markers in an image under 1200 px wide as in the half-size image of a
+            larger one (two threshold windows, 3 and 13 px, with OpenCV's own parameters): for
+            video frames (tracking). On a simulated 640x360 walk: 928 of the 934 markers of 100
+            frames, at 3.7 against 5.1 ms of CPU a frame (issue 27).
 
     ``detect(image)`` returns every marker found, as a list of ``MarkerDetection`` (id, (4, 2)
     corners px), repeated ids included (a photo may hold several tags of one id): the caller decides
@@ -82,7 +86,8 @@ class MarkerDetector:
     ``refine``.
     """
 
-    def __init__(self, dictionary, refine: str = "edges", params=None, downscale: int | None = None):
+    def __init__(self, dictionary, refine: str = "edges", params=None, downscale: int | None = None,
+                 small_frames: bool = False):
         if refine not in ("edges", "subpix", "none", "apriltag"):
             raise ValueError(f"refine must be edges, subpix, none or apriltag, got {refine!r}")
         dic = get_dictionary(dictionary) if isinstance(dictionary, str) else dictionary
@@ -101,6 +106,7 @@ class MarkerDetector:
         self._det_small = cv2.aruco.ArucoDetector(dic, small)
         self.refine = refine
         self.downscale = downscale
+        self.small_frames = small_frames
 
     def detect(self, image) -> list[MarkerDetection]:
         """Every marker in ``image`` ((H, W) grey or (H, W, 3) BGR), in the detector's order."""
@@ -111,7 +117,8 @@ class MarkerDetector:
         k = self.downscale or (2 if grey.shape[1] >= 1200 and self.refine != "apriltag" else 1)
         small = grey if k == 1 else cv2.resize(grey, (grey.shape[1] // k, grey.shape[0] // k),
                                                interpolation=cv2.INTER_AREA)
-        c, ids = detect_markers(self._det if k == 1 else self._det_small, small)
+        full = k == 1 and not (self.small_frames and grey.shape[1] < 1200)
+        c, ids = detect_markers(self._det if full else self._det_small, small)
         if len(ids) == 0:
             return []
         if self.refine == "apriltag":

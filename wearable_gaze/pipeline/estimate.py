@@ -11,6 +11,7 @@ import numpy as np
 from estimator import (
     BinocularSamples,
     GazeEstimate,
+    PooledEstimate,
     batch_options,
     cramer_rao_bound,
     density_point_cloud,
@@ -38,11 +39,12 @@ MODEL_METHODS = ("ml", "voxel")
 
 def target_merger(method: str, sigma_deg: float, error_model: ErrorModel | None) -> TargetMerger:
     """The merge test's groups (``estimator.merge.TargetMerger``) as ``process`` and the live
-    session run it: a joined group's pooled lines estimated by ``method`` with ``sigma_deg``, its
-    covariance following ``error_model`` (``model_options``), the pose offset
-    ``error_model.pose_offset_deg`` (0 without one)."""
+    session run it: a joined group's pooled lines estimated by ``method`` with ``sigma_deg``
+    (``estimator.api.PooledEstimate``: as ``run_estimator`` over all of them), its covariance
+    following ``error_model`` (``model_options``), the pose offset ``error_model.pose_offset_deg``
+    (0 without one)."""
     options = model_options(method, error_model)
-    return TargetMerger(lambda lines: run_estimator(lines, method, sigma_deg, **options)[1], sigma_deg,
+    return TargetMerger(lambda: PooledEstimate(method, sigma_deg, **options), sigma_deg,
                         error_model.pose_offset_deg if error_model is not None else 0.0)
 
 

@@ -169,8 +169,9 @@ def room_locator(room: MarkerMap | FeatureMap, camera: CameraCalibration):
 
 
 def marker_locator(marker_map: MarkerMap, camera: CameraCalibration):
-    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay), from the markers."""
-    detector = MarkerDetector(marker_map.dictionary)
+    """grey (H, W) uint8 -> (pose result, detections drawn on the overlay), from the markers
+    (video frames: ``MarkerDetector``'s ``small_frames``)."""
+    detector = MarkerDetector(marker_map.dictionary, small_frames=True)
     estimator = MarkerPoseEstimator(marker_map, camera)
 
     def locate(grey):
