@@ -21,19 +21,19 @@ wall-clock times (printed beside them).
 
 from __future__ import annotations
 
-import argparse  # noqa: E402
-import csv  # noqa: E402
-import json  # noqa: E402
-import shutil  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import csv
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 
-from wearable_gaze.pipeline import steps  # noqa: E402
-from wearable_gaze.pipeline.process import process_session  # noqa: E402
-from wearable_gaze.sim.simulate import simulate_scenario  # noqa: E402
+from wearable_gaze.pipeline import steps
+from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.sim.simulate import simulate_scenario
 
 RESOLUTION = [640, 360]
 
@@ -62,7 +62,7 @@ def repeated(src: Path, dst: Path, times: int) -> Path:
     scene_timestamps.csv shifted by the session's duration per repeat (the recorder's counter
     carried on), scene.mp4 copied frame by frame; its calibration and marker map as they are; no
     truth (the head jumps at each seam)."""
-    import cv2  # noqa: PLC0415
+    import cv2
 
     manifest = json.loads((src / "session.json").read_text())
     duration = float(manifest["scenario"]["duration_s"])

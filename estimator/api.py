@@ -178,7 +178,7 @@ class PooledEstimate:
         est = self._stream
         if est is None or not in_order or len(est) < est.config.seed_samples:
             return self._rerun()
-        return self._checked(self._feed(est, samples))
+        return _near_checked(self._feed(est, samples), est)
 
     def keep(self, samples: BinocularSamples) -> None:
         """Keep ``samples`` (world frame, time order) without an answer: the next ``add`` is a
@@ -210,20 +210,21 @@ class PooledEstimate:
             est, result = run_estimator(self.parts[0], self.method, self.sigma_deg, **self.options)
             self._stream = est if self.method == "voxel" else None
             return result
-        self._stream = make_estimator("voxel", self.sigma_deg, **self.options)
+        stream = self._stream = make_estimator("voxel", self.sigma_deg, **self.options)
         if not in_order:
             self.parts = [pooled.select(order)]
         for part in self.parts:
-            result = self._feed(self._stream, part)
-        return self._checked(result)
+            result = self._feed(stream, part)
+        return _near_checked(result, stream)
 
-    def _checked(self, result: GazeEstimate) -> GazeEstimate:
-        """``near_point_check`` as ``run_estimator`` ends, over the kept lines of at most
-        ``NEAR_CHECK_SAMPLES`` samples evenly spread (a median: bounded cost per answer)."""
-        if not result.ok:
-            return result
-        lines = self._stream.view_lines(every=max(1, -(-len(self._stream) // NEAR_CHECK_SAMPLES)))
-        return near_point_check(result, lines.origins_mm, lines.directions)
+
+def _near_checked(result: GazeEstimate, stream: VoxelEstimator) -> GazeEstimate:
+    """``near_point_check`` as ``run_estimator`` ends, over ``stream``'s kept lines of at most
+    ``NEAR_CHECK_SAMPLES`` samples evenly spread (a median: bounded cost per answer)."""
+    if not result.ok:
+        return result
+    lines = stream.view_lines(every=max(1, -(-len(stream) // NEAR_CHECK_SAMPLES)))
+    return near_point_check(result, lines.origins_mm, lines.directions)
 
 
 def estimate(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma_deg: float = 1.0,

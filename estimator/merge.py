@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Hashable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -64,12 +64,12 @@ class MergeGroup:
         form_lines: the lines ``form`` was last linearised over (at the estimate of then).
     """
 
-    parts: list = field(default_factory=list)
-    members: list = field(default_factory=list)
-    estimate: GazeEstimate | None = None
-    pooled: PooledEstimate | None = None
-    form: MergeForm | None = None
-    form_lines: int = 0
+    parts: list
+    members: list
+    estimate: GazeEstimate
+    pooled: PooledEstimate
+    form: MergeForm
+    form_lines: int
 
     def lines_with(self, more: BinocularSamples) -> BinocularSamples:
         """Its lines and ``more`` as one ``BinocularSamples``, in time order (stable: lines of one
