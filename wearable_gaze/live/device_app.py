@@ -15,12 +15,13 @@ from ..formats.markermap import load_marker_map
 from .allocator import bound_heap
 from .app import run_session
 from .estimation import GazeEstimation, warm_up
-from .head import HeadTracker
+from .head import MAX_WAIT_S, HeadTracker, TrackingThread
 from .loop import LiveSession
 from .publish import Publisher
 from .pupil_core_in import GazeReader, RayEyes, WorldFrames, open_link, probe_frames
 from .record import Recorder
 from .stats import LiveStats
+from .track_process import RemoteTracker
 from .viewer import RerunViewer
 
 log = logging.getLogger(__name__)
@@ -61,8 +62,13 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
     camera = load_camera(camera_calib)
     marker_map = load_marker_map(markers_path)
     warm_up(method)                        # before connecting: the device streams meanwhile
-    link = open_link(device_url)
-    closers = [link.close]
+    remote = RemoteTracker(marker_map, camera)          # ... and the tracking process's start
+    try:
+        link = open_link(device_url)
+    except BaseException:
+        remote.close()
+        raise
+    closers = [remote.close, link.close]
     try:
         size, fps = probe_frames(link)
         if tuple(size) != tuple(camera.image_size):
@@ -81,13 +87,14 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
         if recorder is not None:
             frames.sink = recorder.frame
         reader = GazeReader(link, on_record=recorder.eye_sample if recorder else None)
-        head = HeadTracker.for_map(marker_map, camera, hold_s)
+        head = HeadTracker.for_map(marker_map, camera, hold_s, max_age_s=MAX_WAIT_S)
         estimation = GazeEstimation([RayEyes(), RayEyes()], method)
+        tracker = TrackingThread(frames, head, viewer.head if viewer is not None else None, remote)
     except BaseException:
         for close in reversed(closers):
             close()
         raise
-    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer), link
+    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer, tracker), link
 
 
 def run_device_live(device_url: str, camera_calib, markers_path, record=None, publish=None, duration_s=None,

@@ -45,6 +45,7 @@ from ..formats.devices.pupil_net import (
 from .camera_in import CameraStats, put_newest
 from .input_thread import InputThread
 from .serial_in import SerialStats
+from .stats import LatencyHistogram
 
 log = logging.getLogger(__name__)
 
@@ -311,6 +312,7 @@ class GazeReader(_Subscriber):
         super().__init__(link, "pupil-core-gaze", maxsize)
         self.stats = SerialStats()
         self.on_record = on_record
+        self.transport = LatencyHistogram()   # device sample time -> received here, ms
 
     def _corrupt(self) -> None:
         self.stats.corrupt += 1
@@ -320,6 +322,7 @@ class GazeReader(_Subscriber):
             raise BadMessage(f"{len(parts)} part(s), not topic and payload")
         rec = parse_gaze(parts[0].decode("ascii", "replace"), parts[1], self.stats.records)
         local, t_s = self._session_time(rec.t)
+        self.transport.add(max(time.monotonic() - local, 0.0) * 1000)
         self.stats.records += 1
         if self.on_record is not None:
             self.on_record(t_s, rec)
