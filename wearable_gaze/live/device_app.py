@@ -89,7 +89,8 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
         reader = GazeReader(link, on_record=recorder.eye_sample if recorder else None)
         head = HeadTracker.for_map(marker_map, camera, hold_s, max_age_s=MAX_WAIT_S)
         estimation = GazeEstimation([RayEyes(), RayEyes()], method)
-        tracker = TrackingThread(frames, head, viewer.head if viewer is not None else None, remote)
+        tracker = TrackingThread(frames, head, viewer.head if viewer is not None else None, remote,
+                                 samples_waiting=lambda: reader.queue.qsize() > 0)
     except BaseException:
         for close in reversed(closers):
             close()

@@ -8,6 +8,7 @@ import logging
 import os
 import queue
 import threading
+import time
 from collections import deque
 
 import numpy as np
@@ -21,6 +22,7 @@ log = logging.getLogger(__name__)
 MAX_GAP_S = 0.2         # no pose is interpolated between frames further apart than this, s
 MAX_WAIT_S = 0.2        # a sample newer than the last frame waits for the next one at most this long, s
 TRACK_NICE = 5          # the tracking thread's niceness above the session's (TrackingThread)
+YIELD_MAX_S = 0.1       # a frame waits at most this long for the eye samples' backlog to clear (TrackingThread)
 
 
 class HeadTracker:
@@ -123,11 +125,15 @@ class TrackingThread(threading.Thread):
         frames: the camera (``queue`` of ``(t_monotonic_s, index, grey, colour)``, ``t0``).
         head: the ``HeadTracker`` it feeds; on_pose: called with (t_s, T) after each pose, or None.
         remote: the tracking process (closed with the thread: ``close``), or None.
+        samples_waiting: () -> whether eye samples wait for the loop; a frame is not started
+            while they do (for at most ``YIELD_MAX_S``, so that poses do not go stale): on a
+            core too busy for both, the samples go first. None: frames never wait.
     """
 
-    def __init__(self, frames, head: HeadTracker, on_pose=None, remote=None):
+    def __init__(self, frames, head: HeadTracker, on_pose=None, remote=None, samples_waiting=None):
         super().__init__(name="tracking", daemon=True)
         self.frames, self.head, self.on_pose, self.remote = frames, head, on_pose, remote
+        self.samples_waiting = samples_waiting
         self.skipped = 0                  # frames passed over for a newer one
         self.tracked = 0
         self.busy = False                 # a frame taken and not yet tracked
@@ -162,6 +168,10 @@ class TrackingThread(threading.Thread):
                 except queue.Empty:
                     continue
                 self.busy = True
+                if self.samples_waiting is not None:
+                    end = time.monotonic() + YIELD_MAX_S
+                    while self.samples_waiting() and time.monotonic() < end:
+                        time.sleep(0.002)
                 while True:
                     try:
                         item = self.frames.queue.get_nowait()

@@ -241,8 +241,9 @@ class _Subscriber(InputThread):
         try:
             while not self.stop_event.is_set():
                 if gen != self.link.generation:
-                    if sub is not None:
+                    if sub is not None:              # a new handshake (this reader's or the other's)
                         sub.close()
+                        self._reconnected()
                     sub, gen = self._subscribe(), self.link.generation
                     last = time.monotonic()
                     self.connected.set()
@@ -256,10 +257,11 @@ class _Subscriber(InputThread):
                         log.warning("%s: no %s for %.1f s; reconnecting", self.port, self.topic, STALL_S)
                         outage_said = True
                     if self.link.reconnect(gen):
-                        self._reconnected()
                         last = time.monotonic()
                     else:
                         last = time.monotonic() - STALL_S + RETRY_S
+            while sub is not None and sub.poll(0):   # the session ends: what has arrived is taken (recorded)
+                self._message(sub.recv_multipart())
         finally:
             if sub is not None:
                 sub.close()
