@@ -12,19 +12,21 @@ the video encoding then shares the core.
 Targets (issue 7): p95 latency <= 50 ms; memory flat over the run (one hour: --minutes 60);
 no sample that arrived intact is lost.
 
-Targets (issue 29), ``--device pupil-core``: the Pupil Core emulator (``emulate --as pupil-core``,
-in a process of its own on the other core) at Core's rates, 200 Hz binocular gaze and 30 fps
-scene frames, for ``--seconds``, recorded: p95 latency from the device's sample time to the
-published estimate <= 25 ms; no sample received missing from the recording (every stream sample
-from the first received on); the same with ``--subscriber stalled``; ``process`` on the
-recording gives the live targets within 1 mm.
+Targets (issue 29), ``--device pupil-core`` (bench_live_device.py): the Pupil Core emulator
+(``emulate --as pupil-core``, in a process of its own on the other core) at Core's rates, 200 Hz
+binocular gaze and 30 fps scene frames, for ``--seconds``, recorded: p95 latency from the
+device's sample time to the published estimate <= 25 ms (with the load, and CPU-time figures); no
+sample received missing from the recording (every stream sample from the first received on); the
+same with ``--subscriber stalled`` (``both``: without, then with); ``process`` on the recording
+gives the live targets within 1 mm; with ``--reconnect``, the emulator killed and started again:
+reconnected within 2 s, nothing received missing.
 
-    python benchmarks/bench_live.py --device pupil-core --seconds 60 [--subscriber stalled]
+    python benchmarks/bench_live.py --device pupil-core --seconds 60 --subscriber both --reconnect
 
 ``--device neon``: the same with the Neon emulator (``emulate --as neon``: 200 Hz gaze with eye
 states, 30 fps H.264 scene video) read through Pupil Labs' client (the [neon] extra).
 
-    python benchmarks/bench_live.py --device neon --seconds 60 [--subscriber stalled]
+    python benchmarks/bench_live.py --device neon --seconds 60 --subscriber both --reconnect
 
 Targets (issue 12), ``--subscriber both``: at 10x the eye rate (600 Hz), a TCP subscriber that
 never reads, then one that reads: 0 intact samples missing from the recording in either run,
@@ -36,28 +38,22 @@ from __future__ import annotations
 import argparse
 import ctypes
 import io
-import json
-import os
 import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
 
-import _onecore  # first: pins one core before numpy and OpenCV load
+import _onecore
+import bench_live_device
 import numpy as np
 
-from wearable_gaze.formats.eye_rays import read_eye_rays
 from wearable_gaze.formats.eye_samples import read_eye_csv
 from wearable_gaze.formats.session import load_session
 from wearable_gaze.live.app import open_session
-from wearable_gaze.live.device_app import open_device_session
 from wearable_gaze.live.stats import LatencyHistogram
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.sim.emulate import RecorderEmulator
-from wearable_gaze.sim.pupil_core_emu import device_stream
 from wearable_gaze.sim.simulate import simulate_scenario
 
 
@@ -205,132 +201,6 @@ def run_once(root: Path, cal: Path, tmp: Path, args, subscriber: str, label: str
     return {"p95": h.percentile(95), "missing": missing, "sent": emu.sent, "recorded": n_rec, "hist": h}
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _missing_from_recording(stream, rows) -> tuple[int, int]:
-    """(stream samples from the first recorded one on, of them not in ``rows``): the recording
-    (N, 12) both eyes' lines must be the stream's samples with an eye valid, in order."""
-    nan = np.full(6, np.nan)
-    sent = np.array([np.concatenate([stream.left[k] if stream.left_valid[k] else nan,
-                                     stream.right[k] if stream.right_valid[k] else nan])
-                     for k in range(len(stream.t)) if stream.left_valid[k] or stream.right_valid[k]])
-    close = np.all(np.isclose(sent, rows[0], atol=2e-4, equal_nan=True), axis=1)
-    first = int(np.flatnonzero(close)[0])
-    expected = sent[first:]
-    matched = j = 0
-    for row in rows:                         # in order: each recorded row is the next stream sample found
-        while j < len(expected) and not np.allclose(expected[j], row, atol=2e-4, equal_nan=True):
-            j += 1
-        matched += j < len(expected)
-        j += 1
-    return len(expected), len(expected) - matched
-
-
-def run_device(root: Path, tmp: Path, args) -> None:
-    """``--device pupil-core``: the emulator in its own process (on the other core when there is
-    one), the live session here on one core, recorded; its figures, then ``process``'s targets."""
-    port = _free_port()
-    others = sorted(set(range(os.cpu_count() or 1)) - os.sched_getaffinity(0)) or sorted(os.sched_getaffinity(0))
-    emu = subprocess.Popen([sys.executable, "-m", "wearable_gaze", "emulate", str(root), "--as", "pupil-core",
-                            "--listen", f"127.0.0.1:{port}"], stderr=subprocess.PIPE, text=True,
-                           preexec_fn=lambda: os.sched_setaffinity(0, set(others)))
-    time.sleep(3.0)                                  # the emulator's imports
-    listener = TcpListener(False) if args.subscriber == "stalled" else None
-    rec = tmp / "rec-device"
-    live, link = open_device_session(f"pupil-core://127.0.0.1:{port}", root / "truth" / "camera.json",
-                                     root / "markers.json", record=rec, stdout=False,
-                                     publish=listener.url if listener else None)
-    try:
-        st = live.run(duration_s=args.seconds + 1.5)
-    finally:
-        link.close()
-        emu.terminate()
-        emu.wait(10)
-        if listener is not None:
-            listener.close()
-    stream = device_stream(root)
-    r = read_eye_rays(rec / "eye_rays.csv")
-    rows = np.hstack([r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction])
-    expected, missing = _missing_from_recording(stream, rows)
-    h = st.latency_all
-    print(f"live --device pupil-core [{args.subscriber}], {_onecore.CORES} core(s), {args.seconds:g} s of "
-          f"{args.resolution} BGR frames at 30 fps and 200 Hz binocular gaze, recorded"
-          + (", TCP subscriber that never reads" if listener else ""))
-    print(f"  latency device sample time -> published estimate ({h.n} estimates): median {h.percentile(50):.1f} ms, "
-          f"p95 {h.percentile(95):.1f} ms, p99 {h.percentile(99):.1f} ms, max {h.percentile(100):.1f} ms")
-    print(f"  gaze samples received {st.eye_records} (corrupt {st.corrupt}, reconnects {st.reconnects}), recorded "
-          f"{len(rows)}; stream samples from the first received on {expected}, missing from the recording {missing}")
-    print(f"  frames {st.frames} (skipped by tracking {st.frames_skipped}, missed {st.frames_missed}); messages "
-          f"{st.published}, dropped by publishing {st.publish_dropped}; clock sync round trip "
-          f"{link.sync.rtt_s * 1e3:.2f} ms")
-    ok = h.percentile(95) <= 25 and missing == 0
-    print(f"  target p95 <= 25 ms and nothing received missing: {'PASS' if ok else 'FAIL'}")
-    live_targets = {}
-    for line in (rec / "live.jsonl").read_text().splitlines():
-        if '"type":"target"' in line.replace(" ", ""):
-            m = json.loads(line)
-            live_targets[m["target"]] = m
-    res = process_session(rec, tmp / "processed-device", report=False)
-    dist = [min((np.linalg.norm(np.subtract(m["position_mm"], t["position_mm"])) for t in res.targets),
-                default=float("inf")) for m in live_targets.values()]
-    print(f"  process on the recording: {len(res.targets)} targets; live {len(live_targets)}; each live target to "
-          f"the nearest offline one: {', '.join(f'{d:.2f}' for d in dist)} mm; within 1 mm: "
-          f"{'PASS' if dist and max(dist) <= 1.0 else 'FAIL'}")
-
-
-def run_neon(root: Path, tmp: Path, args) -> None:
-    """``--device neon``: as ``run_device``, with the Neon emulator and Pupil Labs' client."""
-    port = _free_port()
-    others = sorted(set(range(os.cpu_count() or 1)) - os.sched_getaffinity(0)) or sorted(os.sched_getaffinity(0))
-    emu = subprocess.Popen([sys.executable, "-m", "wearable_gaze", "emulate", str(root), "--as", "neon",
-                            "--listen", f"127.0.0.1:{port}"], stderr=subprocess.PIPE, text=True,
-                           preexec_fn=lambda: os.sched_setaffinity(0, set(others)))
-    time.sleep(5.0)                                  # the emulator's imports and its H.264 encoder
-    listener = TcpListener(False) if args.subscriber == "stalled" else None
-    rec = tmp / "rec-neon"
-    live, link = open_device_session(f"neon://127.0.0.1:{port}", root / "truth" / "camera.json",
-                                     root / "markers.json", record=rec, stdout=False,
-                                     publish=listener.url if listener else None)
-    try:
-        st = live.run(duration_s=args.seconds + 1.5)
-    finally:
-        link.close()
-        emu.terminate()
-        emu.wait(10)
-        if listener is not None:
-            listener.close()
-    r = read_eye_rays(rec / "eye_rays.csv")
-    rows = np.hstack([r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction])
-    expected, missing = _missing_from_recording(device_stream(root), rows)
-    h = st.latency_all
-    print(f"live --device neon [{args.subscriber}], {_onecore.CORES} core(s), {args.seconds:g} s of {args.resolution} "
-          f"H.264 frames at 30 fps and 200 Hz gaze with eye states, recorded"
-          + (", TCP subscriber that never reads" if listener else ""))
-    print(f"  latency phone sample time -> published estimate ({h.n} estimates): median {h.percentile(50):.1f} ms, "
-          f"p95 {h.percentile(95):.1f} ms, p99 {h.percentile(99):.1f} ms, max {h.percentile(100):.1f} ms")
-    print(f"  gaze samples received {st.eye_records} (reconnects {st.reconnects}), recorded {len(rows)}; stream "
-          f"samples from the first received on {expected}, missing from the recording {missing}")
-    print(f"  frames {st.frames} (skipped by tracking {st.frames_skipped}, missed {st.frames_missed}); messages "
-          f"{st.published}, dropped by publishing {st.publish_dropped}; Time Echo round trip {link.rtt_ms:.2f} ms")
-    print(f"  target p95 <= 25 ms and nothing received missing: "
-          f"{'PASS' if h.percentile(95) <= 25 and missing == 0 else 'FAIL'}")
-    live_targets = {}
-    for line in (rec / "live.jsonl").read_text().splitlines():
-        if '"type":"target"' in line.replace(" ", ""):
-            m = json.loads(line)
-            live_targets[m["target"]] = m
-    res = process_session(rec, tmp / "processed-neon", report=False)
-    dist = [min((np.linalg.norm(np.subtract(m["position_mm"], t["position_mm"])) for t in res.targets),
-                default=float("inf")) for m in live_targets.values()]
-    print(f"  process on the recording: {len(res.targets)} targets; live {len(live_targets)}; each live target to "
-          f"the nearest offline one: {', '.join(f'{d:.2f}' for d in dist)} mm; within 1 mm: "
-          f"{'PASS' if dist and max(dist) <= 1.0 else 'FAIL'}")
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=2.0)
@@ -348,6 +218,8 @@ def main():
                     help="the Pupil Core or Neon emulator at the device's rates, not the serial recorder (--seconds, "
                          "default 60)")
     ap.add_argument("--resolution", default="640x360", help="--device: the scene frames' size (default 640x360)")
+    ap.add_argument("--reconnect", action="store_true",
+                    help="--device: also a run with the emulator killed and started again a third into it")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -357,7 +229,10 @@ def main():
             w, h = (int(x) for x in args.resolution.split("x"))
             simulate_scenario({"base": "lab-walkabout", "duration_s": args.seconds, "eyes": {"rate_hz": 200.0},
                                "camera": {"resolution": [w, h]}, "calibration": {"camera_views": 0}}, root, args.seed)
-            (run_neon if args.device == "neon" else run_device)(root, tmp, args)
+            for kind in (("none", "stalled") if args.subscriber == "both" else (args.subscriber,)):
+                bench_live_device.run_device(root, tmp, args, kind, TcpListener)
+            if args.reconnect:
+                bench_live_device.run_reconnect(root, tmp, args)
             return
         simulate_scenario({"base": "lab-walkabout", "duration_s": 20.0, "eyes": {"rate_hz": 60.0 * args.eye_rate_x}},
                           root, args.seed)

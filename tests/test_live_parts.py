@@ -24,7 +24,7 @@ from wearable_gaze.formats.session import load_session
 from wearable_gaze.live.camera_in import CameraStats
 from wearable_gaze.live.clock import SessionClock
 from wearable_gaze.live.estimation import GazeEstimation, LiveEstimate, TargetIds, world_sample
-from wearable_gaze.live.head import HeadTracker
+from wearable_gaze.live.head import HeadTracker, TrackingThread
 from wearable_gaze.live.loop import LiveSession
 from wearable_gaze.live.messages import estimate_message, target_message
 from wearable_gaze.live.publish import Publisher
@@ -550,3 +550,61 @@ def test_a_slow_fixation_end_does_not_hold_the_next_samples_and_every_target_is_
     assert [(m["fixation"], m["target"]) for m in targets] == [(0, 0), (1, 1), (2, 0)]
     assert calls == [True, True, True] and st.targets == 3 and st.distinct_targets == 2
     assert rec.lines == pub.lines and rec.complete is True and not session.worker.is_alive()
+
+
+class _QueueCamera(_FakeThread):
+    """A device's frames: a real queue the tracking thread waits on; the stream does not end."""
+
+    def __init__(self, frames, t0=100.0):
+        super().__init__()
+        self.stats, self.t0, self.finished = CameraStats(frames=len(frames)), t0, threading.Event()
+        self.queue = queue.Queue()
+        for i, (t, T) in enumerate(frames):
+            self.queue.put((t0 + t, i, T, None))
+
+
+def test_with_frames_tracked_in_their_own_thread_no_eye_sample_waits_for_a_slow_frame():
+    """A device session (``track_in_thread``): a frame whose tracking takes 0.4 s does not hold
+    up the eye samples waiting meanwhile; each is estimated at once with the newest pose there
+    is (the last tracked frame's, held), and the pose each took is recorded for ``process``.
+    (Tracked in the loop's thread, as the serial session does, they wait the 0.4 s.)"""
+    def slow(T):
+        time.sleep(0.4)
+        return T
+    head = HeadTracker(detect=lambda T: T, estimate=lambda T: _Pose(T, [7]), max_age_s=0.2)
+    head.track(0.0, _pose(0.0, 10.0))                    # a pose before the session: the frame at 0 s
+    head.detect = slow
+    est = _FakeEstimation(None)
+    rec = _FakeRecorder()
+    rec.poses = []
+    rec.sample_pose = lambda t, T: rec.poses.append((t, T))
+    camera = _QueueCamera([(0.033, _pose())])
+    session = LiveSession(_FakeReader(_eye_items([0.01, 0.02, 0.03, 0.15, 0.3])), camera, head, est, _FakePublisher(),
+                          rec, tracker=TrackingThread(camera, head))
+    st = session.run(duration_s=0.3)
+    assert [c for _, c, _ in est.seen] == [0, 1, 2, 3]       # 0.3 s: 0.3 s after the last pose, none
+    assert st.latency_all.percentile(100) < 150.0, st.latency_all.percentile(100)
+    assert all(T[0, 3] == 10.0 for _, _, T in est.seen)     # the pose of the frame at 0 s, held
+    assert [t for t, _ in rec.poses] == [0.01, 0.02, 0.03, 0.15, 0.3] and rec.poses[-1][1] is None
+    assert st.no_pose == 1 and session.tracker.tracked <= 1
+
+
+def test_with_frames_tracked_in_their_own_thread_a_sample_too_late_is_not_estimated_but_recorded_as_such():
+    """On a core too busy for the eye rate, samples that reach the loop more than
+    ``SHED_AFTER_S`` after their device time are passed over (counted, recorded without a pose,
+    so ``process`` passes over them too): the backlog, and the latency, stay bounded."""
+    from wearable_gaze.live.loop import SHED_AFTER_S
+    head = HeadTracker(detect=lambda T: T, estimate=lambda T: _Pose(T, [7]), max_age_s=0.2)
+    head.track(0.0, _pose(0.0, 10.0))
+    est, rec = _FakeEstimation(None), _FakeRecorder()
+    rec.poses = []
+    rec.sample_pose = lambda t, T: rec.poses.append((t, T))
+    now = time.monotonic()
+    items = [(now - 2 * SHED_AFTER_S, 0.01, EyeRecord(0, 0.01, (1.0, 2.0), (3.0, 4.0), True, True)),
+             (now, 0.02, EyeRecord(1, 0.02, (1.0, 2.0), (3.0, 4.0), True, True))]
+    camera = _QueueCamera([])
+    session = LiveSession(_FakeReader(items), camera, head, est, _FakePublisher(), rec,
+                          tracker=TrackingThread(camera, head))
+    st = session.run(duration_s=0.2)
+    assert [c for _, c, _ in est.seen] == [1] and st.shed == 1 and st.samples == 2
+    assert rec.poses[0] == (0.01, None) and rec.poses[1][1] is not None

@@ -15,13 +15,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import UserError
-from .tables import Checks, read_table, write_table
+from .tables import Checks, _cells, read_table, write_table
 
 POSE_COLUMNS = ["t", "frame", "qw", "qx", "qy", "qz", "tx", "ty", "tz"]
 POSE_FORMATS = {"t": ".6f", "qw": ".12f", "qx": ".12f", "qy": ".12f", "qz": ".12f",
                 "tx": ".6f", "ty": ".6f", "tz": ".6f"}
 POSE_CHECKS = Checks(tuple(POSE_COLUMNS), ("qw", "qx", "qy", "qz", "tx", "ty", "tz"), (), "pose CSV")
 """What a pose CSV may hold, checked by its writer and its reader."""
+
+POSE_HEADER = ",".join(POSE_COLUMNS) + "\n"
+"""The header line of a pose CSV (for a writer that streams lines: the live recorder)."""
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +41,13 @@ def pose_columns(t, frames, T_world_from_cam) -> dict:
     return {"t": np.asarray(t, float), "frame": np.asarray(frames).astype(int),
             "qw": q[:, 3], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2],
             "tx": T[:, 0, 3], "ty": T[:, 1, 3], "tz": T[:, 2, 3]}
+
+
+def pose_csv_line(t: float, frame: int, T_world_from_cam) -> str:
+    """One pose CSV row, newline included: time ``t`` s, ``frame``, the pose (4, 4) mm (None or
+    NaN: no pose, its cells empty)."""
+    T = np.full((4, 4), np.nan) if T_world_from_cam is None else T_world_from_cam
+    return ",".join(c[0] for c in _cells(pose_columns([t], [frame], T), POSE_FORMATS)) + "\n"
 
 
 def write_poses_csv(path, t, frames, T_world_from_cam, extra: dict | None = None) -> None:

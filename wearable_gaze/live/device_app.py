@@ -16,12 +16,13 @@ from . import pupil_core_in
 from .allocator import bound_heap
 from .app import run_session
 from .estimation import GazeEstimation, warm_up
-from .head import HeadTracker
+from .head import MAX_WAIT_S, HeadTracker, TrackingThread
 from .loop import LiveSession
 from .publish import Publisher
 from .pupil_core_in import RayEyes
 from .record import Recorder
 from .stats import LiveStats
+from .track_process import RemoteTracker
 from .viewer import RerunViewer
 
 log = logging.getLogger(__name__)
@@ -72,8 +73,13 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
     marker_map = load_marker_map(markers_path)
     warm_up(method)                        # before connecting: the device streams meanwhile
     dev = _reader_module(name)
-    link = dev.open_link(device_url, camera) if name == "neon" else dev.open_link(device_url)
-    closers = [link.close]
+    remote = RemoteTracker(marker_map, camera)          # ... and the tracking process's start
+    try:
+        link = dev.open_link(device_url, camera) if name == "neon" else dev.open_link(device_url)
+    except BaseException:
+        remote.close()
+        raise
+    closers = [remote.close, link.close]
     try:
         size, fps = dev.probe_frames(link)
         if tuple(size) != tuple(camera.image_size):
@@ -92,13 +98,15 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
         if recorder is not None:
             frames.sink = recorder.frame
         reader = dev.GazeReader(link, on_record=recorder.eye_sample if recorder else None)
-        head = HeadTracker.for_map(marker_map, camera, hold_s)
+        head = HeadTracker.for_map(marker_map, camera, hold_s, max_age_s=MAX_WAIT_S)
         estimation = GazeEstimation([RayEyes(), RayEyes()], method)
+        tracker = TrackingThread(frames, head, viewer.head if viewer is not None else None, remote,
+                                 samples_waiting=lambda: reader.queue.qsize() > 0)
     except BaseException:
         for close in reversed(closers):
             close()
         raise
-    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer), link
+    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer, tracker), link
 
 
 def run_device_live(device_url: str, camera_calib, markers_path, record=None, publish=None, duration_s=None,

@@ -14,12 +14,18 @@ import numpy as np
 
 from ..errors import UserError
 from .allocator import bound_heap, release_free_memory
+from .head import TrackingThread
 from .messages import estimate_message, target_message
 from .stats import LiveStats
 
 log = logging.getLogger(__name__)
 
 QUIET_END_S = 0.5       # after the camera file ends, the session ends once eye data have been quiet this long
+SHED_AFTER_S = 0.1
+"""With frames tracked off the loop (a device session): a sample this late (from its device time)
+when the loop takes it is not estimated (``LiveStats.shed``, still recorded; no pose in
+``live_poses.csv``, so ``process`` skips it too): on a core too busy for 200 Hz the backlog, and
+with it the latency, stays bounded instead of growing (seconds, on the 2-core machine at load 20)."""
 
 
 class TargetWorker(threading.Thread):
@@ -85,11 +91,18 @@ class LiveSession:
         status_stream: where the one-line status goes every 0.5 s (None: nowhere).
         viewer: ``viewer.RerunViewer`` or None: fed every message, each tracked frame's head pose
             and each target with its fixation's lines.
+        tracker: a ``head.TrackingThread`` feeding ``head`` (a device session): no eye sample
+            waits for a frame, each takes the newest pose there is (``HeadTracker.pose_at``),
+            and the recording keeps the pose each sample took (``Recorder.sample_pose``:
+            ``process`` re-runs with them). None: the loop tracks the newest frame between eye
+            samples, which wait for a frame at most ``head.MAX_WAIT_S``.
     """
 
-    def __init__(self, reader, frames, head, estimation, publisher, recorder=None, status_stream=None, viewer=None):
+    def __init__(self, reader, frames, head, estimation, publisher, recorder=None, status_stream=None, viewer=None,
+                 tracker: TrackingThread | None = None):
         self.reader, self.frames = reader, frames
         self.head, self.estimation = head, estimation
+        self.tracker = tracker
         self.publisher, self.recorder = publisher, recorder
         self.status_stream = status_stream
         self.stats = LiveStats()
@@ -133,7 +146,7 @@ class LiveSession:
         """Copy the readers' and the publisher's counters into ``stats``."""
         s, r, c = self.stats, self.reader.stats, self.frames.stats
         s.frames, s.frames_missed, s.camera_stalls = c.frames, c.missed, c.stalls
-        s.frames_skipped = self.tracking_skipped + c.skipped
+        s.frames_skipped = self.tracking_skipped + c.skipped + (self.tracker.skipped if self.tracker else 0)
         s.eye_records, s.corrupt, s.lost, s.reader_dropped, s.reconnects = (r.records, r.corrupt, r.lost, r.dropped,
                                                                             r.reconnects)
         s.publish_dropped = self.publisher.dropped
@@ -155,6 +168,8 @@ class LiveSession:
             self._close(complete=False)
             raise UserError(f"--serial: {self.reader.error}")
         self.frames.start()
+        if self.tracker is not None:
+            self.tracker.start()
         self.worker.start()
         failure = None
         try:
@@ -179,11 +194,14 @@ class LiveSession:
         last_status = 0.0
         while not self.stop_event.is_set():
             for th, what in ((self.reader, "the eye reader"), (self.frames, "the camera"),
-                             (self.worker, "the target worker")):
-                if th.failure:
+                             (self.worker, "the target worker"), (self.tracker, "head tracking")):
+                if th is not None and th.failure:
                     raise RuntimeError(f"{what} failed: {th.failure}")
-            busy = self._drain_frames()
-            busy |= self._drain_eye()
+            if self.tracker is None:
+                busy = self._drain_frames()
+                busy |= self._drain_eye()
+            else:
+                busy = self._take_eye()
             now = time.monotonic()
             if duration_s is not None and now - t_start >= duration_s:
                 self.stats.end_reason = f"{duration_s:g} s passed"
@@ -200,7 +218,7 @@ class LiveSession:
     def _camera_over(self, now: float) -> bool:
         """The camera file has ended and its frames are done; the session ends once the eye
         data have been quiet for ``QUIET_END_S`` (at once if none ever came)."""
-        if not (self.frames.finished.is_set() and self.frames.queue.empty()):
+        if not (self.frames.finished.is_set() and self.frames.queue.empty()) or (self.tracker and self.tracker.busy):
             return False
         if self.camera_ended_at is None:
             self.camera_ended_at = now
@@ -254,20 +272,46 @@ class LiveSession:
             self._sample(arrival, t_s, rec)
         return busy
 
+    def _take_eye(self) -> bool:
+        """With frames tracked in their own thread: wait (at most 50 ms) for eye records and
+        process each at once with the newest pose there is (it never waits for a frame)."""
+        try:
+            item = self.reader.queue.get(timeout=0.05)
+        except queue.Empty:
+            return False
+        while item is not None:
+            self.last_arrival = item[0]
+            if time.monotonic() - item[0] > SHED_AFTER_S:
+                self.stats.samples += 1
+                self.stats.shed += 1
+                if self.recorder is not None:
+                    self.recorder.sample_pose(item[1], None)
+            else:
+                self._sample(*item)
+            try:
+                item = self.reader.queue.get_nowait()
+            except queue.Empty:
+                item = None
+        return True
+
     def _sample(self, arrival: float, t_s: float, rec) -> None:
+        cpu0 = time.thread_time()
         self.stats.samples += 1
         if not (rec.left_valid or rec.right_valid):
             return
         T = self.head.pose_at(t_s)
         if T is None:
             self.stats.no_pose += 1
-            return
-        ended, est = self.estimation.add(t_s, rec, T)
-        lat = (time.monotonic() - arrival) * 1000
-        self._ended(ended)
-        if est is not None:
-            self.stats.add_latency(lat)
-            self._publish(estimate_message(est, lat))
+        else:
+            ended, est = self.estimation.add(t_s, rec, T)
+            lat = (time.monotonic() - arrival) * 1000
+            self._ended(ended)
+            if est is not None:
+                self.stats.add_latency(lat)
+                self._publish(estimate_message(est, lat))
+                self.stats.sample_cpu.add((time.thread_time() - cpu0) * 1000)
+        if self.tracker is not None and self.recorder is not None:
+            self.recorder.sample_pose(t_s, T)            # the pose it took, for process to re-run with
 
     def _ended(self, done) -> None:
         """Hand a finished fixation to the target worker (None: the fixation gave none)."""
@@ -286,9 +330,13 @@ class LiveSession:
     def _close(self, complete: bool = True) -> None:
         self.reader.stop()
         self.frames.stop()
-        for th in (self.reader, self.frames):
-            if th.is_alive():
+        if self.tracker is not None:
+            self.tracker.stop()
+        for th in (self.reader, self.frames, self.tracker):
+            if th is not None and th.is_alive():
                 th.join(2.0)
+        if self.tracker is not None:
+            self.tracker.close()
         self.worker.drain()                          # after an error too: the targets found are kept
         self.publisher.close()
         if self.viewer is not None:

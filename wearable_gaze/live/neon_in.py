@@ -38,6 +38,7 @@ from ..formats.devices.neon_rtp import DEFAULT_PORT, cyclopean_sample, eye_state
 from .camera_in import CameraStats, put_newest
 from .input_thread import InputThread
 from .serial_in import SerialStats
+from .stats import LatencyHistogram
 
 log = logging.getLogger(__name__)
 
@@ -224,6 +225,7 @@ class GazeReader(_Stream):
         self.stats = SerialStats()
         self.on_record = on_record
         self.without_eye_states = 0
+        self.transport = LatencyHistogram()   # phone sample time -> received here, ms
 
     def _reconnected(self) -> None:
         self.stats.reconnects += 1
@@ -245,6 +247,7 @@ class GazeReader(_Stream):
             self.stats.corrupt += 1
             return
         local, t_s = self._session_time(t)
+        self.transport.add(max(time.monotonic() - local, 0.0) * 1000)
         self.stats.records += 1
         if self.on_record is not None:
             self.on_record(t_s, rec)

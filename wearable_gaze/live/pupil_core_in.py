@@ -45,6 +45,7 @@ from ..formats.devices.pupil_net import (
 from .camera_in import CameraStats, put_newest
 from .input_thread import InputThread
 from .serial_in import SerialStats
+from .stats import LatencyHistogram
 
 log = logging.getLogger(__name__)
 
@@ -240,8 +241,9 @@ class _Subscriber(InputThread):
         try:
             while not self.stop_event.is_set():
                 if gen != self.link.generation:
-                    if sub is not None:
+                    if sub is not None:              # a new handshake (this reader's or the other's)
                         sub.close()
+                        self._reconnected()
                     sub, gen = self._subscribe(), self.link.generation
                     last = time.monotonic()
                     self.connected.set()
@@ -255,10 +257,11 @@ class _Subscriber(InputThread):
                         log.warning("%s: no %s for %.1f s; reconnecting", self.port, self.topic, STALL_S)
                         outage_said = True
                     if self.link.reconnect(gen):
-                        self._reconnected()
                         last = time.monotonic()
                     else:
                         last = time.monotonic() - STALL_S + RETRY_S
+            while sub is not None and sub.poll(0):   # the session ends: what has arrived is taken (recorded)
+                self._message(sub.recv_multipart())
         finally:
             if sub is not None:
                 sub.close()
@@ -311,6 +314,7 @@ class GazeReader(_Subscriber):
         super().__init__(link, "pupil-core-gaze", maxsize)
         self.stats = SerialStats()
         self.on_record = on_record
+        self.transport = LatencyHistogram()   # device sample time -> received here, ms
 
     def _corrupt(self) -> None:
         self.stats.corrupt += 1
@@ -320,6 +324,7 @@ class GazeReader(_Subscriber):
             raise BadMessage(f"{len(parts)} part(s), not topic and payload")
         rec = parse_gaze(parts[0].decode("ascii", "replace"), parts[1], self.stats.records)
         local, t_s = self._session_time(rec.t)
+        self.transport.add(max(time.monotonic() - local, 0.0) * 1000)
         self.stats.records += 1
         if self.on_record is not None:
             self.on_record(t_s, rec)

@@ -20,6 +20,7 @@ from ..errors import UserError
 from ..formats.eye_rays import RAY_HEADER, ray_csv_line
 from ..formats.eye_samples import EYE_HEADER, eye_csv_line
 from ..formats.markermap import marker_map_dict, write_marker_map
+from ..formats.poses import POSE_HEADER, pose_csv_line
 from ..formats.session import FORMAT, VERSION, write_manifest
 from ..formats.video import FRAME_TIME_HEADER, frame_time_line, open_video_writer
 
@@ -29,9 +30,13 @@ FILES = {"scene_video": "scene.avi", "scene_timestamps": "scene_timestamps.csv",
          "eye_serial": "eye_serial.bin", "marker_map": "markers.json", "camera": "camera.json", "eyes": "eyes.json",
          "live_messages": "live.jsonl"}
 DEVICE_FILES = {"scene_video": "scene.avi", "scene_timestamps": "scene_timestamps.csv", "eye_rays": "eye_rays.csv",
-                "marker_map": "markers.json", "camera": "camera.json", "live_messages": "live.jsonl"}
+                "marker_map": "markers.json", "camera": "camera.json", "live_messages": "live.jsonl",
+                "live_poses": "live_poses.csv"}
 """A device that gives eye rays (``live --device``): its rays, head frame, in place of the raw
-readings, the serial bytes and the eye calibration; ``process`` reads it as an imported session."""
+readings, the serial bytes and the eye calibration; ``process`` reads it as an imported session.
+``live_poses.csv`` (a pose CSV) holds the head pose the session gave each eye sample it estimated
+from, at that sample's time (empty: none), which ``process`` takes in place of tracking the video
+again, so that it re-runs on the poses the session used."""
 _BUFFER = 1 << 20      # large enough that only the flush schedule writes (whole lines) to the files
 
 
@@ -85,7 +90,10 @@ class Recorder:
         self.eye.write(EYE_HEADER if device is None else RAY_HEADER)
         self.raw = open(self.root / FILES["eye_serial"] if device is None else os.devnull, "wb", buffering=_BUFFER)
         self.messages = open(self.root / FILES["live_messages"], "wb", buffering=_BUFFER)
-        self.n_frames = self.n_eye = self.n_messages = 0
+        self.poses = open(self.root / DEVICE_FILES["live_poses"] if device is not None else os.devnull, "w",
+                          encoding="utf-8", buffering=_BUFFER)
+        self.poses.write(POSE_HEADER)
+        self.n_frames = self.n_eye = self.n_messages = self.n_poses = 0
         self.lock = threading.Lock()
         self.frames_flushed = 0          # frames whose timestamp rows have been flushed: the video may hold these
         self.timestamps_out = threading.Condition(self.lock)
@@ -128,6 +136,15 @@ class Recorder:
             self.n_frames += 1
         self.video_q.put(grey)
 
+    def sample_pose(self, t: float, T_world_from_cam) -> None:
+        """The head pose (4, 4) mm the session gave its eye sample at session time ``t``, s (None:
+        it had none); written to ``live_poses.csv``."""
+        line = pose_csv_line(t, self.n_poses, T_world_from_cam)
+        with self.lock:
+            if not self.closed:
+                self.poses.write(line)
+                self.n_poses += 1
+
     def message(self, line: bytes) -> None:
         """A published message, one encoded JSON line."""
         with self.lock:
@@ -160,7 +177,7 @@ class Recorder:
         with self.lock:
             if self.closed:
                 return
-            for fh in (self.ts, self.eye, self.raw, self.messages):
+            for fh in (self.ts, self.eye, self.raw, self.messages, self.poses):
                 fh.flush()
             self.frames_flushed = self.n_frames
             self.timestamps_out.notify_all()
@@ -185,7 +202,7 @@ class Recorder:
         self.video_thread.join()
         self.video.release()
         with self.lock:
-            for fh in (self.ts, self.eye, self.raw, self.messages):
+            for fh in (self.ts, self.eye, self.raw, self.messages, self.poses):
                 fh.close()
             self.closed = True
             self._write_manifest(complete=complete)

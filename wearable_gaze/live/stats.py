@@ -46,6 +46,7 @@ class LiveStats:
     samples: int = 0              # eye samples the loop processed
     published: int = 0            # messages published
     no_pose: int = 0              # samples with a valid eye but no head pose at their time
+    shed: int = 0                 # samples too late to estimate when the loop took them (loop.SHED_AFTER_S)
     targets: int = 0              # target messages (a target seen again is published again)
     distinct_targets: int = 0     # distinct target ids
     frames_skipped: int = 0       # frames tracking did not see: passed over for a newer one, or the
@@ -62,6 +63,8 @@ class LiveStats:
     end_reason: str = ""
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=5000))   # the recent ones, for the status line
     latency_all: LatencyHistogram = field(default_factory=LatencyHistogram)   # the whole run
+    sample_cpu: LatencyHistogram = field(default_factory=LatencyHistogram)    # CPU time of each published
+    #                               estimate's sample in the loop's thread (pose, estimate, publish), ms
 
     def add_latency(self, ms: float) -> None:
         """One published estimate's latency, ms (arrival of its sample to its message)."""
@@ -72,5 +75,5 @@ class LiveStats:
         """Every counter, one line."""
         return (f"frames {self.frames} (skipped {self.frames_skipped}, missed {self.frames_missed}, stalls "
                 f"{self.camera_stalls})  eye {self.eye_records} (corrupt {self.corrupt}, lost {self.lost}, dropped "
-                f"{self.reader_dropped}, reconnects {self.reconnects}, no pose {self.no_pose})  messages "
-                f"{self.published} (dropped {self.publish_dropped})")
+                f"{self.reader_dropped}, reconnects {self.reconnects}, no pose {self.no_pose}, shed {self.shed})  "
+                f"messages {self.published} (dropped {self.publish_dropped})")

@@ -107,6 +107,7 @@ class _SessionFiles:
     truth_head_poses: Path | None = None
     truth_map: Path | None = None           # ... its true marker map (the truth's frame)
     truth_moved: Path | None = None         # ... the markers moved during it
+    live_poses: Path | None = None          # a live --device recording: the pose each sample took live
 
     @classmethod
     def of(cls, s) -> _SessionFiles:
@@ -119,7 +120,7 @@ class _SessionFiles:
                    s.path("import_report"), float(s.manifest.get("source", {}).get("clock_offset_s", 0.0)),
                    s.path("truth_targets"), s.path("truth_head_poses"),
                    s.path("truth_markers") or (s.path("truth_targets") and s.path("marker_map")),
-                   s.path("truth_moved_markers"))
+                   s.path("truth_moved_markers"), s.path("live_poses"))
 
 
 class _Values:
@@ -306,7 +307,8 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
 
     def do_viewlines(cb):
         if f.eye_rays is not None:
-            result = head_lines_to_world(vals["eye_rays"], vals["poses"], MAX_POSE_GAP_S, poses_path, correction)
+            gap = 0.0 if f.live_poses is not None else MAX_POSE_GAP_S    # a live recording: only the poses live gave
+            result = head_lines_to_world(vals["eye_rays"], vals["poses"], gap, poses_path, correction)
         else:
             result = view_lines(vals["eye_samples"], vals["eyes"], vals["poses"], MAX_POSE_GAP_S, poses_path,
                                 correction)
@@ -379,6 +381,9 @@ def _tracking_step(f: _SessionFiles, steps: Steps, vals: _Values, cam_path: Path
     """3. head poses: the device's, a still head's, or tracked in the scene video."""
     if f.eye_rays is not None and f.pose_source == "device":
         steps.run("tracking", [f.head_poses], {"source": "device"}, lambda cb: device_poses(f.head_poses, poses_path))
+        return
+    if f.eye_rays is not None and f.live_poses is not None:          # a live recording: the poses it used
+        steps.run("tracking", [f.live_poses], {"source": "live"}, lambda cb: device_poses(f.live_poses, poses_path))
         return
     if f.eye_rays is not None and f.pose_source == "still_head":
         steps.run("tracking", [f.eye_rays], {"source": "still_head"},
