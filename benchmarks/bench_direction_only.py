@@ -19,9 +19,10 @@ Counted per true fixation of a fixed target:
   angular spread of the samples' cyclopean directions (the mean of the two eyes' unit
   directions) about their mean, divided by their number (times the lag-one time-correlation
   factor), plus the error model's per-eye bias (process's: the calibration's leave-one-out
-  residual and the slippage allowance, ``estimator.errormodel.bias_from_calibration``) seen
-  through the cyclopean mean and the pose offset of a tracked head, at 95 % (chi-square, 2 dof,
-  along the covariance's longest axis).
+  residual and the slippage the session's lines show, ``pipeline.errorbudget``) seen through the
+  cyclopean mean and the pose offset of a tracked head, at 95 % along the covariance's longest
+  axis (chi-square, 2 dof; Student's when the slippage, sized from few combinations of the eyes'
+  angles, counts: ``ErrorModel.slip_dof``).
 
 Target (issue 27): every found fixation answered, the true direction inside the 95 % cone in at
 least 90 % of them.

@@ -83,26 +83,29 @@ def session_targets(work: Path, rng, k: int, seed: int, method: str, model: str,
     samples = read_viewlines_csv(out / ".viewlines_unsegmented.csv")[0].samples
     rate = (len(samples) - 1) / max(samples.t_s[-1] - samples.t_s[0], 1e-9)
     labels = segment_fixations(samples, SegmentConfig.for_rate(rate))
-    em = session_model(model, out / "eyes.json", samples, labels)
+    em, seen = session_model(model, out / "eyes.json", samples, labels)
     found = find_targets(samples, labels, method, 1.0, error_model=em).targets
     truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
     fixated = [t for t in truth if "position_mm" in t and sum(b - a for a, b in t["fixations_s"]) >= 1.0]
-    return fixated, found, samples.t_s
+    return fixated, found, samples.t_s, {"bias_true_deg": scn["eyes"]["bias_deg"],
+                                         "bias_deg": None if em is None else em.bias_deg,
+                                         "seen": None if seen is None else seen.record()}
 
 
 def session_model(model: str, eyes_path: Path, samples, labels):
     """The error model: ``on`` as ``process`` builds it (the calibration's leave-one-out errors and
     the bias the session's lines show, ``pipeline.errorbudget``), ``fixed`` as before issue 27
-    (those errors and a fixed 0.5 deg slippage added), ``none`` (sigma alone: None)."""
+    (those errors and a fixed 0.5 deg slippage added), ``none`` (sigma alone: None); and the bias
+    the lines showed (``on`` only, else None)."""
     if model == "none":
-        return None
+        return None, None
     if model == "fixed":
         loo = [e["report"].get("loo_rms_deg") for e in json.loads(eyes_path.read_text())["eyes"]]
-        return ErrorModel(bias_deg=bias_from_calibration(loo, DEFAULT_BIAS_DEG), pose_offset_deg=MERGE_POSE_DEG)
+        return ErrorModel(bias_deg=bias_from_calibration(loo, DEFAULT_BIAS_DEG), pose_offset_deg=MERGE_POSE_DEG), None
     seen = seen_bias(samples, labels)
     em = session_error_model(False, eyes_path, seen=seen)
     print(f"  bias {em.bias_deg:.3f} deg (seen {seen.deg:.3f}, se {seen.se_deg:.3f}, {seen.seen} of 4 seen)")
-    return em
+    return em, seen
 
 
 def match_by_time(found: list, fixated: list, t_s: np.ndarray) -> list:
@@ -171,6 +174,27 @@ def aria_coverage(work: Path, model: str) -> None:
         _aria_summary(rows, f"0.5 s windows with >= {travel:.0f} mm head travel, error model {model}")
 
 
+def _target_row(t, truth: np.ndarray, d2: float) -> dict:
+    """One matched target's record for ``--dump``: its status, distance from where it was seen,
+    Mahalanobis^2 ``d2`` and its split into the line of sight (depth) and across it (lateral)."""
+    row = {"status": t.status, "d2": round(d2, 3), "lines": int(len(t.samples))}
+    if t.sight is None:
+        return row
+    v = t.position_mm - t.sight.origin_mm
+    D = float(np.linalg.norm(v))
+    u = v / D
+    e = t.position_mm - truth
+    P = np.eye(3) - np.outer(u, u)
+    C = t.covariance_mm2
+    B = np.linalg.svd(P)[0][:, :2]                     # two axes across the line of sight
+    el, Cl = B.T @ e, B.T @ C @ B
+    return {**row, "distance_mm": round(D, 1), "depth_err_mm": round(float(u @ e), 1),
+            "depth_sd_mm": round(float(np.sqrt(u @ C @ u)), 1), "lateral_err_mm": round(float(np.linalg.norm(el)), 1),
+            "lateral_d2": round(float(el @ np.linalg.solve(Cl, el)), 3),
+            "lateral_sd_deg": round(float(np.degrees(np.sqrt(np.trace(Cl) / 2) / D)), 4),
+            "in95": bool(e @ np.linalg.solve(t.level_covariance(0.95), e) <= chi2.ppf(0.95, 3))}
+
+
 def _aria_row(rows: list, samples, method: str, em, ref, head) -> None:
     """Append (reference point in the 68 % region, in the 95 % region, its distance in the 68 %
     depth interval, in the 95 % one) of ``method`` on ``samples`` against the median reference
@@ -216,6 +240,7 @@ def main():
     ap.add_argument("--bias", default="normal", choices=("normal", "small"),
                     help="the per-eye bias after calibration: about 0.5 deg per axis (normal) or 0.1-0.2 deg "
                          "per eye (small); see session_bias")
+    ap.add_argument("--dump", type=Path, help="write one JSON line per matched target here (for a look at the misses)")
     ap.add_argument("--aria", action="store_true", help="the real Aria sample instead of simulated sessions")
     ap.add_argument("--work", type=Path, default=Path("/tmp/wg-coverage"), help="sessions kept here")
     args = ap.parse_args()
@@ -225,10 +250,10 @@ def main():
     rng = np.random.default_rng(args.seed)
     q68 = chi2.ppf(0.68, 3)
     t0 = time.perf_counter()
-    d2, inside, errs, radii, status, missed = [], [], [], [], [], 0
+    d2, inside, errs, radii, status, missed, dump = [], [], [], [], [], 0, []
     for k in range(args.sessions):
-        fixated, found, t_s = session_targets(args.work, rng, k, args.seed, args.method, args.model,
-                                                args.bias)
+        fixated, found, t_s, about = session_targets(args.work, rng, k, args.seed, args.method, args.model,
+                                                       args.bias)
         for tt, t in match_by_time(found, fixated, t_s):
             if t is None or t.covariance_mm2 is None or not np.all(np.isfinite(t.position_mm)):
                 missed += 1
@@ -244,8 +269,11 @@ def main():
             errs.append(float(np.linalg.norm(e)))
             radii.append(float(t.axes95_mm.max()))
             status.append(t.status)
+            dump.append({"session": k, **about, **_target_row(t, truth, d2[-1])})
         print(f"session {k:3d}: {len(fixated)} fixated, {len(d2)} targets so far, {time.perf_counter() - t0:.0f} s",
               flush=True)
+    if args.dump:
+        args.dump.write_text("\n".join(json.dumps(r) for r in dump) + "\n")
     d2, status, inside = np.array(d2), np.array(status), np.array(inside, float).reshape(-1, 4)
     print(f"\n{args.method}, error model {args.model}: {len(d2)} targets from {args.sessions} sessions "
           f"({missed} fixated targets without a matching estimate with a covariance), "

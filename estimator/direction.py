@@ -17,7 +17,9 @@ how far. ``gaze_direction`` gives that answer from the lines themselves:
   bias (``ErrorModel.bias_deg``: each eye's lines turned by one 2D angle, the two eyes' angles
   correlated by ``bias_correlation``, seen through the cyclopean mean) and the head pose's offset
   over a fixation (``ErrorModel.pose_offset_deg``, shared by every line); the cone's half-angle is
-  the 95 % radius of that 2D Gaussian along its longest axis (chi-square, 2 degrees of freedom);
+  the 95 % radius of that 2D Gaussian along its longest axis (chi-square, 2 degrees of freedom;
+  Student's when part of the bias was sized from the session's lines, ``ErrorModel.slip_dof``:
+  the common turn it carries is known to their few degrees of freedom);
 - its depth interval: inverse depth ``q`` along the direction fitted, with the direction's
   2D offset, to every eye line by least squares about the point at infinity (first order in
   ``q``: a line from ``e`` sees the point ``o + u / q`` at the angle ``q (o - e)`` across ``u``),
@@ -37,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import chi2, norm
+from scipy.stats import norm
 
-from .errormodel import ErrorModel, _corr, eye_labels
+from .errormodel import ErrorModel, _corr, eye_labels, region_radius
 from .frames import tangent_basis
 from .lines import BinocularSamples
 from .result import NEAR_POINT_MM, GazeEstimate, Status
@@ -135,8 +137,14 @@ def gaze_direction(samples: BinocularSamples, model: ErrorModel | None = None) -
     dev = a - a0
     spread = np.cov(dev.T, ddof=1) if n > 2 else np.zeros((2, 2))
     rho_t = _corr(dev[:-1], dev[1:], np.ones(n - 1))
-    C = spread * (1 + rho_t) / (1 - rho_t) / n + _systematic(samples.select(np.flatnonzero(keep)), u, b1, b2, model)
-    cone = math.degrees(math.sqrt(max(float(np.linalg.eigvalsh(C)[-1]), 0.0) * chi2.ppf(CONE_P, 2)))
+    sys_var, slip_var = _systematic(samples.select(np.flatnonzero(keep)), model)
+    C = spread * (1 + rho_t) / (1 - rho_t) / n + sys_var * np.eye(2)
+    top = max(float(np.linalg.eigvalsh(C)[-1]), 0.0)
+    # the common turn's part sized from the session's lines has their few degrees of freedom:
+    # the cone is Student's (Welch-Satterthwaite along the widest axis; estimator.errormodel_regions)
+    dof = (model.slip_dof / min(slip_var / top, 1.0) ** 2 if model is not None and slip_var > 0 and top > 0
+           else math.inf)
+    cone = math.degrees(math.sqrt(top) * region_radius(CONE_P, 2, dof))
     unit = u + a0[0] * b1 + a0[1] * b2                          # the mean offset back into the direction
     unit /= np.linalg.norm(unit)
     spread_deg = math.degrees(math.sqrt(max(float(np.trace(spread)) / 2.0, 0.0)))
@@ -144,18 +152,19 @@ def gaze_direction(samples: BinocularSamples, model: ErrorModel | None = None) -
                          spread_deg, n)
 
 
-def _systematic(samples: BinocularSamples, u, b1, b2, model: ErrorModel | None) -> np.ndarray:
-    """(2, 2) rad^2: the mean cyclopean direction's covariance from each eye's bias (its weight
-    in the mean: half a binocular sample's direction, a lone eye's whole) and the pose offset."""
+def _systematic(samples: BinocularSamples, model: ErrorModel | None) -> tuple[float, float]:
+    """(variance per axis, rad^2, of the mean cyclopean direction from each eye's bias (its weight
+    in the mean: half a binocular sample's direction, a lone eye's whole) and the pose offset;
+    the part of it from the bias's ``slip_deg``, the size the session's lines gave it)."""
     if model is None:
-        return np.zeros((2, 2))
+        return 0.0, 0.0
     both = samples.left_valid & samples.right_valid
     n = len(samples)
     w_left = (0.5 * both.sum() + (samples.left_valid & ~both).sum()) / n
     w_right = (0.5 * both.sum() + (samples.right_valid & ~both).sum()) / n
     b, p = math.radians(model.bias_deg), math.radians(model.pose_offset_deg)
-    var = b * b * (w_left ** 2 + w_right ** 2 + 2 * model.bias_correlation * w_left * w_right) + p * p
-    return var * np.eye(2)
+    gain = w_left ** 2 + w_right ** 2 + 2 * model.bias_correlation * w_left * w_right
+    return b * b * gain + p * p, math.radians(model.slip_deg) ** 2 * gain
 
 
 def depth_bounds(samples: BinocularSamples, origin_mm: ArrayLike, unit: ArrayLike, model: ErrorModel | None,

@@ -38,8 +38,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.stats import chi2
 
+from .errormodel_regions import (  # noqa: F401  (the regions' home; here for the modules that import them from here)
+    FAR_SIDE_CAP,
+    Sight,
+    at_level,
+    depth_interval,
+    far_side,
+    region_radius,
+    sight_info,
+)
 from .frames import tangent_basis
 from .lines import ViewLines
 
@@ -84,6 +93,12 @@ class ErrorModel:
         pose_position_mm: std per axis of the head position's error over one fixation, mm,
             shared by both eyes: it moves the point by as much (``t^2 I`` added to the
             covariance); poses tracked in the scene video have one, a device's SLAM hardly any.
+        slip_deg: the part of ``bias_deg`` (per axis, degrees, in quadrature) that the session's
+            own lines sized (``estimator.slippage``), beyond what was known before them.
+        slip_dof: how many combinations of the eyes' angles ``slip_deg`` rests on (``SeenBias.seen``):
+            its degrees of freedom; the others (the eyes' common turn, which no point's lines
+            show) are taken alike, so a bias sized from two of them is known to two degrees of
+            freedom, and the regions are Student's (``scale_dof``, ``errormodel_regions``).
     """
 
     bias_deg: float = DEFAULT_BIAS_DEG
@@ -94,6 +109,8 @@ class ErrorModel:
     far_side_k: float = FAR_SIDE_K
     pose_offset_deg: float = 0.0
     pose_position_mm: float = 0.0
+    slip_deg: float = 0.0
+    slip_dof: float = math.inf
 
     def __post_init__(self):
         if not (self.bias_deg >= 0 and self.pose_sigma_deg >= 0 and self.pose_offset_deg >= 0
@@ -103,6 +120,9 @@ class ErrorModel:
                              f"{self.pose_position_mm}")
         if not 0 <= self.bias_correlation <= 1:
             raise ValueError(f"bias_correlation must be in [0, 1], got {self.bias_correlation}")
+        if not (0 <= self.slip_deg <= self.bias_deg and self.slip_dof > 0):
+            raise ValueError(f"slip_deg must be in [0, bias_deg] and slip_dof positive, got {self.slip_deg} and "
+                             f"{self.slip_dof}")
         if not 0 <= self.overdispersion_p < 1:
             raise ValueError(f"overdispersion_p must be in [0, 1), got {self.overdispersion_p}")
 
@@ -255,6 +275,7 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
     f_t = (1 + nz["rho_t"]) / (1 - nz["rho_t"])
     C_noise = Hi @ meat @ Hi * f_t
     C_bias = _bias_floor(Hi, J, w, eye, lines.directions, b1, b2, model)
+    C_common = _common_floor(Hi, J, w, eye, lines.directions, b1, b2, model) if model.slip_deg > 0 else None
     C_lin = C_noise + C_bias + model.pose_position_mm**2 * np.eye(3)
     origin = lines.origins_mm.mean(axis=0)
     C, far = far_side(C_lin, X, origin, model.far_side_k)
@@ -267,134 +288,38 @@ def model_covariance(point_mm, lines: ViewLines, sigma_rad: float, model: ErrorM
             "pose_position_mm": model.pose_position_mm,
             "bias_share": float(np.trace(C_bias) / max(np.trace(C), 1e-300)), "far_side_factor": round(far, 3),
             **sight_info(C_lin, X, origin, model.far_side_k)}
+    if C_common is not None:
+        info.update({k: (v if math.isfinite(v) else None) for k, v in region_dofs(C_lin, C_common, X, origin,
+                                                                                    model).items()})
     info["note"] = _note(nz, f_t, sigma_rad)
     info["bias_cov"], info["linear_cov"] = C_bias, 0.5 * (C_lin + C_lin.T)
     return C, info
 
 
-FAR_SIDE_CAP = 10.0
-"""The largest depth stretch ``far_side`` applies (a point whose far side has no end is
-``unresolved`` anyway)."""
-
-
-def far_side(C, point_mm, origin_mm, k: float) -> tuple[np.ndarray, float]:
-    """The covariance (3, 3) stretched along the line of sight so that its depth interval reaches
-    the far end of the interval that is symmetric in inverse depth, and the stretch.
-
-    Depth from vergence and parallax is Gaussian in inverse depth (angles), not in depth: a point
-    estimated too near has a truth farther away than its linearised sd says (the sd, evaluated at
-    the estimate, shrinks as depth squared), one estimated too far a truth nearer than it says.
-    With ``r`` the relative depth sd, the interval of ``k`` sds in inverse depth ends at
-    ``D / (1 - k r)`` on the far side; the depth sd is stretched by ``f = 1 / (1 - k r)`` so that
-    ``k`` of its sds reach it (at most ``FAR_SIDE_CAP``). The near side is then wider than it
-    needs to be. ``k`` = 0: unchanged.
-
-    Args:
-        C: (3, 3) covariance of the point, mm^2.
-        point_mm, origin_mm: (3,) the point and the eyes' mean origin, world, mm.
-        k: the interval's half-width in sds (``ErrorModel.far_side_k``).
-    """
+def region_dofs(C_lin, C_common, point_mm, origin_mm, model: ErrorModel) -> dict:
+    """The degrees of freedom of a covariance ``C_lin`` (3, 3) whose bias rests in part
+    (``slip_deg`` of ``bias_deg``) on a size drawn from ``slip_dof`` combinations of the eyes'
+    angles, for the part no line shows, the eyes' common turn (``C_common`` (3, 3), its floor
+    at ``bias_deg``; the rest is known): Welch-Satterthwaite, ``slip_dof / s^2`` with ``s`` the
+    share of ``C_unseen = C_common slip^2 / bias^2`` in the variance. ``scale_dof``: in the
+    direction where that share is largest (the 3D regions'); ``depth_dof``: along the line of
+    sight from ``origin_mm`` (3,) to ``point_mm`` (3,) (the depth intervals'). Each ``inf`` when
+    no part was sized so. (``errormodel_regions``: the regions are Student's.)"""
+    out = {"scale_dof": math.inf, "depth_dof": math.inf}
+    if not (model.slip_deg > 0 and math.isfinite(model.slip_dof)):
+        return out
+    C = np.asarray(C_lin, float)
+    U = np.asarray(C_common, float) * (model.slip_deg / model.bias_deg) ** 2
+    try:
+        share = float(np.max(np.real(np.linalg.eigvals(np.linalg.solve(C, U)))))
+    except np.linalg.LinAlgError:
+        return out
     v = np.asarray(point_mm, float) - np.asarray(origin_mm, float)
-    D = float(np.linalg.norm(v))
-    if k <= 0 or not D > 0 or not np.all(np.isfinite(C)):
-        return C, 1.0
-    u = v / D
-    f = _stretch(k, math.sqrt(max(float(u @ C @ u), 0.0)) / D)
-    S = np.eye(3) + (f - 1.0) * np.outer(u, u)
-    return S @ C @ S, float(f)
-
-
-def sight_info(C_lin, point_mm, origin_mm, k: float) -> dict:
-    """What an estimate's ``info["error_model"]`` keeps so that its regions at any level can be
-    drawn (``at_level``, ``depth_interval``): where its lines were seen from (``sight_origin_mm``,
-    the eyes' mean origin, world, mm), the far side's ``k`` its covariance was stretched with,
-    and ``depth_rel_sd``, the relative sd of its distance from there in the linearised
-    covariance ``C_lin`` (3, 3) mm^2 (before the stretch; NaN when undefined)."""
-    v = np.asarray(point_mm, float) - np.asarray(origin_mm, float)
-    D = float(np.linalg.norm(v))
-    r = math.sqrt(max(float(v @ np.asarray(C_lin, float) @ v), 0.0)) / D**2 if D > 0 else float("nan")
-    return {"sight_origin_mm": [float(x) for x in np.asarray(origin_mm, float).reshape(3)], "far_side_k": float(k),
-            "depth_rel_sd": float(r)}
-
-
-@dataclass(frozen=True)
-class Sight:
-    """Where an estimate's view lines were seen from and how the error model shaped its
-    covariance (``sight_info``): what its region at any level and its depth intervals are drawn
-    from (``at_level``, ``depth_interval``).
-
-    Attributes:
-        origin_mm: (3,) the lines' mean origin, world frame, mm.
-        far_side_k: the far side's ``k`` the covariance was stretched with (0: not stretched).
-        depth_rel_sd: the linearised relative sd of the distance from ``origin_mm`` (NaN: none).
-    """
-
-    origin_mm: np.ndarray
-    far_side_k: float
-    depth_rel_sd: float
-
-    @classmethod
-    def from_info(cls, error_model_info: dict | None) -> Sight | None:
-        """The sight kept in an estimate's ``info["error_model"]``, or None (no error model)."""
-        em = error_model_info or {}
-        if em.get("sight_origin_mm") is None:
-            return None
-        return cls(np.asarray(em["sight_origin_mm"], float), float(em["far_side_k"]), float(em["depth_rel_sd"]))
-
-    def level_covariance(self, C, point_mm, probability: float) -> np.ndarray:
-        """``at_level`` of the covariance ``C`` (3, 3) mm^2 of the point ``point_mm`` (3,) mm."""
-        return at_level(C, point_mm, self.origin_mm, probability, self.far_side_k, self.depth_rel_sd)
-
-    def depth_interval(self, point_mm, probability: float) -> tuple[float, float]:
-        """``depth_interval`` of the point ``point_mm`` (3,) mm: (near, far) mm."""
-        return depth_interval(point_mm, self.origin_mm, probability, self.depth_rel_sd)
-
-    def distance_mm(self, point_mm) -> float:
-        """The distance of ``point_mm`` (3,) from ``origin_mm``, mm."""
-        return float(np.linalg.norm(np.asarray(point_mm, float) - self.origin_mm))
-
-
-def _stretch(k: float, r: float) -> float:
-    """``far_side``'s stretch ``1 / (1 - k r)``, at most ``FAR_SIDE_CAP``."""
-    return FAR_SIDE_CAP if k * r >= 1.0 - 1.0 / FAR_SIDE_CAP else 1.0 / (1.0 - k * r)
-
-
-def at_level(C, point_mm, origin_mm, probability: float, k: float, rel_sd: float, dof: int = 3) -> np.ndarray:
-    """The covariance (3, 3) mm^2 whose ``probability`` ellipsoid (chi2 with ``dof``) is the
-    region of that level, from ``C``, the error model's covariance stretched by ``far_side``
-    with ``k`` (the 95 % level's). The stretch that makes the 95 % region reach the far end of
-    the 95 % interval in inverse depth makes a 68 % region too long (on the real Aria walk's
-    0.5 s windows, a median 3.4 times): each level gets its own, with ``k_p = sqrt(chi2.ppf(p,
-    dof))``. ``C`` unchanged when it was not stretched (``k`` 0) or nothing is defined.
-
-    Args:
-        C: (3, 3) covariance, mm^2 (``GazeEstimate.covariance_mm2``).
-        point_mm, origin_mm: (3,) the point and where it was seen from, mm.
-        probability: the region's level, in (0, 1).
-        k, rel_sd: the far side's ``k`` and the linearised relative depth sd (``sight_info``).
-        dof: 3 for a 3D region; 1 for an interval along the line of sight.
-    """
-    C = np.asarray(C, float)
-    v = np.asarray(point_mm, float) - np.asarray(origin_mm, float)
-    D = float(np.linalg.norm(v))
-    if k <= 0 or not D > 0 or not math.isfinite(rel_sd):
-        return C
-    u = v / D
-    g = _stretch(math.sqrt(chi2.ppf(probability, dof)), rel_sd) / _stretch(k, rel_sd)
-    S = np.eye(3) + (g - 1.0) * np.outer(u, u)
-    return S @ C @ S
-
-
-def depth_interval(point_mm, origin_mm, probability: float, rel_sd: float) -> tuple[float, float]:
-    """The ``probability`` interval (near, far) of the distance of ``point_mm`` from
-    ``origin_mm``, mm, symmetric in inverse depth (where vergence and parallax are Gaussian):
-    ``D / (1 +- z r)`` with ``r = rel_sd`` the linearised relative depth sd (``sight_info``);
-    far is ``inf`` when the interval has no far end; (NaN, NaN) when ``r`` is undefined."""
-    D = float(np.linalg.norm(np.asarray(point_mm, float) - np.asarray(origin_mm, float)))
-    if not (D > 0 and math.isfinite(rel_sd)):
-        return float("nan"), float("nan")
-    z = float(norm.ppf(0.5 + probability / 2.0))
-    return D / (1.0 + z * rel_sd), (D / (1.0 - z * rel_sd) if z * rel_sd < 1.0 else float("inf"))
+    depth_share = float(v @ U @ v) / float(v @ C @ v) if float(v @ C @ v) > 0 else 0.0
+    for key, s in (("scale_dof", share), ("depth_dof", depth_share)):
+        if s > 0:
+            out[key] = model.slip_dof / min(s, 1.0) ** 2
+    return out
 
 
 def _noise_meat(J, w, eye, si, nz: dict, pose_rad: float) -> np.ndarray:
@@ -436,10 +361,30 @@ def _bias_floor(Hi, J, w, eye, d, b1, b2, model: ErrorModel) -> np.ndarray:
     """Covariance (3, 3) of the point when every line of an eye turns by one 2D angle of std
     ``bias_deg`` per axis (in a basis fixed to that eye's mean direction), the eyes' angles
     correlated by ``bias_correlation``: ``sum G_e G_f^T`` with ``G_e = H^-1 sum_(i in e) w J_i^T
-    (B_i^T C_e)`` the point's sensitivity to eye ``e``'s angle."""
+    (B_i^T C_e)`` the point's sensitivity to eye ``e``'s angle (``_bias_gains``)."""
     b = np.deg2rad(model.bias_deg)
     if b == 0:
         return np.zeros((3, 3))
+    G = _bias_gains(Hi, J, w, eye, d, b1, b2)
+    C = sum(g @ g.T for g in G)
+    if len(G) == 2 and model.bias_correlation > 0:
+        C = C + model.bias_correlation * (G[0] @ G[1].T + G[1] @ G[0].T)
+    return b * b * C
+
+
+def _common_floor(Hi, J, w, eye, d, b1, b2, model: ErrorModel) -> np.ndarray:
+    """The part (3, 3) of ``_bias_floor`` that the eyes' common turn ``(beta_L + beta_R) / 2``
+    makes (per axis variance ``bias^2 (1 + rho) / 2``): ``(G_L + G_R)(G_L + G_R)^T`` times that;
+    zeros without both eyes. No point's lines show this turn (it moves the point sideways)."""
+    G = _bias_gains(Hi, J, w, eye, d, b1, b2)
+    if len(G) < 2 or model.bias_deg == 0:
+        return np.zeros((3, 3))
+    g = G[0] + G[1]
+    return np.deg2rad(model.bias_deg) ** 2 * (1 + model.bias_correlation) / 2 * (g @ g.T)
+
+
+def _bias_gains(Hi, J, w, eye, d, b1, b2) -> list:
+    """Each eye's ``G_e`` (3, 2): the point's change, mm, per radian of that eye's 2D angle."""
     G = []
     for k in (0, 1):
         m = eye == k
@@ -450,10 +395,7 @@ def _bias_floor(Hi, J, w, eye, d, b1, b2, model: ErrorModel) -> np.ndarray:
         Mi = np.stack([np.stack([b1[m] @ c1[0], b1[m] @ c2[0]], 1), np.stack([b2[m] @ c1[0], b2[m] @ c2[0]], 1)],
                       axis=1)                                           # (n, 2 residual, 2 angle)
         G.append(Hi @ np.einsum("n,nki,nka->ia", w[m], J[m], Mi))    # (3, 2)
-    C = sum(g @ g.T for g in G)
-    if len(G) == 2 and model.bias_correlation > 0:
-        C = C + model.bias_correlation * (G[0] @ G[1].T + G[1] @ G[0].T)
-    return b * b * C
+    return G
 
 
 def _note(nz: dict, f_t: float, sigma_rad: float) -> str:

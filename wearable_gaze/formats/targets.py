@@ -82,7 +82,9 @@ DEPTH_KEYS = ("seen_from_mm", "distance_mm", "relative_sd", "interval68_mm", "in
 """The keys of a record's ``depth``: where it was seen from (the mean origin of its view lines,
 [x, y, z] world frame, mm), its distance from there (mm), the linearised relative sd of that
 distance, and the 68 % and 95 % intervals of it ([near, far] mm, far null when the interval has no
-far end), symmetric in inverse depth (``estimator.errormodel.depth_interval``)."""
+far end), symmetric in inverse depth (``estimator.errormodel.depth_interval``); and ``scale_dof``
+and ``depth_dof`` when the covariance's scale has few degrees of freedom (a bias sized from the
+session's lines: its regions and intervals are Student's, ``estimator.errormodel_regions``)."""
 TARGET_FORMATS = {k: ".1f" for k in ("x_mm", "y_mm", "z_mm", "ellipsoid95_r1_mm", "ellipsoid95_r2_mm",
                                      "ellipsoid95_r3_mm", "crb_mm", "distance_mm", "depth68_near_mm",
                                      "depth68_far_mm", "depth95_near_mm", "depth95_far_mm")} | {
@@ -181,7 +183,9 @@ def _depth(position_mm, sight: Sight, mm: int | None) -> dict:
     return {"seen_from_mm": _finite_list(sight.origin_mm, (3,), mm),
             "distance_mm": _finite(sight.distance_mm(position_mm), mm),
             "relative_sd": _finite(sight.depth_rel_sd, None if mm is None else 4), "interval68_mm": interval(0.68),
-            "interval95_mm": interval(0.95)}
+            "interval95_mm": interval(0.95),
+            **{key: round(float(v), 3) for key, v in (("scale_dof", sight.scale_dof), ("depth_dof", sight.depth_dof))
+               if np.isfinite(v)}}
 
 
 def record_sight(rec: dict) -> Sight | None:
@@ -190,7 +194,8 @@ def record_sight(rec: dict) -> Sight | None:
     d = rec.get(DEPTH_COLUMN)
     if not d or d.get("seen_from_mm") is None or d.get("relative_sd") is None:
         return None
-    return Sight(np.asarray(d["seen_from_mm"], float), FAR_SIDE_K, float(d["relative_sd"]))
+    return Sight(np.asarray(d["seen_from_mm"], float), FAR_SIDE_K, float(d["relative_sd"]),
+                 float(d.get("scale_dof") or np.inf), float(d.get("depth_dof") or np.inf))
 
 
 def target_csv_columns(records: list[dict]) -> dict:

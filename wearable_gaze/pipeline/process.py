@@ -50,7 +50,7 @@ from .calibrate import (
     view_lines,
 )
 from .device import device_comparison, device_points, device_poses, report_notes, still_head_poses, world_words
-from .errorbudget import depth_assumption, pose_model, session_bias, session_prior, targets_bias_note
+from .errorbudget import depth_assumption, pose_model, session_bias, session_prior, targets_bias_note, with_bias
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
 from .mapping import build_map_files
@@ -327,8 +327,7 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
         samples = read_viewlines_csv(raw_vl)[0].samples
         labels = segment_view_lines(samples, cfg.segment_config)
         budget = session_bias(prior, seen_bias(samples, labels))          # the bias sized from the lines
-        result = find_targets(samples, labels, cfg.method, cfg.sigma_deg, cb,
-                              dataclasses.replace(base, bias_deg=budget["bias_deg"]))
+        result = find_targets(samples, labels, cfg.method, cfg.sigma_deg, cb, with_bias(base, budget))
         write_targets_step(out, result, cfg.method, budget, depth_assumption(rep, f.pose_source))
         write_fixations_step(out, result)
         if f.device_gaze is not None:
