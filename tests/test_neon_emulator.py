@@ -95,11 +95,14 @@ def test_the_client_receives_each_sample_with_its_eye_states_and_time(session, r
     emu, (_, _, _, _, gaze, _) = received
     s = emu.stream
     assert len(gaze) == 120 and all(isinstance(d, EyestateEyelidGazeData) for _, d in gaze)
-    sent = {round(t_phone, 4): k for _, k, t_phone in emu.player.sent_log}
+    sent_k = np.array([k for _, k, _ in emu.player.sent_log])
+    sent_t = np.array([t_phone for _, _, t_phone in emu.player.sent_log])
     cam = session_camera(session)
     checked = 0
     for arrival, d in gaze:
-        k = sent[round(d.timestamp_unix_seconds, 4)]            # its time: the phone's, to the RTP clock's tick
+        near = np.abs(sent_t - d.timestamp_unix_seconds)           # its time: the phone's, to the RTP clock's tick
+        assert near.min() < 1e-4
+        k = int(sent_k[np.argmin(near)])
         for side, rays, valid in (("left", s.left, s.left_valid), ("right", s.right, s.right_valid)):
             got = np.array([getattr(d, f"{q}_{side}_{x}") for q in ("eyeball_center", "optical_axis") for x in "xyz"])
             if valid[k]:
