@@ -43,58 +43,58 @@ def cmd_emulate(args) -> int:
           f"{emu.period_s:.1f} s{', looped' if args.loop else ''}); Ctrl-C stops. Try (docs/live.md):\n"
           f"  wearable-gaze live --serial {where} --camera {video} --markers {sess.path('marker_map') or 'map.json'} "
           f"--camera-calib CAL/camera.json --eyes CAL/eyes.json", file=sys.stderr, flush=True)
-    try:
-        while not emu.finished.wait(0.2):
-            pass
-    finally:
-        emu.stop()
+    _serve(emu)
     print(f"emulate: {emu.sent} records sent", file=sys.stderr)
     return 0
 
 
 def _emulate_pupil_core(args) -> int:
+    from ..formats.devices.pupil_net import DEFAULT_PORT
     from ..sim.pupil_core_emu import PupilCoreEmulator, device_stream
 
-    if args.pty or args.loop:
-        raise UserError(f"--as pupil-core serves Pupil Capture's network API over TCP: drop "
-                        f"{'--pty' if args.pty else '--loop'}")
+    _network_only(args, "--as pupil-core serves Pupil Capture's network API over TCP")
     emu = PupilCoreEmulator(device_stream(args.session), duration_s=args.duration)
-    host, port = args.listen or ("127.0.0.1", 50020)
-    where = emu.listen(host, port)
+    where = emu.listen(*(args.listen or ("127.0.0.1", DEFAULT_PORT)))
     print(f"emulating Pupil Capture's network API of {args.session} on {where} ({len(emu.stream.t)} gaze samples, "
           f"{len(emu.stream.frame_times)} frames; the stream starts at the first request); Ctrl-C stops. Try "
           f"(docs/live.md):\n  wearable-gaze live --device {where} --camera-calib CAL/camera.json --markers "
           f"{args.session}/markers.json", file=sys.stderr, flush=True)
-    try:
-        while not emu.finished.wait(0.2):
-            pass
-    finally:
-        emu.stop()
+    _serve(emu)
     print(f"emulate: {emu.sent} gaze messages, {emu.frames_sent} frames sent", file=sys.stderr)
     return 0
 
 
 def _emulate_neon(args) -> int:
+    from ..formats.devices.neon_rtp import DEFAULT_PORT
     from ..sim.neon_emu import NeonEmulator, session_camera
     from ..sim.pupil_core_emu import device_stream
 
-    if args.pty or args.loop:
-        raise UserError(f"--as neon serves the Companion app's real-time API over the network: drop "
-                        f"{'--pty' if args.pty else '--loop'}")
+    _network_only(args, "--as neon serves the Companion app's real-time API over the network")
     emu = NeonEmulator(device_stream(args.session), session_camera(args.session), duration_s=args.duration)
-    where = emu.listen(*(args.listen or ("127.0.0.1", 8080)))
+    where = emu.listen(*(args.listen or ("127.0.0.1", DEFAULT_PORT)))
     print(f"emulating the Neon Companion app's real-time API of {args.session} on {where} (RTSP on port "
           f"{emu.rtsp_port}, Time Echo on {emu.echo_port}; {len(emu.stream.t)} gaze samples, "
           f"{len(emu.stream.frame_times)} frames; the streams start at the first PLAY); Ctrl-C stops. Try "
           f"(docs/live.md):\n  wearable-gaze live --device {where} --camera-calib CAL/camera.json --markers "
           f"{args.session}/markers.json", file=sys.stderr, flush=True)
+    _serve(emu)
+    print(f"emulate: {emu.sent} gaze samples, {emu.frames_sent} frames sent", file=sys.stderr)
+    return 0
+
+
+def _network_only(args, serves: str) -> None:
+    """One line, exit 2, for the serial recorder's options given to a network emulator."""
+    if args.pty or args.loop:
+        raise UserError(f"{serves}: drop {'--pty' if args.pty else '--loop'}")
+
+
+def _serve(emu) -> None:
+    """Until the emulator has sent its session (or Ctrl-C); then stop it."""
     try:
         while not emu.finished.wait(0.2):
             pass
     finally:
         emu.stop()
-    print(f"emulate: {emu.sent} gaze samples, {emu.frames_sent} frames sent", file=sys.stderr)
-    return 0
 
 
 def add_simulate(sub) -> None:

@@ -4,7 +4,9 @@ ends the thread and is kept in ``failure`` for the loop to report and end the se
 from __future__ import annotations
 
 import logging
+import queue
 import threading
+import time
 
 log = logging.getLogger(__name__)
 
@@ -34,3 +36,18 @@ class InputThread(threading.Thread):
 
     def _run(self) -> None:
         raise NotImplementedError
+
+
+def hand_on_gaze(reader, local: float, t_s: float, rec) -> None:
+    """A network device's gaze sample ``rec`` (sample time ``local``, ``time.monotonic()`` s;
+    session time ``t_s``, s) handed on by its reader (Pupil Core's, Neon's): its transport delay
+    into ``reader.transport`` (ms), counted, recorded first (``reader.on_record``), then queued
+    for the loop; a full queue drops it (counted), the recording keeps it."""
+    reader.transport.add(max(time.monotonic() - local, 0.0) * 1000)
+    reader.stats.records += 1
+    if reader.on_record is not None:
+        reader.on_record(t_s, rec)
+    try:
+        reader.queue.put_nowait((local, t_s, rec))
+    except queue.Full:
+        reader.stats.dropped += 1

@@ -36,7 +36,7 @@ import numpy as np
 from ..errors import UserError
 from ..formats.devices.neon_rtp import DEFAULT_PORT, cyclopean_sample, eye_state_sample, has_eye_states
 from .camera_in import CameraStats, put_newest
-from .input_thread import InputThread
+from .input_thread import InputThread, hand_on_gaze
 from .serial_in import SerialStats
 from .stats import LatencyHistogram
 
@@ -247,14 +247,7 @@ class GazeReader(_Stream):
             self.stats.corrupt += 1
             return
         local, t_s = self._session_time(t)
-        self.transport.add(max(time.monotonic() - local, 0.0) * 1000)
-        self.stats.records += 1
-        if self.on_record is not None:
-            self.on_record(t_s, rec)
-        try:
-            self.queue.put_nowait((local, t_s, rec))
-        except queue.Full:
-            self.stats.dropped += 1
+        hand_on_gaze(self, local, t_s, rec)
 
 
 class WorldFrames(_Stream):

@@ -43,7 +43,7 @@ from ..formats.devices.pupil_net import (
     start_frame_publisher,
 )
 from .camera_in import CameraStats, put_newest
-from .input_thread import InputThread
+from .input_thread import InputThread, hand_on_gaze
 from .serial_in import SerialStats
 from .stats import LatencyHistogram
 
@@ -324,14 +324,7 @@ class GazeReader(_Subscriber):
             raise BadMessage(f"{len(parts)} part(s), not topic and payload")
         rec = parse_gaze(parts[0].decode("ascii", "replace"), parts[1], self.stats.records)
         local, t_s = self._session_time(rec.t)
-        self.transport.add(max(time.monotonic() - local, 0.0) * 1000)
-        self.stats.records += 1
-        if self.on_record is not None:
-            self.on_record(t_s, rec)
-        try:
-            self.queue.put_nowait((local, t_s, rec))
-        except queue.Full:
-            self.stats.dropped += 1
+        hand_on_gaze(self, local, t_s, rec)
 
 
 class WorldFrames(_Subscriber):
