@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 
-import wearable_gaze.pipeline.process as process_mod
+import wearable_gaze.pipeline.session_steps as steps_mod
 from wearable_gaze.cli import main
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.pipeline.process import process_session
@@ -94,7 +94,7 @@ def test_a_failed_camera_calibration_invalidates_every_later_step_and_exits_2(pr
 
 def test_no_target_estimated_without_any_failure_still_exits_2_and_says_so(processed, monkeypatch, capsys):
     s, out = processed
-    monkeypatch.setattr(process_mod, "segment_view_lines", lambda samples, config: np.full(len(samples), -1))
+    monkeypatch.setattr(steps_mod, "segment_view_lines", lambda samples, config: np.full(len(samples), -1))
     capsys.readouterr()
     assert main(["process", str(s), "--no-overlay", "--method", "ml"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -119,7 +119,7 @@ def test_an_exception_in_a_step_removes_the_outputs_of_the_steps_after_it(proces
 
     def broken(*args, **kwargs):
         raise RuntimeError("tracking crashed")
-    monkeypatch.setattr(process_mod, "track_video", broken)
+    monkeypatch.setattr(steps_mod, "track_video", broken)
     with pytest.raises(RuntimeError, match="tracking crashed"):
         process_session(s, out, overlay=False, force=True)
     for name in ("poses.csv",) + RESULTS:

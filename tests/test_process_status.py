@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-import wearable_gaze.pipeline.process as process_mod
+import wearable_gaze.pipeline.session_steps as steps_mod
 from wearable_gaze.cli import main
 from wearable_gaze.errors import UserError
 from wearable_gaze.formats.batch_status import (
@@ -50,7 +50,7 @@ def session(small_session, tmp_path):
 def _plant_report_failure(monkeypatch):
     def fail(*args, **kwargs):
         raise UserError("planted: the report could not be written")
-    monkeypatch.setattr(process_mod, "write_report", fail)
+    monkeypatch.setattr(steps_mod, "write_report", fail)
 
 
 def _in_process(monkeypatch):
@@ -96,7 +96,7 @@ def test_batch_marks_a_session_with_a_failed_step_partial(session, tmp_path, mon
 def test_an_internal_error_in_a_batch_session_fails_it_with_its_traceback(session, tmp_path, monkeypatch):
     def bug(*args, **kwargs):
         raise ZeroDivisionError("planted fault")
-    monkeypatch.setattr(process_mod, "find_targets", bug)
+    monkeypatch.setattr(steps_mod, "find_targets", bug)
     _in_process(monkeypatch)
     res = run_batch([session.parent], tmp_path / "out", SETTINGS)
     st = read_status(tmp_path / "out" / "s1")

@@ -11,6 +11,7 @@ import pytest
 
 import wearable_gaze.pipeline.calibrate as calibrate_mod
 import wearable_gaze.pipeline.process as process_mod
+import wearable_gaze.pipeline.session_cache as cache_mod
 import wearable_gaze.pipeline.track as track_mod
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.pipeline.steps import ON_REQUEST, STEPS
@@ -37,8 +38,9 @@ def _count_loads(monkeypatch) -> Counter:
             calls[name] += 1
             return fn(*args, **kwargs)
         return wrapper
-    for name in LOADERS:
-        monkeypatch.setattr(process_mod, name, counted(name, getattr(process_mod, name)))
+    for name in LOADERS:                    # the session is loaded by process, every other file by its cache
+        mod = process_mod if name == "load_session" else cache_mod
+        monkeypatch.setattr(mod, name, counted(name, getattr(mod, name)))
     return calls
 
 

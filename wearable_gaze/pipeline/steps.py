@@ -5,10 +5,12 @@ which steps it needs, and what a step that failed or did not run leaves (nothing
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,7 +180,8 @@ class Steps:
         self.state_path = out / ".steps.json"
         self.status = result.status
         self.given = set()                                        # steps replaced by a file given
-        self.current = None
+        self.current: str | None = None                          # the step running now
+        self.outputs: dict = {}                                  # what each step run returned
         self.state = {} if force else self._load_state()
 
     def _load_state(self) -> dict:
@@ -193,14 +196,17 @@ class Steps:
             log.warning("%s is unreadable (%s); redoing every step", self.state_path, exc)
             return {}
 
-    def run(self, name, inputs, params, fn) -> bool:
-        """Run ``fn(progress)`` unless its fingerprint matches and its outputs exist. Returns
-        True when the outputs are usable."""
+    def run(self, name: str, paths: list, params: dict, step: Callable, conf, inputs: Callable[[], object]) -> bool:
+        """Run the step ``step(conf, inputs(), progress)`` unless its fingerprint (the files
+        ``paths`` and the settings ``params``) matches the last run's and its outputs are as it
+        wrote them. ``inputs`` is called only when the step runs (a cached step reads nothing);
+        what the step returns is kept in ``outputs[name]``. Returns True when the outputs are
+        usable; a ``UserError`` (from the step or its inputs) is the step's failure."""
         bad = [d for d in NEEDS[name] if self.status.get(d) not in GOOD]
         if bad:
             self.status[name] = "not_done"
             return False
-        fp = fingerprint(inputs, params)
+        fp = fingerprint(paths, params)
         if self._cached(name, fp):
             self.result.skipped.append(name)
             self.status[name] = "cached"
@@ -209,11 +215,8 @@ class Steps:
         self._remove(name)                        # redone: no output of the old run until it succeeds
         t0 = time.perf_counter()
         try:
-            if self.progress_factory is not None:
-                with self.progress_factory(name) as cb:
-                    fn(cb)
-            else:
-                fn(None)
+            with self._progress(name) as progress:
+                self.outputs[name] = step(conf, inputs(), progress)
         except UserError as exc:
             self.fail(name, str(exc))
             return False
@@ -225,6 +228,12 @@ class Steps:
                                                       if (self.out / o).is_file()}}
         self._save()
         return True
+
+    def _progress(self, name: str):
+        """The step's progress callback in a context (``progress_factory``), or None."""
+        if self.progress_factory is not None:
+            return self.progress_factory(name)
+        return contextlib.nullcontext(None)
 
     def _cached(self, name: str, fp: str) -> bool:
         """The step's inputs and settings are unchanged (``fp``), and so is every output it
@@ -240,16 +249,17 @@ class Steps:
             return False
         return True
 
-    def external(self, name, path: Path, load) -> bool:
-        """The step is replaced by a file the user gave (its outputs in OUT are left alone),
-        checked once here with ``load(path)`` rather than by every step that reads it."""
+    def external(self, name, path: Path, load: Callable[[], object]) -> bool:
+        """The step is replaced by a file the user gave (``path``; its outputs in OUT are left
+        alone), checked once here by reading it (``load()``) rather than by every step that reads
+        it."""
         self.given.add(name)
         if not path.is_file():
             self.fail(name, f"{path}: no such file; check the --{name} path, or leave the option out to calibrate "
                             "from the session")
             return False
         try:
-            load(path)
+            load()
         except UserError as exc:
             self.fail(name, str(exc))
             return False
