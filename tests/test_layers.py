@@ -115,3 +115,30 @@ def test_no_module_over_500_lines_and_no_function_over_80():
                     big.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name}: "
                                f"{node.end_lineno - node.lineno + 1} lines")
     assert not big, big
+
+
+STEP_MODULES = ("pipeline/process.py", "pipeline/session_steps.py", "pipeline/session_cache.py",
+                "pipeline/aoi.py")
+
+
+def test_process_and_its_steps_are_short_flat_functions():
+    """``process_session`` and every step function (``run``, ``run_<step>``, process's
+    ``_<step>_step``) are under 40 lines, and no function in process or its steps defines a
+    function inside it: steps are composed by calls, not nested closures (issue 30)."""
+    long, nested, steps = [], [], []
+    for rel in STEP_MODULES:
+        tree = ast.parse((ROOT / "wearable_gaze" / rel).read_text())
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.FunctionDef):
+                continue
+            inner = [n.name for n in ast.walk(node) if n is not node and isinstance(n, ast.FunctionDef)]
+            nested += [f"{rel}:{node.name} defines {name}" for name in inner]
+            is_step = (node.name in ("process_session", "run") or node.name.startswith("run_")
+                       or (rel.endswith("process.py") and node.name.endswith("_step")))
+            length = node.end_lineno - node.lineno + 1
+            steps += [node.name] if is_step else []
+            if is_step and length >= 40:
+                long.append(f"{rel}:{node.name}: {length} lines")
+    assert not long and not nested, (long, nested)
+    assert {"process_session", "run", "run_camera", "run_eyes", "run_tracking", "run_viewlines", "run_targets",
+            "run_export", "run_aoi", "run_report", "_tracking_step", "_report_step"} <= set(steps), steps

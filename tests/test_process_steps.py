@@ -82,3 +82,23 @@ def test_a_target_is_its_row_of_targets_json():
     assert json.dumps(t.row()) == json.dumps(row)                  # plain Python values: the same JSON text
     nan = Target.from_row(row | {"position_mm": None, "covariance_mm2": None, "status": "no_estimate"})
     assert not nan.ok and nan.row()["position_mm"] is None and nan.covariance_mm2 is None
+
+
+def test_the_settings_are_one_frozen_config_with_named_presets():
+    """``process``'s settings are built once, frozen (a step cannot change them under the next),
+    and the presets are complete configurations differing from the default only where named."""
+    import dataclasses
+
+    from wearable_gaze.pipeline.stepconf import PRESETS, ProcessConfig, preset
+
+    conf = ProcessConfig()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        conf.method = "ml"                                   # type: ignore[misc]
+    assert PRESETS["default"] == conf and all(isinstance(c, ProcessConfig) for c in PRESETS.values())
+    quick = preset("quick", sigma_deg=2.0)
+    changed = {f.name for f in dataclasses.fields(conf) if getattr(quick, f.name) != getattr(conf, f.name)}
+    assert changed == {"method", "overlay", "track_every", "sigma_deg"}, changed
+    assert conf.for_session(10.0).segment_config.window == 2 and conf.for_session(None).segment_config.window == 8
+    assert conf.targets_conf().segment is not None and conf.tracking_conf().every == 2
+    with pytest.raises(KeyError):
+        preset("no such preset")

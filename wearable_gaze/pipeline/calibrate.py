@@ -38,12 +38,11 @@ from tracking.timeline import MAX_POSE_GAP_S, interpolate_poses
 from ..errors import UserError, check_output
 from ..formats.camera import calibration_dict, is_preview, load_camera, preview_path, write_camera
 from ..formats.eye_samples import EyeSamples, read_eye_csv
-from ..formats.eyes import eyes_dict, load_eyes, write_eyes
+from ..formats.eyes import eyes_dict, load_eyes
 from ..formats.images import IMAGE_EXT, image_files, read_grey_image, write_image
 from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv
 from ..formats.video import sampled_grey_frames
-from ..formats.viewlines import write_viewlines_csv
 from ..formats.walls import Wall, WallsRecording, read_walls
 from .types import CameraResult, Poses, ViewLinesResult
 
@@ -251,13 +250,15 @@ def read_eye_recordings(files: WallsRecording) -> EyeRecordings:
 
 
 def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centres=None, progress=None) -> dict:
-    """``calibrate_eyes`` from files: writes eyes.json and returns its content."""
+    """``calibrate_eyes`` from files: writes eyes.json and returns its content. The eyes step
+    ``process`` runs (``session_steps.run_eyes``)."""
+    from .session_steps import EyesInputs, run_eyes  # the steps' module imports this one
+    from .stepconf import EyesConfig
     files = read_walls(src)
     check_output(out, [camera_path, files.csv_path, files.walls_path, *files.images], "-o")
     camera = load_camera(camera_path)
-    result = calibrate_eyes(read_eye_recordings(files), camera, model, centres, progress)
-    write_eyes(out, result)
-    return result
+    inputs = EyesInputs(camera, read_eye_recordings(files), Path(out))
+    return run_eyes(EyesConfig(model, centres), inputs, progress)
 
 
 def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "quadratic", centres=None,
@@ -378,14 +379,16 @@ def format_eyes_report(result: dict) -> str:
 
 def viewlines_files(eye_csv, eyes_json, poses_csv, out, max_gap_s: float = MAX_POSE_GAP_S, person=None) -> dict:
     """``view_lines`` from files: writes the view-line CSV and returns the counts. ``person``: a
-    person.json whose per-eye correction is applied (docs/calibration.md, per-person bias)."""
+    person.json whose per-eye correction is applied (docs/calibration.md, per-person bias). The
+    view-lines step ``process`` runs (``session_steps.run_viewlines``)."""
+    from .session_steps import ViewlinesInputs, run_viewlines  # the steps' module imports this one
+    from .stepconf import ViewlinesConfig
     check_output(out, [eye_csv, eyes_json, poses_csv] + ([person] if person else []), "-o")
     correction = person_correction_deg(read_person(person)) if person else None
     eye, _ = read_eye_csv(eye_csv)
     cals = load_eyes(eyes_json)
-    result = view_lines(eye, cals, Poses(*read_poses_csv(poses_csv)), max_gap_s, poses_csv, correction)
-    write_viewlines_csv(out, result.samples)
-    return result.counts
+    inputs = ViewlinesInputs(Poses(*read_poses_csv(poses_csv)), poses_csv, Path(out), eye, cals)
+    return run_viewlines(ViewlinesConfig(max_gap_s, correction), inputs).counts
 
 
 def view_lines(eye: EyeSamples, eyes: list, poses: Poses, max_gap_s: float = MAX_POSE_GAP_S, source="the poses",

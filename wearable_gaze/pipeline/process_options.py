@@ -56,7 +56,7 @@ def applicable(f, cfg, markers: Path | None, eyes_given: bool, rerun_frames: int
     its ``markers`` (``--markers``; none when ``--build-map`` builds one), the settings ``cfg``
     with each option that cannot apply to this session reset to its default (and ``map_kind``
     set), and one line per such option or replaced map. ``f`` and ``cfg`` are
-    ``process``'s ``_SessionFiles`` and ``_Settings``."""
+    ``session_cache.SessionFiles`` and ``stepconf.ProcessConfig``."""
     notes = []
     imported, video = f.eye_rays is not None, f.video is not None
     own_poses = imported and f.pose_source in ("device", "still_head")        # no tracking at all
@@ -100,7 +100,7 @@ def truth_frame(f, cfg, built: Path, used_map) -> TruthFrame | None:
     ``f.truth_map``, the markers of ``f.truth_moved`` left out) moved into the world of the map
     the run used (``cfg.map_kind``): ``cfg.sfm_map``, ``f.markers`` or the ``built`` one (for a
     marker map, its contents ``used_map()``, as tracking read them). ``f``, ``cfg``: ``process``'s
-    ``_SessionFiles`` and ``_Settings`` (after ``applicable``). None: no truth or no truth map,
+    ``SessionFiles`` and ``ProcessConfig`` (after ``applicable``). None: no truth or no truth map,
     or the map used is the truth's (the same file, or the same corners)."""
     truth_map, moved, map_kind = f.truth_map, f.truth_moved, cfg.map_kind
     used = cfg.sfm_map or f.markers or built

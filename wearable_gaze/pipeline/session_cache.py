@@ -11,6 +11,8 @@ from functools import cached_property
 from pathlib import Path
 from typing import cast
 
+import numpy as np
+
 from calibration.camera import CameraCalibration
 from estimator import BinocularSamples
 from tracking.markermap import MarkerMap
@@ -187,20 +189,30 @@ class SessionCache:
         imported = self.files.eye_rays is not None
         rays = self.eye_rays if imported else None
         samples, eyes = (None, None) if imported else (self.eye_samples, self.eyes)
-        return ExportInputs(self.poses, self.targets, self.out, self.camera if with_camera else None,
+        camera = self.camera if with_camera else None
+        return ExportInputs(self.poses, self.targets, self.out, camera,
                             self.files.clock_offset_s, samples, eyes, rays)
 
     def overlay_inputs(self) -> OverlayInputs:
-        return OverlayInputs(self.camera, self.eyes if self.eyes_path.is_file() else None, self.eye_samples,
-                             self.marker_map if self.has_map() else None, cast(Path, self.files.video))
+        camera = self.camera
+        eyes = self.eyes if self.eyes_path.is_file() else None
+        return OverlayInputs(camera, eyes, self.eye_samples, self.marker_map if self.has_map() else None,
+                             cast(Path, self.files.video))
 
-    def report_inputs(self, conf: ProcessConfig, frame: TruthFrame | None, overlay: bool) -> ReportInputs:
+    def report_inputs(self, conf: ProcessConfig, frame: TruthFrame | None,
+                      overlay: bool) -> ReportInputs:
         """``overlay``: the overlay can be drawn (the camera's calibration and raw eye samples)."""
         f = self.files
         truth, truth_notes = report_truth(load_truth(f.truth_targets, f.truth_head_poses), frame)
-        points = load_sfm_map(conf.sfm_map)[0].points_world if conf.sfm_map is not None else device_points(f.root)
+        points: np.ndarray | None
+        if conf.sfm_map is not None:
+            points = load_sfm_map(conf.sfm_map)[0].points_world
+        else:
+            points = device_points(f.root)
         mm = self.marker_map if self.has_map() else None
-        notes = report_notes(f.pose_source, f.eye_rays is not None and conf.overlay, f.import_report)
+        no_overlay = f.eye_rays is not None and conf.overlay    # asked for, but an import has none
+        notes = report_notes(f.pose_source, no_overlay, f.import_report)
         notes += targets_bias_note(self.out / "targets.json")
         return ReportInputs(self.out, session_title(f.root), notes + truth_notes, truth, mm, points,
-                            aoi_outlines(conf.aoi_specs, mm), self.overlay_inputs if overlay else None)
+                            aoi_outlines(conf.aoi_specs, mm),
+                            self.overlay_inputs if overlay else None)

@@ -82,9 +82,11 @@ def run_camera(conf: CameraConfig, inputs: CameraInputs, progress=None) -> Camer
     """
     board_file = inputs.views / BOARD_FILE
     if not board_file.is_file():
-        raise UserError(f"{board_file}: no camera-calibration recording in the session; pass --camera camera.json")
+        raise UserError(f"{board_file}: no camera-calibration recording in the session; pass "
+                        "--camera camera.json")
     board = read_board(inputs.views)
-    cal, _ = calibrate_camera_files(board.views, board.spec, inputs.out, conf.model, conf.max_views, progress)
+    cal, _ = calibrate_camera_files(board.views, board.spec, inputs.out, conf.model, conf.max_views,
+                                    progress)
     return cal
 
 
@@ -152,8 +154,8 @@ def run_tracking(conf: TrackingConfig, inputs: TrackingInputs, progress=None) ->
         if conf.build_map is None or inputs.camera_path is None:
             raise ValueError("tracking: no map to track in, and none to build")
         built = inputs.out.parent / BUILT_MAP
-        build_map_files([inputs.video], inputs.camera_path, built, conf.build_map[1], conf.build_map[0],
-                        progress=progress)
+        side_mm, dictionary = conf.build_map
+        build_map_files([inputs.video], inputs.camera_path, built, dictionary, side_mm, progress=progress)
         room = load_marker_map(built)
     times = frame_times(inputs.video, inputs.stamps)
     poses = track_video(inputs.video, inputs.camera, room, times, conf.every, progress)
@@ -183,12 +185,12 @@ def run_viewlines(conf: ViewlinesConfig, inputs: ViewlinesInputs, progress=None)
     """World view lines (eq. 1-8, ``calibrate.view_lines``; an imported session's rays moved by
     the poses, ``calibrate.head_lines_to_world``), written unsegmented to ``inputs.out``."""
     if inputs.eye_rays is not None:
-        result = head_lines_to_world(inputs.eye_rays, inputs.poses, conf.max_gap_s, inputs.poses_path,
-                                     conf.correction_deg)
+        result = head_lines_to_world(inputs.eye_rays, inputs.poses, conf.max_gap_s,
+                                     inputs.poses_path, conf.correction_deg)
     else:
         assert inputs.eye_samples is not None and inputs.eyes is not None
-        result = view_lines(inputs.eye_samples, inputs.eyes, inputs.poses, conf.max_gap_s, inputs.poses_path,
-                            conf.correction_deg)
+        result = view_lines(inputs.eye_samples, inputs.eyes, inputs.poses, conf.max_gap_s,
+                            inputs.poses_path, conf.correction_deg)
     write_viewlines_csv(inputs.out, result.samples)
     if inputs.counts is not None:
         write_json(inputs.counts, result.counts)
@@ -219,14 +221,15 @@ def run_targets(conf: TargetsConfig, inputs: TargetsInputs, progress=None) -> Ta
     targets, estimates and fixations tables (and device_comparison.csv)."""
     samples, out = inputs.samples, inputs.out
     labels = segment_view_lines(samples, conf.segment)
-    budget = session_bias(inputs.prior, seen_bias(samples, labels))          # the bias sized from the lines
+    budget = session_bias(inputs.prior, seen_bias(samples, labels))     # the bias sized from the lines
     result = find_targets(samples, labels, conf.method, conf.sigma_deg, progress,
                           with_bias(inputs.error_model, budget))
     write_targets_step(out, result, conf.method, budget, inputs.depth_assumption)
     write_fixations_step(out, result)
     if inputs.device_gaze is not None:
         assert inputs.poses is not None
-        device_comparison(inputs.device_gaze, samples, result.targets, inputs.poses, out / "device_comparison.csv")
+        device_comparison(inputs.device_gaze, samples, result.targets, inputs.poses,
+                          out / "device_comparison.csv")
     return result
 
 
@@ -259,7 +262,8 @@ def run_export(conf: ExportConfig, inputs: ExportInputs, progress=None) -> None:
         head = head_view_lines(inputs.eye_samples, inputs.eyes)
     if conf.correction_deg is not None:
         head = correct_head_lines(head, conf.correction_deg)
-    export_files(inputs.out, head, inputs.poses, inputs.targets, inputs.camera, inputs.clock_offset_s)
+    export_files(inputs.out, head, inputs.poses, inputs.targets, inputs.camera,
+                 inputs.clock_offset_s)
 
 
 # --- 7. areas of interest, 8. report --------------------------------------------------------------
