@@ -340,7 +340,6 @@ def _aoi_step(steps: Steps, cache: SessionCache, conf: ProcessConfig) -> None:
     the map the video was tracked in."""
     out, built = cache.out, cache.out / BUILT_MAP
     marker_map = cache.files.markers or (built if built.is_file() else None)
-    assert conf.aois is not None
     paths = [conf.aois, *mesh_paths(conf.aoi_specs)]
     paths += [out / n for n in ("fixations.csv", "viewlines.csv", "targets.json")]
     paths += [marker_map] if marker_map else []

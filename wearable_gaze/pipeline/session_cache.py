@@ -121,13 +121,11 @@ class SessionCache:
 
     @cached_property
     def eye_samples(self) -> EyeSamples:
-        assert self.files.eye_samples is not None
-        return read_eye_csv(self.files.eye_samples)[0]
+        return read_eye_csv(cast(Path, self.files.eye_samples))[0]
 
     @cached_property
     def eye_rays(self) -> BinocularSamples:
-        assert self.files.eye_rays is not None
-        return read_eye_rays(self.files.eye_rays)
+        return read_eye_rays(cast(Path, self.files.eye_rays))
 
     @cached_property
     def marker_map(self) -> MarkerMap:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -148,17 +149,17 @@ def run_tracking(conf: TrackingConfig, inputs: TrackingInputs, progress=None) ->
     if inputs.still_t_s is not None:
         still_head_poses(inputs.still_t_s, inputs.out)
         return TrackingOutputs()
-    assert inputs.video is not None and inputs.camera is not None
+    video, camera = cast(Path, inputs.video), cast(CameraCalibration, inputs.camera)
     room = inputs.room
     if room is None:
         if conf.build_map is None or inputs.camera_path is None:
             raise ValueError("tracking: no map to track in, and none to build")
         built = inputs.out.parent / BUILT_MAP
         side_mm, dictionary = conf.build_map
-        build_map_files([inputs.video], inputs.camera_path, built, dictionary, side_mm, progress=progress)
+        build_map_files([video], inputs.camera_path, built, dictionary, side_mm, progress=progress)
         room = load_marker_map(built)
-    times = frame_times(inputs.video, inputs.stamps)
-    poses = track_video(inputs.video, inputs.camera, room, times, conf.every, progress)
+    times = frame_times(video, inputs.stamps)
+    poses = track_video(video, camera, room, times, conf.every, progress)
     write_poses_csv(inputs.out, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
     return TrackingOutputs(poses, room)
 
@@ -188,8 +189,8 @@ def run_viewlines(conf: ViewlinesConfig, inputs: ViewlinesInputs, progress=None)
         result = head_lines_to_world(inputs.eye_rays, inputs.poses, conf.max_gap_s,
                                      inputs.poses_path, conf.correction_deg)
     else:
-        assert inputs.eye_samples is not None and inputs.eyes is not None
-        result = view_lines(inputs.eye_samples, inputs.eyes, inputs.poses, conf.max_gap_s,
+        samples, eyes = cast(EyeSamples, inputs.eye_samples), cast(list, inputs.eyes)
+        result = view_lines(samples, eyes, inputs.poses, conf.max_gap_s,
                             inputs.poses_path, conf.correction_deg)
     write_viewlines_csv(inputs.out, result.samples)
     if inputs.counts is not None:
@@ -221,14 +222,13 @@ def run_targets(conf: TargetsConfig, inputs: TargetsInputs, progress=None) -> Ta
     targets, estimates and fixations tables (and device_comparison.csv)."""
     samples, out = inputs.samples, inputs.out
     labels = segment_view_lines(samples, conf.segment)
-    budget = session_bias(inputs.prior, seen_bias(samples, labels))     # the bias sized from the lines
+    budget = session_bias(inputs.prior, seen_bias(samples, labels))     # sized from the lines
     result = find_targets(samples, labels, conf.method, conf.sigma_deg, progress,
                           with_bias(inputs.error_model, budget))
     write_targets_step(out, result, conf.method, budget, inputs.depth_assumption)
     write_fixations_step(out, result)
     if inputs.device_gaze is not None:
-        assert inputs.poses is not None
-        device_comparison(inputs.device_gaze, samples, result.targets, inputs.poses,
+        device_comparison(inputs.device_gaze, samples, result.targets, cast(Poses, inputs.poses),
                           out / "device_comparison.csv")
     return result
 
@@ -258,8 +258,7 @@ def run_export(conf: ExportConfig, inputs: ExportInputs, progress=None) -> None:
     if inputs.eye_rays is not None:
         head = inputs.eye_rays
     else:
-        assert inputs.eye_samples is not None and inputs.eyes is not None
-        head = head_view_lines(inputs.eye_samples, inputs.eyes)
+        head = head_view_lines(cast(EyeSamples, inputs.eye_samples), cast(list, inputs.eyes))
     if conf.correction_deg is not None:
         head = correct_head_lines(head, conf.correction_deg)
     export_files(inputs.out, head, inputs.poses, inputs.targets, inputs.camera,
