@@ -53,6 +53,7 @@ from .device import device_comparison, device_points, device_poses, report_notes
 from .errorbudget import depth_assumption, pose_model, session_bias, session_prior, targets_bias_note, with_bias
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
+from .live_replay import replay_recording
 from .mapping import build_map_files
 from .process_options import applicable, check_map_options, report_truth, truth_frame
 from .report import OverlayInputs, load_truth, session_title, write_report
@@ -326,8 +327,11 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
     def do_targets(cb):
         samples = read_viewlines_csv(raw_vl)[0].samples
         labels = segment_view_lines(samples, cfg.segment_config)
-        budget = session_bias(prior, seen_bias(samples, labels))          # the bias sized from the lines
-        result = find_targets(samples, labels, cfg.method, cfg.sigma_deg, cb, with_bias(base, budget))
+        budget: dict | None = session_bias(prior, seen_bias(samples, labels))    # the bias sized from the lines
+        if f.live_poses is not None:          # a live recording: the targets live published (live_replay.py)
+            result, budget = replay_recording(vals["eye_rays"], f.live_poses, cfg.method), None
+        else:
+            result = find_targets(samples, labels, cfg.method, cfg.sigma_deg, cb, with_bias(base, budget))
         write_targets_step(out, result, cfg.method, budget, depth_assumption(rep, f.pose_source))
         write_fixations_step(out, result)
         if f.device_gaze is not None:
