@@ -165,6 +165,11 @@ class CpuWatch(threading.Thread):
     def __init__(self, live):
         super().__init__(daemon=True)
         self.live, self.cpu, self.done = live, {}, threading.Event()
+        self.start_cpu = self._threads()            # the threads already running (the loop's): from now on
+
+    def _threads(self) -> dict:
+        return {th.name: c for th in threading.enumerate()
+                if th.native_id and (c := _cpu_s(f"/proc/self/task/{th.native_id}/stat")) is not None}
 
     def run(self):
         while not self.done.wait(0.25):
@@ -177,9 +182,10 @@ class CpuWatch(threading.Thread):
                 self.cpu["tracking process"] = c
 
     def stop(self) -> dict:
+        """CPU time, s, of each thread (by name) and of the tracking process since ``__init__``."""
         self.done.set()
         self.join()
-        return self.cpu
+        return {k: v - self.start_cpu.get(k, 0.0) for k, v in self.cpu.items()}
 
 
 def run_device(root: Path, tmp: Path, args, subscriber: str, listener_cls) -> dict:

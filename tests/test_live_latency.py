@@ -12,10 +12,15 @@ from test_live_parts import _eye_items, _FakeEstimation, _loop, _pose
 from estimator._checks import check_transform
 from estimator.result import covariance_ellipsoid
 from tracking.markermap import MarkerMap
+from wearable_gaze.formats.devices.pupil_net import RaySample
+from wearable_gaze.formats.eye_rays import ray_csv_line, ray_csv_lines, read_eye_rays
 from wearable_gaze.formats.poses import pose_csv_line, pose_csv_lines, read_poses_csv
+from wearable_gaze.formats.session import load_session
 from wearable_gaze.live import loop as live_loop
+from wearable_gaze.live.input_thread import InputThread
 from wearable_gaze.live.loop import LiveSession
 from wearable_gaze.live.record import DEVICE_FILES, Recorder
+from wearable_gaze.live.sched import GAZE_SLICE_S, set_thread_slice, thread_slice_s
 
 
 def _T(yaw_deg, x_mm):
@@ -30,6 +35,42 @@ def test_pose_rows_made_in_one_batch_are_the_rows_made_one_by_one():
     rows = lines.splitlines()
     assert len(rows) == 4 and rows[1] == rows[1].split(",")[0] + ",1" + "," * 7
     assert pose_csv_lines([], [], []) == ""
+
+
+def test_ray_rows_made_in_one_batch_are_the_rows_made_one_by_one():
+    rng = np.random.default_rng(0)
+    n = 5
+    t = 0.25 + np.arange(n) / 200.0
+    left, right = rng.normal(size=(n, 6)), rng.normal(size=(n, 6))
+    lv, rv = [True, False, True, True, False], [True, True, False, True, False]
+    lines = ray_csv_lines(t, left, lv, right, rv)
+    assert lines == "".join(ray_csv_line(t[k], left[k], lv[k], right[k], rv[k]) for k in range(n))
+    assert len(lines.splitlines()) == n and ray_csv_lines([], [], [], [], []) == ""
+
+
+def test_the_recorder_writes_a_devices_rays_at_its_flush_in_order(tmp_path):
+    (tmp_path / "c").write_text("{}")
+    mm = MarkerMap("DICT_4X4_50", 80.0, {1: _pose()}, {})
+    rec = Recorder(tmp_path / "rec", (64, 48), 30.0, tmp_path / "c", None, mm, flush_s=1.0, device="pupil-core")
+    rng = np.random.default_rng(1)
+    t = 0.2 + np.arange(6) / 200.0
+    sent = []
+    for k, tk in enumerate(t):
+        o, d = rng.normal(size=(2, 3)) * [10.0, 1.0, 1.0], np.array([0.1, -0.2, 1.0])
+        left, right = (*o[0], *(d / np.linalg.norm(d))), (*o[1], *(d / np.linalg.norm(d)))
+        sent.append(RaySample(k, tk, left, right, k != 2, k != 4, 1.0))
+        rec.eye_sample(tk, sent[-1])
+        if k == 2:
+            rec.flush()
+    rec.close(complete=True)
+    back = read_eye_rays(tmp_path / "rec" / DEVICE_FILES["eye_rays"])
+    assert back.t_s == pytest.approx(t, abs=1e-6) and load_session(tmp_path / "rec").manifest["n_eye_samples"] == 6
+    assert back.left_valid.tolist() == [k != 2 for k in range(6)]
+    assert back.right_valid.tolist() == [k != 4 for k in range(6)]
+    for k, r in enumerate(sent):
+        if r.left_valid:
+            assert np.allclose(back.left_origin_mm[k], r.left[:3], atol=1e-4)
+            assert np.allclose(back.left_direction[k], r.left[3:], atol=1e-7)
 
 
 def test_the_recorder_writes_each_samples_pose_at_its_flush_in_order(tmp_path):
@@ -88,3 +129,27 @@ def test_the_session_runs_with_a_short_thread_switch_interval_and_restores_it():
     session.run(duration_s=2.0)
     assert seen and all(s == pytest.approx(live_loop.SWITCH_INTERVAL_S) for s in seen)
     assert live_loop.SWITCH_INTERVAL_S < before and sys.getswitchinterval() == pytest.approx(before)
+
+
+def test_the_gaze_paths_threads_ask_for_short_time_slices_and_the_caller_gets_its_own_back():
+    if thread_slice_s() is None or not set_thread_slice(thread_slice_s()):
+        pytest.skip("no sched_setattr here (not Linux, or refused)")
+    seen = {}
+
+    class _Reader(InputThread):
+        def _run(self):
+            seen["reader"] = thread_slice_s()
+
+    class _Watching(_FakeEstimation):
+        def add(self, t_s, rec, T):
+            seen["loop"] = thread_slice_s()
+            return super().add(t_s, rec, T)
+
+    r = _Reader("reader")
+    r.start()
+    r.join()
+    before = thread_slice_s()
+    session, _, _ = _loop(_eye_items([0.52]), [(0.5, _pose()), (0.6, _pose())], _Watching(end_at=None))
+    session.run(duration_s=1.0)
+    assert seen["reader"] == pytest.approx(GAZE_SLICE_S) and seen["loop"] == pytest.approx(GAZE_SLICE_S)
+    assert GAZE_SLICE_S < before and thread_slice_s() == pytest.approx(before)

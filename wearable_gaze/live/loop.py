@@ -17,6 +17,7 @@ from ..errors import UserError
 from .allocator import bound_heap, release_free_memory
 from .head import TrackingThread
 from .messages import estimate_message, target_message
+from .sched import GAZE_SLICE_S, set_thread_slice, thread_slice_s
 from .stats import LiveStats
 
 log = logging.getLogger(__name__)
@@ -169,12 +170,14 @@ class LiveSession:
         """
         bound_heap()                                 # sessions one after another stay flat (allocator.py)
         release_free_memory()
-        switch = sys.getswitchinterval()
+        switch, slice_s = sys.getswitchinterval(), thread_slice_s()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        set_thread_slice(GAZE_SLICE_S)               # this thread runs the loop (sched.py)
         try:
             return self._run(duration_s)
         finally:
             sys.setswitchinterval(switch)
+            set_thread_slice(slice_s)
 
     def _run(self, duration_s: float | None) -> LiveStats:
         self.reader.start()

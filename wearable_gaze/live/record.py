@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 
 from ..errors import UserError
-from ..formats.eye_rays import RAY_HEADER, ray_csv_line
+from ..formats.eye_rays import RAY_HEADER, ray_csv_lines
 from ..formats.eye_samples import EYE_HEADER, eye_csv_line
 from ..formats.markermap import marker_map_dict, write_marker_map
 from ..formats.poses import POSE_HEADER, pose_csv_lines
@@ -94,6 +94,7 @@ class Recorder:
                           encoding="utf-8", buffering=_BUFFER)
         self.poses.write(POSE_HEADER)
         self.pose_rows: list = []        # (t, row, pose) of the sample poses since the last flush
+        self.ray_rows: list = []         # (t, left, left valid, right, right valid) of a device's rays, likewise
         self.n_frames = self.n_eye = self.n_messages = self.n_poses = 0
         self.lock = threading.Lock()
         self.frames_flushed = 0          # frames whose timestamp rows have been flushed: the video may hold these
@@ -116,14 +117,17 @@ class Recorder:
                 self.raw.write(data)
 
     def eye_sample(self, t: float, rec) -> None:
-        """One intact record at session time ``t``, s."""
+        """One intact record at session time ``t``, s. A device's rays are kept and written by the
+        next flush, the period's rows converted in one batch (one by one they cost its reader
+        about 0.3 ms a sample at 200 Hz)."""
         if self.device is None:
             line = eye_csv_line(t, rec.counter, rec.left, rec.right, rec.left_valid, rec.right_valid)
-        else:
-            line = ray_csv_line(t, rec.left, rec.left_valid, rec.right, rec.right_valid)
         with self.lock:
             if not self.closed:
-                self.eye.write(line)
+                if self.device is None:
+                    self.eye.write(line)
+                else:
+                    self.ray_rows.append((t, rec.left, rec.left_valid, rec.right, rec.right_valid))
                 self.n_eye += 1
 
     def frame(self, t: float, index: int, grey) -> None:
@@ -179,11 +183,14 @@ class Recorder:
             if self.closed:
                 return
             rows, self.pose_rows = self.pose_rows, []
+            rays, self.ray_rows = self.ray_rows, []
         text = pose_csv_lines(*zip(*rows, strict=True)) if rows else ""      # outside the lock: the loop goes on
+        ray_text = ray_csv_lines(*zip(*rays, strict=True)) if rays else ""
         with self.lock:
             if self.closed:
                 return
             self.poses.write(text)
+            self.eye.write(ray_text)
             for fh in (self.ts, self.eye, self.raw, self.messages, self.poses):
                 fh.flush()
             self.frames_flushed = self.n_frames
