@@ -86,7 +86,7 @@ def replay(rays: BinocularSamples, pose_t, T_world_from_cam, method: str = "voxe
     if (last := est.end_fixation()) is not None:
         finished.append(last)
     published = [(done, est.finish(done)) for done in finished]     # the target worker's order
-    return _result(lines_to_samples(lines) if lines else None, finished, published, running)
+    return _result(lines_to_samples(lines) if lines else None, published, running)
 
 
 def _posed_rows(rays: BinocularSamples, pose_t: np.ndarray, T: np.ndarray) -> list:
@@ -113,19 +113,23 @@ def _ray_record(rays: BinocularSamples, k: int) -> RaySample:
                      bool(rays.right_valid[k]), 1.0)
 
 
-def _result(samples: BinocularSamples | None, finished: list, published: list, running: list) -> TargetsResult:
-    """The targets step's result from the replayed fixations (``FinishedFixation``) and the
-    targets live published for them (``(fixation, Target or None)``, in order)."""
+def _result(samples: BinocularSamples | None, published: list, running: list) -> TargetsResult:
+    """The targets step's result from the replayed fixations and the targets live published for
+    them (``(FinishedFixation, Target or None)``, in order). A fixation none of whose samples
+    reached the estimator's lines (under load live sheds samples that come too late: one can end
+    with none kept) is no fixation here, but the target live published for it is kept."""
     if samples is None:
         samples = BinocularSamples.from_arrays(np.zeros(0), *(np.zeros((0, 3)),) * 4)
     labels = np.full(len(samples), -1)
-    label_of = {}
-    fixations = []
-    for n, done in enumerate(finished):
+    label_of: dict[int, int] = {}          # live's fixation index -> its label here (fixations with lines)
+    fixations: list[Fixation] = []
+    for done, tg in published:
+        if not done.lines:                 # its samples were all shed or left out: a fixation of no line
+            continue
+        n = len(fixations)
         idx = np.searchsorted(samples.t_s, [s.t_s for s in done.lines]).astype(int)
         labels[idx] = n
         label_of[done.fixation] = n
-        tg = published[n][1]
         moving = tg is not None and tg.moving
         fixations.append(Fixation(n, idx, None if moving else done.estimate, MOVING if moving else STATIC,
                                   tg.trajectory if moving else None))
@@ -134,7 +138,7 @@ def _result(samples: BinocularSamples | None, finished: list, published: list, r
     for done, tg in published:
         if tg is not None:
             latest[tg.index] = tg
-            merged.setdefault(tg.index, []).append(label_of[done.fixation])
+            merged.setdefault(tg.index, []).extend([label_of[done.fixation]] if done.fixation in label_of else [])
     targets, tlabels = [], np.full(len(samples), -1)
     for i in sorted(latest):
         idx = np.flatnonzero(np.isin(labels, merged[i]))
