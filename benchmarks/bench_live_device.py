@@ -148,6 +148,46 @@ def process_distance(rec: Path, out: Path) -> list[float]:
                 default=float("inf")) for m in live_targets(rec).values()]
 
 
+def _cpu_s(stat_path: str) -> float | None:
+    """utime + stime, s, of a /proc stat file (None: gone)."""
+    try:
+        rest = Path(stat_path).read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(rest[11]) + int(rest[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class CpuWatch(threading.Thread):
+    """Each thread's CPU time in this process (by name) and the tracking process's, read from
+    /proc every 0.25 s until ``stop`` (the session's threads end inside ``run``: the last reading
+    of each is kept)."""
+
+    def __init__(self, live):
+        super().__init__(daemon=True)
+        self.live, self.cpu, self.done = live, {}, threading.Event()
+        self.start_cpu = self._threads()            # the threads already running (the loop's): from now on
+
+    def _threads(self) -> dict:
+        return {th.name: c for th in threading.enumerate()
+                if th.native_id and (c := _cpu_s(f"/proc/self/task/{th.native_id}/stat")) is not None}
+
+    def run(self):
+        while not self.done.wait(0.25):
+            for th in threading.enumerate():
+                c = _cpu_s(f"/proc/self/task/{th.native_id}/stat") if th.native_id and th is not self else None
+                if c is not None:
+                    self.cpu[th.name] = c
+            remote = getattr(self.live.tracker, "remote", None)
+            if remote is not None and (c := _cpu_s(f"/proc/{remote.proc.pid}/stat")) is not None:
+                self.cpu["tracking process"] = c
+
+    def stop(self) -> dict:
+        """CPU time, s, of each thread (by name) and of the tracking process since ``__init__``."""
+        self.done.set()
+        self.join()
+        return {k: v - self.start_cpu.get(k, 0.0) for k, v in self.cpu.items()}
+
+
 def run_device(root: Path, tmp: Path, args, subscriber: str, listener_cls) -> dict:
     """One live run against the emulator; prints its figures and returns them."""
     port = free_port()
@@ -158,10 +198,13 @@ def run_device(root: Path, tmp: Path, args, subscriber: str, listener_cls) -> di
                                      root / "markers.json", record=rec, stdout=False,
                                      publish=listener.url if listener else None)
     load0, cpu0, wall0 = load(), resource.getrusage(resource.RUSAGE_SELF), time.monotonic()
+    watch = CpuWatch(live)
+    watch.start()
     try:
         st = live.run(duration_s=args.seconds + 1.5)
     finally:
         cpu1, wall1, load1 = resource.getrusage(resource.RUSAGE_SELF), time.monotonic(), load()
+        threads = watch.stop()
         link.close()
         emu.terminate()
         emu.wait(10)
@@ -179,6 +222,11 @@ def run_device(root: Path, tmp: Path, args, subscriber: str, listener_cls) -> di
     tr = live.reader.transport
     print(f"  of which device sample time -> received by the gaze reader (the emulator's lateness and the "
           f"network): p50 {tr.percentile(50):.1f} ms, p95 {tr.percentile(95):.1f} ms, max {tr.percentile(100):.1f} ms")
+    tk = st.taken
+    print(f"  device sample time -> taken by the loop (transport and the wait for the loop): p50 "
+          f"{tk.percentile(50):.1f} ms, p95 {tk.percentile(95):.1f} ms, p99 {tk.percentile(99):.1f} ms")
+    print("  CPU time over the run, s: " + ", ".join(f"{k} {v:.1f}" for k, v in sorted(threads.items(),
+                                                                                     key=lambda kv: -kv[1])))
     print(f"  CPU time per published estimate in the loop's thread (pose, estimate, publish): p50 "
           f"{c.percentile(50):.2f} ms, p95 {c.percentile(95):.2f} ms, p99 {c.percentile(99):.2f} ms; this process: "
           f"{cpu_s:.1f} s CPU over {wall1 - wall0:.1f} s ({100 * cpu_s / (wall1 - wall0):.0f} % of its core)")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -132,11 +133,18 @@ def failed(method: str, status: Status, reason: str, n_samples: int, n_lines: in
     return GazeEstimate(method, status, None, None, n_samples, n_lines, reason, info or {})
 
 
+@functools.lru_cache(maxsize=16)
+def _chi2_3(probability: float) -> float:
+    """The chi-square quantile at ``probability`` for 3 degrees of freedom (scipy's ``ppf`` takes
+    about 0.3 ms a call: the live loop asks once a sample for the same few probabilities)."""
+    return float(chi2.ppf(probability, df=3))
+
+
 def covariance_ellipsoid(center_mm: ArrayLike, covariance_mm2: ArrayLike, probability: float = 0.95) -> Ellipsoid:
     """Ellipsoid holding ``probability`` of ``N(center, covariance)`` (3 degrees of freedom)."""
     C = np.asarray(covariance_mm2, dtype=np.float64)
     w, V = np.linalg.eigh(0.5 * (C + C.T))
-    k2 = chi2.ppf(probability, df=3)
+    k2 = _chi2_3(float(probability))
     return Ellipsoid(np.asarray(center_mm, float), np.sqrt(np.clip(w, 0, None) * k2), V, probability)
 
 

@@ -60,9 +60,18 @@ RAY_HEADER = ",".join(RAY_COLUMNS) + "\n"
 def ray_csv_line(t: float, left, left_valid: bool, right, right_valid: bool) -> str:
     """One ``eye_rays.csv`` row, newline included: ``t`` s; ``left``, ``right`` (6,) each eye's
     centre (mm) then direction, head frame (an invalid eye's cells are written empty)."""
-    lo, ro = np.asarray(left, float).reshape(1, 6), np.asarray(right, float).reshape(1, 6)
-    cols = ray_columns([t], lo[:, :3], lo[:, 3:], [left_valid], ro[:, :3], ro[:, 3:], [right_valid])
-    return ",".join(c[0] for c in _cells(cols, RAY_FORMATS)) + "\n"
+    return ray_csv_lines([t], [left], [left_valid], [right], [right_valid])
+
+
+def ray_csv_lines(t, left, left_valid, right, right_valid) -> str:
+    """``eye_rays.csv`` rows, each with its newline, converted in one batch (the live recorder's,
+    once a flush period, not once a sample): ``t`` (n,) s; ``left``, ``right`` n (6,) each eye's
+    centre (mm) then direction, head frame; ``left_valid``, ``right_valid`` (n,) bool."""
+    if not len(t):
+        return ""
+    lo, ro = np.asarray(left, float).reshape(-1, 6), np.asarray(right, float).reshape(-1, 6)
+    cols = _cells(ray_columns(t, lo[:, :3], lo[:, 3:], left_valid, ro[:, :3], ro[:, 3:], right_valid), RAY_FORMATS)
+    return "".join(",".join(row) + "\n" for row in zip(*cols, strict=True))
 
 
 class EyeRaysWriter(TableWriter):

@@ -46,8 +46,18 @@ def pose_columns(t, frames, T_world_from_cam) -> dict:
 def pose_csv_line(t: float, frame: int, T_world_from_cam) -> str:
     """One pose CSV row, newline included: time ``t`` s, ``frame``, the pose (4, 4) mm (None or
     NaN: no pose, its cells empty)."""
-    T = np.full((4, 4), np.nan) if T_world_from_cam is None else T_world_from_cam
-    return ",".join(c[0] for c in _cells(pose_columns([t], [frame], T), POSE_FORMATS)) + "\n"
+    return pose_csv_lines([t], [frame], [T_world_from_cam])
+
+
+def pose_csv_lines(t, frames, T_world_from_cam) -> str:
+    """Pose CSV rows, each with its newline, converted in one batch (the live recorder's, once a
+    flush period, not once an eye sample): times ``t`` (N,) s, ``frames`` (N,), poses (4, 4) mm,
+    a sequence of N (None or NaN: no pose, its cells empty)."""
+    if not len(t):
+        return ""
+    T = np.stack([np.full((4, 4), np.nan) if x is None else np.asarray(x, float) for x in T_world_from_cam])
+    cols = _cells(pose_columns(t, frames, T), POSE_FORMATS)
+    return "".join(",".join(row) + "\n" for row in zip(*cols, strict=True))
 
 
 def write_poses_csv(path, t, frames, T_world_from_cam, extra: dict | None = None) -> None:

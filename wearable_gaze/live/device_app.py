@@ -1,7 +1,7 @@
 """The live session from a networked eye tracker (``live --device``, docs/live.md, "Devices"):
 the device's eye rays and scene frames into the same loop, head tracking, estimation, publishing
 and recording as the serial input (``app``). The device calibrated the eyes: its rays (head
-frame) are the view lines (``pupil_core_in.RayEyes``), so no eyes.json is read; the recording
+frame) are the view lines (``estimation.RayEyes``), so no eyes.json is read; the recording
 holds them as ``eye_rays.csv``, which ``process`` reads as an imported session's."""
 
 from __future__ import annotations
@@ -15,11 +15,10 @@ from ..formats.markermap import load_marker_map
 from . import pupil_core_in
 from .allocator import bound_heap
 from .app import run_session
-from .estimation import GazeEstimation, warm_up
+from .estimation import GazeEstimation, RayEyes, warm_up
 from .head import MAX_WAIT_S, HeadTracker, TrackingThread
 from .loop import LiveSession
 from .publish import Publisher
-from .pupil_core_in import RayEyes
 from .record import Recorder
 from .stats import LiveStats
 from .track_process import RemoteTracker

@@ -8,6 +8,8 @@ import queue
 import threading
 import time
 
+from .sched import GAZE_SLICE_S, set_thread_slice
+
 log = logging.getLogger(__name__)
 
 
@@ -28,6 +30,7 @@ class InputThread(threading.Thread):
         self.stop_event.set()
 
     def run(self):
+        set_thread_slice(GAZE_SLICE_S)           # taken as soon as data arrive (sched.py)
         try:
             self._run()
         except Exception as exc:  # the live loop reports it and ends the session

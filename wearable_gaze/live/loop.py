@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import sys
 import threading
 import time
 from collections import deque
@@ -16,6 +17,7 @@ from ..errors import UserError
 from .allocator import bound_heap, release_free_memory
 from .head import TrackingThread
 from .messages import estimate_message, target_message
+from .sched import GAZE_SLICE_S, set_thread_slice, thread_slice_s
 from .stats import LiveStats
 
 log = logging.getLogger(__name__)
@@ -26,6 +28,12 @@ SHED_AFTER_S = 0.1
 when the loop takes it is not estimated (``LiveStats.shed``, still recorded; no pose in
 ``live_poses.csv``, so ``process`` skips it too): on a core too busy for 200 Hz the backlog, and
 with it the latency, stays bounded instead of growing (seconds, on the 2-core machine at load 20)."""
+SWITCH_INTERVAL_S = 0.0005
+"""The interpreter's thread switch interval during a session (Python's default is 5 ms): a thread
+that wants the interpreter's lock while another computes (the target worker's motion and merge
+tests, the frame reader, the recorder) waits up to this long for it, and the loop's thread waits
+for it several times a sample (each queue, lock and socket call releases it). At 5 ms the samples
+that came while another thread computed waited up to 10-50 ms (docs/live.md, Latency)."""
 
 
 class TargetWorker(threading.Thread):
@@ -162,6 +170,16 @@ class LiveSession:
         """
         bound_heap()                                 # sessions one after another stay flat (allocator.py)
         release_free_memory()
+        switch, slice_s = sys.getswitchinterval(), thread_slice_s()
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        set_thread_slice(GAZE_SLICE_S)               # this thread runs the loop (sched.py)
+        try:
+            return self._run(duration_s)
+        finally:
+            sys.setswitchinterval(switch)
+            set_thread_slice(slice_s)
+
+    def _run(self, duration_s: float | None) -> LiveStats:
         self.reader.start()
         self.reader.connected.wait(5.0)
         if self.reader.error and self.reader.error.startswith("cannot open"):
@@ -281,7 +299,9 @@ class LiveSession:
             return False
         while item is not None:
             self.last_arrival = item[0]
-            if time.monotonic() - item[0] > SHED_AFTER_S:
+            late = time.monotonic() - item[0]
+            self.stats.taken.add(late * 1000)
+            if late > SHED_AFTER_S:
                 self.stats.samples += 1
                 self.stats.shed += 1
                 if self.recorder is not None:

@@ -30,7 +30,6 @@ import numpy as np
 import zmq
 
 from calibration.images import to_grey
-from estimator import ViewLines
 
 from ..errors import UserError
 from ..formats.devices.pupil_net import (
@@ -81,17 +80,6 @@ def parse_device_url(url: str) -> tuple[str, int, str]:
         raise UserError(f"--device {url}: expected pupil-core://HOST:PORT (Pupil Remote's address, shown in "
                         f"Capture's Pupil Remote menu; port {DEFAULT_PORT} by default), optionally ?frames=jpeg")
     return u.hostname, port, fmt
-
-
-class RayEyes:
-    """The eye 'calibration' of a device that gives view lines itself: ``lines`` of raw readings
-    (N, 6) (centre mm, unit direction; head frame) are those lines (the live estimation calls
-    ``eyes[e].lines`` as it does an ``EyeCalibration``'s)."""
-
-    @staticmethod
-    def lines(raw) -> ViewLines:
-        raw = np.asarray(raw, float).reshape(-1, 6)
-        return ViewLines(raw[:, :3].copy(), raw[:, 3:].copy(), frame="cam")
 
 
 @dataclass

@@ -17,10 +17,10 @@ import threading
 from pathlib import Path
 
 from ..errors import UserError
-from ..formats.eye_rays import RAY_HEADER, ray_csv_line
+from ..formats.eye_rays import RAY_HEADER, ray_csv_lines
 from ..formats.eye_samples import EYE_HEADER, eye_csv_line
 from ..formats.markermap import marker_map_dict, write_marker_map
-from ..formats.poses import POSE_HEADER, pose_csv_line
+from ..formats.poses import POSE_HEADER, pose_csv_lines
 from ..formats.session import FORMAT, VERSION, write_manifest
 from ..formats.video import FRAME_TIME_HEADER, frame_time_line, open_video_writer
 
@@ -93,6 +93,8 @@ class Recorder:
         self.poses = open(self.root / DEVICE_FILES["live_poses"] if device is not None else os.devnull, "w",
                           encoding="utf-8", buffering=_BUFFER)
         self.poses.write(POSE_HEADER)
+        self.pose_rows: list = []        # (t, row, pose) of the sample poses since the last flush
+        self.ray_rows: list = []         # (t, left, left valid, right, right valid) of a device's rays, likewise
         self.n_frames = self.n_eye = self.n_messages = self.n_poses = 0
         self.lock = threading.Lock()
         self.frames_flushed = 0          # frames whose timestamp rows have been flushed: the video may hold these
@@ -115,14 +117,17 @@ class Recorder:
                 self.raw.write(data)
 
     def eye_sample(self, t: float, rec) -> None:
-        """One intact record at session time ``t``, s."""
+        """One intact record at session time ``t``, s. A device's rays are kept and written by the
+        next flush, the period's rows converted in one batch (one by one they cost its reader
+        about 0.3 ms a sample at 200 Hz)."""
         if self.device is None:
             line = eye_csv_line(t, rec.counter, rec.left, rec.right, rec.left_valid, rec.right_valid)
-        else:
-            line = ray_csv_line(t, rec.left, rec.left_valid, rec.right, rec.right_valid)
         with self.lock:
             if not self.closed:
-                self.eye.write(line)
+                if self.device is None:
+                    self.eye.write(line)
+                else:
+                    self.ray_rows.append((t, rec.left, rec.left_valid, rec.right, rec.right_valid))
                 self.n_eye += 1
 
     def frame(self, t: float, index: int, grey) -> None:
@@ -138,11 +143,11 @@ class Recorder:
 
     def sample_pose(self, t: float, T_world_from_cam) -> None:
         """The head pose (4, 4) mm the session gave its eye sample at session time ``t``, s (None:
-        it had none); written to ``live_poses.csv``."""
-        line = pose_csv_line(t, self.n_poses, T_world_from_cam)
+        it had none); kept, and written to ``live_poses.csv`` by the next flush, all the period's
+        rows converted in one batch (one by one they cost the loop about 0.3 ms a sample)."""
         with self.lock:
             if not self.closed:
-                self.poses.write(line)
+                self.pose_rows.append((t, self.n_poses, T_world_from_cam))
                 self.n_poses += 1
 
     def message(self, line: bytes) -> None:
@@ -177,6 +182,15 @@ class Recorder:
         with self.lock:
             if self.closed:
                 return
+            rows, self.pose_rows = self.pose_rows, []
+            rays, self.ray_rows = self.ray_rows, []
+        text = pose_csv_lines(*zip(*rows, strict=True)) if rows else ""      # outside the lock: the loop goes on
+        ray_text = ray_csv_lines(*zip(*rays, strict=True)) if rays else ""
+        with self.lock:
+            if self.closed:
+                return
+            self.poses.write(text)
+            self.eye.write(ray_text)
             for fh in (self.ts, self.eye, self.raw, self.messages, self.poses):
                 fh.flush()
             self.frames_flushed = self.n_frames

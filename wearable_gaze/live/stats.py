@@ -65,6 +65,8 @@ class LiveStats:
     latency_all: LatencyHistogram = field(default_factory=LatencyHistogram)   # the whole run
     sample_cpu: LatencyHistogram = field(default_factory=LatencyHistogram)    # CPU time of each published
     #                               estimate's sample in the loop's thread (pose, estimate, publish), ms
+    taken: LatencyHistogram = field(default_factory=LatencyHistogram)         # each sample's time (a device's
+    #                               sample time, the serial reader's arrival) to the loop taking it, ms
 
     def add_latency(self, ms: float) -> None:
         """One published estimate's latency, ms (arrival of its sample to its message)."""

@@ -179,8 +179,10 @@ class SessionCache:
     def targets_inputs(self, prior, error_model, depth: str | None) -> TargetsInputs:
         samples = read_viewlines_csv(self.raw_viewlines)[0].samples
         device_gaze = self.files.device_gaze
+        live = self.files.live_poses
         return TargetsInputs(samples, prior, error_model, depth, self.out, device_gaze,
-                             self.poses if device_gaze is not None else None)
+                             self.poses if device_gaze is not None else None, live,
+                             self.eye_rays if live is not None else None)
 
     def export_inputs(self, with_camera: bool) -> ExportInputs:
         """``with_camera``: the 2D gaze too (the camera is calibrated)."""

@@ -45,6 +45,7 @@ from .device import device_comparison, device_poses, still_head_poses
 from .errorbudget import BiasPrior, session_bias, with_bias
 from .export import export_files, write_fixations_step
 from .fixations import find_targets, write_targets_step
+from .live_replay import replay_recording
 from .mapping import build_map_files
 from .report import OverlayInputs, ReportTruth, write_report
 from .segmentation import segment_view_lines
@@ -205,7 +206,9 @@ class TargetsInputs:
     """The unsegmented view lines (``samples``, time order), the session's gaze-bias ``prior``
     and ``error_model`` (the poses' error, before the bias is sized from the lines), the
     depth assumption written beside the targets (``errorbudget.depth_assumption``), and the
-    output folder. A device's own gaze (``device_gaze``) is compared with the head ``poses``."""
+    output folder. A device's own gaze (``device_gaze``) is compared with the head ``poses``.
+    A live ``--device`` recording's ``live_poses.csv`` (``live_poses``) with its head-frame
+    ``eye_rays``: the targets live published, re-run (``live_replay``)."""
 
     samples: BinocularSamples
     prior: BiasPrior
@@ -214,6 +217,8 @@ class TargetsInputs:
     out: Path
     device_gaze: Path | None = None
     poses: Poses | None = None
+    live_poses: Path | None = None
+    eye_rays: BinocularSamples | None = None
 
 
 def run_targets(conf: TargetsConfig, inputs: TargetsInputs, progress=None) -> TargetsResult:
@@ -221,10 +226,15 @@ def run_targets(conf: TargetsConfig, inputs: TargetsInputs, progress=None) -> Ta
     estimated (``fixations.find_targets``); writes the view lines with their segments, the
     targets, estimates and fixations tables (and device_comparison.csv)."""
     samples, out = inputs.samples, inputs.out
-    labels = segment_view_lines(samples, conf.segment)
-    budget = session_bias(inputs.prior, seen_bias(samples, labels))     # sized from the lines
-    result = find_targets(samples, labels, conf.method, conf.sigma_deg, progress,
-                          with_bias(inputs.error_model, budget))
+    budget: dict | None = None
+    if inputs.live_poses is not None:      # a live recording: the targets live published
+        rays = cast(BinocularSamples, inputs.eye_rays)
+        result = replay_recording(rays, inputs.live_poses, conf.method)
+    else:
+        labels = segment_view_lines(samples, conf.segment)
+        budget = session_bias(inputs.prior, seen_bias(samples, labels))     # sized from the lines
+        result = find_targets(samples, labels, conf.method, conf.sigma_deg, progress,
+                              with_bias(inputs.error_model, budget))
     write_targets_step(out, result, conf.method, budget, inputs.depth_assumption)
     write_fixations_step(out, result)
     if inputs.device_gaze is not None:
