@@ -338,7 +338,8 @@ def _recording_steps(f: _SessionFiles, out: Path, steps: Steps, res: ProcessResu
             device_comparison(f.device_gaze, samples, result.targets, vals["poses"], out / "device_comparison.csv")
         vals.set("targets", result.targets)
     params = {"method": cfg.method, "sigma": cfg.sigma_deg, "seg": cfg.segment_config.__dict__,
-              "error_model": dataclasses.asdict(base), "bias_prior": dataclasses.asdict(prior), "bias": "seen"}
+              "error_model": dataclasses.asdict(base), "bias_prior": dataclasses.asdict(prior), "bias": "seen"} | (
+                  {"replay": "live"} if f.live_poses is not None else {})     # a folder processed before is redone
     if steps.run("targets", [raw_vl], params, do_targets):
         res.found = vals["targets"]
         if not any(t.fixated for t in res.found):        # a too-near point is no target (target_status.FIXATED)
