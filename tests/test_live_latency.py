@@ -6,12 +6,14 @@ import sys
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 from test_live_parts import _eye_items, _FakeEstimation, _loop, _pose
 
 from estimator._checks import check_transform
 from estimator.result import covariance_ellipsoid
 from tracking.markermap import MarkerMap
+from tracking.timeline import interpolate_poses, pose_between
 from wearable_gaze.formats.devices.pupil_net import RaySample
 from wearable_gaze.formats.eye_rays import ray_csv_line, ray_csv_lines, read_eye_rays
 from wearable_gaze.formats.poses import pose_csv_line, pose_csv_lines, read_poses_csv
@@ -153,3 +155,18 @@ def test_the_gaze_paths_threads_ask_for_short_time_slices_and_the_caller_gets_it
     session.run(duration_s=1.0)
     assert seen["reader"] == pytest.approx(GAZE_SLICE_S) and seen["loop"] == pytest.approx(GAZE_SLICE_S)
     assert GAZE_SLICE_S < before and thread_slice_s() == pytest.approx(before)
+
+
+def test_the_pose_between_two_frames_is_interpolate_poses_answer():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        Ta, Tb = np.eye(4), np.eye(4)                   # any two rotations 0-30 deg apart, any translations
+        Ta[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        Tb[:3, :3] = Rotation.from_rotvec(rng.normal(size=3) * 0.25).as_matrix() @ Ta[:3, :3]
+        Ta[:3, 3], Tb[:3, 3] = rng.uniform(-300, 300, 3), rng.uniform(-300, 300, 3)
+        ta, tb = 1.0, 1.0 + rng.uniform(0.01, 0.2)
+        for t in (ta, ta + 0.3 * (tb - ta), tb - 1e-6):
+            want, ok = interpolate_poses([ta, tb], np.stack([Ta, Tb]), [t], max_gap_s=0.2)
+            assert ok[0] and np.allclose(pose_between(ta, Ta, tb, Tb, t), want[0], atol=1e-9)
+    with pytest.raises(ValueError, match="between"):
+        pose_between(1.0, Ta, 1.1, Tb, 1.2)

@@ -122,6 +122,19 @@ def extrapolate_pose(t_a: float, T_a: ArrayLike, t_b: float, T_b: ArrayLike, t: 
     return out
 
 
+def pose_between(t_a: float, T_a: ArrayLike, t_b: float, T_b: ArrayLike, t: float) -> np.ndarray:
+    """``T_world_from_cam`` (4, 4) at ``t_a <= t <= t_b`` (s) between two poses: SLERP for the
+    rotation, linear for the translation, ``interpolate_poses``'s answer for one time between two
+    poses without its set-up (about a quarter of its cost: the live loop asks once a sample). It
+    is ``extrapolate_pose``'s constant-velocity path read between its two ends.
+    """
+    if not t_a <= t <= t_b:
+        raise ValueError(f"t must lie between t_a and t_b, got {t} not in [{t_a}, {t_b}]")
+    if t_b == t_a:
+        return check_array(T_b, "T_b", (4, 4)).copy()
+    return extrapolate_pose(t_a, T_a, t_b, T_b, t)
+
+
 SPIKE_MM = 50.0
 """A tracked pose farther than this from the line between its neighbours' poses is a spike (mm):
 a head accelerating at 10 m/s^2 leaves that line by 6 mm over two frames at 30 fps (1/15 s)."""

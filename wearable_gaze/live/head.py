@@ -15,7 +15,7 @@ import numpy as np
 
 from tracking.markers import MarkerDetector
 from tracking.pose import MarkerPoseEstimator
-from tracking.timeline import extrapolate_pose, interpolate_poses
+from tracking.timeline import extrapolate_pose, pose_between
 
 log = logging.getLogger(__name__)
 
@@ -107,8 +107,7 @@ class HeadTracker:
                 tb, Tb = poses[k + 1]
                 if tb - ta > MAX_GAP_S:
                     return None
-                T, ok = interpolate_poses([ta, tb], np.stack([Ta, Tb]), [t_s], max_gap_s=MAX_GAP_S)
-                return T[0] if ok[0] else None
+                return pose_between(ta, Ta, tb, Tb, t_s)     # SLERP, as interpolate_poses
         return None
 
 

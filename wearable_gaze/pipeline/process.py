@@ -308,7 +308,7 @@ def _targets_step(steps: Steps, cache: SessionCache, conf: ProcessConfig,
     tconf = conf.targets_conf()
     params = {"method": tconf.method, "sigma": tconf.sigma_deg, "seg": tconf.segment.__dict__,
               "error_model": dataclasses.asdict(base), "bias_prior": dataclasses.asdict(prior),
-              "bias": "seen"}
+              "bias": "seen", **({"replay": "live"} if f.live_poses is not None else {})}
     inputs = partial(cache.targets_inputs, prior, base, depth_assumption(rep, f.pose_source))
     if not steps.run("targets", [cache.raw_viewlines], params, run_targets, tconf, inputs):
         return
