@@ -267,3 +267,31 @@ def test_a_targets_distance_is_from_where_it_was_looked_at():
     assert abs(d.distance_m(seen) - np.median(np.hypot(250.0 - x[x < 500], 2000.0)) / 1000) < 1e-12
     unseen = SimpleNamespace(index=1, position_mm=np.array([5000.0, 0.0, 2000.0]))
     assert abs(d.distance_m(unseen) - 2.0) < 1e-12
+
+
+def test_the_3d_and_top_views_of_54_targets_number_them_and_keep_their_layout(tmp_path):
+    """A real G2 recording (gazeMapper example 2) gives 54 targets: a legend naming each was taller
+    than the axes and matplotlib's constrained layout collapsed them (a warning, a 3D view with no
+    room). Beyond ``MAX_LEGEND_TARGETS`` each target is numbered beside it and the legend says
+    what the marks are; no layout warning."""
+    import warnings
+
+    from test_regions import _data, _record
+
+    from wearable_gaze.pipeline import report, report_plots
+
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-1500, 1500, 54), rng.uniform(-500, 500, 54), rng.uniform(800, 4000, 54)])
+    d = _data([_record(k, p) for k, p in enumerate(pts)])
+    assert report_plots._numbered(d) and not report_plots._numbered(_data([_record(0, pts[0])]))
+    for make, name in ((report_plots.figure_3d, "3d.png"), (report_plots.figure_top, "top.png")):
+        fig = make(d, report.colour)
+        ax = fig.axes[0]
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert len(legend) <= 6 and any("54 targets" in t for t in legend), legend
+        numbers = {t.get_text().strip() for t in ax.texts}
+        assert {str(k) for k in range(54)} <= numbers
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            report_plots._save(fig, tmp_path / name)
+        assert (tmp_path / name).stat().st_size > 0
