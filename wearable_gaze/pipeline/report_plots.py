@@ -214,7 +214,7 @@ def figure_3d(d, colour):
     (a moving one as its path) with their credible regions, the truth; equal scales on the three
     axes (x, z, up: -y), which hold the head path and the targets (``ReportData.box``). Lines
     drawn many at a time are one collection each (one artist per line cost a millisecond a line)."""
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # type: ignore[import-untyped]
 
     plt = _plt()
     fig = plt.figure(figsize=(7, 6), layout="constrained")
