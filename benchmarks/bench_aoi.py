@@ -66,12 +66,14 @@ def truth_measures(session: Path) -> dict:
 def why(session: Path, fx: dict, name: str, k: int, lost: dict) -> str:
     """Where an area's dwell differs from the truth's (``fx``: aoi_fixations.csv): per assigned
     fixation, its start after the first true fixation of target ``k`` it overlaps and its end
-    before the last one's (mean, s), the blinks between those true fixations it spans (which
+    (its last sample's time plus one sample interval, as the truth's runs end) before the last
+    one's (mean, s), the blinks between those true fixations it spans (which
     neither the truth nor its duration counts); the true fixations no assigned one overlaps; the
     assigned time over no true fixation; the least assignment probability. Adds to ``lost``
     the time the fixations' late starts and early ends lose (``edges``) and the missed true
     fixations' (``missed``), s."""
-    runs = [(a, b) for j, a, b in truth_runs(session)[0] if j == k]
+    every, dt = truth_runs(session)
+    runs = [(a, b) for j, a, b in every if j == k]
     mine = [(a, b, p) for a, b, area, p in zip(fx["start_s"], fx["end_s"], fx["aoi"], fx[f"p_{name}"], strict=True)
             if area == name]
     lag, early, bridged, extra = [], [], 0.0, 0.0
@@ -81,7 +83,7 @@ def why(session: Path, fx: dict, name: str, k: int, lost: dict) -> str:
             extra += e - s
             continue
         lag.append(s - over[0][0])
-        early.append(over[-1][1] - e)
+        early.append(over[-1][1] - (e + dt))
         bridged += sum(a2 - b1 for (_, b1), (a2, _) in zip(over, over[1:], strict=False))
     missed = [b - a for a, b in runs if not any(s < b and e > a for s, e, _ in mine)]
     lost["edges"] = lost.get("edges", 0.0) + sum(lag) + sum(early)
