@@ -21,7 +21,8 @@ measures*, ch. 6 "areas of interest"):
   or to none, ends it); revisits: visits after the first;
 - time to first fixation: the start of the first assigned fixation, from the session's first
   sample; its duration: that fixation's;
-- share: dwell time over the session's length (first to last sample);
+- share: dwell time over the session's length (the time its samples stand for, as a fixation's:
+  first to last sample plus one sample interval);
 - transitions: from one visit to the next one of another area (counts), and, weighted, the sum over
   consecutive fixations of the probability of the one area times that of the other.
 """
@@ -109,7 +110,8 @@ class FixationGaze:
 
 @dataclass(frozen=True)
 class AoiInputs:
-    """The areas, the fixations in time order, and the session's first and last sample time, s."""
+    """The areas, the fixations in time order, and the session's start and end, s: its first
+    sample's time and its last's plus one sample interval (as a fixation's duration counts)."""
 
     areas: tuple
     fixations: tuple
@@ -404,7 +406,9 @@ def aoi_step(processed, specs, out=None, markers=None, conf: AoiConfig = AoiConf
     t = np.concatenate([s.samples.t_s for s in segments])
     fixations = fixation_gaze(read_fixations_csv(processed / "fixations.csv"), segments,
                               read_targets(processed / "targets.json"))
-    res = run(conf, AoiInputs(areas, fixations, float(t.min()), float(t.max())))
+    interval = sample_interval_s(segments)
+    end = float(t.max()) + (interval if np.isfinite(interval) else 0.0)
+    res = run(conf, AoiInputs(areas, fixations, float(t.min()), end))
     out.mkdir(parents=True, exist_ok=True)
     names = [res.names[a] if a >= 0 else NONE for a in res.assigned]
     write_aoi_fixations(out / "aoi_fixations.csv", {
