@@ -46,6 +46,10 @@ FAR_MM = 1e9
 DEPTH_TOLERANCE_MM = 50.0
 """How far in front of a surface a point may lie and still be on it, mm (a marker board's or a
 poster's thickness, and the depth at which a point in front is something else)."""
+MAX_GAP_S = 0.075
+"""The longest gap between a fixation's samples that is fixation time, s: longer ones (a blink,
+lost tracking) are not. Tobii's I-VT filter fills gaps up to 75 ms by default and splits a fixation
+at a longer one (Olsen 2012, *The Tobii I-VT Fixation Filter*, sec. 3.1.1)."""
 
 
 @dataclass(frozen=True)
@@ -118,6 +122,25 @@ class GazeSpread:
         if self.near_mm > 0:
             depth = np.maximum(depth, self.near_mm)
         return self.origin_mm + depth[:, None] * dirs
+
+
+def fixation_duration_s(t_s: ArrayLike, interval_s: float, max_gap_s: float = MAX_GAP_S) -> float:
+    """The time a fixation's samples stand for, s (docs/aois.md, "The measures"): each sample one
+    sample interval, from half an interval before the first to half an interval after the last
+    (Tobii Pro's convention: a one-sample fixation lasts one interval), a gap between consecutive
+    samples counted whole up to ``max_gap_s`` and as one interval beyond it (a blink is not
+    fixation time).
+
+    Args:
+        t_s: (N,) the fixation's sample times, s (any order; N = 0 gives 0).
+        interval_s: the sample interval, s.
+        max_gap_s: the longest gap counted whole, s.
+    """
+    t = np.sort(np.asarray(t_s, float).ravel())
+    if not len(t):
+        return 0.0
+    gaps = np.diff(t)
+    return float(interval_s + np.sum(np.where(gaps <= max_gap_s, gaps, interval_s)))
 
 
 def _rays(origin_mm, pts_world) -> tuple[np.ndarray, np.ndarray]:

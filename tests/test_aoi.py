@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial import ConvexHull
 from scipy.stats import norm
 
-from estimator.aoi import Box, GazeSpread, Mesh, Polygon, Sphere, probabilities
+from estimator.aoi import Box, GazeSpread, Mesh, Polygon, Sphere, fixation_duration_s, probabilities
 from wearable_gaze.errors import UserError
 from wearable_gaze.formats.aoi_tables import read_aoi_fixations, read_aoi_metrics, read_aoi_transitions
 from wearable_gaze.formats.aois import read_aois, write_aois
@@ -277,6 +277,42 @@ def test_a_direction_only_target_gives_its_fixations_its_cone_over_its_interval(
     depth = np.linalg.norm(pts, axis=1)
     assert depth.min() >= 1000.0 - 1e-6 and depth.max() <= 4000.0 + 1e-6
     assert np.mean(depth < 2000) == pytest.approx((1 / 1000 - 1 / 2000) / (1 / 1000 - 1 / 4000), abs=0.03)
+
+
+def test_a_fixations_duration_is_one_interval_per_sample_and_leaves_a_blink_out():
+    """Tobii Pro's convention: n samples at interval dt stand for n dt (half an interval either
+    side of the first and last), a gap up to 75 ms is counted whole, a longer one (a blink) not."""
+    dt = 1 / 60
+    t = np.arange(30) * dt
+    assert fixation_duration_s(t, dt) == pytest.approx(30 * dt)
+    assert fixation_duration_s(t[:1], dt) == pytest.approx(dt)
+    assert fixation_duration_s([], dt) == 0.0
+    short = np.delete(t, [10, 11, 12])                       # 0.067 s gap: filled
+    assert fixation_duration_s(short, dt) == pytest.approx(30 * dt)
+    blink = np.concatenate([t, t[-1] + 0.15 + dt + np.arange(20) * dt])   # 0.15 s blink, then 20 more
+    assert fixation_duration_s(blink[::-1], dt) == pytest.approx(50 * dt)
+
+
+def test_the_aoi_steps_fixation_lasts_what_its_view_lines_samples_stand_for():
+    """``fixation_gaze`` takes each fixation's duration from its samples in viewlines.csv at the
+    lines' sample interval (not fixations.csv's first-to-last span), and dwell sums those."""
+    from estimator import BinocularSamples
+    from wearable_gaze.formats.viewlines import Segment
+    from wearable_gaze.pipeline.aoi import fixation_gaze, sample_interval_s
+
+    dt = 0.02
+    t = np.concatenate([np.arange(50) * dt, 1.2 + np.arange(50) * dt])      # a 0.22 s blink after 1 s
+    o, d = np.zeros((100, 3)), np.tile([0.0, 0.0, 1.0], (100, 1))
+    seg = Segment(0, BinocularSamples.from_arrays(t, o, d, o, d), 2)
+    fx = {"fixation_id": np.array([0]), "start_s": np.array([0.0]), "end_s": np.array([t[-1]]),
+          "target_id": np.array([-1]), "x_mm": np.array([0.0]), "y_mm": np.array([0.0]), "z_mm": np.array([2000.0]),
+          **{f"cov_{k}_mm2": np.array([100.0 if k[0] == k[1] else 0.0]) for k in ("xx", "xy", "xz", "yy", "yz", "zz")}}
+    assert sample_interval_s([seg]) == pytest.approx(dt)
+    (f,) = fixation_gaze(fx, [seg])
+    assert f.duration_s == pytest.approx(100 * dt) and f.end_s - f.start_s == pytest.approx(2.18)
+    A = Area("A", None, box([0, 0, 2000], [400, 400, 400]))
+    (m,) = run(AoiConfig(), AoiInputs((A,), (f,), 0.0, 2.18)).metrics
+    assert m["dwell_s"] == pytest.approx(2.0) and m["first_fixation_duration_s"] == pytest.approx(2.0)
 
 
 def test_a_targets_dwell_is_the_sum_of_its_fixations_not_its_span(processed):

@@ -267,3 +267,69 @@ def test_a_targets_distance_is_from_where_it_was_looked_at():
     assert abs(d.distance_m(seen) - np.median(np.hypot(250.0 - x[x < 500], 2000.0)) / 1000) < 1e-12
     unseen = SimpleNamespace(index=1, position_mm=np.array([5000.0, 0.0, 2000.0]))
     assert abs(d.distance_m(unseen) - 2.0) < 1e-12
+
+
+def test_the_3d_and_top_views_of_54_targets_number_them_and_keep_their_layout(tmp_path):
+    """A real G2 recording (gazeMapper example 2) gives 54 targets: a legend naming each was taller
+    than the axes and matplotlib's constrained layout collapsed them (a warning, a 3D view with no
+    room). Beyond ``MAX_LEGEND_TARGETS`` each target is numbered beside it and the legend says
+    what the marks are; no layout warning."""
+    import warnings
+
+    from test_regions import _data, _record
+
+    from wearable_gaze.pipeline import report, report_plots
+
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-1500, 1500, 54), rng.uniform(-500, 500, 54), rng.uniform(800, 4000, 54)])
+    d = _data([_record(k, p) for k, p in enumerate(pts)])
+    assert report_plots._numbered(d) and not report_plots._numbered(_data([_record(0, pts[0])]))
+    for make, name in ((report_plots.figure_3d, "3d.png"), (report_plots.figure_top, "top.png")):
+        fig = make(d, report.colour)
+        ax = fig.axes[0]
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert len(legend) <= 6 and any("54 targets" in t for t in legend), legend
+        numbers = {t.get_text().strip() for t in ax.texts}
+        assert {str(k) for k in range(54)} <= numbers
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report_plots._save(fig, tmp_path / name)
+        assert not [str(w.message) for w in caught if "layout" in str(w.message)]
+        assert (tmp_path / name).stat().st_size > 0
+
+
+def test_the_preview_draws_the_tracking_steps_detections_and_detects_nothing_again(tmp_path, monkeypatch):
+    """Given the tracking step's detections (every other frame, as ``process --track-every 2``
+    detects), the preview shows only those frames, every k-th for at most ``PREVIEW_FPS``, draws
+    their markers where tracking found them (here a marker where the image has none) and runs no
+    detector; without them, as before."""
+    import tracking.markers as markers
+    from tracking.markers import MarkerDetection
+
+    video = tmp_path / "scene.mp4"
+    n = 24
+    wr = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (W, H))
+    for _ in range(n):
+        wr.write(np.full((H, W, 3), 255, np.uint8))                # no marker in the image
+    wr.release()
+    box = np.array([[300.0, 200.0], [420.0, 200.0], [420.0, 320.0], [300.0, 320.0]])
+    dets = {f: [MarkerDetection(3, box)] for f in range(0, n, 2)}
+    assert ov.preview_frames(range(n), 30.0, dets) == (set(range(0, n, 4)), 7.5)
+    assert ov.preview_frames(range(n), 30.0) == (set(range(0, n, 3)), 10.0)
+    assert ov.preview_frames(range(n), 25.0, {f: [] for f in range(0, n, 2)}) == (set(range(0, n, 4)), 6.25)
+
+    def refuse(*a, **k):
+        raise AssertionError("markers detected again")
+    monkeypatch.setattr(markers.MarkerDetector, "detect", refuse)
+    mm = MarkerMap("DICT_4X4_50", 100.0, {3: np.eye(4)}, {})
+    base = _inputs(mm)
+    inp = ov.OverlayInputs(base.camera, base.eyes, base.eye_samples, mm, video, dets)
+    t = np.arange(n) / 30.0
+    names = ov.write_overlays(tmp_path, inp, ov.OverlayTargets([], t, np.full(n, -1)), t, np.arange(n),
+                              np.repeat(np.eye(4)[None], n, axis=0))
+    assert names == (ov.PREVIEW_NAME, None)
+    small = _read_all(tmp_path / ov.PREVIEW_NAME)
+    assert len(small) == n // 4
+    s = ov.PREVIEW_WIDTH / W
+    edge = small[0][int(260 * s) - 3:int(260 * s) + 4, int(300 * s) - 2:int(300 * s) + 3].reshape(-1, 3).astype(int)
+    assert any(g - max(r, b) > 60 for b, g, r in edge), "no green outline where tracking found the marker"

@@ -1,10 +1,11 @@
 """The AOI step's three tables (docs/formats.md, "AOI tables"; docs/aois.md):
 
 - ``aoi_fixations.csv``: one row per fixation, in time order: ``fixation_id``, ``start_s``,
-  ``end_s``, ``duration_s`` (session clock, s), ``target_id`` (-1 none), ``aoi`` (the assigned
-  area's name, ``none`` when no area reaches the assignment level), then ``p_<name>`` for each
-  area in the AOI file's order and ``p_none`` (probabilities; empty where the fixation has no
-  gaze distribution);
+  ``end_s`` (its first and last sample, session clock, s), ``duration_s`` (the time it counts
+  for in the measures, s: one sample interval per sample, a blink inside it left out),
+  ``target_id`` (-1 none), ``aoi`` (the assigned area's name, ``none`` when no area reaches the
+  assignment level), then ``p_<name>`` for each area in the AOI file's order and ``p_none``
+  (probabilities; empty where the fixation has no gaze distribution);
 - ``aoi_metrics.csv``: one row per area: ``aoi``, ``group`` (may be empty), ``dwell_s``,
   ``dwell_weighted_s``, ``visits``, ``revisits``, ``fixations``, ``first_fixation_s`` (time to
   first fixation from the session's first sample; empty if never looked at),
@@ -37,13 +38,14 @@ def _fixation_checks(names) -> Checks:
 
 
 def write_aoi_fixations(path, rows: dict, names) -> None:
-    """``rows``: the columns (``fixation_id``, ``start_s``, ``end_s``, ``target_id``, ``aoi``
-    (names), ``probabilities`` (N, K + 1)) for the areas ``names`` (K,)."""
+    """``rows``: the columns (``fixation_id``, ``start_s``, ``end_s``, ``duration_s`` (optional:
+    ``end_s - start_s`` without it), ``target_id``, ``aoi`` (names), ``probabilities`` (N, K + 1))
+    for the areas ``names`` (K,)."""
     P = np.asarray(rows["probabilities"], float).reshape(-1, len(names) + 1)
     start, end = np.asarray(rows["start_s"], float), np.asarray(rows["end_s"], float)
     cols = {"fixation_id": np.asarray(rows["fixation_id"], int), "start_s": start, "end_s": end,
-            "duration_s": end - start, "target_id": np.asarray(rows["target_id"], int),
-            "aoi": np.asarray(rows["aoi"], object)}
+            "duration_s": np.asarray(rows.get("duration_s", end - start), float),
+            "target_id": np.asarray(rows["target_id"], int), "aoi": np.asarray(rows["aoi"], object)}
     cols |= {f"p_{n}": P[:, j] for j, n in enumerate((*names, "none"))}
     write_table(path, cols, _FMT | {f"p_{n}": ".5f" for n in (*names, "none")}, _fixation_checks(names))
 

@@ -12,13 +12,17 @@ measures*, ch. 6 "areas of interest"):
 - a fixation's probability of an area: the share of its gazed-point distribution the area holds
   (``estimator.aoi.probabilities``); its assigned area: the most probable one, when that
   probability is at least ``AoiConfig.assign_probability``, else none;
-- dwell time: the sum of the durations of the fixations assigned to the area; the weighted dwell
+- a fixation's duration: the time its samples stand for (``estimator.aoi.fixation_duration_s``:
+  one sample interval each, a blink inside it left out), Tobii Pro's convention;
+- dwell time: the sum of the durations of the fixations assigned to the area (Tobii Pro Lab's
+  "total duration of fixations", Pupil Cloud's "total fixation duration"); the weighted dwell
   time: the sum of every fixation's duration times its probability of the area;
 - a visit: a run of consecutive fixations assigned to the area (a fixation assigned elsewhere,
   or to none, ends it); revisits: visits after the first;
 - time to first fixation: the start of the first assigned fixation, from the session's first
   sample; its duration: that fixation's;
-- share: dwell time over the session's length (first to last sample);
+- share: dwell time over the session's length (the time its samples stand for, as a fixation's:
+  first to last sample plus one sample interval);
 - transitions: from one visit to the next one of another area (counts), and, weighted, the sum over
   consecutive fixations of the probability of the one area times that of the other.
 """
@@ -34,7 +38,17 @@ import numpy as np
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-from estimator.aoi import SAMPLES, Box, GazeSpread, Mesh, Polygon, Sphere, plane_normal, probabilities
+from estimator.aoi import (
+    SAMPLES,
+    Box,
+    GazeSpread,
+    Mesh,
+    Polygon,
+    Sphere,
+    fixation_duration_s,
+    plane_normal,
+    probabilities,
+)
 from estimator.frames import tangent_basis
 
 from ..errors import UserError
@@ -75,24 +89,29 @@ class Area:
 
 @dataclass(frozen=True)
 class FixationGaze:
-    """One fixation: ``fixation_id``, ``start_s``, ``end_s`` (session clock, s), the target it
-    was merged into (``target_id``, -1 none) and its gazed point's distribution (``spread``,
-    None when its lines gave neither a point nor a direction)."""
+    """One fixation: ``fixation_id``, ``start_s``, ``end_s`` (its first and last sample, session
+    clock, s), the target it was merged into (``target_id``, -1 none), its gazed point's
+    distribution (``spread``, None when its lines gave neither a point nor a direction) and the
+    time its samples stand for (``time_s``, ``estimator.aoi.fixation_duration_s``; None: not
+    known, ``end_s - start_s`` is taken)."""
 
     fixation_id: int
     start_s: float
     end_s: float
     target_id: int
     spread: GazeSpread | None
+    time_s: float | None = None
 
     @property
     def duration_s(self) -> float:
-        return self.end_s - self.start_s
+        """Its duration in the measures, s: ``time_s``, else first to last sample."""
+        return self.end_s - self.start_s if self.time_s is None else self.time_s
 
 
 @dataclass(frozen=True)
 class AoiInputs:
-    """The areas, the fixations in time order, and the session's first and last sample time, s."""
+    """The areas, the fixations in time order, and the session's start and end, s: its first
+    sample's time and its last's plus one sample interval (as a fixation's duration counts)."""
 
     areas: tuple
     fixations: tuple
@@ -273,20 +292,31 @@ def _grown_hull(corners, margin_mm: float) -> np.ndarray:
     return c0 + np.asarray(grown) @ E.T
 
 
+def sample_interval_s(segments) -> float:
+    """The sample interval of view lines (``segments``: ``read_viewlines_csv``'s), s: the median
+    step between consecutive distinct sample times of them all (NaN with fewer than two)."""
+    t = np.unique(np.concatenate([np.asarray(seg.samples.t_s, float) for seg in segments] or [np.zeros(0)]))
+    return float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+
+
 def fixation_gaze(fixations: dict, segments, targets=()) -> tuple:
     """``FixationGaze`` of each row of fixations.csv (``read_fixations_csv``'s columns), in time
     order, seen from the mean origin of its view lines (``segments``: ``read_viewlines_csv``'s,
-    keyed by fixation id). Its gazed point's spread is its target's (``targets``: targets.json's
+    keyed by fixation id), its duration the time its samples there stand for (at the lines'
+    ``sample_interval_s``). Its gazed point's spread is its target's (``targets``: targets.json's
     records) when it was merged into an ``ok`` target, which pools the lines of every fixation
     the merge test found on that point; else its own estimate's (point and covariance); a
     direction-only target's cone over its depth interval; None when it has none of them."""
-    origins = {}
+    origins, times = {}, {}
+    interval = sample_interval_s(segments)
     for seg in segments:
         if isinstance(seg.key, (int, np.integer)) and seg.key >= 0:
             s = seg.samples
             o = np.vstack([s.left_origin_mm[s.left_valid], s.right_origin_mm[s.right_valid]])
             if len(o):
                 origins[int(seg.key)] = o.mean(axis=0)
+            if len(s.t_s) and np.isfinite(interval):
+                times[int(seg.key)] = fixation_duration_s(s.t_s, interval)
     pooled = {int(t["target"]): (np.asarray(t["position_mm"], float), np.asarray(t["covariance_mm2"], float))
               for t in targets if t["status"] == "ok" and t.get("covariance_mm2") is not None}
     directions = {int(t["target"]): t["direction"] for t in targets
@@ -303,7 +333,8 @@ def fixation_gaze(fixations: dict, segments, targets=()) -> tuple:
             near, far = g["depth95_mm"]
             spread = GazeSpread.direction_only(g["seen_from_mm"], g["unit"], g["cone95_deg"], near,
                                                math.inf if far is None else far)
-        out.append(FixationGaze(fid, float(fixations["start_s"][i]), float(fixations["end_s"][i]), tid, spread))
+        out.append(FixationGaze(fid, float(fixations["start_s"][i]), float(fixations["end_s"][i]), tid, spread,
+                                times.get(fid)))
     return tuple(out)
 
 
@@ -375,12 +406,15 @@ def aoi_step(processed, specs, out=None, markers=None, conf: AoiConfig = AoiConf
     t = np.concatenate([s.samples.t_s for s in segments])
     fixations = fixation_gaze(read_fixations_csv(processed / "fixations.csv"), segments,
                               read_targets(processed / "targets.json"))
-    res = run(conf, AoiInputs(areas, fixations, float(t.min()), float(t.max())))
+    interval = sample_interval_s(segments)
+    end = float(t.max()) + (interval if np.isfinite(interval) else 0.0)
+    res = run(conf, AoiInputs(areas, fixations, float(t.min()), end))
     out.mkdir(parents=True, exist_ok=True)
     names = [res.names[a] if a >= 0 else NONE for a in res.assigned]
     write_aoi_fixations(out / "aoi_fixations.csv", {
         "fixation_id": [f.fixation_id for f in fixations], "start_s": [f.start_s for f in fixations],
-        "end_s": [f.end_s for f in fixations], "target_id": [f.target_id for f in fixations], "aoi": names,
+        "end_s": [f.end_s for f in fixations], "duration_s": [f.duration_s for f in fixations],
+        "target_id": [f.target_id for f in fixations], "aoi": names,
         "probabilities": res.probabilities}, res.names)
     write_aoi_metrics(out / "aoi_metrics.csv", res.metrics)
     write_aoi_transitions(out / "aoi_transitions.csv", res.transitions)
@@ -416,9 +450,9 @@ def plot_timeline(res: AoiResult, fixations: tuple, path: Path) -> None:
     for f, p, a in zip(fixations, res.probabilities, res.assigned, strict=True):
         for j in range(len(rows)):
             if np.isfinite(p[j]) and p[j] > 0.01:
-                ax.barh(j, f.duration_s, left=f.start_s, height=0.7, color="#0067a5", alpha=float(p[j]), lw=0)
+                ax.barh(j, f.end_s - f.start_s, left=f.start_s, height=0.7, color="#0067a5", alpha=float(p[j]), lw=0)
         j = a if a >= 0 else len(rows) - 1
-        ax.barh(j, f.duration_s, left=f.start_s, height=0.7, fill=False, edgecolor="black", lw=0.8)
+        ax.barh(j, f.end_s - f.start_s, left=f.start_s, height=0.7, fill=False, edgecolor="black", lw=0.8)
     ax.set_yticks(range(len(rows)), rows)
     ax.invert_yaxis()
     ax.set_xlabel("session time (s)")

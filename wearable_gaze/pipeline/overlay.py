@@ -76,6 +76,10 @@ class OverlayInputs:
         marker_map: the session's marker map (its dictionary is detected, its ids drawn green),
             or None (no markers drawn).
         video: the scene video file.
+        detections: the tracking step's own marker detections, {frame number: [``MarkerDetection``]}
+            for every frame it ran the detector on (an empty list: none found), or None (the
+            overlay detects them). Given, the preview shows only such frames and detects nothing
+            again (``preview_frames``): detection was a quarter of the overlay's time.
     """
 
     camera: CameraCalibration
@@ -83,6 +87,7 @@ class OverlayInputs:
     eye_samples: EyeSamples
     marker_map: MarkerMap | None
     video: Path
+    detections: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -238,6 +243,24 @@ def draw_marks(frame, marks: FrameMarks) -> np.ndarray:
     return img
 
 
+def preview_frames(posed, fps: float, detections=None) -> tuple[set, float]:
+    """(the frame numbers the preview shows, its frame rate): of the ``posed`` frames (frame
+    numbers), every k-th frame for about ``PREVIEW_FPS`` of the video's ``fps``, and at most that;
+    with ``detections`` (``OverlayInputs.detections``), only frames the tracking step detected
+    markers in, every k-th of those (at its every-other-frame tracking, 7.5 of 30 fps: the
+    detections of a frame it did not track do not exist, and drawing a neighbour's would move the
+    markers' outlines off them)."""
+    posed = sorted(int(f) for f in posed)
+    if detections is None:
+        step = max(int(round(fps / PREVIEW_FPS)), 1)
+        return {f for f in posed if f % step == 0}, fps / step
+    tracked = sorted(int(f) for f in detections)
+    every = int(np.median(np.diff(tracked))) if len(tracked) > 1 else 1
+    k = max(int(np.ceil(fps / (PREVIEW_FPS * max(every, 1)) - 1e-9)), 1)
+    shown = set(tracked[::k]) & set(posed)
+    return shown, fps / (k * max(every, 1))
+
+
 def _pt(px) -> tuple[int, int]:
     return int(round(float(px[0]))), int(round(float(px[1])))
 
@@ -252,7 +275,7 @@ def write_overlays(out: Path, inp: OverlayInputs, targets: OverlayTargets, t_p, 
     not written)."""
     cap, fps, n_total = open_video(Path(inp.video), inp.camera.image_size)
     row = {int(f): k for k, f in enumerate(frame_p)}
-    step = max(int(round(fps / PREVIEW_FPS)), 1)
+    shown, preview_fps = preview_frames(row, fps, inp.detections if inp.marker_map is not None else None)
     w, h = inp.camera.image_size
     size = (PREVIEW_WIDTH, int(round(h * PREVIEW_WIDTH / w)))
     # the markers are drawn where found; at the preview's 640 px the corners' sub-pixel refinement
@@ -261,28 +284,30 @@ def write_overlays(out: Path, inp: OverlayInputs, targets: OverlayTargets, t_p, 
         if inp.marker_map is not None else None
     r_max = field_radius(inp.camera)
     try:
-        _write_videos(out, cap, fps, row, step, size, (w, h), video,
+        _write_videos(out, cap, (fps, preview_fps), row, shown, size, (w, h), video,
                       (inp, detector, targets, r_max, t_p, T_p), progress, n_total)
     except _NoFrames:
         return None, None
     return PREVIEW_NAME, VIDEO_NAME if video else None
 
 
-def _write_videos(out, cap, fps, row, step, size, full_size, video, drawing, progress, n_total) -> None:
-    """Both videos, each written to a temporary name and moved into place when whole (none when no
-    frame had a pose: ``_NoFrames``)."""
+def _write_videos(out, cap, rates, row, shown, size, full_size, video, drawing, progress, n_total) -> None:
+    """Both videos (``rates``: the full one's and the preview's frames per second; ``shown``: the
+    preview's frames), each written to a temporary name and moved into place when whole (none
+    when no frame had a pose: ``_NoFrames``)."""
+    fps, preview_fps = rates
     with contextlib.ExitStack() as stack:
-        small = BrowserVideoWriter(stack.enter_context(atomic_path(out / PREVIEW_NAME)), fps / step, size)
+        small = BrowserVideoWriter(stack.enter_context(atomic_path(out / PREVIEW_NAME)), preview_fps, size)
         full = BrowserVideoWriter(stack.enter_context(atomic_path(out / VIDEO_NAME)), fps, full_size) if video \
             else None
         try:
-            shown = _write_frames(cap, row, step, (small, full, size), drawing, progress, n_total)
+            n_shown = _write_frames(cap, row, shown, (small, full, size), drawing, progress, n_total)
         finally:
             cap.release()
             small.close()
             if full is not None:
                 full.close()
-        if not shown:
+        if not n_shown:
             raise _NoFrames
 
 
@@ -290,15 +315,18 @@ class _NoFrames(Exception):
     """No frame of the video had a pose: nothing to show (the files are not kept)."""
 
 
-def _write_frames(cap, row: dict, step: int, writers, drawing, progress, n_total: int) -> int:
-    """Read the video once: every ``step``-th posed frame drawn into the small video, every frame
-    (drawn where posed) into the full one; the number of frames in the small one."""
+def _write_frames(cap, row: dict, shown: set, writers, drawing, progress, n_total: int) -> int:
+    """Read the video once: the frames ``shown`` drawn into the small video, every frame (drawn
+    where posed) into the full one; the number of frames in the small one. A frame's markers are
+    the tracking step's detections when it has them (``OverlayInputs.detections``), else found
+    here."""
     small, full, size = writers
     inp, detector, targets, r_max, t_p, T_p = drawing
-    i = shown = 0
+    known = inp.detections or {}
+    i = n_shown = 0
     while True:
         k = row.get(i)
-        preview = k is not None and i % step == 0
+        preview = k is not None and i in shown
         if full is None and not preview:
             if not cap.grab():
                 break
@@ -308,14 +336,14 @@ def _write_frames(cap, row: dict, step: int, writers, drawing, progress, n_total
         if not ok:
             break
         if k is not None:
-            found = detector.detect(to_grey(frame)) if detector is not None else []
+            found = [] if detector is None else known[i] if i in known else detector.detect(to_grey(frame))
             frame = draw_marks(frame, frame_marks(inp, found, targets, T_p[k], float(t_p[k]), r_max))
         if full is not None:
             full.write(frame)
         if preview:
             small.write(cv2.resize(frame, size, interpolation=cv2.INTER_AREA))
-            shown += 1
+            n_shown += 1
         if progress:
             progress(i + 1, max(n_total, i + 1))
         i += 1
-    return shown
+    return n_shown

@@ -23,6 +23,11 @@ COLOURS = ["#be0032", "#0067a5", "#008856", "#f38400", "#875692", "#882d17", "#e
 maximum contrast", Color Engineering 3(6), 1965; without his white and black), the strongest first;
 distinct for 20 targets, repeated after."""
 TRUTH_STYLE = {"marker": "s", "mfc": "none", "mew": 1.5, "ms": 8, "ls": "none"}
+MAX_LEGEND_TARGETS = 12
+"""Up to this many targets the 3D and top views' legends name each; beyond it each target's number
+is written beside it instead and the legend says what the marks are (a legend of 54 targets, a
+real G2 recording's, was taller than the axes: matplotlib's constrained layout collapsed them)."""
+NUMBER_STYLE = {"fontsize": 7, "fontweight": "bold"}
 
 
 def _plt():
@@ -207,24 +212,37 @@ def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
 def figure_3d(d, colour):
     """3D view (a matplotlib figure): head path, every 10th view line of each target, the targets
     (a moving one as its path) with their credible regions, the truth; equal scales on the three
-    axes (x, z, up: -y), which hold the head path and the targets (``ReportData.box``)."""
+    axes (x, z, up: -y), which hold the head path and the targets (``ReportData.box``). Lines
+    drawn many at a time are one collection each (one artist per line cost a millisecond a line)."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection  # type: ignore[import-untyped]
+
     plt = _plt()
     fig = plt.figure(figsize=(7, 6), layout="constrained")
     ax = fig.add_subplot(projection="3d")
     ax.plot(d.head[:, 0], d.head[:, 2], -d.head[:, 1], "k-", lw=1, label="head")
     lo, hi = d.box()
+    many = _numbered(d)
     for k, region in d.regions.items():
-        _region_3d(ax, region_lines(region, lo, hi), colour(k))
+        r = region_lines(region, lo, hi)
+        _region_3d(ax, r, colour(k))
+        if many and k not in d.paths and not _has_point(d, k):
+            ax.text(*_xzu(r.axis[1]), f" {k}", color=colour(k), **NUMBER_STYLE)
     for tg in d.targets:
         X, c = tg.position_mm, colour(tg.index)
-        for a, b in line_segments(tg, d):
-            ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], color=c, lw=0.3, alpha=0.5)
+        segments = [[_xzu(a), _xzu(b)] for a, b in line_segments(tg, d)]
+        if segments:
+            ax.add_collection3d(Line3DCollection(segments, colors=c, linewidths=0.3, alpha=0.5))
         if tg.index in d.paths:
             P = d.paths[tg.index][1]
-            ax.plot(P[:, 0], P[:, 2], -P[:, 1], "-", color=c, lw=2, label=f"target {tg.index} (moving: its path)")
+            ax.plot(P[:, 0], P[:, 2], -P[:, 1], "-", color=c, lw=2,
+                    label=None if many else f"target {tg.index} (moving: its path)")
+            if many:
+                ax.text(*_xzu(P[-1]), f" {tg.index}", color=c, **NUMBER_STYLE)
         elif np.all(np.isfinite(X)):
-            ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=f"target {tg.index}")
-        elif tg.index in d.regions:
+            ax.scatter([X[0]], [X[2]], [-X[1]], color=c, s=40, label=None if many else f"target {tg.index}")
+            if many:
+                ax.text(*_xzu(X), f" {tg.index}", color=c, **NUMBER_STYLE)
+        elif tg.index in d.regions and not many:
             ax.plot([], [], "--", color=c, label=f"target {tg.index} (a direction)")
         T, Tp = _truth_point(d, tg), _truth_path(d, tg)
         if T is not None:
@@ -233,6 +251,8 @@ def figure_3d(d, colour):
             ax.plot(Tp[:, 0], Tp[:, 2], -Tp[:, 1], "--", color=c, lw=1)
     if d.truth:
         ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
+    if many:
+        _kinds_legend(ax, d)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[2], hi[2])
     ax.set_zlim(-hi[1], -lo[1])
@@ -246,14 +266,41 @@ def figure_3d(d, colour):
     return fig
 
 
+def _numbered(d) -> bool:
+    """Whether the views number the targets beside them rather than in the legend
+    (``MAX_LEGEND_TARGETS``)."""
+    return len(d.targets) > MAX_LEGEND_TARGETS
+
+
+def _has_point(d, k: int) -> bool:
+    return any(t.index == k and np.all(np.isfinite(t.position_mm)) for t in d.targets)
+
+
+def _xzu(p) -> tuple[float, float, float]:
+    """A world point (3,) mm in the 3D view's axes (x, z, up: -y)."""
+    return float(p[0]), float(p[2]), float(-p[1])
+
+
+def _kinds_legend(ax, d) -> None:
+    """The legend's entries for numbered targets (``_numbered``): what each kind of mark is, once."""
+    moving = any(t.index in d.paths for t in d.targets)
+    direction = any(t.index not in d.paths and not np.all(np.isfinite(t.position_mm)) and t.index in d.regions
+                    for t in d.targets)
+    ax.plot([], [], "o", color="#555555", label=f"{len(d.targets)} targets, each numbered beside it in its colour")
+    if moving:
+        ax.plot([], [], "-", color="#555555", lw=2, label="a moving target: its path")
+    if direction:
+        ax.plot([], [], "--", color="#555555", label="a target with a direction only: its region")
+
+
 def _region_3d(ax, r, c: str) -> None:
-    """A region's lines (``regions.RegionLines``) on a 3D axes (x, z, -y), an arrow where cut."""
-    ls = "--" if r.open else "-"
-    for ring in r.rings:
-        q = np.vstack([ring, ring[:1]])
-        ax.plot(q[:, 0], q[:, 2], -q[:, 1], ls, color=c, lw=0.9)
-    for a, b in [*r.sides, r.axis]:
-        ax.plot([a[0], b[0]], [a[2], b[2]], [-a[1], -b[1]], ls, color=c, lw=0.9)
+    """A region's lines (``regions.RegionLines``) on a 3D axes (x, z, -y), one collection, an
+    arrow where cut."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    lines = [np.vstack([ring, ring[:1]]) for ring in r.rings] + [np.asarray(ab, float) for ab in [*r.sides, r.axis]]
+    ax.add_collection3d(Line3DCollection([q[:, [0, 2, 1]] * [1, 1, -1] for q in lines], colors=c, linewidths=0.9,
+                                         linestyles="--" if r.open else "-"))
     if r.cut:
         a, b = r.axis
         v = 0.15 * (b - a)
@@ -281,6 +328,7 @@ def figure_top(d, colour):
     region seen from above (a target without one: its 95 % ellipsoid's shadow; a moving target:
     its path, with its 95 % ellipsoid's shadow at every 10th knot); the truth. The axes hold the
     head path and the targets (``top_limits``), not the regions' far ends."""
+    from matplotlib.collections import LineCollection
     from matplotlib.patches import Ellipse
 
     plt = _plt()
@@ -288,25 +336,34 @@ def figure_top(d, colour):
     ax.plot(d.head[:, 0], d.head[:, 2], "k-", lw=1, label="head")
     lo, hi = top_limits(d)
     drawn = [(k, region_lines(region, lo, hi)) for k, region in d.regions.items()]
+    many = _numbered(d)
     for k, r in drawn:
         _region_top(ax, r, colour(k), hi[0] - lo[0])
+        if many and k not in d.paths and not _has_point(d, k):
+            ax.annotate(f" {k}", (r.axis[1, 0], r.axis[1, 2]), color=colour(k), **NUMBER_STYLE)
     if any(r.open for _, r in drawn):
         ax.plot([], [], "--", color="#555555", label="dashed: no far end (95 %)")
     for tg in d.targets:
         X, c = tg.position_mm, colour(tg.index)
-        for a, b in line_segments(tg, d):
-            ax.plot([a[0], b[0]], [a[2], b[2]], color=c, lw=0.3, alpha=0.4)
+        segments = [[(a[0], a[2]), (b[0], b[2])] for a, b in line_segments(tg, d)]
+        if segments:
+            ax.add_collection(LineCollection(segments, colors=c, linewidths=0.3, alpha=0.4), autolim=False)
         if tg.index in d.paths:
             _, P, cov = d.paths[tg.index]
-            ax.plot(P[:, 0], P[:, 2], "-", color=c, lw=2, label=f"target {tg.index} (moving: its path)")
+            ax.plot(P[:, 0], P[:, 2], "-", color=c, lw=2,
+                    label=None if many else f"target {tg.index} (moving: its path)")
+            if many:
+                ax.annotate(f" {tg.index}", (P[-1, 0], P[-1, 2]), color=c, **NUMBER_STYLE)
             for k in range(0, len(P), 10):
                 ax.add_patch(_shadow(Ellipse, P[k], K95 ** 2 * cov[k], c, 0.5))
         elif np.all(np.isfinite(X)):
             E = d.ellipsoid(tg) if tg.index not in d.regions else None
             if E is not None:
                 ax.add_patch(_shadow(Ellipse, X, E.T @ E, c, 1.0))
-            ax.plot(X[0], X[2], "o", color=c, label=f"target {tg.index} ({d.distance_m(tg):.2f} m)")
-        elif tg.index in d.regions:
+            ax.plot(X[0], X[2], "o", color=c, label=None if many else f"target {tg.index} ({d.distance_m(tg):.2f} m)")
+            if many:
+                ax.annotate(f" {tg.index}", (X[0], X[2]), color=c, **NUMBER_STYLE)
+        elif tg.index in d.regions and not many:
             ax.plot([], [], "--", color=c, label=f"target {tg.index} (a direction)")
         T, Tp = _truth_point(d, tg), _truth_path(d, tg)
         if T is not None:
@@ -315,6 +372,8 @@ def figure_top(d, colour):
             ax.plot(Tp[:, 0], Tp[:, 2], "--", color=c, lw=1)
     if d.truth:
         ax.plot([], [], color="k", **TRUTH_STYLE, label="truth (a path: dashed)")
+    if many:
+        _kinds_legend(ax, d)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[2], hi[2])
     ax.set_aspect("equal", adjustable="box")
