@@ -37,6 +37,8 @@ from .triangulation import lse_point
 
 log = logging.getLogger(__name__)
 
+_LAYING = "a new box is being laid over the kept lines"
+
 __all__ = ["VoxelConfig", "VoxelEstimator", "VoxelWork"]
 
 
@@ -360,27 +362,13 @@ class VoxelEstimator:
         """The estimate after the samples added: seed and lay boxes as needed (``stream``: a box
         over many lines is laid over several updates, ``_layout``)."""
         cfg = self.config
-        L = self._buf.n_lines
-        laying = "a new box is being laid over the kept lines"
+        n_lines = self._buf.n_lines
         if self._pending is not None:
             self._advance(cfg.layout_chunk_lines if stream else None)
         if self.grid is None:
-            if self._pending is not None:
-                return self._fail(Status.INSUFFICIENT, f"no estimate yet: {laying}")
-            if self._buf.n < cfg.seed_samples:
-                return self._fail(Status.INSUFFICIENT,
-                                  f"gathering samples for the seed: {self._buf.n} of {cfg.seed_samples}")
-            why = self._seed_gate()
-            if why:
-                return self._fail(Status.INSUFFICIENT, f"no seed yet: {why}")
-            if not self._afford(2 * L):
-                return self._fail(Status.INSUFFICIENT, "no seed yet: the last fits failed; the next waits for more "
-                                                       "samples (bounded work per sample)")
-            seed, reason = self._seed()
-            if seed is None:
-                return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
-            if not self._layout(*seed, stream=stream):
-                return self._fail(Status.INSUFFICIENT, f"no estimate yet: {laying}")
+            failed = self._seed_box(n_lines, stream)
+            if failed is not None:
+                return failed
         for _ in range(cfg.max_relayouts):
             grid = self.grid
             idx = grid.argmax()
@@ -388,28 +376,17 @@ class VoxelEstimator:
             if idx.min() > 0 and idx.max() < grid.n - 1:
                 fit = _quadratic_fit_local(grid, idx)
             if fit is None:
-                if self._pending is not None:      # the new box comes in the next updates
-                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak in this box; {laying}")
-                # the maximum is at the border, or not a peak at this voxel size: lay the box
-                # anew from the continuous optimum over every kept line (nothing is lost)
-                if not self._afford(2 * L):
-                    return self._fail(Status.INSUFFICIENT, "the density has no clear peak yet; the box is laid anew "
-                                                           "once more samples have come in (bounded work per sample)")
-                seed, reason = self._seed(x0=grid.index_to_world(idx)[0])
-                if seed is None:
-                    # back to seeding: the O(1) test waits for lines that fix a point, and the next
-                    # box is evaluated from every kept line, so dropping this one loses nothing
-                    self.grid = None
-                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak yet: {reason}")
-                if not self._layout(*seed, stream=stream):
-                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak in this box; {laying}")
+                failed = self._relay_without_peak(grid, idx, n_lines, stream)
+                if failed is not None:
+                    return failed
                 continue
             offset, cov_local = fit
             point = grid.center_mm + grid.axes @ offset
             cov = grid.axes @ cov_local @ grid.axes.T
             # a peak inside the box with a valid fit is an answer even when the box would be
             # re-laid (refined or re-centred) but the work bound defers it, or it is being laid
-            if self._pending is None and self._needs_layout(offset, cov_local) and self._afford(L):
+            if (self._pending is None and self._needs_layout(offset, cov_local)
+                    and self._afford(n_lines)):
                 if self._layout(point, cov, stream=stream):
                     continue
             return self._result(point, cov)
@@ -417,6 +394,50 @@ class VoxelEstimator:
         log.debug("voxel: no bounded maximum after %d re-layouts; back to seeding", cfg.max_relayouts)
         return self._fail(Status.DEGENERATE, "the density has no bounded maximum: the view lines are "
                                              "nearly parallel (target too far for this head motion)")
+
+    def _seed_box(self, n_lines: int, stream: bool) -> GazeEstimate | None:
+        """Without a box: seed one and lay it when the samples allow (``_seed_gate``, the work
+        bound over the ``n_lines`` kept lines); the failure to return, or None once it is laid."""
+        cfg = self.config
+        if self._pending is not None:
+            return self._fail(Status.INSUFFICIENT, f"no estimate yet: {_LAYING}")
+        if self._buf.n < cfg.seed_samples:
+            gathering = f"gathering samples for the seed: {self._buf.n} of {cfg.seed_samples}"
+            return self._fail(Status.INSUFFICIENT, gathering)
+        why = self._seed_gate()
+        if why:
+            return self._fail(Status.INSUFFICIENT, f"no seed yet: {why}")
+        if not self._afford(2 * n_lines):
+            return self._fail(Status.INSUFFICIENT, "no seed yet: the last fits failed; the next "
+                                                   "waits for more samples (bounded work per "
+                                                   "sample)")
+        seed, reason = self._seed()
+        if seed is None:
+            return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
+        if not self._layout(*seed, stream=stream):
+            return self._fail(Status.INSUFFICIENT, f"no estimate yet: {_LAYING}")
+        return None
+
+    def _relay_without_peak(self, grid, idx, n_lines: int, stream: bool) -> GazeEstimate | None:
+        """The box's maximum (voxel ``idx``) is at its border, or not a peak at this voxel size:
+        lay the box anew from the continuous optimum over every kept line (nothing is lost);
+        the failure to return, or None when the new box is laid."""
+        no_peak_here = f"the density has no clear peak in this box; {_LAYING}"
+        if self._pending is not None:      # the new box comes in the next updates
+            return self._fail(Status.INSUFFICIENT, no_peak_here)
+        if not self._afford(2 * n_lines):
+            return self._fail(Status.INSUFFICIENT, "the density has no clear peak yet; the box is "
+                                                   "laid anew once more samples have come in "
+                                                   "(bounded work per sample)")
+        seed, reason = self._seed(x0=grid.index_to_world(idx)[0])
+        if seed is None:
+            # back to seeding: the O(1) test waits for lines that fix a point, and the next
+            # box is evaluated from every kept line, so dropping this one loses nothing
+            self.grid = None
+            return self._fail(Status.INSUFFICIENT, f"the density has no clear peak yet: {reason}")
+        if not self._layout(*seed, stream=stream):
+            return self._fail(Status.INSUFFICIENT, no_peak_here)
+        return None
 
     def _needs_layout(self, offset_mm, cov_local) -> bool:
         """Lay a new box when the peak (box frame, mm) left the central half, or the posterior
