@@ -40,15 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from .errormodel_regions import (  # noqa: F401  (the regions' home; here for the modules that import them from here)
-    FAR_SIDE_CAP,
-    Sight,
-    at_level,
-    depth_interval,
-    far_side,
-    region_radius,
-    sight_info,
-)
+from .errormodel_regions import far_side, sight_info
 from .frames import tangent_basis
 from .lines import ViewLines
 

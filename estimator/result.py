@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
-from .errormodel import Sight
+from .errormodel_regions import Sight
 
 if TYPE_CHECKING:
     from .direction import GazeDirection

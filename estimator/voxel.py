@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errormodel import ErrorModel, far_side, model_covariance, sight_info
+from .errormodel import ErrorModel, model_covariance
+from .errormodel_regions import far_side, sight_info
 from .grid import DensityGrid, _quadratic_fit_local
 from .likelihood import MLConfig, angular_log_likelihood, fisher_information, ml_point
 from .lines import BinocularSample, BinocularSamples, ViewLines

@@ -164,7 +164,7 @@ def test_bad_settings_are_refused():
 def test_the_far_side_stretches_depth_to_the_end_of_the_interval_in_inverse_depth():
     """Depth is Gaussian in inverse depth: the depth sd is stretched by 1 / (1 - k r) along the
     line of sight only, so that k sds reach D / (1 - k r)."""
-    from estimator.errormodel import far_side
+    from estimator.errormodel_regions import far_side
 
     C = np.diag([4.0, 9.0, 200.0**2])                      # depth along z, 2000 mm away: r = 0.1
     S, f = far_side(C, [0.0, 0.0, 2000.0], [0.0, 0.0, 0.0], 2.8)
@@ -207,7 +207,8 @@ def test_each_level_has_its_own_far_side_and_the_95_percent_one_is_the_covarianc
     """``at_level`` re-draws the far side for a level: the 95 % level is the covariance itself
     (its ellipsoid is ``covariance_mm2``'s), a 68 % region is shorter along the line of sight
     only, by the ratio of the two levels' stretches; the depth interval is D / (1 +- z r)."""
-    from estimator.errormodel import FAR_SIDE_K, at_level, depth_interval, far_side, sight_info
+    from estimator.errormodel import FAR_SIDE_K
+    from estimator.errormodel_regions import at_level, depth_interval, far_side, sight_info
 
     C_lin = np.array([[16.0, 0, 0], [0, 25.0, 0], [0, 0, 300.0**2]])      # 2000 mm away: r = 0.15
     point, origin = np.array([0.0, 0.0, 2000.0]), np.zeros(3)
