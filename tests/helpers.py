@@ -162,3 +162,22 @@ def slow_down(monkeypatch, owner, name: str, seconds: float = 1.0, result=None, 
             raise raises
         return result if result is not None else real(*args, **kwargs)
     monkeypatch.setattr(owner, name, slow)
+
+
+def same_target(p1, cov1, p2, cov2, origin=None, floor_deg: float = 0.5, threshold: float = 11.34) -> bool:
+    """The covariance-overlap test that ``estimator.merge``'s likelihood ratio on the pooled lines
+    replaced (moved here from estimator/segments.py: only tests use it, to show the merge keeps
+    apart what this test would join). Whether two estimates (3,) with covariances (3, 3) mm^2 are one target seen twice:
+    Mahalanobis distance below the chi-square 99 % point (3 dof). Each covariance gets an
+    isotropic floor of ``floor_deg`` times the distance from ``origin`` (the head, default the
+    world origin): calibration biases shift a whole fixation's lines together, which the
+    covariance of its random noise does not cover. Without covariances: within 5 % of the
+    distance."""
+    p1, p2 = np.asarray(p1, float), np.asarray(p2, float)
+    o = np.zeros(3) if origin is None else np.asarray(origin, float)
+    dist = 0.5 * (np.linalg.norm(p1 - o) + np.linalg.norm(p2 - o))
+    if cov1 is None or cov2 is None:
+        return bool(np.linalg.norm(p1 - p2) < 0.05 * dist)
+    floor = (np.deg2rad(floor_deg) * dist) ** 2 * np.eye(3)
+    d = p1 - p2
+    return bool(d @ np.linalg.solve(np.asarray(cov1) + np.asarray(cov2) + 2 * floor, d) < threshold)
