@@ -10,7 +10,6 @@ Sources, and where each comes from:
   Correlations are used when they stand out of their sampling noise (``2.5 / sqrt(n)``).
 - Head-pose error from tracking (``pose_sigma_deg``): an angular error shared by both eyes of a
   sample (one head pose), added to each line's variance with correlation 1 between the eyes.
-  ``pose_angular_sigma_deg`` turns a tracking pose covariance into it.
 - A per-eye bias (``bias_deg`` per axis), common to all lines of an eye over a fixation: the eye
   calibration's residual and the glasses' slippage after it. It never averages down, and a fit
   cannot see it in its residuals (it moves the point instead), so it is a floor: the covariance of
@@ -129,20 +128,6 @@ def bias_from_calibration(loo_rms_deg, slip_deg: float = 0.0) -> float:
     vals = vals[np.isfinite(vals)]
     cal2 = float(np.mean(vals**2) / 2.0) if len(vals) else 0.0
     return float(math.sqrt(cal2 + slip_deg**2))
-
-
-def pose_angular_sigma_deg(pose_cov, distance_mm: float) -> float:
-    """Angular std per tangent axis, degrees, that a head-pose covariance adds to a view line to a
-    point ``distance_mm`` away. ``pose_cov`` (6, 6): (rotation vector rad, translation mm), as
-    ``tracking.pose`` gives it. The rotation turns the line by its angle; the translation moves
-    the eye, which seen from the point is an angle of translation / distance. Mean over axes."""
-    C = np.asarray(pose_cov, float)
-    if C.shape != (6, 6):
-        raise ValueError(f"pose_cov must have shape (6, 6), got {C.shape}")
-    if not distance_mm > 0:
-        raise ValueError(f"distance_mm must be positive, got {distance_mm}")
-    var = np.trace(C[:3, :3]) / 3.0 + np.trace(C[3:, 3:]) / 3.0 / distance_mm**2
-    return float(np.rad2deg(math.sqrt(max(var, 0.0))))
 
 
 def eye_labels(lines: ViewLines) -> np.ndarray:

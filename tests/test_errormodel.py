@@ -12,7 +12,6 @@ from estimator.errormodel import (
     bias_from_calibration,
     eye_labels,
     model_covariance,
-    pose_angular_sigma_deg,
 )
 from estimator.frames import tangent_basis
 
@@ -120,16 +119,11 @@ def test_eye_labels_follow_the_samples_and_place_lone_lines(rng):
     assert np.array_equal(eye_labels(again), truth[order][rev])
 
 
-def test_bias_from_the_calibration_and_pose_sigma():
+def test_bias_from_the_calibration():
     assert bias_from_calibration([None, None]) == 0.0                   # no fixed slippage: the lines size it
     assert bias_from_calibration([None, None], slip_deg=DEFAULT_BIAS_DEG) == pytest.approx(DEFAULT_BIAS_DEG)
     assert bias_from_calibration([0.4, 0.4], slip_deg=0.0) == pytest.approx(0.4 / np.sqrt(2))
     assert bias_from_calibration([0.3, float("nan")], slip_deg=0.5) == pytest.approx(np.sqrt(0.3**2 / 2 + 0.25))
-    cov = np.zeros((6, 6))
-    cov[:3, :3] = np.eye(3) * np.deg2rad(0.2) ** 2
-    assert pose_angular_sigma_deg(cov, 1000.0) == pytest.approx(0.2)
-    cov[3:, 3:] = np.eye(3) * 10.0**2                    # 10 mm at 1 m: 0.573 deg
-    assert pose_angular_sigma_deg(cov, 1000.0) == pytest.approx(np.hypot(0.2, np.rad2deg(0.01)), rel=1e-3)
 
 
 def test_the_pose_term_widens_the_lateral_extent(rng):
