@@ -35,6 +35,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
@@ -135,6 +136,7 @@ def eye_labels(lines: ViewLines) -> np.ndarray:
     (``BinocularSamples.lines`` order); a lone line takes the side whose origin it is nearer in
     the nearest two-line sample (all 0 when there is none)."""
     si = lines.sample_index
+    assert si is not None                          # ViewLines fills it in
     n = len(si)
     order = np.argsort(si, kind="stable")
     s = si[order]
@@ -173,8 +175,8 @@ def _jacobians(X, lines: ViewLines):
 def _noise_terms(r, w, eye, si, sigma_rad: float, model: ErrorModel) -> dict:
     """Per-eye noise std (2,), the eyes' residual correlation and the lag-one time correlation,
     from the residuals (N, 2) with weights (N,); the over-dispersion test."""
-    out = {"sigma": np.full(2, sigma_rad), "chi2_ratio": np.ones(2), "inflated": [False, False],
-           "rho": 0.0, "rho_t": 0.0}
+    out: dict[str, Any] = {"sigma": np.full(2, sigma_rad), "chi2_ratio": np.ones(2),
+                           "inflated": [False, False], "rho": 0.0, "rho_t": 0.0}
     r2 = np.einsum("ij,ij->i", r, r)
     n_eff = max(float(np.sum(w)), 1e-9)
     dof_all = max(2.0 * n_eff - 3.0, 1.0)

@@ -11,6 +11,7 @@ points in normalised coordinates (undistorted), residuals in pixels (times the f
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -150,33 +151,35 @@ class StepTally:
     work (a search for moved markers: a step a marker; the map's first guesses refined) adds its
     own steps."""
 
-    progress: object = None
+    progress: Callable[[int, int], None] | None = None
     done: int = 0
     total: int = 0
     base: int = 0                   # the steps done before the adjustment running now
 
     def begin(self, max_iter: int):
         """The ``progress(step, max_iter)`` callback of one adjustment (None without progress)."""
-        if self.progress is None:
+        progress = self.progress
+        if progress is None:
             return None
         self.total += max_iter
         self.base = self.done
 
         def step(it: int, _max_iter: int) -> None:
             self.done = self.base + it
-            self.progress(self.done, self.total)
+            progress(self.done, self.total)
         return step
 
     def work(self, n: int):
         """The ``tick()`` callback of ``n`` more steps of other work, one a call (None without
         progress)."""
-        if self.progress is None:
+        progress = self.progress
+        if progress is None:
             return None
         self.total += n
 
         def tick() -> None:
             self.done += 1
-            self.progress(self.done, self.total)
+            progress(self.done, self.total)
         return tick
 
     def end(self, max_iter: int, iterations: int) -> None:
@@ -233,7 +236,8 @@ def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin: np.ndar
     own id (the second marker dropped, its observations counted), {id: mm moved}, and the
     reprojection RMS before any split, pixels. ``tally``: where the adjustments' steps and the
     markers checked for a move are counted, for a progress callback."""
-    obs, size, moved, tally = list(obs), dict(size), {}, tally or StepTally()
+    obs, size, tally = list(obs), dict(size), tally or StepTally()
+    moved: dict[int, float] = {}
     adj = _adjust(obs, size, origin, markers, cams, focal, T_origin, tally=tally)
     rms_unsplit = residual_rms(adj.residuals)
     while True:
@@ -327,7 +331,7 @@ def _moved(obs, size, markers, cams, tick=None) -> dict:
         seen = [k for k in order if i in obs[k]]
         if len(seen) < 2 * MIN_VIEWS:
             continue
-        fit = {}
+        fit: dict = {}
 
         def cost(m, i=i, seen=seen, fit=fit):
             if m not in fit:

@@ -173,7 +173,8 @@ def _marker_sizes(ids: list[int], sizes) -> dict[int, float]:
     Raises:
         ValueError: a seen id without a size.
     """
-    if np.isscalar(sizes):
+    one_size = bool(np.isscalar(sizes))
+    if one_size:
         size = {i: float(sizes) for i in ids}
     else:
         size = {i: float(sizes[i]) for i in ids if i in sizes}
@@ -279,6 +280,7 @@ def _chain(obs: list, size: dict, origin: int, start: dict) -> tuple[dict, dict]
             return markers, cams
         _, k = max(todo)
         T = pose_view(obs[k], size, markers)
+        assert T is not None                         # it sees placed markers
         cams[k] = T
         for i, c in obs[k].items():
             if i not in markers:
@@ -291,9 +293,9 @@ def _marker_info(obs, size, origin, adj: Adjusted, moved: dict, rms: float) -> d
     cov = marker_covariances(adj)
     for i in [j for j in moved if -1 - j in cov]:     # the pose after the move: the second marker's
         cov[i] = cov.pop(-1 - i)
-    per = {i: [] for i in adj.markers}
-    for r, (_, i) in enumerate(adj.pairs):
-        per[i].append(adj.residuals[8 * r:8 * r + 8])
+    per: dict[int, list[np.ndarray]] = {i: [] for i in adj.markers}
+    for k, (_, i) in enumerate(adj.pairs):
+        per[i].append(adj.residuals[8 * k:8 * k + 8])
     info = {}
     for i in sorted(adj.markers):
         r = np.concatenate(per[i]) if per[i] else np.zeros(0)

@@ -207,7 +207,8 @@ def _adjust(prob: dict, markers: dict, cams: dict, K: np.ndarray, d0: np.ndarray
         Kg, dg = _camera(g, K, d0, scale)
         Xc = camera_corners(v, o, prob)
         r = (_pixels(Xc, Kg, dg, model) - prob["seen"]).reshape(-1, 8)
-        return np.where((Xc[..., 2] > 0).all(axis=1)[:, None], r, np.inf)
+        in_front = np.logical_and.reduce(Xc[..., 2] > 0, axis=1)
+        return np.where(in_front[:, None], r, np.inf)
     g0 = np.concatenate([[K[0, 0] / scale, K[1, 1] / scale, K[0, 2] / scale, K[1, 2] / scale],
                          d0[:n_dist]])
     views0 = np.array([pack_pose(cams[k]) for k in prob["cam_keys"]])

@@ -175,7 +175,8 @@ def icosphere(subdivisions: int = ELLIPSOID_SUBDIVISIONS) -> tuple[np.ndarray, n
          (8, 6, 7), (9, 8, 1)]
     verts = [np.array(x, float) / np.linalg.norm(x) for x in v]
     for _ in range(subdivisions):
-        mid, nf = {}, []
+        mid: dict[tuple[int, int], int] = {}
+        nf: list[tuple[int, int, int]] = []
         for a, b, c in f:
             ab, bc, ca = (_midpoint(verts, mid, i, j) for i, j in ((a, b), (b, c), (c, a)))
             nf += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]

@@ -87,6 +87,7 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
         K, dist, start = start_intrinsics(cam, extend if refine else None)
         built = build_marker_map(views, K, dist, dictionary, size, origin, cam.model, prior,
                                  tuple(cam.image_size), refine, adjusting)
+        assert built.intrinsics is not None      # build_marker_map always says what it did
         built.intrinsics = replace(built.intrinsics, given_camera_matrix=cam.camera_matrix,
                                    given_dist_coeffs=cam.dist_coeffs, start=start)
     except ValueError as exc:
@@ -133,7 +134,8 @@ def _detect_views(files, max_frames: int, cam, dictionary: str, progress=None):
     (a repeated id is left out of that view). ``progress(done, total)`` over the frames."""
     detector = MarkerDetector(dictionary)
     total = frames_total(files, max_frames)
-    views, names, repeated = [], [], {}
+    views, names = [], []
+    repeated: dict[int, int] = {}
     for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
         check_frame_size(name, grey, cam)
         unique, rep, _ = split_repeated(detector.detect(grey))
