@@ -56,11 +56,12 @@ def ippe(corners_norm: ArrayLike, side: float) -> list:
                    zip(range(n), np.ravel(errs), strict=True)), key=lambda c: c[0])
 
 
-def project(R, t, X) -> tuple[np.ndarray, np.ndarray]:
-    """Points ``X`` (4, 3) or (n, 4, 3), world, in views ``R`` (n, 3, 3), ``t`` (n, 3) (their
-    ``T_cam_from_world``): (n, 4, 2) normalised image coordinates and (n, 4) depths."""
-    Xc = X @ np.swapaxes(R, 1, 2) + t[:, None]
-    return Xc[..., :2] / Xc[..., 2:3], Xc[..., 2]
+def project(R_cam_from_world, t_cam_from_world, pts_world) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``pts_world`` (4, 3) or (n, 4, 3), mm, in n views, each ``T_cam_from_world`` given
+    as its rotation (n, 3, 3) and translation (n, 3) mm: (n, 4, 2) normalised image
+    coordinates and (n, 4) depths, mm."""
+    pts_cam = pts_world @ np.swapaxes(R_cam_from_world, 1, 2) + t_cam_from_world[:, None]
+    return pts_cam[..., :2] / pts_cam[..., 2:3], pts_cam[..., 2]
 
 
 def pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
