@@ -180,12 +180,14 @@ class VoxelEstimator:
         self._sigma = np.deg2rad(config.sigma_deg)
         self._buf = _SampleBuffer()
         self.grid: DensityGrid | None = None
-        self._design_std = None
+        self._design_std: np.ndarray | None = None
         self._last: GazeEstimate | None = None
         self.work = VoxelWork()
         self._allowance = float(config.work_initial)   # line re-evaluations still allowed
-        self._posterior = None        # (point, Laplace covariance) of the last peak: the weights' posterior
-        self._model = None            # (lines then, noise covariance then, bias floor, info) of the error model
+        # (point, Laplace covariance) of the last peak: the weights' posterior
+        self._posterior: tuple[np.ndarray, np.ndarray] | None = None
+        # the error model: (lines then, noise covariance then, bias floor, info, their mean origin)
+        self._model: tuple[int, np.ndarray, np.ndarray, dict, np.ndarray] | None = None
         self._pending: _PendingBox | None = None   # a box being laid over several updates (streaming)
 
     def __len__(self) -> int:
@@ -277,7 +279,7 @@ class VoxelEstimator:
         self._posterior = None
         return failed(self.method, status, reason, self._buf.n, self._n_lines())
 
-    def _seed(self, x0=None):
+    def _seed(self, x0=None) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
         cfg = self.config
         # at most ``fit_samples`` of the kept samples, the information scaled to all of them: a
         # seed, not the answer (the box's peak is, over every kept line)
@@ -292,7 +294,7 @@ class VoxelEstimator:
                                            max_iterations=30, tolerance_mm=1e-3), x0_mm=x0)
         else:
             est = lse_point(lines)
-        if not est.ok:
+        if not est.ok or est.position_mm is None:     # (ok: never None)
             return None, est.reason
         F = fisher_information(est.position_mm, lines.origins_mm, self._sigma) * (self._buf.n_lines / max(len(si), 1))
         if np.linalg.cond(F) > 1e14:
@@ -323,6 +325,7 @@ class VoxelEstimator:
         box, under its posterior's weights; once every kept sample is in, it replaces the box
         (True). Samples added meanwhile are in the old box and come to the new one in turn."""
         p = self._pending
+        assert p is not None                          # called while a box is being laid
         stop = self._buf.n if most_lines is None else min(self._buf.n, p.done + max(most_lines // 2, 1))
         sl = slice(p.done, stop)
         self._set_weights(sl, p.center, p.cov)
@@ -357,7 +360,9 @@ class VoxelEstimator:
 
     def _accumulate(self, sl, grid=None):
         o, d, si = self._buf.lines(sl)
-        (self.grid if grid is None else grid).add_lines(o, d, self._buf.weight[si] * (-0.5 / self._sigma**2))
+        target = self.grid if grid is None else grid
+        assert target is not None                     # a box laid or being laid
+        target.add_lines(o, d, self._buf.weight[si] * (-0.5 / self._sigma**2))
 
     def _settle(self, stream: bool = False) -> GazeEstimate:
         """The estimate after the samples added: seed and lay boxes as needed (``stream``: a box
@@ -372,6 +377,7 @@ class VoxelEstimator:
                 return failed
         for _ in range(cfg.max_relayouts):
             grid = self.grid
+            assert grid is not None                   # seeded above, or re-laid before ``continue``
             idx = grid.argmax()
             fit = None
             if idx.min() > 0 and idx.max() < grid.n - 1:
@@ -444,6 +450,7 @@ class VoxelEstimator:
         """Lay a new box when the peak (box frame, mm) left the central half, or the posterior
         std along a box axis changed by more than ``refine_factor``."""
         g = self.grid
+        assert g is not None and self._design_std is not None    # asked of a laid box's peak
         if np.max(np.abs(offset_mm / g.spacing_mm)) > g.n / 4:
             return True
         floor = self.config.min_spacing_mm * g.n / (2 * self.config.coverage_sigmas)
@@ -477,6 +484,7 @@ class VoxelEstimator:
 
     def _result(self, point, cov) -> GazeEstimate:
         g = self.grid
+        assert g is not None                          # a peak of a laid box
         info = {"voxel_mm": g.spacing_mm.tolist(), "relayouts": self.work.layouts, "seed_fits": self.work.seed_fits}
         self._posterior = (point, cov)
         cov = self._reported_covariance(point, cov, info)
