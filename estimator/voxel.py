@@ -28,7 +28,7 @@ import numpy as np
 
 from .errormodel import ErrorModel, model_covariance
 from .errormodel_regions import far_side, sight_info
-from .grid import DensityGrid, _quadratic_fit_local
+from .grid import DensityGrid, _PendingBox, _quadratic_fit_local
 from .likelihood import MLConfig, angular_log_likelihood, fisher_information, ml_point
 from .lines import BinocularSample, BinocularSamples, ViewLines
 from .reliability import reliability_weight_at, reliability_weights_at
@@ -59,19 +59,6 @@ class VoxelWork:
     layouts: int = 0
     lines_refit: int = 0
     deferred: int = 0
-
-
-@dataclass
-class _PendingBox:
-    """A box being laid over several streaming updates (``VoxelEstimator._advance``): its grid,
-    design std (3,) mm, the posterior N(center (3,) mm, cov (3, 3) mm^2) it was laid for, and the
-    kept samples evaluated into it so far (the first ``done``)."""
-
-    grid: DensityGrid
-    std: np.ndarray
-    center: np.ndarray
-    cov: np.ndarray
-    done: int = 0
 
 
 @dataclass(frozen=True)
