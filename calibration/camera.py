@@ -346,7 +346,8 @@ def select_frames(views, image_size, n: int, grid: int = 4) -> list:
     for v in cand:
         ij = np.clip((v.image_points / [w, h] * grid).astype(int), 0, grid - 1)
         cells.append(set(map(tuple, ij)))
-    chosen, covered = [], set()
+    chosen: list[int] = []
+    covered: set[tuple] = set()
     while len(chosen) < min(n, len(cand)):
         best, best_key = None, None
         for i, c in enumerate(cells):
@@ -355,7 +356,7 @@ def select_frames(views, image_size, n: int, grid: int = 4) -> list:
             key = (len(c - covered), len(cand[i].image_points))
             if best_key is None or key > best_key:
                 best, best_key = i, key
-        if best_key[0] == 0:
+        if best is None or best_key is None or best_key[0] == 0:    # (never None: one is left)
             break
         chosen.append(best)
         covered |= cells[best]

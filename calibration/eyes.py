@@ -229,61 +229,81 @@ def calibrate_eye(eye: str, raw, targets_cam_mm: ArrayLike, centre_mm, plane_mm:
         CalibrationError: fewer than 6 targets, collinear targets, missing readings.
     """
     raw = check_points(raw, "raw", 2)
-    P = check_points(targets_cam_mm, "targets_cam_mm")
-    check_same_rows(raw, P, "raw", "targets_cam_mm", "one row per target")
+    targets = check_points(targets_cam_mm, "targets_cam_mm")
+    check_same_rows(raw, targets, "raw", "targets_cam_mm", "one row per target")
     centre_mm = check_vector(centre_mm, "centre_mm")
-    ok = np.all(np.isfinite(raw), axis=1)
-    if not ok.any():
-        raise CalibrationError(f"no valid {eye}-eye readings at any target: check the {eye} eye's sensor "
-                               "and record the calibration again")
-    if ok.sum() < MIN_TARGETS:
-        raise CalibrationError(f"{eye} eye: valid readings at {ok.sum()} targets, need at least {MIN_TARGETS}: "
-                               "record the calibration again and keep the eyes open on each target")
-    idx = np.flatnonzero(ok)
-    raw, P = raw[ok], P[ok]
-    c = P - P.mean(axis=0)
-    dirs = P - np.asarray(centre_mm, float)
+    idx = np.flatnonzero(_valid_readings(eye, raw))
+    raw, targets = raw[idx], targets[idx]
+    dirs = targets - np.asarray(centre_mm, float)
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    sv = np.linalg.svd(dirs[:, :2] / dirs[:, 2:3] - (dirs[:, :2] / dirs[:, 2:3]).mean(axis=0), compute_uv=False)
-    if sv[-1] < 1e-3 * max(sv[0], 1e-12) or np.linalg.svd(c, compute_uv=False)[1] < 1e-6:
-        raise CalibrationError(f"{eye} eye: the targets are collinear as seen from the eye: place them in a "
-                               "grid (3x3) spanning the field of view and record again")
-    lc = float(np.median(P[:, 2])) if plane_mm is None else float(plane_mm)
-    e = np.asarray(centre_mm, float)
-    q = plane_points(P, e, lc)
+    _check_not_collinear(eye, targets, dirs)
+    lc = float(np.median(targets[:, 2])) if plane_mm is None else float(plane_mm)
+    centre = np.asarray(centre_mm, float)
+    q = plane_points(targets, centre, lc)
     raw_map = fit_raw_map(raw, q, model)
-    cal = EyeCalibration(eye, e, lc, raw_map)
-    pred = cal.directions(raw)
-    res = _angle_deg(pred, dirs)
-    # leave-one-out: each target predicted by the fit to the others; a target is an outlier
-    # when that prediction misses it by more than ``outlier_deg`` and five times the spread of
-    # the others about their own fit (they agree without it; it disagrees with them)
-    loo = np.full(len(raw), np.nan)
-    rest_rms = np.full(len(raw), np.nan)
-    n_terms = raw_map.coef.shape[0]
-    if len(raw) > n_terms:
-        for k in range(len(raw)):
-            keep = np.arange(len(raw)) != k
-            try:
-                m = fit_raw_map(raw[keep], q[keep], model)
-            except CalibrationError:
-                continue
-            sub = EyeCalibration(eye, e, lc, m)
-            loo[k] = _angle_deg(sub.directions(raw[k:k + 1]), dirs[k:k + 1])[0]
-            rest_rms[k] = float(np.sqrt(np.mean(_angle_deg(sub.directions(raw[keep]), dirs[keep]) ** 2)))
+    cal = EyeCalibration(eye, centre, lc, raw_map)
+    res = _angle_deg(cal.directions(raw), dirs)
+    loo, rest_rms = _leave_one_out(cal, raw, q, dirs, model)
     outliers = [int(idx[k]) for k in range(len(raw))
                 if np.isfinite(loo[k]) and loo[k] > max(outlier_deg, 5 * rest_rms[k])]
-    qp = raw_map(raw)
     report = {"n_targets": int(len(raw)), "model": model, "residual_deg": res.tolist(),
               "rms_deg": float(np.sqrt(np.mean(res**2))), "loo_deg": loo.tolist(),
               "loo_rms_deg": float(np.sqrt(np.nanmean(loo**2))) if np.isfinite(loo).any() else None,
               "outliers": outliers, "targets_used": idx.tolist()}
     if focal_px:
-        report["residual_px"] = (focal_px * np.linalg.norm(qp - q, axis=1)).tolist()
+        report["residual_px"] = (focal_px * np.linalg.norm(raw_map(raw) - q, axis=1)).tolist()
     cal.report = report
-    log.info("%s eye (%s): %d targets, RMS %.3f deg, leave-one-out RMS %s deg, outliers %s", eye, model, len(raw),
-             report["rms_deg"], "-" if report["loo_rms_deg"] is None else f"{report['loo_rms_deg']:.3f}", outliers)
+    loo_text = "-" if report["loo_rms_deg"] is None else f"{report['loo_rms_deg']:.3f}"
+    log.info("%s eye (%s): %d targets, RMS %.3f deg, leave-one-out RMS %s deg, outliers %s",
+             eye, model, len(raw), report["rms_deg"], loo_text, outliers)
     return cal
+
+
+def _valid_readings(eye: str, raw: np.ndarray) -> np.ndarray:
+    """(K,) bool: the targets with a finite reading; CalibrationError when fewer than
+    ``MIN_TARGETS``."""
+    ok = np.all(np.isfinite(raw), axis=1)
+    if not ok.any():
+        raise CalibrationError(f"no valid {eye}-eye readings at any target: check the {eye} eye's "
+                               "sensor and record the calibration again")
+    if ok.sum() < MIN_TARGETS:
+        raise CalibrationError(f"{eye} eye: valid readings at {ok.sum()} targets, need at least "
+                               f"{MIN_TARGETS}: record the calibration again and keep the eyes "
+                               "open on each target")
+    return ok
+
+
+def _check_not_collinear(eye: str, targets: np.ndarray, dirs: np.ndarray) -> None:
+    """CalibrationError when the targets (K, 3) mm, or their directions (K, 3) from the eye, lie
+    on a line."""
+    slopes = dirs[:, :2] / dirs[:, 2:3]
+    sv = np.linalg.svd(slopes - slopes.mean(axis=0), compute_uv=False)
+    spread = targets - targets.mean(axis=0)
+    if sv[-1] < 1e-3 * max(sv[0], 1e-12) or np.linalg.svd(spread, compute_uv=False)[1] < 1e-6:
+        raise CalibrationError(f"{eye} eye: the targets are collinear as seen from the eye: place "
+                               "them in a grid (3x3) spanning the field of view and record again")
+
+
+def _leave_one_out(cal: EyeCalibration, raw: np.ndarray, q: np.ndarray, dirs: np.ndarray,
+                   model: str) -> tuple[np.ndarray, np.ndarray]:
+    """Each target predicted by the fit to the others: its angular miss (K,) deg and the RMS of
+    the others about their own fit (K,) deg (NaN where that fit is not possible): an outlier
+    disagrees with the others, which agree without it."""
+    loo = np.full(len(raw), np.nan)
+    rest_rms = np.full(len(raw), np.nan)
+    if len(raw) <= cal.raw_map.coef.shape[0]:
+        return loo, rest_rms
+    for k in range(len(raw)):
+        keep = np.arange(len(raw)) != k
+        try:
+            fit = fit_raw_map(raw[keep], q[keep], model)
+        except CalibrationError:
+            continue
+        sub = EyeCalibration(cal.eye, cal.centre_mm, cal.plane_mm, fit)
+        loo[k] = _angle_deg(sub.directions(raw[k:k + 1]), dirs[k:k + 1])[0]
+        rest = _angle_deg(sub.directions(raw[keep]), dirs[keep])
+        rest_rms[k] = float(np.sqrt(np.mean(rest**2)))
+    return loo, rest_rms
 
 
 def compare_models(eye: str, raw, targets_cam_mm: np.ndarray, centre_mm: np.ndarray,

@@ -128,8 +128,11 @@ def run_estimator(samples: BinocularSamples, method: str = DEFAULT_METHOD, sigma
         lines = samples.lines()
         result = near_point_check(result, lines.origins_mm, lines.directions)
     result = with_direction(result, samples, options.get("error_model"))
-    log.info("%s: %d samples, %d lines: %s", method, result.n_samples, result.n_lines,
-             f"{result.position_mm.round(1).tolist()} mm" if result.ok else f"{result.status.value}: {result.reason}")
+    if result.ok and result.position_mm is not None:
+        outcome = f"{result.position_mm.round(1).tolist()} mm"
+    else:
+        outcome = f"{result.status.value}: {result.reason}"
+    log.info("%s: %d samples, %d lines: %s", method, result.n_samples, result.n_lines, outcome)
     return est, result
 
 

@@ -41,7 +41,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.stats import norm
 
-from .errormodel import ErrorModel, _corr, eye_labels, region_radius
+from .errormodel import ErrorModel, _corr, eye_labels
+from .errormodel_regions import region_radius
 from .frames import tangent_basis
 from .lines import BinocularSamples
 from .result import NEAR_POINT_MM, GazeEstimate, Status

@@ -10,7 +10,6 @@ Sources, and where each comes from:
   Correlations are used when they stand out of their sampling noise (``2.5 / sqrt(n)``).
 - Head-pose error from tracking (``pose_sigma_deg``): an angular error shared by both eyes of a
   sample (one head pose), added to each line's variance with correlation 1 between the eyes.
-  ``pose_angular_sigma_deg`` turns a tracking pose covariance into it.
 - A per-eye bias (``bias_deg`` per axis), common to all lines of an eye over a fixation: the eye
   calibration's residual and the glasses' slippage after it. It never averages down, and a fit
   cannot see it in its residuals (it moves the point instead), so it is a floor: the covariance of
@@ -36,19 +35,12 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
 
-from .errormodel_regions import (  # noqa: F401  (the regions' home; here for the modules that import them from here)
-    FAR_SIDE_CAP,
-    Sight,
-    at_level,
-    depth_interval,
-    far_side,
-    region_radius,
-    sight_info,
-)
+from .errormodel_regions import far_side, sight_info
 from .frames import tangent_basis
 from .lines import ViewLines
 
@@ -139,25 +131,12 @@ def bias_from_calibration(loo_rms_deg, slip_deg: float = 0.0) -> float:
     return float(math.sqrt(cal2 + slip_deg**2))
 
 
-def pose_angular_sigma_deg(pose_cov, distance_mm: float) -> float:
-    """Angular std per tangent axis, degrees, that a head-pose covariance adds to a view line to a
-    point ``distance_mm`` away. ``pose_cov`` (6, 6): (rotation vector rad, translation mm), as
-    ``tracking.pose`` gives it. The rotation turns the line by its angle; the translation moves
-    the eye, which seen from the point is an angle of translation / distance. Mean over axes."""
-    C = np.asarray(pose_cov, float)
-    if C.shape != (6, 6):
-        raise ValueError(f"pose_cov must have shape (6, 6), got {C.shape}")
-    if not distance_mm > 0:
-        raise ValueError(f"distance_mm must be positive, got {distance_mm}")
-    var = np.trace(C[:3, :3]) / 3.0 + np.trace(C[3:, 3:]) / 3.0 / distance_mm**2
-    return float(np.rad2deg(math.sqrt(max(var, 0.0))))
-
-
 def eye_labels(lines: ViewLines) -> np.ndarray:
     """(N,) 0 (left) or 1 (right) for each line: in a sample of two lines the first is the left
     (``BinocularSamples.lines`` order); a lone line takes the side whose origin it is nearer in
     the nearest two-line sample (all 0 when there is none)."""
     si = lines.sample_index
+    assert si is not None                          # ViewLines fills it in
     n = len(si)
     order = np.argsort(si, kind="stable")
     s = si[order]
@@ -196,8 +175,8 @@ def _jacobians(X, lines: ViewLines):
 def _noise_terms(r, w, eye, si, sigma_rad: float, model: ErrorModel) -> dict:
     """Per-eye noise std (2,), the eyes' residual correlation and the lag-one time correlation,
     from the residuals (N, 2) with weights (N,); the over-dispersion test."""
-    out = {"sigma": np.full(2, sigma_rad), "chi2_ratio": np.ones(2), "inflated": [False, False],
-           "rho": 0.0, "rho_t": 0.0}
+    out: dict[str, Any] = {"sigma": np.full(2, sigma_rad), "chi2_ratio": np.ones(2),
+                           "inflated": [False, False], "rho": 0.0, "rho_t": 0.0}
     r2 = np.einsum("ij,ij->i", r, r)
     n_eff = max(float(np.sum(w)), 1e-9)
     dof_all = max(2.0 * n_eff - 3.0, 1.0)

@@ -1,10 +1,13 @@
 """The density grid shared by the voxel estimators: a box of voxels in an Open3D tensor, the
-closed-form angle of every voxel to a batch of view lines, and the sub-voxel quadratic peak fit.
+closed-form angle of every voxel to a batch of view lines, the sub-voxel quadratic peak fit,
+and a box being laid over several streaming updates (``_PendingBox``).
 
 World frame, mm.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -118,6 +121,19 @@ _DESIGN = np.column_stack([
     0.5 * _STENCIL[:, 0] ** 2, 0.5 * _STENCIL[:, 1] ** 2, 0.5 * _STENCIL[:, 2] ** 2,
     _STENCIL[:, 0] * _STENCIL[:, 1], _STENCIL[:, 0] * _STENCIL[:, 2], _STENCIL[:, 1] * _STENCIL[:, 2]])
 _FIT = np.linalg.pinv(_DESIGN)
+
+
+@dataclass
+class _PendingBox:
+    """A box being laid over several streaming updates (``VoxelEstimator._advance``): its grid,
+    design std (3,) mm, the posterior N(center (3,) mm, cov (3, 3) mm^2) it was laid for, and the
+    kept samples evaluated into it so far (the first ``done``)."""
+
+    grid: DensityGrid
+    std: np.ndarray
+    center: np.ndarray
+    cov: np.ndarray
+    done: int = 0
 
 
 def _quadratic_fit_local(grid: DensityGrid, idx):

@@ -273,6 +273,7 @@ class _MLProblem:
         self.e, self.d = lines.origins_mm, lines.directions
         self.b1, self.b2 = tangent_basis(self.d)
         self.ns = n_samples
+        assert lines.sample_index is not None           # ViewLines fills it in
         _, self.inverse = np.unique(lines.sample_index, return_inverse=True)
         self.dof = np.bincount(self.inverse, minlength=n_samples) * 2.0
         self.line_w = np.ones(len(lines))
@@ -325,7 +326,7 @@ def _levenberg_marquardt(problem: _MLProblem, x, config: MLConfig):
             lam *= 10
         cost = problem.cost(x, True)
         if not step_ok or np.linalg.norm(step) < config.tolerance_mm:
-            converged = step_ok or np.linalg.norm(g) < 1e-9
+            converged = bool(step_ok or np.linalg.norm(g) < 1e-9)
             break
     return x, it, converged
 
@@ -341,7 +342,7 @@ def _ml_start(lines: ViewLines, x0_mm, ns: int, n: int):
     if not start.ok:
         alt = lse_point(lines)
         start = alt if alt.ok else start
-    return start.position_mm.copy()
+    return np.array(start.position_mm, dtype=float)      # a copy
 
 
 def ml_point(lines: ViewLines, config: MLConfig = MLConfig(), x0_mm: ArrayLike | None = None) -> GazeEstimate:

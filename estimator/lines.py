@@ -136,9 +136,11 @@ class BinocularSamples:
         frames = {p.frame for p in parts}
         if len(frames) != 1:
             raise ValueError(f"cannot concatenate samples in different frames: {sorted(frames)}")
-        fields = ("t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction",
-                  "left_valid", "right_valid")
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields), parts[0].frame)
+        def joined(name: str) -> np.ndarray:
+            return np.concatenate([getattr(p, name) for p in parts])
+        return cls(joined("t_s"), joined("left_origin_mm"), joined("left_direction"),
+                   joined("right_origin_mm"), joined("right_direction"), joined("left_valid"),
+                   joined("right_valid"), parts[0].frame)
 
     def __len__(self) -> int:
         return len(self.t_s)

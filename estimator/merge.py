@@ -118,7 +118,7 @@ class TargetMerger:
         if not estimate.ok:
             raise ValueError(f"a fixation without a usable estimate cannot be merged ({estimate.status.value})")
         origin = lines.origin_mm(0)
-        scored = []
+        scored: list[tuple] = []
         near = angle_deg(estimate.position_mm - origin, self._points[:len(self.groups)] - origin) <= MERGE_MAX_DEG
         for k in np.flatnonzero(near):                     # one array op over the groups, however many
             g = self.groups[k]

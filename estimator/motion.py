@@ -144,7 +144,7 @@ class _Lines:
 
     def __init__(self, samples: BinocularSamples):
         lines: ViewLines = samples.lines()
-        self.lines = lines
+        self.lines: ViewLines | None = lines
         self.o, self.d = lines.origins_mm, lines.directions
         self.t = np.asarray(samples.t_s, float)[lines.sample_index]
         self.b1, self.b2 = tangent_basis(self.d) if len(lines) else (self.d, self.d)
@@ -266,7 +266,7 @@ def _start_point(L: _Lines) -> np.ndarray:
     the mean direction."""
     if len(L) >= 2:
         e = nearest_point_to_lines(ViewLines(L.o, L.d))
-        if e.ok and np.all(np.isfinite(e.position_mm)):
+        if e.ok and e.position_mm is not None and np.all(np.isfinite(e.position_mm)):
             return np.asarray(e.position_mm, float)
     d = L.d.mean(axis=0)
     return L.o.mean(axis=0) + 1000.0 * d / max(np.linalg.norm(d), 1e-12)
@@ -376,7 +376,7 @@ def classify_lines(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: flo
     depths = np.linalg.norm(pts - eye, axis=1)
     if not (sweep_deg(pts, eye) >= MIN_SWEEP_DEG or abs(math.log(depths[0] / depths[1])) >= math.log(MIN_DEPTH_RATIO)):
         del bic_kind[TWO_POINTS]                                # two points a calibration error could make
-    best = min(bic_kind, key=bic_kind.get)
+    best = min(bic_kind, key=lambda kind: bic_kind[kind])
     kind = MOVING if best == PATH else best
     speed = float(np.linalg.norm(Xc[1] - Xc[0]) / (knots[1] - knots[0]))
     log.debug("motion test on %d lines: %s (bic %s, dispersion %.2f)", len(L), kind, bic, dispersion)
@@ -395,6 +395,7 @@ def _path_bias_floor(L: _Lines, knots, X, Hi, model: ErrorModel) -> np.ndarray:
     for j in range(3):
         Jp[n, :, 3 * k0 + j] += w0[:, None] * J[:, :, j]
         Jp[n, :, 3 * k1 + j] += w1[:, None] * J[:, :, j]
+    assert L.lines is not None                  # the caller's check: a subset carries no lines
     return bias_floor(Hi, Jp, L.lines, model)
 
 
@@ -404,6 +405,10 @@ def sweep_deg(points_mm, origin_mm) -> float:
     v = np.asarray(points_mm, float) - origin_mm
     v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
     return float(np.degrees(np.arccos(np.clip((v @ v.T).min(), -1.0, 1.0))))
+
+
+_Fits = dict[tuple[float, float | None], tuple]
+"""Smooth-path fits by (RMS acceleration, radial speed or None): ``_smooth_fit``'s results."""
 
 
 def _smooth_fit(L: _Lines, sigma: float, accel_mm_s2: float, knot_s: float, x_static, radial_mm_s=None):
@@ -461,7 +466,7 @@ def smooth_trajectory(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: 
     x0 = _start_point(L) if start_mm is None else np.asarray(start_mm, float)
     Xs, _, _ = _fit_knots(L, np.zeros(1), sigma, x0)
     grid = ACCEL_GRID_MM_S2 if accel_mm_s2 is None else (accel_mm_s2,)
-    fits = {(q, None): _smooth_fit(L, sigma, q, knot_s, Xs[0]) for q in sorted(grid)}
+    fits: _Fits = {(q, None): _smooth_fit(L, sigma, q, knot_s, Xs[0]) for q in sorted(grid)}
     _, chi_rough, edf_rough = fits[max(fits)]
     scatter = max(chi_rough / max(2 * len(L) - edf_rough, 1.0), 1e-3)     # the data's own, for choosing
     dispersion = max(1.0, scatter)                                       # never below sigma, for covariances
@@ -471,8 +476,8 @@ def smooth_trajectory(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: 
     key = min(fits, key=aic)
     if accel_mm_s2 is None:                 # then a speed prior along the line of sight, by BIC
         q = key[0]
-        stiff = {(q, v): _smooth_fit(L, sigma, q, knot_s, Xs[0], v) for v in RADIAL_SPEEDS_MM_S}
-        fits.update(stiff)
+        stiff: list[tuple[float, float | None]] = [(q, v) for v in RADIAL_SPEEDS_MM_S]
+        fits.update({k: _smooth_fit(L, sigma, q, knot_s, Xs[0], k[1]) for k in stiff})
         key = min([key, *stiff], key=lambda k: fits[k][1] / scatter + math.log(2 * len(L)) * fits[k][2])
     (knots, X, cov), chi, _ = fits[key]
     full = cov * dispersion

@@ -101,7 +101,7 @@ class PaperVoxelEstimator:
         pend = self._pending
         allv = BinocularSamples.concatenate(pend)
         seed = lse_point(allv.lines())
-        if not seed.ok:
+        if not seed.ok or seed.position_mm is None:     # (ok: never None)
             return False
         c = self.config
         # snap the space so that voxel centres sit on multiples of voxel_mm, as the paper's
@@ -117,8 +117,14 @@ class PaperVoxelEstimator:
         self._pending = []
         return True
 
+    @property
+    def _seeded_grid(self) -> DensityGrid:
+        """The voxel space, laid once the seed is (``_seed``)."""
+        assert self.grid is not None
+        return self.grid
+
     def _update_one(self, s: BinocularSamples):
-        c, g = self.config, self.grid
+        c, g = self.config, self._seeded_grid
         if not (s.left_valid[0] and s.right_valid[0]):
             return                                   # the method needs both lines for P_n
         pair = closest_point_two_lines(s.left_origin_mm, s.left_direction, s.right_origin_mm, s.right_direction)
@@ -142,7 +148,7 @@ class PaperVoxelEstimator:
             g.values += np.log(contribution + 1e-12 * contribution.max() + 1e-300)
 
     def _recentre(self):
-        g = self.grid
+        g = self._seeded_grid
         idx = g.argmax()
         d = (idx - (g.n - 1) / 2.0)                       # voxels from the centre to P_M
         if np.all(np.abs(d) <= g.n / 4):

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
-from .errormodel import Sight
+from .errormodel_regions import Sight
 
 if TYPE_CHECKING:
     from .direction import GazeDirection
@@ -82,7 +82,9 @@ class GazeEstimate:
         error model shaped the covariance (its far side, ``estimator.errormodel.at_level``), that
         level's own. None without a covariance."""
         C = self.level_covariance(probability)
-        return None if C is None else covariance_ellipsoid(self.position_mm, C, probability)
+        if C is None or self.position_mm is None:   # (C is None without a point)
+            return None
+        return covariance_ellipsoid(self.position_mm, C, probability)
 
     def sight(self) -> Sight | None:
         """Where its lines were seen from and how the error model shaped its covariance

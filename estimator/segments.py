@@ -190,19 +190,3 @@ class OnlineSegmenter:
         p = o + depth_mm * d / np.linalg.norm(d, axis=1, keepdims=True) - o[-1]
         return p / np.linalg.norm(p, axis=1, keepdims=True)
 
-
-def same_target(p1, cov1, p2, cov2, origin=None, floor_deg: float = 0.5, threshold: float = 11.34) -> bool:
-    """Whether two estimates (3,) with covariances (3, 3) mm^2 are one target seen twice:
-    Mahalanobis distance below the chi-square 99 % point (3 dof). Each covariance gets an
-    isotropic floor of ``floor_deg`` times the distance from ``origin`` (the head, default the
-    world origin): calibration biases shift a whole fixation's lines together, which the
-    covariance of its random noise does not cover. Without covariances: within 5 % of the
-    distance."""
-    p1, p2 = np.asarray(p1, float), np.asarray(p2, float)
-    o = np.zeros(3) if origin is None else np.asarray(origin, float)
-    dist = 0.5 * (np.linalg.norm(p1 - o) + np.linalg.norm(p2 - o))
-    if cov1 is None or cov2 is None:
-        return bool(np.linalg.norm(p1 - p2) < 0.05 * dist)
-    floor = (np.deg2rad(floor_deg) * dist) ** 2 * np.eye(3)
-    d = p1 - p2
-    return bool(d @ np.linalg.solve(np.asarray(cov1) + np.asarray(cov2) + 2 * floor, d) < threshold)

@@ -99,7 +99,7 @@ def seen_bias(samples: BinocularSamples, labels) -> SeenBias:
         sums = [t for t, k in zip(sums, keep, strict=True) if k]
     if not sums:
         return SeenBias(0.0, float("nan"), 0, left_out, 0)
-    q, S = sum(t[0] for t in sums), sum(t[1] for t in sums)
+    q, S = sum(t[0] for t in sums), sum((t[1] for t in sums), np.zeros_like(sums[0][1]))
     lam, V = np.linalg.eigh(0.5 * (S + S.T))
     seen = lam > 1.0 / math.radians(WELL_SEEN_DEG) ** 2
     if not np.any(seen):

@@ -74,6 +74,7 @@ def closest_point_two_lines(origin1_mm: ArrayLike, direction1: ArrayLike, origin
 
 
 def _n_samples(lines: ViewLines) -> int:
+    assert lines.sample_index is not None          # ViewLines fills it in
     return int(len(np.unique(lines.sample_index)))
 
 

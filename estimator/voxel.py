@@ -26,8 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errormodel import ErrorModel, far_side, model_covariance, sight_info
-from .grid import DensityGrid, _quadratic_fit_local
+from .errormodel import ErrorModel, model_covariance
+from .errormodel_regions import far_side, sight_info
+from .grid import DensityGrid, _PendingBox, _quadratic_fit_local
 from .likelihood import MLConfig, angular_log_likelihood, fisher_information, ml_point
 from .lines import BinocularSample, BinocularSamples, ViewLines
 from .reliability import reliability_weight_at, reliability_weights_at
@@ -36,6 +37,8 @@ from .samplebuffer import _SampleBuffer, spread_samples
 from .triangulation import lse_point
 
 log = logging.getLogger(__name__)
+
+_LAYING = "a new box is being laid over the kept lines"
 
 __all__ = ["VoxelConfig", "VoxelEstimator", "VoxelWork"]
 
@@ -56,19 +59,6 @@ class VoxelWork:
     layouts: int = 0
     lines_refit: int = 0
     deferred: int = 0
-
-
-@dataclass
-class _PendingBox:
-    """A box being laid over several streaming updates (``VoxelEstimator._advance``): its grid,
-    design std (3,) mm, the posterior N(center (3,) mm, cov (3, 3) mm^2) it was laid for, and the
-    kept samples evaluated into it so far (the first ``done``)."""
-
-    grid: DensityGrid
-    std: np.ndarray
-    center: np.ndarray
-    cov: np.ndarray
-    done: int = 0
 
 
 @dataclass(frozen=True)
@@ -177,12 +167,14 @@ class VoxelEstimator:
         self._sigma = np.deg2rad(config.sigma_deg)
         self._buf = _SampleBuffer()
         self.grid: DensityGrid | None = None
-        self._design_std = None
+        self._design_std: np.ndarray | None = None
         self._last: GazeEstimate | None = None
         self.work = VoxelWork()
         self._allowance = float(config.work_initial)   # line re-evaluations still allowed
-        self._posterior = None        # (point, Laplace covariance) of the last peak: the weights' posterior
-        self._model = None            # (lines then, noise covariance then, bias floor, info) of the error model
+        # (point, Laplace covariance) of the last peak: the weights' posterior
+        self._posterior: tuple[np.ndarray, np.ndarray] | None = None
+        # the error model: (lines then, noise covariance then, bias floor, info, their mean origin)
+        self._model: tuple[int, np.ndarray, np.ndarray, dict, np.ndarray] | None = None
         self._pending: _PendingBox | None = None   # a box being laid over several updates (streaming)
 
     def __len__(self) -> int:
@@ -274,7 +266,7 @@ class VoxelEstimator:
         self._posterior = None
         return failed(self.method, status, reason, self._buf.n, self._n_lines())
 
-    def _seed(self, x0=None):
+    def _seed(self, x0=None) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
         cfg = self.config
         # at most ``fit_samples`` of the kept samples, the information scaled to all of them: a
         # seed, not the answer (the box's peak is, over every kept line)
@@ -289,7 +281,7 @@ class VoxelEstimator:
                                            max_iterations=30, tolerance_mm=1e-3), x0_mm=x0)
         else:
             est = lse_point(lines)
-        if not est.ok:
+        if not est.ok or est.position_mm is None:     # (ok: never None)
             return None, est.reason
         F = fisher_information(est.position_mm, lines.origins_mm, self._sigma) * (self._buf.n_lines / max(len(si), 1))
         if np.linalg.cond(F) > 1e14:
@@ -320,6 +312,7 @@ class VoxelEstimator:
         box, under its posterior's weights; once every kept sample is in, it replaces the box
         (True). Samples added meanwhile are in the old box and come to the new one in turn."""
         p = self._pending
+        assert p is not None                          # called while a box is being laid
         stop = self._buf.n if most_lines is None else min(self._buf.n, p.done + max(most_lines // 2, 1))
         sl = slice(p.done, stop)
         self._set_weights(sl, p.center, p.cov)
@@ -354,62 +347,40 @@ class VoxelEstimator:
 
     def _accumulate(self, sl, grid=None):
         o, d, si = self._buf.lines(sl)
-        (self.grid if grid is None else grid).add_lines(o, d, self._buf.weight[si] * (-0.5 / self._sigma**2))
+        target = self.grid if grid is None else grid
+        assert target is not None                     # a box laid or being laid
+        target.add_lines(o, d, self._buf.weight[si] * (-0.5 / self._sigma**2))
 
     def _settle(self, stream: bool = False) -> GazeEstimate:
         """The estimate after the samples added: seed and lay boxes as needed (``stream``: a box
         over many lines is laid over several updates, ``_layout``)."""
         cfg = self.config
-        L = self._buf.n_lines
-        laying = "a new box is being laid over the kept lines"
+        n_lines = self._buf.n_lines
         if self._pending is not None:
             self._advance(cfg.layout_chunk_lines if stream else None)
         if self.grid is None:
-            if self._pending is not None:
-                return self._fail(Status.INSUFFICIENT, f"no estimate yet: {laying}")
-            if self._buf.n < cfg.seed_samples:
-                return self._fail(Status.INSUFFICIENT,
-                                  f"gathering samples for the seed: {self._buf.n} of {cfg.seed_samples}")
-            why = self._seed_gate()
-            if why:
-                return self._fail(Status.INSUFFICIENT, f"no seed yet: {why}")
-            if not self._afford(2 * L):
-                return self._fail(Status.INSUFFICIENT, "no seed yet: the last fits failed; the next waits for more "
-                                                       "samples (bounded work per sample)")
-            seed, reason = self._seed()
-            if seed is None:
-                return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
-            if not self._layout(*seed, stream=stream):
-                return self._fail(Status.INSUFFICIENT, f"no estimate yet: {laying}")
+            failed = self._seed_box(n_lines, stream)
+            if failed is not None:
+                return failed
         for _ in range(cfg.max_relayouts):
             grid = self.grid
+            assert grid is not None                   # seeded above, or re-laid before ``continue``
             idx = grid.argmax()
             fit = None
             if idx.min() > 0 and idx.max() < grid.n - 1:
                 fit = _quadratic_fit_local(grid, idx)
             if fit is None:
-                if self._pending is not None:      # the new box comes in the next updates
-                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak in this box; {laying}")
-                # the maximum is at the border, or not a peak at this voxel size: lay the box
-                # anew from the continuous optimum over every kept line (nothing is lost)
-                if not self._afford(2 * L):
-                    return self._fail(Status.INSUFFICIENT, "the density has no clear peak yet; the box is laid anew "
-                                                           "once more samples have come in (bounded work per sample)")
-                seed, reason = self._seed(x0=grid.index_to_world(idx)[0])
-                if seed is None:
-                    # back to seeding: the O(1) test waits for lines that fix a point, and the next
-                    # box is evaluated from every kept line, so dropping this one loses nothing
-                    self.grid = None
-                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak yet: {reason}")
-                if not self._layout(*seed, stream=stream):
-                    return self._fail(Status.INSUFFICIENT, f"the density has no clear peak in this box; {laying}")
+                failed = self._relay_without_peak(grid, idx, n_lines, stream)
+                if failed is not None:
+                    return failed
                 continue
             offset, cov_local = fit
             point = grid.center_mm + grid.axes @ offset
             cov = grid.axes @ cov_local @ grid.axes.T
             # a peak inside the box with a valid fit is an answer even when the box would be
             # re-laid (refined or re-centred) but the work bound defers it, or it is being laid
-            if self._pending is None and self._needs_layout(offset, cov_local) and self._afford(L):
+            if (self._pending is None and self._needs_layout(offset, cov_local)
+                    and self._afford(n_lines)):
                 if self._layout(point, cov, stream=stream):
                     continue
             return self._result(point, cov)
@@ -418,10 +389,55 @@ class VoxelEstimator:
         return self._fail(Status.DEGENERATE, "the density has no bounded maximum: the view lines are "
                                              "nearly parallel (target too far for this head motion)")
 
+    def _seed_box(self, n_lines: int, stream: bool) -> GazeEstimate | None:
+        """Without a box: seed one and lay it when the samples allow (``_seed_gate``, the work
+        bound over the ``n_lines`` kept lines); the failure to return, or None once it is laid."""
+        cfg = self.config
+        if self._pending is not None:
+            return self._fail(Status.INSUFFICIENT, f"no estimate yet: {_LAYING}")
+        if self._buf.n < cfg.seed_samples:
+            gathering = f"gathering samples for the seed: {self._buf.n} of {cfg.seed_samples}"
+            return self._fail(Status.INSUFFICIENT, gathering)
+        why = self._seed_gate()
+        if why:
+            return self._fail(Status.INSUFFICIENT, f"no seed yet: {why}")
+        if not self._afford(2 * n_lines):
+            return self._fail(Status.INSUFFICIENT, "no seed yet: the last fits failed; the next "
+                                                   "waits for more samples (bounded work per "
+                                                   "sample)")
+        seed, reason = self._seed()
+        if seed is None:
+            return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
+        if not self._layout(*seed, stream=stream):
+            return self._fail(Status.INSUFFICIENT, f"no estimate yet: {_LAYING}")
+        return None
+
+    def _relay_without_peak(self, grid, idx, n_lines: int, stream: bool) -> GazeEstimate | None:
+        """The box's maximum (voxel ``idx``) is at its border, or not a peak at this voxel size:
+        lay the box anew from the continuous optimum over every kept line (nothing is lost);
+        the failure to return, or None when the new box is laid."""
+        no_peak_here = f"the density has no clear peak in this box; {_LAYING}"
+        if self._pending is not None:      # the new box comes in the next updates
+            return self._fail(Status.INSUFFICIENT, no_peak_here)
+        if not self._afford(2 * n_lines):
+            return self._fail(Status.INSUFFICIENT, "the density has no clear peak yet; the box is "
+                                                   "laid anew once more samples have come in "
+                                                   "(bounded work per sample)")
+        seed, reason = self._seed(x0=grid.index_to_world(idx)[0])
+        if seed is None:
+            # back to seeding: the O(1) test waits for lines that fix a point, and the next
+            # box is evaluated from every kept line, so dropping this one loses nothing
+            self.grid = None
+            return self._fail(Status.INSUFFICIENT, f"the density has no clear peak yet: {reason}")
+        if not self._layout(*seed, stream=stream):
+            return self._fail(Status.INSUFFICIENT, no_peak_here)
+        return None
+
     def _needs_layout(self, offset_mm, cov_local) -> bool:
         """Lay a new box when the peak (box frame, mm) left the central half, or the posterior
         std along a box axis changed by more than ``refine_factor``."""
         g = self.grid
+        assert g is not None and self._design_std is not None    # asked of a laid box's peak
         if np.max(np.abs(offset_mm / g.spacing_mm)) > g.n / 4:
             return True
         floor = self.config.min_spacing_mm * g.n / (2 * self.config.coverage_sigmas)
@@ -455,6 +471,7 @@ class VoxelEstimator:
 
     def _result(self, point, cov) -> GazeEstimate:
         g = self.grid
+        assert g is not None                          # a peak of a laid box
         info = {"voxel_mm": g.spacing_mm.tolist(), "relayouts": self.work.layouts, "seed_fits": self.work.seed_fits}
         self._posterior = (point, cov)
         cov = self._reported_covariance(point, cov, info)

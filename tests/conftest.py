@@ -60,8 +60,9 @@ PROCESS_SCENARIO = {"base": "lab-walkabout", "duration_s": 12.0,
 def processed(tmp_path_factory):
     """A simulated 12 s session (``PROCESS_SCENARIO``, seed 321) processed once for the whole
     run (about a minute), shared by tests/test_process.py and tests/test_exports.py:
-    (session folder, output folder, ``ProcessResult``). A test that processes it again into the
-    same folder (test_process's re-run test) leaves it in the state of its last run."""
+    (session folder, output folder, ``ProcessResult``). No test writes into either folder (one
+    that processes again works on a copy, e.g. test_process_stale's), so no result depends on
+    the order the tests run in."""
     from wearable_gaze.pipeline.process import process_session
     from wearable_gaze.sim.simulate import simulate_scenario
 
@@ -70,6 +71,22 @@ def processed(tmp_path_factory):
     simulate_scenario(PROCESS_SCENARIO, root, seed=321)
     res = process_session(root, base / "out")
     return root, base / "out", res
+
+
+DEVICE_SCENARIO = {"base": "lab-walkabout", "duration_s": 7.0, "targets": {"random_count": 2},
+                   "camera": {"resolution": [640, 360]}, "calibration": {"camera_views": 0}}
+"""test_live.py's scenario, at 640x360 (at 320x180 marker poses are too coarse for its targets)."""
+
+
+@pytest.fixture(scope="session")
+def device_session(tmp_path_factory):
+    """``DEVICE_SCENARIO`` simulated once (seed 77), served by the device emulators of
+    tests/test_live_pupil_core.py and tests/test_live_neon.py; read only, never written."""
+    from wearable_gaze.sim.simulate import simulate_scenario
+
+    root = tmp_path_factory.mktemp("device") / "session"
+    simulate_scenario(DEVICE_SCENARIO, root, seed=77)
+    return root
 
 
 AOIS = Path(__file__).resolve().parent / "data" / "aois"

@@ -1,5 +1,6 @@
 """Synthetic ground truth shared by the tests."""
 
+import contextlib
 import io
 
 import numpy as np
@@ -162,3 +163,95 @@ def slow_down(monkeypatch, owner, name: str, seconds: float = 1.0, result=None, 
             raise raises
         return result if result is not None else real(*args, **kwargs)
     monkeypatch.setattr(owner, name, slow)
+
+
+def same_target(p1, cov1, p2, cov2, origin=None, floor_deg: float = 0.5, threshold: float = 11.34) -> bool:
+    """The covariance-overlap test that ``estimator.merge``'s likelihood ratio on the pooled lines
+    replaced (moved here from estimator/segments.py: only tests use it, to show the merge keeps
+    apart what this test would join). Whether two estimates (3,) with covariances (3, 3) mm^2 are one target seen twice:
+    Mahalanobis distance below the chi-square 99 % point (3 dof). Each covariance gets an
+    isotropic floor of ``floor_deg`` times the distance from ``origin`` (the head, default the
+    world origin): calibration biases shift a whole fixation's lines together, which the
+    covariance of its random noise does not cover. Without covariances: within 5 % of the
+    distance."""
+    p1, p2 = np.asarray(p1, float), np.asarray(p2, float)
+    o = np.zeros(3) if origin is None else np.asarray(origin, float)
+    dist = 0.5 * (np.linalg.norm(p1 - o) + np.linalg.norm(p2 - o))
+    if cov1 is None or cov2 is None:
+        return bool(np.linalg.norm(p1 - p2) < 0.05 * dist)
+    floor = (np.deg2rad(floor_deg) * dist) ** 2 * np.eye(3)
+    d = p1 - p2
+    return bool(d @ np.linalg.solve(np.asarray(cov1) + np.asarray(cov2) + 2 * floor, d) < threshold)
+
+
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run"]
+
+
+@contextlib.contextmanager
+def chromium_page(html_path, viewport=(1200, 900)):
+    """The page ``html_path`` loaded in headless Chromium (Debian's, driven by playwright, never
+    its own browsers; the test is skipped without them), closed on leaving. Yields (page, seen):
+    ``seen["errors"]`` collects console errors and uncaught page errors, ``seen["remote"]`` every
+    request that would leave the machine (not ``file:`` or ``data:``)."""
+    import shutil
+
+    import pytest
+
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is in the test extra: pip install -e "
+                                   "'.[test]'")
+    seen: dict = {"errors": [], "remote": []}
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=browser, args=CHROMIUM_ARGS)
+        try:
+            page = b.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+            page.on("console", lambda m: seen["errors"].append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: seen["errors"].append(str(e)))
+            page.on("request", lambda r: seen["remote"].append(r.url)
+                    if not r.url.startswith(("file:", "data:")) else None)
+            page.goto(html_path.as_uri(), wait_until="load")
+            yield page, seen
+        finally:
+            b.close()
+
+
+def screenshot_bgr(locator) -> np.ndarray:
+    """A playwright element's screenshot as a BGR image (H, W, 3) uint8."""
+    import cv2
+
+    return cv2.imdecode(np.frombuffer(locator.screenshot(), np.uint8), cv2.IMREAD_COLOR)
+
+
+def colour_pixels(img, hex_colour: str, tol: int = 40) -> int:
+    """How many pixels of a BGR image are within ``tol`` (per channel) of ``hex_colour``
+    ('#rrggbb')."""
+    r, g, b = (int(hex_colour[k:k + 2], 16) for k in (1, 3, 5))
+    return int(np.sum(np.all(np.abs(img.astype(int) - [b, g, r]) <= tol, axis=2)))
+
+
+def run_live_device(url: str, session, rec, duration_s: float = 7.5) -> tuple[list, int, str]:
+    """``wearable-gaze live --device url`` with ``session``'s camera calibration and marker map,
+    recorded into ``rec``, quiet: (its JSON messages, its exit status, its stderr)."""
+    import contextlib
+    import json
+
+    from wearable_gaze.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["live", "--device", url, "--camera-calib", str(session / "truth" / "camera.json"),
+                     "--markers", str(session / "markers.json"), "--record", str(rec), "--duration",
+                     str(duration_s), "--quiet"])
+    return [json.loads(x) for x in out.getvalue().splitlines()], code, err.getvalue()
+
+
+def recorded_rays(rec):
+    """A live recording's eye rays (eye_rays.csv): (times (N,) s, (N, 12) both eyes' origins and
+    directions)."""
+    from wearable_gaze.formats.eye_rays import read_eye_rays
+
+    r = read_eye_rays(rec / "eye_rays.csv")
+    return r.t_s, np.hstack([r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction])

@@ -11,7 +11,8 @@ from scipy.stats import chi2
 from test_errormodel import X, _biased
 
 from estimator import MLConfig, ml_point
-from estimator.errormodel import ErrorModel, region_radius
+from estimator.errormodel import ErrorModel
+from estimator.errormodel_regions import region_radius
 from estimator.slippage import SeenBias
 from wearable_gaze.formats.targets import record_sight, target_record
 from wearable_gaze.pipeline.errorbudget import BiasPrior, session_bias, with_bias

@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from estimator.errormodel import DEFAULT_BIAS_DEG, Sight
+from estimator.errormodel import DEFAULT_BIAS_DEG
+from estimator.errormodel_regions import Sight
 from estimator.slippage import SeenBias
 from wearable_gaze.formats.targets import read_targets, write_targets
 from wearable_gaze.pipeline.errorbudget import (

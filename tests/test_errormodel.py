@@ -12,7 +12,6 @@ from estimator.errormodel import (
     bias_from_calibration,
     eye_labels,
     model_covariance,
-    pose_angular_sigma_deg,
 )
 from estimator.frames import tangent_basis
 
@@ -120,16 +119,11 @@ def test_eye_labels_follow_the_samples_and_place_lone_lines(rng):
     assert np.array_equal(eye_labels(again), truth[order][rev])
 
 
-def test_bias_from_the_calibration_and_pose_sigma():
+def test_bias_from_the_calibration():
     assert bias_from_calibration([None, None]) == 0.0                   # no fixed slippage: the lines size it
     assert bias_from_calibration([None, None], slip_deg=DEFAULT_BIAS_DEG) == pytest.approx(DEFAULT_BIAS_DEG)
     assert bias_from_calibration([0.4, 0.4], slip_deg=0.0) == pytest.approx(0.4 / np.sqrt(2))
     assert bias_from_calibration([0.3, float("nan")], slip_deg=0.5) == pytest.approx(np.sqrt(0.3**2 / 2 + 0.25))
-    cov = np.zeros((6, 6))
-    cov[:3, :3] = np.eye(3) * np.deg2rad(0.2) ** 2
-    assert pose_angular_sigma_deg(cov, 1000.0) == pytest.approx(0.2)
-    cov[3:, 3:] = np.eye(3) * 10.0**2                    # 10 mm at 1 m: 0.573 deg
-    assert pose_angular_sigma_deg(cov, 1000.0) == pytest.approx(np.hypot(0.2, np.rad2deg(0.01)), rel=1e-3)
 
 
 def test_the_pose_term_widens_the_lateral_extent(rng):
@@ -164,7 +158,7 @@ def test_bad_settings_are_refused():
 def test_the_far_side_stretches_depth_to_the_end_of_the_interval_in_inverse_depth():
     """Depth is Gaussian in inverse depth: the depth sd is stretched by 1 / (1 - k r) along the
     line of sight only, so that k sds reach D / (1 - k r)."""
-    from estimator.errormodel import far_side
+    from estimator.errormodel_regions import far_side
 
     C = np.diag([4.0, 9.0, 200.0**2])                      # depth along z, 2000 mm away: r = 0.1
     S, f = far_side(C, [0.0, 0.0, 2000.0], [0.0, 0.0, 0.0], 2.8)
@@ -207,7 +201,8 @@ def test_each_level_has_its_own_far_side_and_the_95_percent_one_is_the_covarianc
     """``at_level`` re-draws the far side for a level: the 95 % level is the covariance itself
     (its ellipsoid is ``covariance_mm2``'s), a 68 % region is shorter along the line of sight
     only, by the ratio of the two levels' stretches; the depth interval is D / (1 +- z r)."""
-    from estimator.errormodel import FAR_SIDE_K, at_level, depth_interval, far_side, sight_info
+    from estimator.errormodel import FAR_SIDE_K
+    from estimator.errormodel_regions import at_level, depth_interval, far_side, sight_info
 
     C_lin = np.array([[16.0, 0, 0], [0, 25.0, 0], [0, 0, 300.0**2]])      # 2000 mm away: r = 0.15
     point, origin = np.array([0.0, 0.0, 2000.0]), np.zeros(3)

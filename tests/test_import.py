@@ -212,7 +212,7 @@ def test_a_poorly_fixed_fixation_is_not_merged_into_a_well_fixed_one(rng):
     calibration bias), so ``same_target`` alone merged them and dragged the good point toward
     the other lines; the lines' likelihood ratio keeps them apart. Two fixations of one point
     still merge."""
-    from estimator.segments import same_target
+    from tests.helpers import same_target
     from wearable_gaze.pipeline.fixations import find_targets
 
     def fixation(point, heads, t0):

@@ -101,19 +101,29 @@ def test_docs_architecture_names_every_module():
     assert not missing, f"name these in docs/architecture.md's table: {missing}"
 
 
-def test_no_module_over_500_lines_and_no_function_over_80():
+MAX_FUNCTION_LINES = 60
+"""The longest function (its whole ``def``, docstring included) docs/architecture.md allows."""
+OVER_THE_FUNCTION_LIMIT = {("wearable_gaze/pipeline/process.py", "process_session")}
+"""Still over MAX_FUNCTION_LINES while it is being reshaped into steps (issue 30); remove once it
+is under."""
+
+
+def test_no_module_over_500_lines_and_no_function_over_60():
     """Small modules and functions (docs/architecture.md): a module over 500 lines holds more than
-    one concept, a function over 80 lines more than one step."""
+    one concept, a function over 60 lines more than one step."""
     big = []
     for pkg in ORDER:
         for p in (ROOT / pkg).rglob("*.py"):
             src = p.read_text()
+            rel = p.relative_to(ROOT)
             if len(src.splitlines()) > 500:
-                big.append(f"{p.relative_to(ROOT)}: {len(src.splitlines())} lines")
+                big.append(f"{rel}: {len(src.splitlines())} lines")
             for node in ast.walk(ast.parse(src)):
-                if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.end_lineno - node.lineno >= 80:
-                    big.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name}: "
-                               f"{node.end_lineno - node.lineno + 1} lines")
+                if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                    continue
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES and (rel.as_posix(), node.name) not in OVER_THE_FUNCTION_LIMIT:
+                    big.append(f"{rel}:{node.lineno} {node.name}: {lines} lines")
     assert not big, big
 
 

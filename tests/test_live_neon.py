@@ -4,8 +4,6 @@ loopback and read through Pupil Labs' unmodified client; the live session's targ
 (latency from the phone's sample time through the Time Echo offset), and a phone killed and started
 again mid-session."""
 
-import contextlib
-import io
 import json
 import sys
 import threading
@@ -14,27 +12,24 @@ import time
 import numpy as np
 import pytest
 
+from tests.helpers import recorded_rays, run_live_device
 from wearable_gaze.cli import main
 from wearable_gaze.errors import UserError
-from wearable_gaze.formats.eye_rays import read_eye_rays
 from wearable_gaze.live import neon_in
 from wearable_gaze.live.device_app import open_device_session
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.pipeline.truth_match import match_targets
 from wearable_gaze.sim.neon_emu import NeonEmulator, session_camera
 from wearable_gaze.sim.pupil_core_emu import device_stream
-from wearable_gaze.sim.simulate import simulate_scenario
 
 pytest.importorskip("pupil_labs.realtime_api", reason="the [neon] extra (pupil-labs-realtime-api) is not installed: "
                                                       "pip install 'wearable-gaze[neon]'")
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    root = tmp_path_factory.mktemp("neon") / "session"
-    simulate_scenario({"base": "lab-walkabout", "duration_s": 7.0, "targets": {"random_count": 2},
-                       "camera": {"resolution": [640, 360]}, "calibration": {"camera_views": 0}}, root, seed=77)
-    return root          # test_live_pupil_core.py's session
+def session(device_session):
+    """The simulated session both device tests serve (tests/conftest.py's ``device_session``)."""
+    return device_session
 
 
 def _emulator(session, **kw):
@@ -48,11 +43,6 @@ def _sent_rays(emu, until=np.inf):
     nan = np.full(6, np.nan)
     return [np.concatenate([s.left[k] if s.left_valid[k] else nan, s.right[k] if s.right_valid[k] else nan])
             for t, k, _ in emu.player.sent_log if t <= until]
-
-
-def _recorded_rays(rec):
-    r = read_eye_rays(rec / "eye_rays.csv")
-    return r.t_s, np.hstack([r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction])
 
 
 def _assert_every_sample_from_the_first_kept(sent, rows, n_sent_before_end=None):
@@ -69,14 +59,9 @@ def live_run(session, tmp_path_factory):
     base = tmp_path_factory.mktemp("neon-live")
     emu = _emulator(session)
     url = emu.listen()
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(["live", "--device", url, "--camera-calib", str(session / "truth" / "camera.json"),
-                     "--markers", str(session / "markers.json"), "--record", str(base / "rec"), "--duration", "7.5",
-                     "--quiet"])
+    msgs, code, err = run_live_device(url, session, base / "rec")
     emu.stop()
-    msgs = [json.loads(x) for x in out.getvalue().splitlines()]
-    return base / "rec", msgs, code, err.getvalue(), emu
+    return base / "rec", msgs, code, err, emu
 
 
 def test_live_from_neon_finds_the_targets(session, live_run):
@@ -101,7 +86,7 @@ def test_the_recording_holds_every_sample_received_and_process_finds_the_same_ta
     rec, msgs, _, _, emu = live_run
     man = json.loads((rec / "session.json").read_text())
     assert man["complete"] and man["source"]["device"] == "pupil-neon" and "eye_rays" in man["files"]
-    t, rows = _recorded_rays(rec)
+    t, rows = recorded_rays(rec)
     assert np.all(np.diff(t) > 0) and man["n_eye_samples"] == len(rows)
     _assert_every_sample_from_the_first_kept(_sent_rays(emu), rows)
     # the recorded times are the phone's sample times on the session clock: their steps are the stream's
@@ -148,7 +133,7 @@ def test_a_phone_killed_and_started_again_is_reconnected_and_nothing_received_is
     second.stop()
     stats = done["stats"]
     assert stats.reconnects >= 1
-    t, rows = _recorded_rays(tmp_path / "rec")
+    t, rows = recorded_rays(tmp_path / "rec")
     local = t + link.t0
     before, after = rows[local < killed], rows[local > back]
     assert len(before) + len(after) == len(rows)

@@ -3,8 +3,6 @@ Core emulator on loopback, the live session's targets, its recording (every samp
 read by ``process`` as an imported session: the same targets), a garbage message, and a device
 killed and started again mid-session."""
 
-import contextlib
-import io
 import json
 import re
 import threading
@@ -13,8 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from wearable_gaze.cli import main
-from wearable_gaze.formats.eye_rays import read_eye_rays
+from tests.helpers import recorded_rays, run_live_device
 from wearable_gaze.formats.fixations_table import read_fixations_csv
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.viewlines import read_viewlines_csv
@@ -22,15 +19,12 @@ from wearable_gaze.live.device_app import open_device_session
 from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.pipeline.truth_match import match_targets
 from wearable_gaze.sim.pupil_core_emu import PupilCoreEmulator, device_stream
-from wearable_gaze.sim.simulate import simulate_scenario
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    root = tmp_path_factory.mktemp("pupil") / "session"
-    simulate_scenario({"base": "lab-walkabout", "duration_s": 7.0, "targets": {"random_count": 2},
-                       "camera": {"resolution": [640, 360]}, "calibration": {"camera_views": 0}}, root, seed=77)
-    return root          # test_live.py's scenario, at 640x360: at 320x180 marker poses are too coarse for its targets
+def session(device_session):
+    """The simulated session both device tests serve (tests/conftest.py's ``device_session``)."""
+    return device_session
 
 
 def _sent_rays(emu, until=np.inf):
@@ -40,11 +34,6 @@ def _sent_rays(emu, until=np.inf):
     nan = np.full(6, np.nan)
     return [(k, np.concatenate([s.left[k] if s.left_valid[k] else nan, s.right[k] if s.right_valid[k] else nan]))
             for t, k in emu.sent_log if t <= until]
-
-
-def _recorded_rays(rec):
-    r = read_eye_rays(rec / "eye_rays.csv")
-    return r.t_s, np.hstack([r.left_origin_mm, r.left_direction, r.right_origin_mm, r.right_direction])
 
 
 def _assert_every_sample_from_the_first_kept(sent, rows, n_sent_before_end=None):
@@ -63,14 +52,9 @@ def live_run(session, tmp_path_factory):
     junk = {90: [[b"gaze.3d.01.", b"\xc1 not msgpack"], [b"gaze.3d.01."]]}
     emu = PupilCoreEmulator(device_stream(session), inject=junk, log_sent=True)
     url = emu.listen()
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(["live", "--device", url, "--camera-calib", str(session / "truth" / "camera.json"),
-                     "--markers", str(session / "markers.json"), "--record", str(base / "rec"), "--duration", "7.5",
-                     "--quiet"])
+    msgs, code, err = run_live_device(url, session, base / "rec")
     emu.stop()
-    msgs = [json.loads(x) for x in out.getvalue().splitlines()]
-    return base / "rec", msgs, code, err.getvalue(), emu
+    return base / "rec", msgs, code, err, emu
 
 
 def test_live_from_pupil_core_finds_the_targets(session, live_run):
@@ -100,7 +84,7 @@ def test_the_recording_holds_every_sample_received_and_process_finds_the_same_ta
     rec, msgs, _, _, emu = live_run
     man = json.loads((rec / "session.json").read_text())
     assert man["complete"] and man["source"]["device"] == "pupil-core" and "eye_rays" in man["files"]
-    t, rows = _recorded_rays(rec)
+    t, rows = recorded_rays(rec)
     assert np.all(np.diff(t) > 0) and man["n_eye_samples"] == len(rows)
     _assert_every_sample_from_the_first_kept(_sent_rays(emu), rows)
     again = device_stream(rec)                       # a device recording plays again through the emulator
@@ -175,7 +159,7 @@ def test_a_device_killed_and_started_again_is_reconnected_and_nothing_received_i
     second.stop()
     stats = done["stats"]
     assert stats.reconnects >= 1
-    t, rows = _recorded_rays(tmp_path / "rec")
+    t, rows = recorded_rays(tmp_path / "rec")
     local = t + link.t0
     before, after = rows[local < killed], rows[local > back]
     assert len(before) + len(after) == len(rows)

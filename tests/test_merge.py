@@ -9,7 +9,7 @@ import pytest
 from estimator import BinocularSamples, PooledEstimate, estimate, perturb_directions
 from estimator.merge import MERGE_LR_THRESHOLD, MERGE_POSE_DEG, TargetMerger, merge_statistic
 from estimator.result import Status, failed
-from estimator.segments import same_target
+from tests.helpers import same_target
 from tests.test_live_parts import _eyes, _pose, _record
 from wearable_gaze.live.estimation import SIGMA_DEG, GazeEstimation
 from wearable_gaze.pipeline.estimate import DEFAULT_ERROR_MODEL

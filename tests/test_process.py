@@ -7,11 +7,10 @@ import re
 import shutil
 
 import numpy as np
-import pytest
 
+from tests.helpers import chromium_page, colour_pixels, screenshot_bgr
 from wearable_gaze.cli import main
 from wearable_gaze.formats.tables import read_table
-from wearable_gaze.pipeline.process import process_session
 from wearable_gaze.pipeline.truth_match import match_targets
 
 # the fixture ``processed`` (tests/conftest.py): a simulated session processed once per test run
@@ -52,64 +51,38 @@ def test_outputs_are_written_in_their_formats(processed):
     assert est["radius95_mm"][est["segment"] == 0][-1] < est["radius95_mm"][est["segment"] == 0][0]
 
 
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run"]
-
-
-def _near_colour(img, hex_colour: str, tol: int = 40) -> int:
-    """Pixels of ``img`` (BGR) within ``tol`` per channel of ``hex_colour`` ('#rrggbb')."""
-    r, g, b = (int(hex_colour[k:k + 2], 16) for k in (1, 3, 5))
-    return int(np.sum(np.all(np.abs(img.astype(int) - [b, g, r]) <= tol, axis=2)))
-
-
 def test_report_in_headless_chromium_loads_shows_the_truth_and_a_3d_view_that_turns(processed):
     """The report in Debian's chromium (driven by playwright, never its own browsers): every
     image loads, no console error, no request leaves the machine, the truth columns are there,
     the 3D view draws the targets in their legend's colours and turns when dragged, and the
     overlay video (H.264) plays: its readyState reaches 4 and its time advances."""
-    browser = shutil.which("chromium") or shutil.which("chromium-browser")
-    if browser is None:
-        pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is in the test extra: pip install -e "
-                                   "'.[test]'")
-    import cv2
     _, out, res = processed
-    errors, remote = [], []
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=browser, args=CHROMIUM_ARGS)
-        try:
-            page = b.new_page(viewport={"width": 1200, "height": 900})
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.on("request", lambda r: remote.append(r.url) if not r.url.startswith(("file:", "data:")) else None)
-            page.goto((out / "report.html").as_uri(), wait_until="load")
-            page.wait_for_function("document.body.dataset.images !== undefined")
-            loaded, total = map(int, page.evaluate("document.body.dataset.images").split("/"))
-            headers = page.eval_on_selector_all("#targets th", "els => els.map(e => e.textContent)")
-            col = {h: k + 1 for k, h in enumerate(headers)}
-            errs = page.eval_on_selector_all(f"#targets tr td:nth-child({col['error (mm)']})",
-                                             "els => els.map(e => e.textContent)")
-            k = col["distance from where it was seen (m): estimate (68 % / 95 % intervals)"]
-            depth = page.eval_on_selector_all(f"#targets tr td:nth-child({k})", "els => els.map(e => e.textContent)")
-            scene = json.loads(page.text_content("#view3d-data"))
-            canvas = page.locator("#view3d")
-            canvas.scroll_into_view_if_needed()
-            drawn = int(canvas.get_attribute("data-drawn"))
-            shot = cv2.imdecode(np.frombuffer(canvas.screenshot(), np.uint8), cv2.IMREAD_COLOR)
-            box = canvas.bounding_box()
-            page.mouse.move(box["x"] + 300, box["y"] + 200)
-            page.mouse.down()
-            page.mouse.move(box["x"] + 450, box["y"] + 260, steps=5)
-            page.mouse.up()
-            turned = cv2.imdecode(np.frombuffer(canvas.screenshot(), np.uint8), cv2.IMREAD_COLOR)
-            page.evaluate("document.getElementById('overlay').play()")
-            page.wait_for_function("(() => { const v = document.getElementById('overlay'); "
-                                   "return v.readyState === 4 && v.currentTime > 0.5; })()", timeout=20000)
-            video = page.evaluate("(() => { const v = document.getElementById('overlay'); "
-                                  "return [v.duration, v.videoWidth]; })()")
-        finally:
-            b.close()
-    assert errors == [] and remote == []
+    with chromium_page(out / "report.html") as (page, seen):
+        page.wait_for_function("document.body.dataset.images !== undefined")
+        loaded, total = map(int, page.evaluate("document.body.dataset.images").split("/"))
+        headers = page.eval_on_selector_all("#targets th", "els => els.map(e => e.textContent)")
+        col = {h: k + 1 for k, h in enumerate(headers)}
+        errs = page.eval_on_selector_all(f"#targets tr td:nth-child({col['error (mm)']})",
+                                         "els => els.map(e => e.textContent)")
+        k = col["distance from where it was seen (m): estimate (68 % / 95 % intervals)"]
+        depth = page.eval_on_selector_all(f"#targets tr td:nth-child({k})", "els => els.map(e => e.textContent)")
+        scene = json.loads(page.text_content("#view3d-data"))
+        canvas = page.locator("#view3d")
+        canvas.scroll_into_view_if_needed()
+        drawn = int(canvas.get_attribute("data-drawn"))
+        shot = screenshot_bgr(canvas)
+        box = canvas.bounding_box()
+        page.mouse.move(box["x"] + 300, box["y"] + 200)
+        page.mouse.down()
+        page.mouse.move(box["x"] + 450, box["y"] + 260, steps=5)
+        page.mouse.up()
+        turned = screenshot_bgr(canvas)
+        page.evaluate("document.getElementById('overlay').play()")
+        page.wait_for_function("(() => { const v = document.getElementById('overlay'); "
+                               "return v.readyState === 4 && v.currentTime > 0.5; })()", timeout=20000)
+        video = page.evaluate("(() => { const v = document.getElementById('overlay'); "
+                              "return [v.duration, v.videoWidth]; })()")
+    assert seen["errors"] == [] and seen["remote"] == []
     assert loaded == total and total >= 5                                     # the plots
     assert video[0] > 10.0 and video[1] == 640                  # the whole 12 s session (PROCESS_SCENARIO), 640 px
     for h in ("true position x, y, z (mm)", "error (mm)", "error / bound", "Cramér-Rao bound (mm)"):
@@ -120,19 +93,8 @@ def test_report_in_headless_chromium_loads_shows_the_truth_and_a_3d_view_that_tu
     assert drawn > 100 and shot.std() > 10                                    # not blank
     assert len(scene["targets"]) == len(res.targets) and len(scene["markers"]) > 0
     for t in scene["targets"]:
-        assert _near_colour(shot, t["colour"]) >= 15, t["label"]                 # each target in its colour
+        assert colour_pixels(shot, t["colour"]) >= 15, t["label"]                 # each target in its colour
     assert np.mean(np.abs(turned.astype(int) - shot.astype(int))) > 1.0        # the drag turned the view
-
-
-def test_rerun_skips_unchanged_steps_and_redoes_what_changed(processed, tmp_path):
-    root, out, _ = processed
-    res = process_session(root, out)
-    assert set(res.skipped) == {"camera", "eyes", "tracking", "viewlines", "targets", "export", "report"}
-    res = process_session(root, out, method="ml", report=False)
-    assert "targets" not in res.skipped and "tracking" in res.skipped
-    assert {t["method"] for t in json.loads((out / "targets.json").read_text())["targets"]} == {"ml"}
-    res = process_session(root, out, force=True, report=False)
-    assert res.skipped == []
 
 
 def _copy(root, tmp_path):

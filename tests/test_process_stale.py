@@ -45,6 +45,20 @@ def _summary(out):
     return json.loads((out / "summary.json").read_text())
 
 
+def test_rerun_skips_unchanged_steps_and_redoes_what_changed(processed):
+    """Run again with the same options: every step skipped; with another method: the targets
+    redone and the tracking kept; forced: nothing skipped. (On this module's fresh copy: the run
+    changes the outputs, so not on the session-wide ``processed`` of tests/conftest.py.)"""
+    s, out = processed
+    res = process_session(s, out, overlay=False)
+    assert set(res.skipped) == {"camera", "eyes", "tracking", "viewlines", "targets", "export", "report"}
+    res = process_session(s, out, method="ml", report=False)
+    assert "targets" not in res.skipped and "tracking" in res.skipped
+    assert {t["method"] for t in json.loads((out / "targets.json").read_text())["targets"]} == {"ml"}
+    res = process_session(s, out, force=True, report=False)
+    assert res.skipped == []
+
+
 def test_a_failed_step_never_leaves_the_previous_targets_as_the_result(processed, capsys):
     s, out = processed
     capsys.readouterr()

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimator.errormodel import FAR_SIDE_K, K95, Sight
+from estimator.errormodel import FAR_SIDE_K, K95
+from estimator.errormodel_regions import Sight
 from estimator.region import ray_exit, region_mesh, region_of_direction
 from wearable_gaze.formats.targets import record_region, target_record
 from wearable_gaze.pipeline import report, report_plots

@@ -6,16 +6,14 @@ colour of its own in the legend, the table and the view, and no video element wh
 has no scene video. The simulated session's overlay video plays: tests/test_process.py."""
 
 import json
-import shutil
 
 import numpy as np
 import pytest
 from conftest import AOIS
 
+from tests.helpers import chromium_page, colour_pixels, screenshot_bgr
 from wearable_gaze.pipeline.aoi import AOI_COLOUR
 
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run"]
 ARIA = "aria_mps_sample_gen1"
 
 
@@ -36,44 +34,24 @@ def browse(report) -> dict:
     """What headless Chromium shows of ``report``: console errors, the 3D view's scene and what
     each of its layers drew, the colours of the legend's and the table's swatches, the canvas
     as an image (BGR), the number of video elements."""
-    browser = shutil.which("chromium") or shutil.which("chromium-browser")
-    if browser is None:
-        pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is in the test extra")
-    import cv2
-
-    errors = []
     swatches = "els => els.map(e => getComputedStyle(e).backgroundColor)"
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=browser, args=CHROMIUM_ARGS)
-        try:
-            page = b.new_page(viewport={"width": 1200, "height": 900})
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(report.as_uri(), wait_until="load")
-            page.wait_for_function("document.body.dataset.images !== undefined")
-            canvas = page.locator("#view3d")
-            canvas.scroll_into_view_if_needed()
-            got = {"errors": errors, "images": page.evaluate("document.body.dataset.images"),
-                   "scene": json.loads(page.text_content("#view3d-data")),
-                   "drawn": {k: int(canvas.get_attribute(f"data-drawn{k}") or -1) for k in ("", "-points", "-aois")},
-                   "legend": page.eval_on_selector_all("p.legend .swatch", swatches),
-                   "table": page.eval_on_selector_all("#targets .swatch", swatches),
-                   "videos": page.eval_on_selector_all("video", "els => els.length"),
-                   "shot": cv2.imdecode(np.frombuffer(canvas.screenshot(), np.uint8), cv2.IMREAD_COLOR)}
-        finally:
-            b.close()
+    with chromium_page(report) as (page, seen):
+        page.wait_for_function("document.body.dataset.images !== undefined")
+        canvas = page.locator("#view3d")
+        canvas.scroll_into_view_if_needed()
+        got = {"errors": seen["errors"], "images": page.evaluate("document.body.dataset.images"),
+               "scene": json.loads(page.text_content("#view3d-data")),
+               "drawn": {k: int(canvas.get_attribute(f"data-drawn{k}") or -1) for k in ("", "-points", "-aois")},
+               "legend": page.eval_on_selector_all("p.legend .swatch", swatches),
+               "table": page.eval_on_selector_all("#targets .swatch", swatches),
+               "videos": page.eval_on_selector_all("video", "els => els.length"),
+               "shot": screenshot_bgr(canvas)}
     return got
 
 
 def _rgb(css: str) -> str:
     """'rgb(r, g, b)' as '#rrggbb'."""
     return "#" + "".join(f"{int(v):02x}" for v in css[css.index("(") + 1:-1].split(","))
-
-
-def _pixels(img, hex_colour: str, tol: int = 40) -> int:
-    r, g, b = (int(hex_colour[k:k + 2], 16) for k in (1, 3, 5))
-    return int(np.sum(np.all(np.abs(img.astype(int) - [b, g, r]) <= tol, axis=2)))
 
 
 def _lab_distance(colours: list) -> float:
@@ -95,7 +73,7 @@ def _check_targets(got: dict, n: int) -> None:
     assert n < 2 or _lab_distance(colours) > 10
     assert [_rgb(c) for c in got["legend"]] == colours and [_rgb(c) for c in got["table"]] == colours
     for t in got["scene"]["targets"]:
-        assert _pixels(got["shot"], t["colour"], tol=20) >= 10, t["label"]
+        assert colour_pixels(got["shot"], t["colour"], tol=20) >= 10, t["label"]
 
 
 def test_real_tobii_g2_report_draws_its_poster_areas_and_twelve_targets_apart(g2_processed):
@@ -106,7 +84,7 @@ def test_real_tobii_g2_report_draws_its_poster_areas_and_twelve_targets_apart(g2
     _check_targets(got, 12)
     names = json.loads((AOIS / "tobii_g2_glassesvalidator_poster.json").read_text())["aois"]
     assert [a["name"] for a in got["scene"]["aois"]] == [a["name"] for a in names]
-    assert got["drawn"]["-aois"] >= 9 * 4 and _pixels(got["shot"], AOI_COLOUR) > 50
+    assert got["drawn"]["-aois"] >= 9 * 4 and colour_pixels(got["shot"], AOI_COLOUR) > 50
     assert got["videos"] == 0                                        # no scene video, no overlay
 
 

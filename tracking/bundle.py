@@ -51,7 +51,12 @@ def huber_cost(r, k: float) -> float:
     return float(np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)))
 
 
-def _jacobians(fun, views, objs, shared, r0, eps: float = 1e-6):
+_NormalEquations = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""``_normal_equations``' blocks: Hvv, B, Hoo, gv, go."""
+
+
+def _jacobians(fun, views, objs, shared, r0,
+               eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N, R, 6) d residuals / d its view's parameters, (N, R, 6) / its object's (zeros for a
     fixed object) and (N, R, P) / the shared parameters, forward differences, each parameter
     moved in every view (object) at once."""
@@ -73,7 +78,7 @@ def _jacobians(fun, views, objs, shared, r0, eps: float = 1e-6):
     return Jv, Jo, Js
 
 
-def _normal_equations(Jv, Jo, Js, r, w, view_of, obj_of, V: int, M: int):
+def _normal_equations(Jv, Jo, Js, r, w, view_of, obj_of, V: int, M: int) -> _NormalEquations:
     """The weighted normal equations' blocks, the shared parameters (P) counted with the objects:
     Hvv (V, 6, 6), B (V, 6, 6M + P), Hoo (6M + P, 6M + P), gv (V, 6), go (6M + P,)."""
     WJv, WJo, WJs = Jv * w[..., None], Jo * w[..., None], Js * w[..., None]
@@ -111,7 +116,7 @@ def _schur(inv_vv, B, Hoo):
     return Hoo - np.tensordot(B, IB, axes=([0, 1], [0, 1]))
 
 
-def _schur_step(Hvv, B, Hoo, gv, go, lam: float):
+def _schur_step(Hvv, B, Hoo, gv, go, lam: float) -> tuple[np.ndarray, np.ndarray]:
     """The damped step (dv (V, 6), do (6M + P,)): Marquardt's damping of each diagonal."""
     inv = np.linalg.inv(Hvv + lam * np.eye(6)[None] * np.maximum(np.einsum("vii->vi", Hvv), 1e-12)[:, :, None])
     S = _schur(inv, B, Hoo)

@@ -11,6 +11,7 @@ points in normalised coordinates (undistorted), residuals in pixels (times the f
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -55,11 +56,12 @@ def ippe(corners_norm: ArrayLike, side: float) -> list:
                    zip(range(n), np.ravel(errs), strict=True)), key=lambda c: c[0])
 
 
-def project(R, t, X) -> tuple[np.ndarray, np.ndarray]:
-    """Points ``X`` (4, 3) or (n, 4, 3), world, in views ``R`` (n, 3, 3), ``t`` (n, 3) (their
-    ``T_cam_from_world``): (n, 4, 2) normalised image coordinates and (n, 4) depths."""
-    Xc = X @ np.swapaxes(R, 1, 2) + t[:, None]
-    return Xc[..., :2] / Xc[..., 2:3], Xc[..., 2]
+def project(R_cam_from_world, t_cam_from_world, pts_world) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``pts_world`` (4, 3) or (n, 4, 3), mm, in n views, each ``T_cam_from_world`` given
+    as its rotation (n, 3, 3) and translation (n, 3) mm: (n, 4, 2) normalised image
+    coordinates and (n, 4) depths, mm."""
+    pts_cam = pts_world @ np.swapaxes(R_cam_from_world, 1, 2) + t_cam_from_world[:, None]
+    return pts_cam[..., :2] / pts_cam[..., 2:3], pts_cam[..., 2]
 
 
 def pose_view(view: dict, size: dict, markers: dict) -> np.ndarray | None:
@@ -150,33 +152,35 @@ class StepTally:
     work (a search for moved markers: a step a marker; the map's first guesses refined) adds its
     own steps."""
 
-    progress: object = None
+    progress: Callable[[int, int], None] | None = None
     done: int = 0
     total: int = 0
     base: int = 0                   # the steps done before the adjustment running now
 
     def begin(self, max_iter: int):
         """The ``progress(step, max_iter)`` callback of one adjustment (None without progress)."""
-        if self.progress is None:
+        progress = self.progress
+        if progress is None:
             return None
         self.total += max_iter
         self.base = self.done
 
         def step(it: int, _max_iter: int) -> None:
             self.done = self.base + it
-            self.progress(self.done, self.total)
+            progress(self.done, self.total)
         return step
 
     def work(self, n: int):
         """The ``tick()`` callback of ``n`` more steps of other work, one a call (None without
         progress)."""
-        if self.progress is None:
+        progress = self.progress
+        if progress is None:
             return None
         self.total += n
 
         def tick() -> None:
             self.done += 1
-            self.progress(self.done, self.total)
+            progress(self.done, self.total)
         return tick
 
     def end(self, max_iter: int, iterations: int) -> None:
@@ -233,7 +237,8 @@ def adjust_with_moves(obs, size, origin, markers, cams, focal, T_origin: np.ndar
     own id (the second marker dropped, its observations counted), {id: mm moved}, and the
     reprojection RMS before any split, pixels. ``tally``: where the adjustments' steps and the
     markers checked for a move are counted, for a progress callback."""
-    obs, size, moved, tally = list(obs), dict(size), {}, tally or StepTally()
+    obs, size, tally = list(obs), dict(size), tally or StepTally()
+    moved: dict[int, float] = {}
     adj = _adjust(obs, size, origin, markers, cams, focal, T_origin, tally=tally)
     rms_unsplit = residual_rms(adj.residuals)
     while True:
@@ -327,7 +332,7 @@ def _moved(obs, size, markers, cams, tick=None) -> dict:
         seen = [k for k in order if i in obs[k]]
         if len(seen) < 2 * MIN_VIEWS:
             continue
-        fit = {}
+        fit: dict = {}
 
         def cost(m, i=i, seen=seen, fit=fit):
             if m not in fit:

@@ -119,42 +119,88 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     ids = sorted({i for v in obs for i in v})
     if not ids:
         raise ValueError("no marker was detected in any view")
-    size = {i: float(sizes) for i in ids} if np.isscalar(sizes) else {i: float(sizes[i]) for i in ids if i in sizes}
-    missing = [i for i in ids if i not in size]
-    if missing:
-        raise ValueError(f"no printed size for marker(s) {missing}: give one for every id seen")
-    counts = {i: sum(i in v for v in obs) for i in ids}
-    prior_map, prior = prior, {int(i): np.asarray(T, float) for i, T in (prior.poses if prior else {}).items()}
-    choices = [i for i in ids if i in prior] if prior else ids
-    if not choices:
-        raise ValueError(f"none of the earlier map's markers is in a view (seen: {ids})")
-    origin = max(choices, key=lambda i: (counts[i], -i)) if origin is None else int(origin)
-    if origin not in counts or (prior and origin not in prior):
-        raise ValueError(f"the origin marker {origin} is in no view (seen: {ids})" if origin not in counts else
-                         f"the origin marker {origin} is not in the earlier map")
-    start = {i: T for i, T in prior.items() if i in counts} if prior else {origin: np.eye(4)}
+    size = _marker_sizes(ids, sizes)
+    prior_poses = {int(i): np.asarray(T, float) for i, T in (prior.poses if prior else {}).items()}
+    origin = _choose_origin(obs, ids, prior_poses, origin)
+    seen = set(ids)
+    start = ({i: T for i, T in prior_poses.items() if i in seen} if prior_poses
+             else {origin: np.eye(4)})
     markers, cams = _chain(obs, size, origin, start)
     tally = StepTally(progress)
-    _refine_initial(obs, size, origin, markers, cams, tick=tally.work(REFINE_ROUNDS * (len(markers) + len(cams))))
+    _refine_initial(obs, size, origin, markers, cams,
+                    tick=tally.work(REFINE_ROUNDS * (len(markers) + len(cams))))
     intr, markers, cams = _intrinsics(views, size, origin, markers, cams, K, dist, model, image_size, refine)
     if intr.refined:
         K, dist = intr.camera_matrix, intr.dist_coeffs
         obs = _normalised(views, K, dist, model)
-    adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]), markers[origin],
-                                                 tally)
+    adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]),
+                                                 markers[origin], tally)
     rms = residual_rms(adj.residuals)
     info = _marker_info(obs, size, origin, adj, moved, rms)
-    for i, T in prior.items():                       # not seen now: kept as the earlier map had it
-        if i not in adj.markers:
-            adj.markers[i] = T
-            info[i] = MarkerInfo(0, float("nan"), np.zeros((6, 6)))
+    _keep_unseen(prior_poses, adj.markers, info)
     unposed = [k for k in range(len(obs)) if k not in adj.cams]
-    log.info("map of %d markers from %d views (%d unposed), RMS %.2f px (%.2f px before the moved markers were "
-             "split)", len(adj.markers), len(adj.cams), len(unposed), rms, rms_unsplit)
-    common = float(max(set(size.values()), key=list(size.values()).count))            # the commonest size
-    sides = {**{i: prior_map.size_of(i) for i in prior}, **size} if prior else size
-    mm = MarkerMap(dictionary, common, dict(adj.markers), {}, {i: v for i, v in sides.items() if v != common})
-    return BuiltMap(mm, info, {k: np.linalg.inv(T) for k, T in adj.cams.items()}, unposed, rms, rms_unsplit, intr)
+    log.info("map of %d markers from %d views (%d unposed), RMS %.2f px (%.2f px before the moved "
+             "markers were split)", len(adj.markers), len(adj.cams), len(unposed), rms, rms_unsplit)
+    cameras = {k: np.linalg.inv(T) for k, T in adj.cams.items()}
+    marker_map = _marker_map(dictionary, size, adj.markers, prior if prior_poses else None)
+    return BuiltMap(marker_map, info, cameras, unposed, rms, rms_unsplit, intr)
+
+
+def _keep_unseen(prior_poses: dict, markers: dict, info: dict) -> None:
+    """The earlier map's markers these views do not see, added to ``markers`` {id: (4, 4)
+    T_world_from_marker} as the earlier map had them, with no views in ``info``."""
+    for i, T in prior_poses.items():
+        if i not in markers:
+            markers[i] = T
+            info[i] = MarkerInfo(0, float("nan"), np.zeros((6, 6)))
+
+
+def _marker_map(dictionary: str, size: dict[int, float], markers: dict,
+                prior: MarkerMap | None) -> MarkerMap:
+    """The map of ``markers`` {id: (4, 4) T_world_from_marker}: the commonest size as its
+    marker size, the others (and the earlier map's markers' own) as exceptions."""
+    common = float(max(set(size.values()), key=list(size.values()).count))
+    sides = size
+    if prior is not None:
+        sides = {**{int(i): prior.size_of(i) for i in prior.poses}, **size}
+    exceptions = {i: v for i, v in sides.items() if v != common}
+    return MarkerMap(dictionary, common, dict(markers), {}, exceptions)
+
+
+def _marker_sizes(ids: list[int], sizes) -> dict[int, float]:
+    """{id: printed side, mm} of every id seen, from one number or {id: side}.
+
+    Raises:
+        ValueError: a seen id without a size.
+    """
+    one_size = bool(np.isscalar(sizes))
+    if one_size:
+        size = {i: float(sizes) for i in ids}
+    else:
+        size = {i: float(sizes[i]) for i in ids if i in sizes}
+    missing = [i for i in ids if i not in size]
+    if missing:
+        raise ValueError(f"no printed size for marker(s) {missing}: give one for every id seen")
+    return size
+
+
+def _choose_origin(obs: list, ids: list[int], prior_poses: dict, origin: int | None) -> int:
+    """The marker whose frame is the world: ``origin``, or the one seen in most views (of the
+    earlier map's markers when there is one; ties to the lowest id).
+
+    Raises:
+        ValueError: no earlier marker seen, the origin never seen or not in the earlier map.
+    """
+    counts = {i: sum(i in v for v in obs) for i in ids}
+    choices = [i for i in ids if i in prior_poses] if prior_poses else ids
+    if not choices:
+        raise ValueError(f"none of the earlier map's markers is in a view (seen: {ids})")
+    origin = max(choices, key=lambda i: (counts[i], -i)) if origin is None else int(origin)
+    if origin not in counts:
+        raise ValueError(f"the origin marker {origin} is in no view (seen: {ids})")
+    if prior_poses and origin not in prior_poses:
+        raise ValueError(f"the origin marker {origin} is not in the earlier map")
+    return origin
 
 
 def _intrinsics(views, size, origin, markers, cams, K, dist, model, image_size, refine: bool):
@@ -234,6 +280,7 @@ def _chain(obs: list, size: dict, origin: int, start: dict) -> tuple[dict, dict]
             return markers, cams
         _, k = max(todo)
         T = pose_view(obs[k], size, markers)
+        assert T is not None                         # it sees placed markers
         cams[k] = T
         for i, c in obs[k].items():
             if i not in markers:
@@ -246,9 +293,9 @@ def _marker_info(obs, size, origin, adj: Adjusted, moved: dict, rms: float) -> d
     cov = marker_covariances(adj)
     for i in [j for j in moved if -1 - j in cov]:     # the pose after the move: the second marker's
         cov[i] = cov.pop(-1 - i)
-    per = {i: [] for i in adj.markers}
-    for r, (_, i) in enumerate(adj.pairs):
-        per[i].append(adj.residuals[8 * r:8 * r + 8])
+    per: dict[int, list[np.ndarray]] = {i: [] for i in adj.markers}
+    for k, (_, i) in enumerate(adj.pairs):
+        per[i].append(adj.residuals[8 * k:8 * k + 8])
     info = {}
     for i in sorted(adj.markers):
         r = np.concatenate(per[i]) if per[i] else np.zeros(0)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .bundle import bundle_adjust
+from .bundle import BundleResult, bundle_adjust
 from .mapadjust import HUBER_PX, MAX_ITER, adjustment_problem, camera_corners, pack_pose, unpack_poses
 
 log = logging.getLogger(__name__)
@@ -174,19 +174,8 @@ def refine_intrinsics(views_px, size, origin, markers, cams, K, dist, model: str
         return kept(why)
     T_origin = markers[origin] if T_origin is None else T_origin
     prob = adjustment_problem(views_px, size, origin, markers, cams, T_origin)
-    prob["seen"] = prob["seen"].astype(float)
     scale = float(K[0, 0])
-
-    def fun(v, o, g):
-        Kg, dg = _camera(g, K, d0, scale)
-        Xc = camera_corners(v, o, prob)
-        r = (_pixels(Xc, Kg, dg, model) - prob["seen"]).reshape(-1, 8)
-        return np.where((Xc[..., 2] > 0).all(axis=1)[:, None], r, np.inf)
-    g0 = np.concatenate([[K[0, 0] / scale, K[1, 1] / scale, K[0, 2] / scale, K[1, 2] / scale],
-                         d0[:len(names) - 4]])
-    views0 = np.array([pack_pose(cams[k]) for k in prob["cam_keys"]])
-    objs0 = np.array([pack_pose(markers[i]) for i in prob["marker_keys"]]).reshape(-1, 6)
-    fit = bundle_adjust(fun, views0, objs0, prob["cam"], prob["marker"], HUBER_PX, MAX_ITER, shared=g0)
+    fit = _adjust(prob, markers, cams, K, d0, model, len(names) - 4)
     sd = _shared_sd(fit, scale, names)
     K1, d1 = _camera(fit.shared, K, d0, scale)
     d1 = d1[:len(dist)] if len(dist) >= len(names) - 4 else d1
@@ -203,6 +192,29 @@ def refine_intrinsics(views_px, size, origin, markers, cams, K, dist, model: str
              K1[1, 2])
     return (IntrinsicsRefinement(K1, d1, K, dist, True, "", len(cams), n_cells, sd, model),
             markers1, cams1)
+
+
+def _adjust(prob: dict, markers: dict, cams: dict, K: np.ndarray, d0: np.ndarray, model: str,
+            n_dist: int) -> BundleResult:
+    """The bundle adjustment of ``refine_intrinsics``: the views and markers of ``prob``
+    (``mapadjust.adjustment_problem``) with the intrinsics shared by all views (fx, fy, cx, cy
+    in units of the start's fx, then the first ``n_dist`` distortion coefficients), from
+    ``cams``, ``markers``, ``K`` and ``d0``."""
+    prob["seen"] = prob["seen"].astype(float)
+    scale = float(K[0, 0])
+
+    def fun(v, o, g):
+        Kg, dg = _camera(g, K, d0, scale)
+        Xc = camera_corners(v, o, prob)
+        r = (_pixels(Xc, Kg, dg, model) - prob["seen"]).reshape(-1, 8)
+        in_front = np.logical_and.reduce(Xc[..., 2] > 0, axis=1)
+        return np.where(in_front[:, None], r, np.inf)
+    g0 = np.concatenate([[K[0, 0] / scale, K[1, 1] / scale, K[0, 2] / scale, K[1, 2] / scale],
+                         d0[:n_dist]])
+    views0 = np.array([pack_pose(cams[k]) for k in prob["cam_keys"]])
+    objs0 = np.array([pack_pose(markers[i]) for i in prob["marker_keys"]]).reshape(-1, 6)
+    return bundle_adjust(fun, views0, objs0, prob["cam"], prob["marker"], HUBER_PX, MAX_ITER,
+                         shared=g0)
 
 
 def _shared_sd(fit, scale: float, names) -> dict:

@@ -122,13 +122,13 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
         if not rows_required:
             return {c: np.zeros(0) for c in required}
         raise UserError(f"{path}: the {what} has a header but no data rows; add one row per record")
-    out = {}
     width = len(names)
     short = [i for i, r in enumerate(rows) if len(r) < width]
     if short and any(c in required for c in names[len(rows[short[0]]):]):
         i = short[0]
-        raise UserError(f"{path} line {i + 2}: {len(rows[i])} cells, the header has {width} (truncated file?); "
-                        "complete or remove the row")
+        raise UserError(f"{path} line {i + 2}: {len(rows[i])} cells, the header has {width} "
+                        "(truncated file?); complete or remove the row")
+    out = {}
     for j, name in enumerate(names):
         if not name:
             continue
@@ -136,24 +136,38 @@ def read_table(path, required, text_columns=(), what: str = "table", fix: str = 
         if name in text_columns:
             out[name] = np.array(cells, dtype=object)
             continue
-        try:
-            vals = np.array([float(c) if c or name not in checks.empty_ok else np.nan for c in cells], float) \
-                if cells else np.zeros(0)
-        except ValueError:
-            if name not in required:
-                continue
-            for i, c in enumerate(cells):
-                try:
-                    float(c)
-                except ValueError:
-                    raise not_a_number(path, i + 2, name, c) from None
-        found = checks.problem(name, vals, np.array([c == "" for c in cells], bool))
-        if found is not None:
-            i, why = found
-            raise UserError(f"{path} line {i + 2}, column {name}: '{printable(cells[i])}' {why}; "
-                            + ("write a finite number there" if "finite" in why else "fix the cell"))
-        out[name] = vals
+        vals = _numeric_column(path, name, cells, checks)
+        if vals is not None:
+            out[name] = vals
     return out
+
+
+def _numeric_column(path: Path, name: str, cells: list[str], checks: Checks) -> np.ndarray | None:
+    """A column's cells (data rows from file line 2) as an (N,) float array, checked by
+    ``checks``; None for a column that is not numeric and not required.
+
+    Raises:
+        UserError: a required column's cell that is not a number; a cell ``checks`` refuses.
+    """
+    try:
+        empty_is_nan = name in checks.empty_ok
+        vals = np.array([float(c) if c or not empty_is_nan else np.nan for c in cells], float) \
+            if cells else np.zeros(0)
+    except ValueError:
+        if name not in checks.required:
+            return None
+        for i, c in enumerate(cells):
+            try:
+                float(c)
+            except ValueError:
+                raise not_a_number(path, i + 2, name, c) from None
+        raise AssertionError("unreachable: a cell failed float() once") from None
+    found = checks.problem(name, vals, np.array([c == "" for c in cells], bool))
+    if found is not None:
+        i, why = found
+        raise UserError(f"{path} line {i + 2}, column {name}: '{printable(cells[i])}' {why}; "
+                        + ("write a finite number there" if "finite" in why else "fix the cell"))
+    return vals
 
 
 def open_csv(path, required, what: str, fix: str):

@@ -51,7 +51,8 @@ from pathlib import Path
 import numpy as np
 
 from estimator.direction import GazeDirection
-from estimator.errormodel import FAR_SIDE_K, Sight
+from estimator.errormodel import FAR_SIDE_K
+from estimator.errormodel_regions import Sight
 from estimator.region import CredibleRegion, region_of_direction, region_of_point
 
 from ..errors import UserError

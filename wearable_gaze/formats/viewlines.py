@@ -58,71 +58,78 @@ def read_viewlines_csv(path) -> list[Segment]:
     names, reader = open_csv(path, REQUIRED, "view-line CSV", "pass a view-line CSV (see docs/formats.md)")
     col = {n: i for i, n in enumerate(names)}
     if "left_valid" in col or "right_valid" in col:      # eye_rays.csv's columns (formats/eye_rays.py)
-        raise UserError(f"{path}: an eye-ray CSV (an imported session's eye_rays.csv: each eye's rays in the head "
-                        "frame, not view lines in the world); run 'wearable-gaze process SESSION' and pass its "
-                        "processed/viewlines.csv")
+        raise UserError(f"{path}: an eye-ray CSV (an imported session's eye_rays.csv: each eye's "
+                        "rays in the head frame, not view lines in the world); run 'wearable-gaze "
+                        "process SESSION' and pass its processed/viewlines.csv")
     has_segment = "segment" in col
-    rows = {}
+    rows: dict = {}
     order = []
     for line_no, row in enumerate(reader, start=2):
         if not any(cell.strip() for cell in row):
             continue
         if len(row) < len(names) and any(c in REQUIRED for c in names[len(row):]):
-            raise UserError(f"{path} line {line_no}: {len(row)} cells, the header has {len(names)} (truncated file?); "
-                            "complete or remove the row")
-
-        def number(name, allow_empty=False, row=row, line_no=line_no):
-            cell = row[col[name]].strip()
-            if cell == "" and allow_empty:
-                return None
-            try:
-                v = float(cell)
-            except ValueError:
-                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a number; write a "
-                                "number there") from None
-            if not np.isfinite(v):
-                raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a finite number; "
-                                "write a finite number there")
-            if abs(v) > MAX_ABS:
-                raise UserError(f"{path} line {line_no}, column {name}: {cell} is beyond +-{MAX_ABS:g}, not a "
-                                "plausible time, position (mm) or direction; fix the cell")
-            return v
-
-        t = number("t")
-        eyes = {}
-        for side, cols in EYE_COLUMNS.items():
-            vals = [number(c, allow_empty=True) for c in cols]
-            if all(v is None for v in vals):
-                eyes[side] = None
-                continue
-            empty = [c for c, v in zip(cols, vals, strict=True) if v is None]
-            if empty:
-                raise UserError(f"{path} line {line_no}, column {empty[0]}: empty, but other {side}-eye "
-                                f"cells are not; leave all six {side}_* cells empty for a monocular sample")
-            if not np.linalg.norm(vals[3:]) > 1e-12:
-                raise UserError(f"{path} line {line_no}, columns {side}_dx..{side}_dz: the direction is zero; "
-                                "fix the direction or leave that eye's six cells empty")
-            eyes[side] = vals
-        if eyes["left"] is None and eyes["right"] is None:
-            raise UserError(f"{path} line {line_no}: both eyes' cells are empty; give at least one eye's six values "
-                            "or remove the row")
+            raise UserError(f"{path} line {line_no}: {len(row)} cells, the header has {len(names)} "
+                            "(truncated file?); complete or remove the row")
+        t = _number(path, line_no, "t", row[col["t"]])
+        left, right = (_eye(path, line_no, side, cols, row, col)
+                       for side, cols in EYE_COLUMNS.items())
+        if left is None and right is None:
+            raise UserError(f"{path} line {line_no}: both eyes' cells are empty; give at least one "
+                            "eye's six values or remove the row")
         key = _segment_value(row[col["segment"]].strip()) if has_segment else None
         if key not in rows:
             rows[key] = []
             order.append((key, line_no))
-        rows[key].append((t, eyes["left"], eyes["right"]))
+        rows[key].append((t, left, right))
     if not order:
         raise UserError(f"{path}: the header has no data rows below it; add one row per binocular sample")
-    segments = []
+    return [_segment(key, rows[key], first) for key, first in order]
+
+
+def _number(path: Path, line_no: int, name: str, cell: str,
+            allow_empty: bool = False) -> float | None:
+    """The finite, plausible number in the cell of column ``name``; None for an empty cell when
+    ``allow_empty``; else a ``UserError`` naming the line and column."""
+    cell = cell.strip()
+    if cell == "" and allow_empty:
+        return None
+    try:
+        v = float(cell)
+    except ValueError:
+        raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a "
+                        "number; write a number there") from None
+    if not np.isfinite(v):
+        raise UserError(f"{path} line {line_no}, column {name}: '{printable(cell)}' is not a "
+                        "finite number; write a finite number there")
+    if abs(v) > MAX_ABS:
+        raise UserError(f"{path} line {line_no}, column {name}: {cell} is beyond +-{MAX_ABS:g}, "
+                        "not a plausible time, position (mm) or direction; fix the cell")
+    return v
+
+
+def _eye(path: Path, line_no: int, side: str, cols, row: list, col: dict) -> list | None:
+    """One eye's six values (origin mm, direction) of a row, or None when all six are empty."""
+    vals = [_number(path, line_no, c, row[col[c]], allow_empty=True) for c in cols]
+    if all(v is None for v in vals):
+        return None
+    empty = [c for c, v in zip(cols, vals, strict=True) if v is None]
+    if empty:
+        raise UserError(f"{path} line {line_no}, column {empty[0]}: empty, but other {side}-eye "
+                        f"cells are not; leave all six {side}_* cells empty for a monocular sample")
+    if not np.linalg.norm(vals[3:]) > 1e-12:
+        raise UserError(f"{path} line {line_no}, columns {side}_dx..{side}_dz: the direction is "
+                        "zero; fix the direction or leave that eye's six cells empty")
+    return vals
+
+
+def _segment(key, rows: list, first_line: int) -> Segment:
+    """A segment from its rows ``(t, left six values or None, right six or None)``."""
     nan6 = [np.nan] * 6
-    for key, first in order:
-        r = rows[key]
-        t = np.array([x[0] for x in r])
-        left = np.array([x[1] if x[1] is not None else nan6 for x in r])
-        right = np.array([x[2] if x[2] is not None else nan6 for x in r])
-        samples = BinocularSamples.from_arrays(t, left[:, :3], left[:, 3:], right[:, :3], right[:, 3:])
-        segments.append(Segment(key, samples, first))
-    return segments
+    t = np.array([x[0] for x in rows])
+    left = np.array([x[1] if x[1] is not None else nan6 for x in rows])
+    right = np.array([x[2] if x[2] is not None else nan6 for x in rows])
+    samples = BinocularSamples.from_arrays(t, left[:, :3], left[:, 3:], right[:, :3], right[:, 3:])
+    return Segment(key, samples, first_line)
 
 
 def write_viewlines_csv(path, samples: BinocularSamples, segment=None) -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import UserError
@@ -85,27 +86,14 @@ def open_session(serial_port: str, camera_source: str, camera_calib, eyes_path, 
     eyes = load_eyes(eyes_path)
     marker_map = load_marker_map(markers_path)
     frames = _open_camera(camera_source, camera)
+    opened = _Opened(frames)
     try:
-        publisher = Publisher(publish, stdout, stream, maxsize=publish_queue, stuck_s=publish_stuck_s)
-    except BaseException:
-        frames.cap.release()
-        raise
-    try:
-        viewer = RerunViewer(rerun, camera, marker_map) if rerun is not None else None
-    except BaseException:
-        publisher.close(0.1)
-        frames.cap.release()
-        raise
-    try:
+        opened.publisher = Publisher(publish, stdout, stream, maxsize=publish_queue,
+                                     stuck_s=publish_stuck_s)
+        opened.viewer = RerunViewer(rerun, camera, marker_map) if rerun is not None else None
         recorder = (Recorder(Path(record), frames.size, frames.fps, camera_calib, eyes_path, marker_map)
                     if record else None)
-    except BaseException:
-        publisher.close(0.1)
-        if viewer is not None:
-            viewer.close(0.1)
-        frames.cap.release()
-        raise
-    try:
+        opened.recorder = recorder
         if recorder is not None:
             frames.sink = recorder.frame              # every captured frame, even those tracking skips
         clock = SessionClock(lambda: frames.t0)
@@ -115,14 +103,29 @@ def open_session(serial_port: str, camera_source: str, camera_calib, eyes_path, 
         warm_up(method)
         estimation = GazeEstimation(eyes, method)
     except BaseException:
-        publisher.close(0.1)
-        if viewer is not None:
-            viewer.close(0.1)
-        if recorder is not None:
-            recorder.close(complete=False)
-        frames.cap.release()
+        opened.close()
         raise
-    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer)
+    return LiveSession(reader, frames, head, estimation, opened.publisher, recorder, status_stream,
+                       opened.viewer)
+
+
+@dataclass
+class _Opened:
+    """What ``open_session`` has opened so far, closed in this order when a later part fails."""
+    frames: FrameSource
+    publisher: Publisher | None = None
+    viewer: RerunViewer | None = None
+    recorder: Recorder | None = None
+
+    def close(self) -> None:
+        """Close the publisher, the viewer, the (incomplete) recording and the camera."""
+        if self.publisher is not None:
+            self.publisher.close(0.1)
+        if self.viewer is not None:
+            self.viewer.close(0.1)
+        if self.recorder is not None:
+            self.recorder.close(complete=False)
+        self.frames.cap.release()
 
 
 def run_live(serial_port, camera_source, camera_calib, eyes_path, markers_path, record=None, publish=None,

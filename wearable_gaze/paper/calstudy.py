@@ -97,9 +97,7 @@ def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000
     """Run the study; ``progress(done, total)`` is called after each trial."""
     rng = np.random.default_rng(seed)
     camera = Camera.wide_scene_camera()
-    K, D = camera.camera_matrix, camera.dist_coeffs
-    Kinv = np.linalg.inv(K)
-    errors = {v: [] for v in VARIANTS}
+    errors: dict[str, list[float]] = {v: [] for v in VARIANTS}
     centre_err, centre_sig = [], []
     for trial in range(trials):
         # a different head and headset each trial: the centres are not where the nominal guess is
@@ -108,17 +106,8 @@ def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000
         wall = CalibrationWall(wall_mm, tilt_deg * (1 if trial % 2 == 0 else -1))
         targets, px_t, px_r, corners_wall, raw_t = _wall_observation(camera, wall, model, rng, target_noise_px,
                                                                      samples_per_target)
-        pinhole = lambda px: (Kinv @ np.column_stack([px, np.ones(len(px))]).T).T[:, :2]  # noqa: E731
         for variant in VARIANTS:
-            undist = variant in ("undistortion only", "both")
-            tilt = variant in ("tilt correction only", "both")
-            norm_t = undistort_points(px_t, K, D) if undist else pinhole(px_t)
-            if tilt:
-                norm_r = undistort_points(px_r, K, D) if undist else pinhole(px_r)
-                wp = wall_pose(corners_wall, norm_r)
-                P = wp.to_camera(wall.targets_wall())
-            else:
-                P = wall_mm * np.column_stack([norm_t, np.ones(len(norm_t))])
+            P = _targets_seen(variant, camera, wall, px_t, px_r, corners_wall)
             errs = []
             for e in range(2):
                 cal = calibrate_eye(("left", "right")[e], raw_t[:, e], P, model.centres[e], plane_mm=wall_mm)
@@ -127,20 +116,9 @@ def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000
                 cos = (cal.directions(raw_x[:, e]) * true_dirs[:, e]).sum(1)
                 errs.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
             errors[variant].append(float(np.mean(errs)))
-        # the eye centres from 5x5 grids at two more distances (both corrections)
-        Ps, raws = [], []
-        for dist, tilt in ((near_wall_mm, -8.0), (second_wall_mm, 6.0)):
-            w2 = CalibrationWall.spanning(dist, tilt, (5, 5))
-            _, _, px_r2, corners_wall2, raw2 = _wall_observation(camera, w2, model, rng, target_noise_px,
-                                                                 centre_samples_per_target)
-            Ps.append(wall_pose(corners_wall2, undistort_points(px_r2, K, D)).to_camera(w2.targets_wall()))
-            raws.append(raw2)
-        ce, cs = [], []
-        for e in range(2):
-            nominal = np.array([(-32.0, 32.0)[e], 30.0, -20.0])
-            c, cov = estimate_centre(np.vstack([r[:, e] for r in raws]), np.vstack(Ps), nominal)
-            ce.append(np.linalg.norm(c - model.centres[e]))
-            cs.append(float(np.sqrt(np.trace(cov))))
+        walls = ((near_wall_mm, -8.0), (second_wall_mm, 6.0))
+        ce, cs = _centre_errors(camera, model, rng, walls, target_noise_px,
+                                centre_samples_per_target)
         centre_err.append(ce)
         centre_sig.append(cs)
         if progress:
@@ -150,6 +128,45 @@ def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000
                     target_noise_px=target_noise_px, sigma_deg=sigma_deg, samples_per_target=samples_per_target)
     return StudyResult({k: np.array(v) for k, v in errors.items()}, np.array(centre_err), np.array(centre_sig),
                        settings)
+
+
+def _targets_seen(variant: str, camera: Camera, wall: CalibrationWall, px_t, px_r,
+                  corners_wall) -> np.ndarray:
+    """(K, 3) the wall's targets in the camera frame, mm, as ``variant`` finds them from their
+    pixels ``px_t`` (K, 2): undistorted or through a pinhole; on the wall's pose from its
+    reference corners' pixels ``px_r`` or on a fronto-parallel wall at its distance."""
+    K, D = camera.camera_matrix, camera.dist_coeffs
+    Kinv = np.linalg.inv(K)
+    pinhole = lambda px: (Kinv @ np.column_stack([px, np.ones(len(px))]).T).T[:, :2]  # noqa: E731
+    undist = variant in ("undistortion only", "both")
+    tilt = variant in ("tilt correction only", "both")
+    norm_t = undistort_points(px_t, K, D) if undist else pinhole(px_t)
+    if tilt:
+        norm_r = undistort_points(px_r, K, D) if undist else pinhole(px_r)
+        return wall_pose(corners_wall, norm_r).to_camera(wall.targets_wall())
+    return wall.distance_mm * np.column_stack([norm_t, np.ones(len(norm_t))])
+
+
+def _centre_errors(camera: Camera, model: EyeModel, rng, walls, target_noise_px: float,
+                   samples: int) -> tuple[list, list]:
+    """Each eye's centre estimated from 5x5 grids on ``walls`` ((distance mm, tilt deg), both
+    corrections): its error, mm, and its reported sd (the root of its covariance's trace), mm."""
+    K, D = camera.camera_matrix, camera.dist_coeffs
+    Ps, raws = [], []
+    for dist, tilt in walls:
+        w2 = CalibrationWall.spanning(dist, tilt, (5, 5))
+        _, _, px_r2, corners_wall2, raw2 = _wall_observation(camera, w2, model, rng,
+                                                             target_noise_px, samples)
+        pose = wall_pose(corners_wall2, undistort_points(px_r2, K, D))
+        Ps.append(pose.to_camera(w2.targets_wall()))
+        raws.append(raw2)
+    ce, cs = [], []
+    for e in range(2):
+        nominal = np.array([(-32.0, 32.0)[e], 30.0, -20.0])
+        c, cov = estimate_centre(np.vstack([r[:, e] for r in raws]), np.vstack(Ps), nominal)
+        ce.append(np.linalg.norm(c - model.centres[e]))
+        cs.append(float(np.sqrt(np.trace(cov))))
+    return ce, cs
 
 
 def _noise_free(model: EyeModel, X):

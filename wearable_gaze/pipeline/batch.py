@@ -183,8 +183,9 @@ def session_fingerprint(root: Path, settings: BatchSettings, exclude=None) -> st
                 h.update(f"{os.path.relpath(os.path.join(dirpath, f), root)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
     for p in (settings.camera, settings.eyes, settings.markers, settings.aois):
         if p is not None:
-            st = os.stat(p) if os.path.exists(p) else None
-            h.update(f"{Path(p).resolve()}:{st and (st.st_size, st.st_mtime_ns)}\n".encode())
+            p_stat = os.stat(p) if os.path.exists(p) else None
+            size_time = p_stat and (p_stat.st_size, p_stat.st_mtime_ns)
+            h.update(f"{Path(p).resolve()}:{size_time}\n".encode())
     h.update(json.dumps(settings.fingerprint_params(), sort_keys=True, default=str).encode())
     return h.hexdigest()
 
@@ -224,7 +225,7 @@ def _plan(paths, out: Path, settings: BatchSettings) -> tuple[dict, list, list]:
         fp = session_fingerprint(s, settings, out)
         same = st is not None and st["state"] == "done" and st.get("fingerprint") == fp
         lost = missing_output(out / name) if same else None
-        if not settings.force and same and lost is None:
+        if not settings.force and same and lost is None and st is not None:   # (same: st is set)
             log.info("%s: done earlier and unchanged: skipped", name)
             statuses[name] = st
             skipped.append(name)

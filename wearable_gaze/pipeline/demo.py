@@ -121,11 +121,12 @@ def run_demo(out=None, seed: int = 0, duration_s: float = 20.0, reuse: bool = Fa
     print("a simulated lab session (markers on the walls, four targets at 0.5-4 m, head sway, 1 deg eye noise, "
           f"{duration_s:g} s), processed end to end; progress on stderr.\n")
     session = out / "session"
-    if not reusing:
+    if scenario is not None:                      # not reusing
         with _announce(f"simulating {duration_s:g} s of scene video and eye data", err) as cb:
             simulate(scenario, session, seed, cb)
     res = process_session(session, out / "processed",
-                          progress_factory=lambda name: _announce(STEP_NAMES.get(name, name), err))
+                          progress_factory=lambda name: _announce(str(STEP_NAMES.get(name, name)),
+                                                                  err))
     if res.skipped:
         print(f"demo: reused, not redone: {', '.join(res.skipped)}", file=err)
     print(format_result(res))

@@ -80,9 +80,10 @@ def running_estimate(samples: BinocularSamples, method: str, sigma_deg: float,
 
 def radius95_mm(e: GazeEstimate) -> float:
     """The largest semi-axis of the 95 % confidence ellipsoid, mm; NaN without a covariance."""
-    if e.covariance_mm2 is None:
+    ellipsoid = e.ellipsoid(0.95) if e.covariance_mm2 is not None else None
+    if ellipsoid is None:
         return float("nan")
-    return float(e.ellipsoid(0.95).radii_mm.max())
+    return float(ellipsoid.radii_mm.max())
 
 
 def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixations, e: GazeEstimate,
@@ -93,7 +94,8 @@ def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixa
     direction-only estimate's own, else the lines' cyclopean direction with its cone from
     ``error_model``)."""
     pos = e.position_mm if e.ok else np.full(3, np.nan)
-    radii = e.ellipsoid(0.95).radii_mm if e.covariance_mm2 is not None else np.full(3, np.nan)
+    ellipsoid = e.ellipsoid(0.95) if e.covariance_mm2 is not None else None
+    radii = ellipsoid.radii_mm if ellipsoid is not None else np.full(3, np.nan)
     t = samples.t_s[idx]
     lines = samples.select(idx)
     crb = _crb(lines, e.position_mm, sigma_deg) if e.ok else None

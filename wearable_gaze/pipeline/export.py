@@ -175,7 +175,8 @@ def icosphere(subdivisions: int = ELLIPSOID_SUBDIVISIONS) -> tuple[np.ndarray, n
          (8, 6, 7), (9, 8, 1)]
     verts = [np.array(x, float) / np.linalg.norm(x) for x in v]
     for _ in range(subdivisions):
-        mid, nf = {}, []
+        mid: dict[tuple[int, int], int] = {}
+        nf: list[tuple[int, int, int]] = []
         for a, b, c in f:
             ab, bc, ca = (_midpoint(verts, mid, i, j) for i, j in ((a, b), (b, c), (c, a)))
             nf += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
@@ -203,66 +204,94 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
     colour; then each moving target's path (``paths``: target_paths.csv's, {index: (t, (K, 3)
     positions, covariances)}) as edges in its colour; then the head path, the scene camera's
     positions at its posed frames, as edges."""
-    sphere, faces = icosphere()
-    V, C, F, E, notes = [], [], [], [], []
-    n = 0
+    parts = _MeshParts()
+    sphere = icosphere()
     head = poses.T_world_from_cam[:, :3, 3]
-    regions = {tg.index: record_region(tg.row()) for tg in targets if not tg.moving and tg.index not in (paths or {})}
+    regions = {tg.index: record_region(tg.row()) for tg in targets
+               if not tg.moving and tg.index not in (paths or {})}
     lo, hi = scene_box(head, np.reshape([t.position_mm for t in targets], (-1, 3)),
                        *(np.asarray(p[1], float) for p in (paths or {}).values()),
                        anchor_points([r for t in targets if not np.all(np.isfinite(t.position_mm))
                                       and (r := regions.get(t.index)) is not None]))
     for tg in targets:
         region = regions.get(tg.index)
-        if not np.all(np.isfinite(tg.position_mm)) and region is None:
-            continue
-        colour = COLOURS[tg.index % len(COLOURS)]
-        text = f"target {tg.index} ({tg.status}):"
-        if np.all(np.isfinite(tg.position_mm)):
-            V.append(np.asarray(tg.position_mm, float)[None])
-            C.append(colour[None])
-            text += f" vertex {n} (its point)"
-            n += 1
-        elif region is not None:                      # no point: its line of sight as an edge
-            reach = region.far_mm if region.closed else ray_exit(region.origin_mm, region.direction, lo, hi)
-            V.append(np.stack([region.point_at(region.near_mm), region.point_at(max(reach, region.near_mm))]))
-            C.append(np.repeat(colour[None], 2, 0))
-            E.append(np.array([[n, n + 1]]))
-            text += f" vertices {n}-{n + 1} (its line of sight over its region, the edge)"
-            n += 2
-        if region is not None:
-            rv, rf, _ = region_mesh(region, ray_exit(region.origin_mm, region.direction, lo, hi))
-            V.append(rv)
-            C.append(np.repeat(colour[None], len(rv), 0))
-            F.append(rf + n)
-            what = (f"{region.near_mm:.0f}-{region.far_mm:.0f} mm" if region.closed else
-                    f"{region.near_mm:.0f} mm on, no far end: open, cut at the box's edge")
-            text += (f", its 95 % credible region (distance from {_xyz(region.origin_mm)} {what}) vertices "
-                     f"{n}-{n + len(rv) - 1}")
-            n += len(rv)
-        elif tg.covariance_mm2 is not None and np.all(np.isfinite(tg.covariance_mm2)):
-            ell = covariance_ellipsoid(tg.position_mm, tg.covariance_mm2, 0.95)
-            V.append(tg.position_mm + (sphere * ell.radii_mm) @ ell.axes.T)
-            C.append(np.repeat(colour[None], len(sphere), 0))
-            F.append(faces + n)
-            text += f", its 95 % ellipsoid vertices {n}-{n + len(sphere) - 1}"
-            n += len(sphere)
-        notes.append(text)
+        if np.all(np.isfinite(tg.position_mm)) or region is not None:
+            _add_target(parts, tg, region, lo, hi, sphere)
     for index, (_, pos, _) in sorted((paths or {}).items()):
-        V.append(np.asarray(pos, float))
-        C.append(np.repeat(COLOURS[index % len(COLOURS)][None], len(pos), 0))
-        E.append(np.column_stack([np.arange(n, n + len(pos) - 1), np.arange(n + 1, n + len(pos))]))
-        notes.append(f"target {index}'s path (a moving target): vertices {n}-{n + len(pos) - 1}, the edges")
-        n += len(pos)
+        first = parts.add(np.asarray(pos, float), COLOURS[index % len(COLOURS)])
+        parts.add_path_edges(first, len(pos))
+        parts.notes.append(f"target {index}'s path (a moving target): vertices {first}-"
+                           f"{parts.n - 1}, the edges")
     posed = np.flatnonzero(np.all(np.isfinite(poses.T_world_from_cam[:, :3, 3]), axis=1))
     if len(posed):
-        V.append(poses.T_world_from_cam[posed, :3, 3])
-        C.append(np.repeat(np.array([HEAD_COLOUR], np.uint8), len(posed), 0))
-        E.append(np.column_stack([np.arange(n, n + len(posed) - 1), np.arange(n + 1, n + len(posed))]))
-        notes.append(f"head path (scene camera positions at posed frames): vertices {n}-{n + len(posed) - 1}, "
-                     "the edges")
-    return PlyMesh(_cat(V, (0, 3), float), _cat(C, (0, 3), np.uint8), _cat(F, (0, 3), int), _cat(E, (0, 2), int),
-                   ["wearable-gaze targets.ply (docs/formats.md)", *notes])
+        first = parts.add(poses.T_world_from_cam[posed, :3, 3], np.array(HEAD_COLOUR, np.uint8))
+        parts.add_path_edges(first, len(posed))
+        parts.notes.append(f"head path (scene camera positions at posed frames): vertices {first}-"
+                           f"{parts.n - 1}, the edges")
+    return PlyMesh(_cat(parts.vertices, (0, 3), float), _cat(parts.colours, (0, 3), np.uint8),
+                   _cat(parts.faces, (0, 3), int), _cat(parts.edges, (0, 2), int),
+                   ["wearable-gaze targets.ply (docs/formats.md)", *parts.notes])
+
+
+class _MeshParts:
+    """targets.ply's mesh as it is built: blocks of vertices (each (k, 3) mm), their colours
+    ((k, 3) uint8), faces and edges (indices into all vertices so far), one note per part."""
+
+    def __init__(self):
+        self.vertices: list[np.ndarray] = []
+        self.colours: list[np.ndarray] = []
+        self.faces: list[np.ndarray] = []
+        self.edges: list[np.ndarray] = []
+        self.notes: list[str] = []
+        self.n = 0                                  # vertices so far
+
+    def add(self, points: np.ndarray, colour: np.ndarray) -> int:
+        """Append vertices (k, 3) in one colour (3,); the index of the first."""
+        first = self.n
+        self.vertices.append(points)
+        self.colours.append(np.repeat(colour[None], len(points), 0))
+        self.n += len(points)
+        return first
+
+    def add_path_edges(self, first: int, count: int) -> None:
+        """Edges joining ``count`` vertices from ``first`` in turn."""
+        self.edges.append(np.column_stack([np.arange(first, first + count - 1),
+                                           np.arange(first + 1, first + count)]))
+
+
+def _add_target(parts: _MeshParts, tg: Target, region, lo: np.ndarray, hi: np.ndarray,
+                sphere: tuple[np.ndarray, np.ndarray]) -> None:
+    """A static target's part of targets.ply (see ``targets_mesh``): its point or line of sight,
+    then its credible region or else its ellipsoid (the unit ``sphere``'s (vertices, faces)
+    scaled), in its colour, and its note."""
+    colour = COLOURS[tg.index % len(COLOURS)]
+    text = f"target {tg.index} ({tg.status}):"
+    if np.all(np.isfinite(tg.position_mm)):
+        first = parts.add(np.asarray(tg.position_mm, float)[None], colour)
+        text += f" vertex {first} (its point)"
+    elif region is not None:                      # no point: its line of sight as an edge
+        reach = region.far_mm if region.closed else ray_exit(region.origin_mm, region.direction,
+                                                              lo, hi)
+        ends = np.stack([region.point_at(region.near_mm),
+                         region.point_at(max(reach, region.near_mm))])
+        first = parts.add(ends, colour)
+        parts.edges.append(np.array([[first, first + 1]]))
+        text += f" vertices {first}-{first + 1} (its line of sight over its region, the edge)"
+    if region is not None:
+        rv, rf, _ = region_mesh(region, ray_exit(region.origin_mm, region.direction, lo, hi))
+        parts.faces.append(rf + parts.n)
+        first = parts.add(rv, colour)
+        what = (f"{region.near_mm:.0f}-{region.far_mm:.0f} mm" if region.closed else
+                f"{region.near_mm:.0f} mm on, no far end: open, cut at the box's edge")
+        text += (f", its 95 % credible region (distance from {_xyz(region.origin_mm)} {what}) "
+                 f"vertices {first}-{parts.n - 1}")
+    elif tg.covariance_mm2 is not None and np.all(np.isfinite(tg.covariance_mm2)):
+        unit, faces = sphere
+        ell = covariance_ellipsoid(tg.position_mm, tg.covariance_mm2, 0.95)
+        parts.faces.append(faces + parts.n)
+        first = parts.add(tg.position_mm + (unit * ell.radii_mm) @ ell.axes.T, colour)
+        text += f", its 95 % ellipsoid vertices {first}-{parts.n - 1}"
+    parts.notes.append(text)
 
 
 def _xyz(p) -> str:

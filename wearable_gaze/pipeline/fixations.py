@@ -59,7 +59,7 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
     labels, motion = split_two_point_fixations(samples, labels, sigma_deg)
     n_seg = len(motion)
     fixations = []
-    running = {k: [] for k in ESTIMATE_COLUMNS}
+    running: dict[str, list] = {k: [] for k in ESTIMATE_COLUMNS}
     for k in range(n_seg):
         idx = np.flatnonzero(labels == k)
         fixations.append(_fixation(samples, k, idx, motion[k], method, sigma_deg, running, error_model))
@@ -169,7 +169,7 @@ def split_two_point_fixations(samples: BinocularSamples, labels: np.ndarray,
     fixation's motion, 'static' or 'moving'."""
     n_seg = int(labels.max()) + 1 if (labels >= 0).any() else 0
     out = np.full(len(labels), -1)
-    motion = []
+    motion: list = []
     for k in range(n_seg):
         idx = np.flatnonzero(labels == k)
         if not len(idx):

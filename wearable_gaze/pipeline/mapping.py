@@ -68,34 +68,11 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
         UserError: unreadable inputs, an unknown dictionary, images of another size than the
             camera's, no marker seen, a seen id without a size, the origin never seen.
     """
-    prior = None
-    if extend is not None:
-        prior = load_marker_map(Path(extend))
-        if dictionary not in (None, prior.dictionary):
-            raise UserError(f"--dict {dictionary}: the map to extend, {extend}, is of {prior.dictionary}")
-        dictionary = prior.dictionary
-        size_mm = prior.marker_size_mm if size_mm is None else size_mm
-        sizes = {**prior.sizes, **(sizes or {})}
-    dictionary = dictionary or DEFAULT_DICT
-    try:
-        aruco_dictionary(dictionary)
-    except ValueError as exc:
-        raise UserError(f"--dict: {exc}") from None
+    prior, dictionary, size_mm, sizes = _with_prior(extend, dictionary, size_mm, sizes)
     cam = load_camera(Path(camera_path))
-    detector = MarkerDetector(dictionary)
     files = input_files(inputs)
-    total = frames_total(files, max_frames)
-    views, names, repeated = [], [], {}
     detecting, adjusting = staged(progress, "detecting markers"), staged(progress, "adjusting the map")
-    for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
-        check_frame_size(name, grey, cam)
-        unique, rep, _ = split_repeated(detector.detect(grey))
-        for i in rep:
-            repeated[i] = repeated.get(i, 0) + 1
-        views.append(unique)
-        names.append(name)
-        if progress:
-            detecting(k + 1, max(k + 1, total))
+    views, names, repeated = _detect_views(files, max_frames, cam, dictionary, detecting)
     seen = sorted({i for v in views for i in v})
     if views and not seen:
         source, fix = (("the --extend map", 'write "dictionary": "{}" in it') if prior is not None
@@ -108,8 +85,9 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
         adjusting(0, 0)                           # chaining the views, before the first adjustment step
     try:
         K, dist, start = start_intrinsics(cam, extend if refine else None)
-        built = build_marker_map(views, K, dist, dictionary, size, origin, cam.model, prior, tuple(cam.image_size),
-                                 refine, adjusting)
+        built = build_marker_map(views, K, dist, dictionary, size, origin, cam.model, prior,
+                                 tuple(cam.image_size), refine, adjusting)
+        assert built.intrinsics is not None      # build_marker_map always says what it did
         built.intrinsics = replace(built.intrinsics, given_camera_matrix=cam.camera_matrix,
                                    given_dist_coeffs=cam.dist_coeffs, start=start)
     except ValueError as exc:
@@ -117,12 +95,57 @@ def build_map_files(inputs, camera_path, out, dictionary: str | None = None, siz
     for i, n in repeated.items():
         if i in built.info:
             built.info[i].flags.append(f"id detected twice in {n} view(s) (a duplicate print?)")
+    extra = {i: _extra(inf) for i, inf in built.info.items()}
     write_marker_map(out, marker_map_dict(dictionary, built.marker_map.marker_size_mm, built.marker_map.poses,
-                                          extra={i: _extra(inf) for i, inf in built.info.items()},
-                                          sizes=built.marker_map.sizes, camera=intrinsics_json(built.intrinsics)))
+                                          extra=extra, sizes=built.marker_map.sizes,
+                                          camera=intrinsics_json(built.intrinsics)))
     write_map_plot(built, map_plot_path(out))
     log.info("views: %s", ", ".join(names[:5]) + (" ..." if len(names) > 5 else ""))
     return built
+
+
+def _with_prior(extend, dictionary: str | None, size_mm: float | None, sizes):
+    """(the map to extend or None, the dictionary, size and sizes to use): an ``extend`` map's
+    own unless given (its dictionary must agree); the dictionary checked.
+
+    Raises:
+        UserError: another dictionary than the extended map's, an unknown dictionary.
+    """
+    prior = None
+    if extend is not None:
+        prior = load_marker_map(Path(extend))
+        if dictionary not in (None, prior.dictionary):
+            raise UserError(f"--dict {dictionary}: the map to extend, {extend}, is of "
+                            f"{prior.dictionary}")
+        dictionary = prior.dictionary
+        size_mm = prior.marker_size_mm if size_mm is None else size_mm
+        sizes = {**prior.sizes, **(sizes or {})}
+    dictionary = dictionary or DEFAULT_DICT
+    try:
+        aruco_dictionary(dictionary)
+    except ValueError as exc:
+        raise UserError(f"--dict: {exc}") from None
+    return prior, dictionary, size_mm, sizes
+
+
+def _detect_views(files, max_frames: int, cam, dictionary: str, progress=None):
+    """The markers seen in each frame read from ``files`` (at most ``max_frames`` of each): the
+    views [{id: (4, 2) corners, px}], the frames' names, and {id: views it was seen twice in}
+    (a repeated id is left out of that view). ``progress(done, total)`` over the frames."""
+    detector = MarkerDetector(dictionary)
+    total = frames_total(files, max_frames)
+    views, names = [], []
+    repeated: dict[int, int] = {}
+    for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
+        check_frame_size(name, grey, cam)
+        unique, rep, _ = split_repeated(detector.detect(grey))
+        for i in rep:
+            repeated[i] = repeated.get(i, 0) + 1
+        views.append(unique)
+        names.append(name)
+        if progress:
+            progress(k + 1, max(k + 1, total))
+    return views, names, repeated
 
 
 def start_intrinsics(cam, extend=None) -> tuple[np.ndarray, np.ndarray, str]:

@@ -64,13 +64,13 @@ def validation_pairs(head, poses_t, T_world_from_cam, targets, settle_s: float =
     Returns:
         (idx (K,) sample indices, points (K, 3) targets in the head frame, mm, target (K,) index).
     """
-    idx, tgt = [], []
+    idx_parts, tgt_parts = [], []
     for k, tg in enumerate(targets):
         for a, b in tg["fixations_s"]:
             sel = np.flatnonzero((head.t_s >= a + settle_s) & (head.t_s <= b))
-            idx.append(sel)
-            tgt.append(np.full(len(sel), k))
-    idx, tgt = np.concatenate(idx), np.concatenate(tgt)
+            idx_parts.append(sel)
+            tgt_parts.append(np.full(len(sel), k))
+    idx, tgt = np.concatenate(idx_parts), np.concatenate(tgt_parts)
     if not len(idx):
         return idx, np.zeros((0, 3)), tgt
     T_wc, ok = interpolate_poses(poses_t, T_world_from_cam, head.t_s[idx], MAX_POSE_GAP_S)

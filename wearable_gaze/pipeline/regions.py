@@ -29,12 +29,12 @@ def scene_box(*point_sets) -> tuple[np.ndarray, np.ndarray]:
     (3,) each, None skipped: the head path, the targets' points, their paths and truth), grown by
     ``BOX_MARGIN`` of its largest side (at least ``BOX_MARGIN_MIN_MM``) on every side; about
     the origin without any point."""
-    P = [np.asarray(p, float).reshape(-1, 3) for p in point_sets if p is not None]
-    P = np.concatenate(P) if P else np.zeros((0, 3))
-    P = P[np.all(np.isfinite(P), axis=1)]
-    if not len(P):
-        P = np.zeros((1, 3))
-    lo, hi = P.min(axis=0), P.max(axis=0)
+    sets = [np.asarray(p, float).reshape(-1, 3) for p in point_sets if p is not None]
+    pts = np.concatenate(sets) if sets else np.zeros((0, 3))
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if not len(pts):
+        pts = np.zeros((1, 3))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
     m = max(BOX_MARGIN * float(np.max(hi - lo)), BOX_MARGIN_MIN_MM)
     return lo - m, hi + m
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator import fisher_information
+from estimator import BinocularSamples, fisher_information
 from estimator.errormodel import K95  # the 95 % ellipsoid's semi-axes over the standard deviations
 from tracking.markermap import MarkerMap
 
@@ -118,7 +118,7 @@ class ReportData:
     """
 
     targets: list
-    samples: object
+    samples: BinocularSamples
     tlabels: np.ndarray
     flabels: np.ndarray
     head: np.ndarray
@@ -184,8 +184,6 @@ class ReportData:
 
 def report_data(out: Path, T_p: np.ndarray, truth: ReportTruth | None = None) -> ReportData:
     """The outputs in ``out`` read for the report; ``T_p`` (M, 4, 4) the head poses."""
-    from estimator import BinocularSamples
-
     records = read_targets(out / "targets.json")
     targets = [Target.from_row(r) for r in records]
     segments = read_viewlines_csv(out / "viewlines.csv")
@@ -226,7 +224,7 @@ def match_truth(targets: list, paths: dict, truth: ReportTruth | None) -> tuple[
             continue
         overlap = {t.index: sum(max(0.0, min(b, t.t_end) - max(a, t.t_start)) for a, b in tt["fixations_s"])
                    for t in targets if t.index in paths and t.index not in matched}
-        best = max(overlap, key=overlap.get, default=None)
+        best = max(overlap, key=lambda i: overlap[i], default=None)
         if best is not None and overlap[best] > 0:
             matched[best] = tt
         else:
@@ -270,7 +268,7 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
     images += [(n, c) for n, c in AOI_PLOTS.items() if (out / n).is_file()]
     if progress:
         progress(3, 5)
-    names = (None, None)
+    names: tuple[str | None, str | None] = (None, None)
     for name in OPTIONAL_FILES:                 # an earlier run's: this report may have neither
         (out / name).unlink(missing_ok=True)
     if overlay is not None:

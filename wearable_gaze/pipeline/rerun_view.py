@@ -130,21 +130,22 @@ def target_ellipsoids(targets: list, viewpoints_mm=None) -> dict:
     """
     rows = []
     for t in targets:
-        c = np.asarray(t.position_mm, float)
-        if not np.all(np.isfinite(c)):
+        centre = np.asarray(t.position_mm, float)
+        if not np.all(np.isfinite(centre)):
             continue
         if t.covariance_mm2 is not None and np.all(np.isfinite(t.covariance_mm2)):
-            half, R = ellipsoid_axes(t.covariance_mm2)
-            rows.append((t.index, c, half[0], R[0], True))
+            half, axes = ellipsoid_axes(t.covariance_mm2)
+            rows.append((t.index, centre, half[0], axes[0], True))
         elif np.all(np.isfinite(t.axes95_mm)) and viewpoints_mm and t.index in viewpoints_mm:
-            R = line_of_sight_axes(c, viewpoints_mm[t.index])[0]
-            rows.append((t.index, c, np.asarray(t.axes95_mm, float), R, False))
+            axes = line_of_sight_axes(centre, viewpoints_mm[t.index])[0]
+            rows.append((t.index, centre, np.asarray(t.axes95_mm, float), axes, False))
     if not rows:
         return {"index": np.zeros(0, int), "centers": np.zeros((0, 3)), "half_sizes": np.zeros((0, 3)),
                 "quaternions": np.zeros((0, 4)), "from_covariance": np.zeros(0, bool)}
-    idx, cen, half, R, cov = zip(*rows, strict=True)
-    return {"index": np.array(idx), "centers": np.array(cen), "half_sizes": np.array(half),
-            "quaternions": quaternions_xyzw(np.array(R)), "from_covariance": np.array(cov)}
+    indices, centres, halves, rotations, from_covariance = zip(*rows, strict=True)
+    return {"index": np.array(indices), "centers": np.array(centres),
+            "half_sizes": np.array(halves), "quaternions": quaternions_xyzw(np.array(rotations)),
+            "from_covariance": np.array(from_covariance)}
 
 
 def view_line_segments(samples, target_mm, max_lines: int = MAX_LINES_PER_TARGET,
@@ -219,12 +220,12 @@ def open_recording(dest: str | None, name: str = "wearable-gaze"):
 
     rec = rr.RecordingStream("wearable_gaze")
     rec.send_recording_name(name)
-    if kind == "file":
-        rec.save(str(Path(where)))
-    elif kind == "connect":
-        rec.connect_grpc(where)
-    else:
+    if where is None:                                 # SPAWN, the one kind without a place
         _spawn(rec)
+    elif kind == "file":
+        rec.save(str(Path(where)))
+    else:
+        rec.connect_grpc(where)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     rec.log("notes", rr.TextDocument(FRAME_NOTE, media_type="text/markdown"), static=True)
     return rec
@@ -398,8 +399,8 @@ def view_processed(dest: str | None, out, targets=None, camera=None, markers=Non
         _log_targets(rec, out, targets)
     finally:
         close_recording(rec)
-    kind, where = parse_rerun_dest(dest)
-    return where if kind != SPAWN else "a spawned viewer"
+    _, where = parse_rerun_dest(dest)
+    return "a spawned viewer" if where is None else where
 
 
 def _log_head(rec, t, T_world_from_cam) -> None:
@@ -472,6 +473,9 @@ def _concat(parts: list):
 
     if len(parts) == 1:
         return parts[0]
-    return BinocularSamples.from_arrays(*(np.concatenate([getattr(p, k) for p in parts]) for k in (
-        "t_s", "left_origin_mm", "left_direction", "right_origin_mm", "right_direction", "left_valid",
-        "right_valid")))
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts])
+    return BinocularSamples.from_arrays(joined("t_s"), joined("left_origin_mm"),
+                                        joined("left_direction"), joined("right_origin_mm"),
+                                        joined("right_direction"), joined("left_valid"),
+                                        joined("right_valid"))

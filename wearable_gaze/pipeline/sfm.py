@@ -133,7 +133,7 @@ def _frames(files, cam: CameraCalibration, detector: MarkerDetector, max_frames:
     sizes)."""
     folder.mkdir()
     total = frames_total(files, max_frames)
-    out = {"names": [], "features": [], "markers": []}
+    out: dict[str, list] = {"names": [], "features": [], "markers": []}
     for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room")):
         check_frame_size(name, grey, cam)
         write_image(folder / f"{k:05d}.jpg", grey)
@@ -249,7 +249,7 @@ def _world_by_distance(in_sfm: FeatureMap, cam: CameraCalibration, video: Path, 
         if i not in grey:
             raise UserError(f"--distance: {video} has no frame at {t:g} s; give times within the video")
         res = localiser.estimate(grey[i])
-        if not res.ok:
+        if not res.ok or res.T_world_from_cam is None:          # (ok: never None)
             raise UserError(f"--distance: the frame at {t:g} s could not be placed in the reconstruction "
                             f"({res.reason}); choose times when the camera faced the surveyed walls")
         poses.append(res.T_world_from_cam)

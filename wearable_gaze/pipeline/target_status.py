@@ -72,6 +72,7 @@ def estimate_status(e: GazeEstimate, samples: BinocularSamples) -> str:
     (N,): its point, 95 % semi-axes and the error model's far-side stretch, as ``process``'s
     targets and the live session's static targets are published."""
     pos = e.position_mm if e.position_mm is not None else np.full(3, np.nan)
-    radii = e.ellipsoid(0.95).radii_mm if e.covariance_mm2 is not None else np.full(3, np.nan)
+    ellipsoid = e.ellipsoid(0.95) if e.covariance_mm2 is not None else None
+    radii = ellipsoid.radii_mm if ellipsoid is not None else np.full(3, np.nan)
     far = float(e.info.get("error_model", {}).get("far_side_factor", 1.0))
     return target_status(e.status.value, pos, radii, samples, far)

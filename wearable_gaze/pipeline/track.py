@@ -206,7 +206,7 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
     A frame ``times`` has no time for (a recording cut short saves its video ahead of its
     timestamps) cannot be placed in time: it is left out, with a warning. Returns the columns
     ``POSE_ROW``, one entry per frame kept, and the number of frames left out."""
-    rows = {k: [] for k in POSE_ROW}
+    rows: dict[str, list] = {k: [] for k in POSE_ROW}
     i = untimed = 0
     while True:
         if times is not None and i not in times:

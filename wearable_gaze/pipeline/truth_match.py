@@ -18,7 +18,8 @@ def match_positions(positions, truth: list, ids=None) -> list:
     + 100 mm; each id of ``ids`` (M,) (default: each estimate) used once."""
     P = np.asarray(positions, float).reshape(-1, 3)
     ids = list(range(len(P))) if ids is None else list(ids)
-    pairs, used = [], set()
+    pairs: list[tuple[dict, int | None]] = []
+    used = set()
     for tt in truth:
         if "position_mm" not in tt:
             continue
@@ -75,20 +76,26 @@ class TruthFrame:
     markers: tuple = ()
     reason: str = ""
 
+    def _similarity(self) -> np.ndarray:
+        """``T_map_from_truth``, which the methods that move the truth need (a frame without a
+        fit moves nothing: its callers check ``T_map_from_truth`` first)."""
+        assert self.T_map_from_truth is not None
+        return self.T_map_from_truth
+
     @property
     def scale(self) -> float:
         """The similarity's scale (the used map's millimetre over the truth's)."""
-        return float(np.cbrt(np.linalg.det(self.T_map_from_truth[:3, :3])))
+        return float(np.cbrt(np.linalg.det(self._similarity()[:3, :3])))
 
     def points(self, pts_truth) -> np.ndarray:
         """(N, 3) points of the truth's frame, mm, in the used map's world."""
-        T = self.T_map_from_truth
+        T = self._similarity()
         return np.asarray(pts_truth, float).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
 
     def poses(self, T_truth_from_cam) -> np.ndarray:
         """(N, 4, 4) poses of the truth's frame (truth/head_poses.csv; NaN rows kept) in the used
         map's world: the positions moved by the similarity, the rotations turned by its rotation."""
-        T, S = np.array(T_truth_from_cam, float).reshape(-1, 4, 4), self.T_map_from_truth
+        T, S = np.array(T_truth_from_cam, float).reshape(-1, 4, 4), self._similarity()
         T[:, :3, :3] = np.einsum("ij,njk->nik", S[:3, :3] / self.scale, T[:, :3, :3])
         T[:, :3, 3] = self.points(T[:, :3, 3])
         return T
@@ -117,7 +124,8 @@ class TruthFrame:
 
     def record(self) -> dict:
         """The JSON object summary.json keeps (``from_record`` reads it back)."""
-        d = {"map": self.map_kind, "markers": [int(i) for i in self.markers], "note": self.note()}
+        d: dict = {"map": self.map_kind, "markers": [int(i) for i in self.markers],
+                   "note": self.note()}
         if self.T_map_from_truth is not None:
             d.update(T_map_from_truth=np.round(self.T_map_from_truth, 9).tolist(), rms_mm=round(self.rms_mm, 3))
         return d

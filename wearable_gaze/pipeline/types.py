@@ -17,7 +17,7 @@ import numpy as np
 from calibration.camera import CameraCalibration
 from estimator import BinocularSamples, GazeEstimate
 from estimator.direction import GazeDirection
-from estimator.errormodel import Sight
+from estimator.errormodel_regions import Sight
 from estimator.motion import STATIC, Trajectory
 
 from ..formats.targets import (  # noqa: F401  (TARGET_KEYS: a record's keys)

@@ -149,50 +149,20 @@ class RecorderEmulator:
             srv.bind((host, port))
         except OSError as exc:
             srv.close()
-            raise UserError(f"cannot listen on {host}:{port} ({exc.strerror}); pick a free port, e.g. --listen "
-                            f"127.0.0.1:0 for any") from None
+            raise UserError(f"cannot listen on {host}:{port} ({exc.strerror}); pick a free port, "
+                            "e.g. --listen 127.0.0.1:0 for any") from None
         srv.listen(1)
-        conn: list = [None]
-
-        def take(wait_s: float) -> bool:
-            """Accept a waiting reader (within ``wait_s``; 0: only one already there)."""
-            srv.settimeout(wait_s)
-            try:
-                c, _ = srv.accept()
-            except (BlockingIOError, TimeoutError):
-                return False
-            c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            conn[0] = c
-            return True
-
-        def accept() -> bool:
-            while not self._stop.is_set():
-                if take(0.1):
-                    return True
-            return False
-
-        def write(chunk: bytes) -> bool:
-            if conn[0] is None and not take(0.0):  # a reader reconnecting: taken without waiting
-                return False
-            try:
-                conn[0].sendall(chunk)
-                return True
-            except OSError:
-                conn[0].close()
-                conn[0] = None
-                return False
+        reader = _TcpReader(srv)
 
         def run():
             try:
-                if accept():
+                if reader.accept(self._stop):
                     t0 = time.monotonic()     # the recorder's clock starts with the reader's camera
                     self._stop.wait(CONNECT_SETTLE_S)
-                    self._play(write, t0)
+                    self._play(reader.write, t0)
                     self._stop.wait(0.3)      # let the reader take the last bytes
             finally:
-                if conn[0] is not None:
-                    conn[0].close()
-                srv.close()
+                reader.close()
                 self.finished.set()
 
         h, p = srv.getsockname()
@@ -250,3 +220,49 @@ class RecorderEmulator:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
+
+
+class _TcpReader:
+    """The one TCP reader of ``RecorderEmulator.listen_tcp``'s listening socket ``srv``: taken
+    when it connects, dropped when it goes (its records are then lost until it reconnects)."""
+
+    def __init__(self, srv: socket.socket):
+        self.srv = srv
+        self.conn: socket.socket | None = None
+
+    def take(self, wait_s: float) -> bool:
+        """Accept a waiting reader (within ``wait_s``; 0: only one already there)."""
+        self.srv.settimeout(wait_s)
+        try:
+            conn, _ = self.srv.accept()
+        except (BlockingIOError, TimeoutError):
+            return False
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.conn = conn
+        return True
+
+    def accept(self, stop: threading.Event) -> bool:
+        """Wait for the first reader until ``stop`` is set; whether one came."""
+        while not stop.is_set():
+            if self.take(0.1):
+                return True
+        return False
+
+    def write(self, chunk: bytes) -> bool:
+        """Send ``chunk`` to the reader; False when there is none (or it just went)."""
+        if self.conn is None and not self.take(0.0):  # a reader reconnecting: taken without waiting
+            return False
+        assert self.conn is not None
+        try:
+            self.conn.sendall(chunk)
+            return True
+        except OSError:
+            self.conn.close()
+            self.conn = None
+            return False
+
+    def close(self) -> None:
+        """Close the reader's connection and the listening socket."""
+        if self.conn is not None:
+            self.conn.close()
+        self.srv.close()

@@ -82,7 +82,7 @@ def still_head_samples(n: int, rng: np.random.Generator, diverge_deg: float = 1.
     dr = turn((X - ro) / np.linalg.norm(X - ro), half)
     if diverge_deg == 0:
         dl = dr = np.array([0, 0, 1.0])
-    s = np.deg2rad(sigma_deg)
-    L = perturb_directions(np.tile(dl, (n, 1)), s, rng)
-    R = perturb_directions(np.tile(dr, (n, 1)), s, rng)
-    return [BinocularSample(i / 60, lo, L[i], ro, R[i]) for i in range(n)]
+    sigma_rad = np.deg2rad(sigma_deg)
+    left_dirs = perturb_directions(np.tile(dl, (n, 1)), sigma_rad, rng)
+    right_dirs = perturb_directions(np.tile(dr, (n, 1)), sigma_rad, rng)
+    return [BinocularSample(i / 60, lo, left_dirs[i], ro, right_dirs[i]) for i in range(n)]

@@ -40,7 +40,6 @@ def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) 
         background: grey level where no plane is seen.
     """
     w, h = camera.image_size
-    xs, ys = camera.rays
     T_cam_from_world = invert(T_world_from_cam)
     planes = list(planes)
     shell = [p for p in planes if p.shell]
@@ -59,56 +58,76 @@ def render(camera: Camera, T_world_from_cam, planes, background: float = 110.0) 
     # depth buffer over the union of the boxes only, origin (dx, dy)
     dx, dy = min(b[0] for b in seen), min(b[1] for b in seen)
     depth = np.full((max(b[3] for b in seen) - dy, max(b[2] for b in seen) - dx), np.inf, np.float32)
-    for plane, T, bbox in zip(exact, Ts, boxes, strict=True):
+    for plane, T_cam_from_plane, bbox in zip(exact, Ts, boxes, strict=True):
         if bbox is None:
             continue
-        if abs(T[:3, 2] @ T[:3, 3]) < 1e-9:            # det [x y t] = z . t: seen edge-on
+        z_axis, origin = T_cam_from_plane[:3, 2], T_cam_from_plane[:3, 3]
+        if abs(z_axis @ origin) < 1e-9:            # det [x y t] = z . t: seen edge-on
             continue
-        M = T[:3, [0, 1, 3]]
         x0, y0, x1, y1 = bbox
-        ss = max(int(plane.supersample), 1)
-        rays = camera.sample_rays(ss)[y0 * ss:y1 * ss, x0 * ss:x1 * ss]
-        Mi = _inv3(M)                                  # ray (x, y, 1) -> plane (u, v, 1) mm, homogeneous
-        tex_h, tex_w = plane.texture.shape[:2]
-        su, sv = tex_w / plane.size_mm[0], tex_h / plane.size_mm[1]
-        # level-0 continuous texel coordinates (0 .. W across the rectangle)
-        P = Mi * np.array([[su], [sv], [1.0]])
-        pp = cv2.perspectiveTransform(rays, P)
-        den = cv2.transform(rays, Mi[2:3])            # Mi[2] . (x, y, 1): 1 / depth
-        if plane.box_prefilter and ss == 1:
-            # area sampling without supersampling: a level with 3-6 texels per pixel, box-filtered
-            # over one pixel's footprint, then sampled bilinearly at the pixel centre
-            scale = _footprint(pp, rays.shape[0] // 2, rays.shape[1] // 2)
-            k = 0 if not np.isfinite(scale) or scale < 6 else int(np.floor(np.log2(scale / 3)))
-            lev, k, shift = plane.boxed(k, max(1, int(round(scale / 2.0**k))) if np.isfinite(scale) else 1)
-        else:
-            # footprint: texels per sample at the box centre -> pyramid level
-            k = _pyramid_level(pp, rays.shape[0] // 2, rays.shape[1] // 2, plane.max_texel_step * ss)
-            lev, k = plane.level2(k)
-            shift = 0.0
-        f = 2.0**k                  # exact: pyrDown rounds odd sizes up, so tex_w / width is not
-        # cv2.pyrDown centres level-k pixel i on level-0 pixel 2^k i, so the index coordinate
-        # of continuous texel coordinate p is (p - 0.5) / 2^k
-        mp = (pp - np.float32(0.5)) * np.float32(1 / f) + np.float32(shift) if k or shift else pp - np.float32(0.5)
-        # (colour, 1) sampled with a zero border: premultiplied colour and a coverage ramp one
-        # (level) texel wide centred on the rectangle's border
-        out = cv2.remap(lev, mp, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        if den.min() <= 0:
-            behind = den <= 0
-            out[behind] = 0
-            den[behind] = 1e-30
-        s = np.float32(1.0) / den                      # ray parameter: depth along z, mm
-        if ss > 1:                   # box filter: mean of the ss x ss samples of each pixel
-            size = (x1 - x0, y1 - y0)
-            out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
-            s = cv2.resize(s, size, interpolation=cv2.INTER_AREA)
-        premult, coverage = out[..., 0], out[..., 1]
+        premult, coverage, ray_depth = _draw_exact(camera, plane, T_cam_from_plane, bbox)
         sub_d = depth[y0 - dy:y1 - dy, x0 - dx:x1 - dx]
         sub_i = img[y0:y1, x0:x1]
-        nearer = s < sub_d
+        nearer = ray_depth < sub_d
         np.copyto(sub_i, premult + (1 - coverage) * sub_i, where=nearer & (coverage > 0))
-        np.copyto(sub_d, s, where=nearer & (coverage >= 0.5))
+        np.copyto(sub_d, ray_depth, where=nearer & (coverage >= 0.5))
     return img
+
+
+def _draw_exact(camera: Camera, plane, T_cam_from_plane, bbox):
+    """One non-shell plane drawn per pixel over its bounding box ``(x0, y0, x1, y1)``: the
+    premultiplied grey (h, w), its coverage 0-1 (h, w) and each pixel's depth along z (h, w), mm
+    (inf where the plane is behind the camera), all float32."""
+    M = T_cam_from_plane[:3, [0, 1, 3]]
+    x0, y0, x1, y1 = bbox
+    ss = max(int(plane.supersample), 1)
+    rays = camera.sample_rays(ss)[y0 * ss:y1 * ss, x0 * ss:x1 * ss]
+    Mi = _inv3(M)                           # ray (x, y, 1) -> plane (u, v, 1) mm, homogeneous
+    tex_h, tex_w = plane.texture.shape[:2]
+    su, sv = tex_w / plane.size_mm[0], tex_h / plane.size_mm[1]
+    # level-0 continuous texel coordinates (0 .. W across the rectangle)
+    P = Mi * np.array([[su], [sv], [1.0]])
+    texels = cv2.perspectiveTransform(rays, P)
+    inv_depth = cv2.transform(rays, Mi[2:3])       # Mi[2] . (x, y, 1): 1 / depth
+    out = _sample_texture(plane, rays, texels, ss)
+    if inv_depth.min() <= 0:
+        behind = inv_depth <= 0
+        out[behind] = 0
+        inv_depth[behind] = 1e-30
+    ray_depth = np.float32(1.0) / inv_depth        # ray parameter: depth along z, mm
+    if ss > 1:                   # box filter: mean of the ss x ss samples of each pixel
+        size = (x1 - x0, y1 - y0)
+        out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
+        ray_depth = cv2.resize(ray_depth, size, interpolation=cv2.INTER_AREA)
+    return out[..., 0], out[..., 1], ray_depth
+
+
+def _sample_texture(plane, rays, texels, ss: int) -> np.ndarray:
+    """The plane's (premultiplied grey, coverage) float32 (h, w, 2) sampled at level-0 continuous
+    texel coordinates ``texels`` (h, w, 2), from the pyramid level matched to the footprint."""
+    if plane.box_prefilter and ss == 1:
+        # area sampling without supersampling: a level with 3-6 texels per pixel, box-filtered
+        # over one pixel's footprint, then sampled bilinearly at the pixel centre
+        scale = _footprint(texels, rays.shape[0] // 2, rays.shape[1] // 2)
+        k = 0 if not np.isfinite(scale) or scale < 6 else int(np.floor(np.log2(scale / 3)))
+        box = max(1, int(round(scale / 2.0**k))) if np.isfinite(scale) else 1
+        lev, k, shift = plane.boxed(k, box)
+    else:
+        # footprint: texels per sample at the box centre -> pyramid level
+        centre_row, centre_col = rays.shape[0] // 2, rays.shape[1] // 2
+        k = _pyramid_level(texels, centre_row, centre_col, plane.max_texel_step * ss)
+        lev, k = plane.level2(k)
+        shift = 0.0
+    f = 2.0**k                  # exact: pyrDown rounds odd sizes up, so tex_w / width is not
+    # cv2.pyrDown centres level-k pixel i on level-0 pixel 2^k i, so the index coordinate
+    # of continuous texel coordinate p is (p - 0.5) / 2^k
+    if k or shift:
+        mp = (texels - np.float32(0.5)) * np.float32(1 / f) + np.float32(shift)
+    else:
+        mp = texels - np.float32(0.5)
+    # (colour, 1) sampled with a zero border: premultiplied colour and a coverage ramp one
+    # (level) texel wide centred on the rectangle's border
+    return cv2.remap(lev, mp, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
 def _render_shell(camera: Camera, T_cam_from_world, planes, background: float) -> np.ndarray:
