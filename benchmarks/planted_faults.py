@@ -39,6 +39,17 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PYTEST = ("-x", "-q", "-p", "no:cacheprovider")
+CAL = "tests/test_calibration.py::"
+TRACK = "tests/test_tracking.py::"
+ROUND = "tests/test_roundtrips.py::"
+EXPORTS = "tests/test_exports.py::"
+SEG = "tests/test_segments.py::"
+SEGCMD = "tests/test_segmentation_cmd.py::"
+MERGE = "tests/test_merge.py::"
+IMPORT = "tests/test_import.py::"
+AOI = "tests/test_aoi.py::"
+LINES = "tests/test_lines.py::"
+ERRM = "tests/test_errormodel.py::"
 
 
 @dataclass(frozen=True)
@@ -68,64 +79,80 @@ FAULTS = (
           "calibration/camera.py",
           "worst = int(np.argmax(per))",
           "worst = int(np.argmin(per))",
-          ()),
+          (CAL + "test_a_bad_view_is_rejected_with_its_reason",
+           CAL + "test_the_worst_of_projected_views_is_the_one_rejected_and_the_rest_give_the_intrinsics")),
     Fault("eye-plane-centre-depth", "step: eye calibration (eq. 3-4's plane points)",
           "calibration/eyes.py",
           "s = (plane_mm - e[2]) / (P[:, 2] - e[2])",
           "s = plane_mm / P[:, 2]",
-          ()),
+          (CAL + "test_plane_points_put_each_target_on_its_line_from_the_eye_centre",
+           CAL + "test_an_eye_calibrated_at_two_wall_distances_reproduces_every_target")),
     Fault("pnp-ambiguity-farther", "step: tracking (a single marker's IPPE ambiguity by continuity)",
           "tracking/pose.py",
           "choice = min(cands, key=lambda c: np.linalg.norm(c[1][:3, 3] - prev[:3, 3]))",
           "choice = max(cands, key=lambda c: np.linalg.norm(c[1][:3, 3] - prev[:3, 3]))",
-          ()),
+          (TRACK + "test_single_marker_sequence_has_no_flips",
+           TRACK + "test_one_markers_ambiguity_is_resolved_toward_the_previous_pose")),
     Fault("pose-slerp-transposed", "step: view lines (head poses interpolated to the eye samples)",
           "tracking/timeline.py",
           "out[sel, :3, :3] = slerp(tt).as_matrix()",
           "out[sel, :3, :3] = slerp(tt).inv().as_matrix()",
-          ()),
+          (CAL + "test_interpolate_poses_slerps_and_refuses_gaps",
+           CAL + "test_pose_spikes_are_the_poses_that_jump_off_a_smooth_head_and_back",
+           EXPORTS + "test_gaze_columns_of_hand_made_samples_carry_the_device_clock_and_the_world_lines")),
     Fault("segment-gap-off-by-one", "step: segmentation (a time gap's boundary; may need re-anchoring "
           "after worldfix's changes to estimator/segments.py)",
           "estimator/segments.py",
           "bounds = sorted({0, m} | {c[2] for c in cuts} | set((gaps + 1).tolist()))",
           "bounds = sorted({0, m} | {c[2] for c in cuts} | set(gaps.tolist()))",
-          ()),
+          (SEG + "test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly",
+           SEGCMD + "test_fixations_file_ends_a_fixation_at_a_time_gap_to_the_sample")),
     Fault("merge-test-inverted", "step: targets (a revisit merged by the likelihood-ratio test)",
           "estimator/merge.py",
           "if lr < MERGE_LR_THRESHOLD:",
           "if lr > MERGE_LR_THRESHOLD:",
-          ()),
+          (MERGE + "test_a_revisit_joins_its_target_which_is_estimated_again_and_a_poorly_fixed_fixation_does_not",
+           MERGE + "test_live_ids_partition_the_fixations_as_process_merges_the_same_lines")),
     Fault("export-clock-offset-sign", "step: export (gaze.csv's device clock)",
           "wearable_gaze/pipeline/export.py",
           'cols = {"sample": np.arange(n), "t_s": head.t_s, "device_t_s": head.t_s + clock_offset_s,',
           'cols = {"sample": np.arange(n), "t_s": head.t_s, "device_t_s": head.t_s - clock_offset_s,',
-          ()),
+          (EXPORTS + "test_gaze_columns_of_hand_made_samples_carry_the_device_clock_and_the_world_lines",
+           IMPORT + "test_device_rays_and_poses_find_the_targets_as_well_as_the_native_session")),
     Fault("aoi-cone-degrees", "step: AOI (a direction-only fixation's cone in degrees as radians)",
           "estimator/aoi.py",
           "sd = math.radians(cone95_deg) / math.sqrt(chi2.ppf(0.95, 2))",
           "sd = cone95_deg / math.sqrt(chi2.ppf(0.95, 2))",
-          ()),
+          (AOI + "test_a_direction_only_fixation_lands_on_what_its_ray_meets",
+           AOI + "test_a_direction_only_spread_holds_95_percent_of_its_draws_in_its_cone")),
     # --- one per library's maths ----------------------------------------------------------------
     Fault("viewline-direction-transposed", "estimator maths: the view-line transform (eq. 7-8)",
           "estimator/lines.py",
           'rotate_directions(T_wc, lines_cam.directions), "world", lines_cam.sample_index)',
           'rotate_directions(invert(T_wc), lines_cam.directions), "world", lines_cam.sample_index)',
-          ()),
+          (LINES + "test_world_camera_round_trip_matches_paper_eq_5_to_8",
+           LINES + "test_view_lines_to_world_takes_the_pose_either_way_round",
+           ROUND + "test_view_lines_to_the_world_and_back_keep_every_gazed_point")),
     Fault("k95-two-dof", "estimator maths: the 95 % ellipsoid's scale (chi-square's dof)",
           "estimator/errormodel.py",
           "K95 = math.sqrt(chi2.ppf(0.95, 3))",
           "K95 = math.sqrt(chi2.ppf(0.95, 2))",
-          ()),
+          (ROUND + "test_k95_is_the_square_root_of_chi_square_3_at_95_percent",
+           ERRM + "test_each_level_has_its_own_far_side_and_the_95_percent_one_is_the_covariance")),
     Fault("undistort-one-iteration", "calibration maths: undistortion (iterated to convergence)",
           "calibration/camera.py",
           "return cvcompat.undistort_points(p, camera_matrix, dist_coeffs, 50, 1e-10)",
           "return cvcompat.undistort_points(p, camera_matrix, dist_coeffs, 1, 1e-10)",
-          ()),
+          (ROUND + "test_undistortion_inverts_opencvs_projection[pinhole]",
+           TRACK + "test_ransac_drops_a_marker_with_wrong_corners",
+           CAL + "test_calibrate_eyes_and_viewlines_on_a_rendered_session")),
     Fault("pose-covariance-transposed", "tracking maths: the pose covariance propagated to the world",
           "tracking/pnp.py",
           "A[3:, 3:] = -R_wc",
           "A[3:, 3:] = -R_wc.T",
-          ()),
+          (ROUND + "test_the_world_pose_covariance_is_the_monte_carlo_one",
+           TRACK + "test_pose_covariance_describes_the_world_from_cam_pose_it_sits_beside",
+           TRACK + "test_world_pose_jacobian_matches_finite_differences")),
 )
 
 
@@ -221,9 +248,12 @@ def parse_args(argv=None):
 
 
 def _table(rows) -> str:
-    lines = [f"{'fault':<30} {'caught':>6}  tests that failed"]
-    for name, failed, errors in rows:
-        lines.append(f"{name:<30} {len(failed):>6}  {', '.join(failed) or '-'}"
+    """The table: each fault, how many of its tests failed (of how many run), the seconds its
+    tests took, and the failed tests' names (without ``tests/`` and ``.py``)."""
+    lines = [f"{'fault':<30} {'caught':>6} {'s':>5}  tests that failed"]
+    for name, failed, n, seconds, errors in rows:
+        short = [t.replace("tests/", "").replace(".py::", "::") for t in failed]
+        lines.append(f"{name:<30} {f'{len(failed)}/{n}':>6} {seconds:>5.0f}  {', '.join(short) or '-'}"
                      + (f"  ERRORS: {', '.join(errors)}" if errors else ""))
     return "\n".join(lines)
 
@@ -270,7 +300,7 @@ def _measure(faults, clean: Path, work: Path, jobs: int) -> int:
         errors = [f"{n} (exit {rc}: {tail.splitlines()[-1] if tail else ''})" for n, rc, tail, _ in mine
                   if rc not in (0, 1)]
         stale |= bool(errors)
-        rows.append((f.name, failed, errors))
+        rows.append((f.name, failed, len(mine), sum(r[3] for r in mine), errors))
         if len(failed) < 2:
             short.append(f.name)
     print(_table(rows))
