@@ -279,7 +279,8 @@ def check_anchors(faults) -> None:
         except (ValueError, OSError) as exc:
             bad.append(str(exc))
     if bad:
-        sys.exit("stale planted faults (re-anchor them):\n  " + "\n  ".join(bad))
+        print("stale planted faults (re-anchor them):\n  " + "\n  ".join(bad), file=sys.stderr)
+        sys.exit(2)
 
 
 def parse_args(argv=None):
@@ -308,7 +309,8 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     faults = [f for f in FAULTS if not args.only or f.name in args.only]
     if args.only and len(faults) != len(set(args.only)):
-        sys.exit(f"unknown fault names; known: {', '.join(f.name for f in FAULTS)}")
+        print(f"unknown fault names; known: {', '.join(f.name for f in FAULTS)}", file=sys.stderr)
+        return 2
     check_anchors(faults)
     work = Path(tempfile.mkdtemp(prefix="planted_faults_", dir=args.work))
     try:
@@ -332,6 +334,9 @@ def _measure(faults, clean: Path, work: Path, jobs: int) -> int:
     nodes = sorted({n for f in faults for n in f.tests})
     t0 = time.perf_counter()
     rc, out, _ = run_pytest(clean, [*PYTEST, *nodes])
+    if rc in (4, 5):                                      # usage error: a test id not found
+        print(f"a test id is stale (pytest exit {rc}):\n{out[-3000:]}")
+        return 2
     if rc != 0:
         print(f"the clean run fails (exit {rc}):\n{out[-3000:]}")
         return 1
