@@ -22,8 +22,8 @@ code moved.
 
 Measured on 2026-12-03 (branch faults30, from main 602ed13; 2 jobs, load average 11-13 on 2
 cores shared with other work: 448 s wall, 440 s in a second run with the same table, for the clean
-run and the 29 fault runs; the seconds are
-the sum of each fault's pytest processes under that load, mostly start-up and fixtures). Before
+run and the 29 fault runs; the seconds are the sum of each fault's pytest processes under that
+load, mostly start-up and fixtures). Before
 this branch, 6 of the 12 were caught by fewer than two tests of the files searched (``--discover``
 over test_roundtrips, test_lines, test_calibration, test_tracking, test_errormodel, test_segments,
 test_merge, test_aoi, test_regions, test_direction_only, test_triangulation; test_import and
