@@ -280,3 +280,44 @@ def test_the_export_formats_round_trip_through_their_one_reader(tmp_path, monkey
     (tmp_path / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2 3 0 0 0\n")
     with pytest.raises(UserError, match=r"bad.ply: not a targets.ply"):
         read_ply(tmp_path / "bad.ply")
+
+
+def test_gaze_columns_of_hand_made_samples_carry_the_device_clock_and_the_world_lines():
+    """gaze.csv's columns from six hand-made samples (no session): ``device_t_s`` is the session's
+    clock plus the import's offset, each eye's world line is its head-frame line moved by the head
+    pose at its time, and the running estimate is its fixation's last row of estimates.csv at or
+    before the sample (issue 30, planted faults ``export-clock-offset-sign`` and
+    ``pose-slerp-transposed``)."""
+    from estimator import BinocularSamples
+    from estimator.frames import rotate_directions, rotation_about_axis, transform_points
+    from wearable_gaze.pipeline.export import gaze_columns
+    from wearable_gaze.pipeline.types import Poses
+
+    rng = np.random.default_rng(39)
+    n = 6
+    t = 10.0 + np.arange(n) / 60.0
+    eyes = {"left": np.array([-32.0, 30.0, -20.0]), "right": np.array([32.0, 30.0, -20.0])}
+    dirs = {side: rng.normal([0.0, 0.0, 1.0], 0.1, (n, 3)) for side in eyes}
+    head = BinocularSamples.from_arrays(t, np.tile(eyes["left"], (n, 1)), dirs["left"],
+                                        np.tile(eyes["right"], (n, 1)), dirs["right"], frame="head")
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis([0.3, 1.0, 0.2], 0.6)
+    T[:3, 3] = [400.0, -150.0, 2000.0]
+    poses = Poses(9.95 + 0.05 * np.arange(5), np.arange(5), np.stack([T] * 5))      # a still head
+    fixation = np.array([0, 0, 0, 1, 1, -1])
+    running = {"t": np.array([10.0, 10.02, 10.05]), "segment": np.array([0, 0, 1]),
+               "x": np.array([1.0, 2.0, 3.0]), "y": np.zeros(3), "z": np.full(3, 1500.0),
+               "radius95_mm": np.array([50.0, 40.0, 30.0])}
+    cols = gaze_columns(head, poses, t, fixation, fixation + 10 * (fixation >= 0), running, clock_offset_s=12.5)
+    np.testing.assert_allclose(cols["device_t_s"], t + 12.5, rtol=0, atol=1e-12)
+    for side, o in eyes.items():
+        world_o = np.column_stack([cols[f"{side}_origin_{a}_mm"] for a in "xyz"])
+        world_d = np.column_stack([cols[f"{side}_dir_{a}"] for a in "xyz"])
+        np.testing.assert_allclose(world_o, transform_points(T, np.tile(o, (n, 1))), atol=1e-9)
+        unit = dirs[side] / np.linalg.norm(dirs[side], axis=1, keepdims=True)
+        np.testing.assert_allclose(world_d, rotate_directions(T, unit), atol=1e-12)
+    assert cols["fixation_id"].tolist() == [0, 0, 0, 1, 1, -1]
+    assert cols["target_id"].tolist() == [10, 10, 10, 11, 11, -1]
+    np.testing.assert_array_equal(cols["est_x_mm"], [1.0, 1.0, 2.0, 3.0, 3.0, np.nan])
+    np.testing.assert_array_equal(cols["est_radius95_mm"], [50.0, 50.0, 40.0, 30.0, 30.0, np.nan])
+    assert np.all(np.isnan(cols["gaze_x_px"])) and not cols["in_image"].any()     # no camera: no 2D gaze

@@ -1,8 +1,9 @@
 """Seeded round trips beside each library's maths (issue 30; as pytransform3d tests its own): a
-transform and its inverse, the 95 % ellipsoid's scale against chi-square (exactly and by Monte
-Carlo), the pose covariance propagated to the world against Monte Carlo, and undistortion as the
-inverse of OpenCV's projection. Each fails when the maths it guards is broken (a transposed
-rotation, a chi-square with the wrong degrees of freedom, a sign in a Jacobian)."""
+transform and its inverse, view lines taken to the world and back, the 95 % ellipsoid's scale
+against chi-square (exactly and by Monte Carlo), the pose covariance propagated to the world
+against Monte Carlo, and undistortion as the inverse of OpenCV's projection. Each fails when the
+maths it guards is broken (a transposed rotation, a chi-square with the wrong degrees of freedom,
+a sign in a Jacobian)."""
 
 import cv2
 import numpy as np
@@ -13,6 +14,7 @@ from scipy.stats import chi2
 from calibration.camera import undistort_points
 from estimator.errormodel import K95
 from estimator.frames import invert, rotate_directions, rotation_about_axis, similarity_transform, transform_points
+from estimator.lines import view_lines_in_camera, view_lines_to_camera, view_lines_to_world
 from estimator.result import covariance_ellipsoid
 from tracking.pnp import covariance_cam_from_obj, covariance_world_from_cam, transform_from_rvec_tvec
 
@@ -70,6 +72,30 @@ def test_the_fitted_similarity_is_the_planted_one_and_maps_back():
         np.testing.assert_allclose(S, T, atol=1e-8)
         np.testing.assert_allclose(np.cbrt(np.linalg.det(S[:3, :3])), scale, rtol=1e-12)
         np.testing.assert_allclose(similarity_transform(B, A) @ S, np.eye(4), atol=1e-8)
+
+
+def test_view_lines_to_the_world_and_back_keep_every_gazed_point():
+    """Eq. 4-8 as a round trip: camera-frame lines from an eye through gazed points, taken to the
+    world by a head pose (given either way round, one pose or one per line), pass through the
+    gazed points moved by that pose at the same distance, and come back to the camera unchanged
+    (issue 30, planted fault ``viewline-direction-transposed``)."""
+    rng = np.random.default_rng(36)
+    for _ in range(20):
+        eye = rng.uniform(-40.0, 40.0, 3)
+        p_cam = np.column_stack([rng.uniform(-800.0, 800.0, (15, 2)), rng.uniform(300.0, 5000.0, 15)])
+        lines = view_lines_in_camera(p_cam, eye)
+        dist = np.linalg.norm(p_cam - eye, axis=1)
+        T_world_from_cam = _random_transform(rng)
+        Ts = np.stack([_random_transform(rng) for _ in range(len(p_cam))])
+        for world, T in ((view_lines_to_world(lines, T_world_from_cam=T_world_from_cam), T_world_from_cam),
+                         (view_lines_to_world(lines, invert(T_world_from_cam)), T_world_from_cam),
+                         (view_lines_to_world(lines, T_world_from_cam=Ts), Ts)):
+            np.testing.assert_allclose(world.point_at(dist), transform_points(T, p_cam), atol=1e-9)
+            np.testing.assert_allclose(world.origins_mm, transform_points(T, lines.origins_mm), atol=1e-9)
+        back = view_lines_to_camera(view_lines_to_world(lines, T_world_from_cam=T_world_from_cam),
+                                    invert(T_world_from_cam))
+        np.testing.assert_allclose(back.origins_mm, lines.origins_mm, atol=1e-9)
+        np.testing.assert_allclose(back.directions, lines.directions, atol=1e-12)
 
 
 # --- estimator: the ellipsoid's scale ---------------------------------------------------------------

@@ -150,6 +150,20 @@ def test_fixations_file_labels_two_fixations_and_the_saccade(tmp_path, rng):
     assert (seg[80:100] == 1).all()
 
 
+def test_fixations_file_ends_a_fixation_at_a_time_gap_to_the_sample(tmp_path, rng):
+    """The step on two 1 s fixations at 60 Hz, the second 0.4 s late (over ``max_gap_s`` 0.25;
+    jump 40 deg: the 20 deg saccade is no cut here, only the gap is): samples 2-57 and 62-117,
+    each stretch less ``trim_s`` 0.03 s at both ends (no time ties at 60 Hz) (issue 30, planted
+    fault ``segment-gap-off-by-one``)."""
+    p, out = tmp_path / "in.csv", tmp_path / "out.csv"
+    write_viewlines_csv(p, _two_fixations(rng, gap_s=0.4))
+    r = fixations_file(p, out, SegmentConfig(jump_deg=40.0, max_gap_s=0.25, trim_s=0.03))
+    assert r["fixations"] == 2
+    want = np.full(120, -1)
+    want[2:58], want[62:118] = 0, 1
+    np.testing.assert_array_equal(_labels(out), want)
+
+
 def test_fixations_settings_and_rate(tmp_path, rng, capsys):
     p, out = tmp_path / "in.csv", tmp_path / "out.csv"
     write_viewlines_csv(p, _two_fixations(rng))

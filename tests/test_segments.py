@@ -105,3 +105,20 @@ def test_online_segmenter_takes_the_heads_walk_out_at_the_given_depth_and_still_
     assert len(ends(600.0, 120)) == 1 and len(ends(900.0, 120)) == 1
     seg = OnlineSegmenter()                                  # no origin: no correction, whatever the depth
     assert any(seg.update(t[i], d[i], None, 600.0) for i in range(60))
+
+
+def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
+    """One still gaze at 50 Hz, 1 s of samples, 0.8 s without any (over ``max_gap_s``), 1 s more:
+    two fixations, each its stretch's samples less ``trim_s`` (0.05 s: 2.5 samples, so no time
+    ties) at both ends, to the sample: 3-46 and 53-96 (issue 30, planted fault
+    ``segment-gap-off-by-one``: the sample before a gap counted after it)."""
+    t = np.concatenate([np.arange(50) * 0.02, 0.98 + 0.8 + np.arange(50) * 0.02])
+    origin = np.zeros((100, 3))
+    half = np.array([32.5, 0.0, 0.0])
+    target = np.array([100.0, -50.0, 1500.0])
+    s = BinocularSamples.from_arrays(t, origin - half, target - (origin - half), origin + half,
+                                     target - (origin + half))
+    labels = segment_fixations(s)
+    want = np.full(100, -1)
+    want[3:47], want[53:97] = 0, 1
+    np.testing.assert_array_equal(labels, want)
