@@ -103,7 +103,7 @@ def test_docs_architecture_names_every_module():
 
 MAX_FUNCTION_LINES = 60
 """The longest function (its whole ``def``, docstring included) docs/architecture.md allows."""
-OVER_THE_FUNCTION_LIMIT = {("wearable_gaze/pipeline/process.py", "process_session")}
+OVER_THE_FUNCTION_LIMIT: set[tuple[str, str]] = set()
 """Still over MAX_FUNCTION_LINES while it is being reshaped into steps (issue 30); remove once it
 is under."""
 
