@@ -143,6 +143,31 @@ def fixation_duration_s(t_s: ArrayLike, interval_s: float, max_gap_s: float = MA
     return float(interval_s + np.sum(np.where(gaps <= max_gap_s, gaps, interval_s)))
 
 
+def sample_interval_s(t_s: ArrayLike) -> float:
+    """The sample interval of sample times ``t_s`` (N,) s, any order: the median step between
+    consecutive distinct times, s (NaN with fewer than two). The interval ``fixation_duration_s``
+    counts a session's fixations at: every place that gives a fixation's or a target's duration
+    takes it from all the session's view lines (``fixation_durations_s``)."""
+    t = np.unique(np.asarray(t_s, float).ravel())
+    return float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+
+
+def fixation_durations_s(t_s: ArrayLike, labels: ArrayLike, fixations) -> np.ndarray:
+    """The duration (``fixation_duration_s``) of each of ``fixations`` (K,) (labels), s, at the
+    sample interval of all the samples (``sample_interval_s``).
+
+    Args:
+        t_s: (N,) every sample's time, s (a session's view lines).
+        labels: (N,) each sample's fixation, -1 none.
+        fixations: the fixation labels wanted (a fixation with no sample lasts 0 s).
+    """
+    t, lab = np.asarray(t_s, float).ravel(), np.asarray(labels).ravel()
+    if t.shape != lab.shape:
+        raise ValueError(f"t_s and labels must have the same shape, got {t.shape} and {lab.shape}")
+    interval = sample_interval_s(t)
+    return np.array([fixation_duration_s(t[lab == f], interval) for f in fixations], float)
+
+
 def _rays(origin_mm, pts_world) -> tuple[np.ndarray, np.ndarray]:
     """(N, 3) unit directions from ``origin_mm`` to each of ``pts_world`` and (N,) distances, mm."""
     v = pts_world - origin_mm

@@ -204,6 +204,11 @@ def test_the_aoi_command_on_a_processed_session(processed, tmp_path, capsys):
     nobody = list(m["aoi"]).index("nobody")
     assert m["dwell_s"][nobody] == 0 and np.isnan(m["first_fixation_s"][nobody])
     assert m["dwell_s"].sum() > 0 and (tmp_path / "o" / "aoi_dwell.png").stat().st_size > 0
+    from wearable_gaze.formats.fixations_table import read_fixations_csv
+
+    own = read_fixations_csv(out / "fixations.csv")          # one duration per fixation, in both tables
+    assert list(fx["fixation_id"]) == list(own["fixation_id"])
+    np.testing.assert_allclose(fx["duration_s"], own["duration_s"], atol=1e-4)
 
 
 def _truth_aois(session, path):
@@ -263,6 +268,15 @@ def test_process_and_batch_with_aois(tmp_path, capsys, monkeypatch):
     assert main(["batch", str(tmp_path / "study"), "-o", str(tmp_path / "b"), "--no-overlay", "--workers", "1",
                  "--aois", str(aois)]) == 0
     assert (tmp_path / "b" / "batch_aoi_metrics.csv").is_file() and (tmp_path / "b" / "batch_aoi_dwell_s.png").is_file()
+    import pandas as pd
+
+    # batch's table of all targets gives each target's dwell as the AOI step sums its fixations
+    fx = read_aoi_fixations(tmp_path / "b" / "s1" / "aoi_fixations.csv")
+    rows = pd.read_csv(tmp_path / "b" / "all_targets.csv")
+    assert len(rows) > 0
+    for _, r in rows.iterrows():
+        mine = fx["target_id"] == r["target"]
+        assert r["dwell_s"] == pytest.approx(float(fx["duration_s"][mine].sum()), abs=2e-3), r["target"]
 
 
 def test_a_direction_only_target_gives_its_fixations_its_cone_over_its_interval():
@@ -310,7 +324,7 @@ def test_the_aoi_steps_fixation_lasts_what_its_view_lines_samples_stand_for():
     lines' sample interval (not fixations.csv's first-to-last span), and dwell sums those."""
     from estimator import BinocularSamples
     from wearable_gaze.formats.viewlines import Segment
-    from wearable_gaze.pipeline.aoi import fixation_gaze, sample_interval_s
+    from wearable_gaze.pipeline.aoi import fixation_gaze, lines_interval_s
 
     dt = 0.02
     t = np.concatenate([np.arange(50) * dt, 1.2 + np.arange(50) * dt])      # a 0.22 s blink after 1 s
@@ -319,7 +333,7 @@ def test_the_aoi_steps_fixation_lasts_what_its_view_lines_samples_stand_for():
     fx = {"fixation_id": np.array([0]), "start_s": np.array([0.0]), "end_s": np.array([t[-1]]),
           "target_id": np.array([-1]), "x_mm": np.array([0.0]), "y_mm": np.array([0.0]), "z_mm": np.array([2000.0]),
           **{f"cov_{k}_mm2": np.array([100.0 if k[0] == k[1] else 0.0]) for k in ("xx", "xy", "xz", "yy", "yz", "zz")}}
-    assert sample_interval_s([seg]) == pytest.approx(dt)
+    assert lines_interval_s([seg]) == pytest.approx(dt)
     (f,) = fixation_gaze(fx, [seg])
     assert f.duration_s == pytest.approx(100 * dt) and f.end_s - f.start_s == pytest.approx(2.18)
     A = Area("A", None, box([0, 0, 2000], [400, 400, 400]))
@@ -343,3 +357,43 @@ def test_a_targets_dwell_is_the_sum_of_its_fixations_not_its_span(processed):
         revisited += mine.sum() > 1 and t["dwell_s"] < t["t_end"] - t["t_start"] - 0.5
     assert revisited >= 1
     assert "dwell s" in format_result(res)
+
+
+def test_every_users_duration_is_the_aoi_measures_one_not_first_to_last(processed):
+    """fixations.csv's ``duration_s``, targets.json's and targets.csv's ``dwell_s``, the AOI
+    step's fixation durations and the report's and CLI's dwell (targets.json's) all count a
+    fixation as ``estimator.aoi.fixation_duration_s`` does (one sample interval per sample, gaps
+    up to 75 ms filled): every one of them differs from its first to last sample by at least half
+    an interval (an interval more, or a blink less), so a place that took ``end - start`` fails
+    here."""
+    import pandas as pd
+
+    from estimator.aoi import fixation_durations_s, sample_interval_s
+    from wearable_gaze.formats.fixations_table import read_fixations_csv
+    from wearable_gaze.formats.poses import read_poses_csv
+    from wearable_gaze.formats.targets import read_targets
+    from wearable_gaze.formats.viewlines import read_viewlines_csv
+    from wearable_gaze.pipeline.aoi import fixation_gaze
+    from wearable_gaze.pipeline.report import _target_rows, report_data
+
+    _, out, res = processed
+    vl = pd.read_csv(out / "viewlines.csv")
+    fx = read_fixations_csv(out / "fixations.csv")
+    want = fixation_durations_s(vl.t, vl.segment, fx["fixation_id"])
+    dt = sample_interval_s(vl.t)
+    assert 0.01 < dt < 0.04 and len(want) >= 4
+    np.testing.assert_allclose(fx["duration_s"], want, atol=1e-4)
+    assert np.all(np.abs(fx["duration_s"] - (fx["end_s"] - fx["start_s"])) >= dt / 2)     # one more interval, or
+    assert np.any(fx["duration_s"] < fx["end_s"] - fx["start_s"])                            # a blink left out
+    segments = read_viewlines_csv(out / "viewlines.csv")
+    gaze = {f.fixation_id: f.duration_s for f in fixation_gaze(fx, segments, read_targets(out / "targets.json"))}
+    np.testing.assert_allclose([gaze[int(i)] for i in fx["fixation_id"]], want, atol=1e-4)
+    dwell = {int(t): float(want[fx["target_id"] == t].sum()) for t in set(fx["target_id"].tolist()) if t >= 0}
+    assert {t["target"]: pytest.approx(t["dwell_s"], abs=2e-3) for t in read_targets(out / "targets.json")} == dwell
+    csv = pd.read_csv(out / "targets.csv")
+    assert dict(zip(csv.target, csv.dwell_s, strict=True)) == pytest.approx(dwell, abs=2e-3)
+    assert {t.index: t.dwell_s for t in res.found} == pytest.approx(dwell, abs=2e-3)          # the CLI's table
+    d = report_data(out, read_poses_csv(out / "poses.csv")[2])                              # the report's table
+    assert {t.index: t.dwell_s for t in d.targets} == pytest.approx(dwell, abs=2e-3)
+    rows = _target_rows(d)[1]
+    assert all(f"<td>{dwell[t.index]:.1f}</td>" in rows for t in d.targets)

@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from estimator.aoi import fixation_duration_s, sample_interval_s
 from estimator.region import RING_POINTS
 from wearable_gaze.cli import main
 from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.jsonio import validate
+from wearable_gaze.formats.marker_detections import read_marker_detections
 from wearable_gaze.formats.outputs import PROCESS_OUTPUTS, check_output, output_spec
 from wearable_gaze.formats.ply import read_ply
 from wearable_gaze.formats.poses import read_poses_csv
@@ -67,7 +69,8 @@ def test_every_file_in_the_output_folder_validates_against_its_format(processed)
     _, out, res = processed
     files = sorted(p for p in out.iterdir() if p.is_file())
     for name in ("gaze.csv", "fixations.csv", "targets.ply", "targets.json", "targets.csv", "summary.json",
-                 ".steps.json", ".viewlines_counts.json", "poses.csv", "viewlines.csv", "target_labels.npy"):
+                 ".steps.json", ".viewlines_counts.json", "poses.csv", "viewlines.csv", "target_labels.npy",
+                 ".marker_detections.npz"):
         assert (out / name).is_file(), name
     n_lines = len(pd.read_csv(out / "viewlines.csv"))
     for p in files:
@@ -77,6 +80,15 @@ def test_every_file_in_the_output_folder_validates_against_its_format(processed)
         elif spec.kind == "npy":
             labels = read_target_labels(p)
             assert labels.shape == (n_lines,) and labels.dtype.kind == "i"
+        elif spec.kind == "npz":                         # the tracking step's marker detections
+            _, frames, _, cols = read_poses_csv(out / "poses.csv")
+            dets = read_marker_detections(p)
+            status = dict(zip(frames.tolist(), cols["status"], strict=True))
+            assert set(dets) <= set(status) and len(dets) > len(frames) // 3
+            assert all(status[f] != "interpolated" for f in dets)
+            assert all(f in dets for f, st in status.items() if st == "ok")
+            n_markers = dict(zip(frames.tolist(), cols["n_markers"], strict=True))
+            assert all(len(dets[f]) >= n_markers[f] for f in dets)
         elif spec.kind == "ply":
             assert read_ply(p).vertices_mm.shape[1] == 3
         elif spec.kind in ("png", "webp", "html"):
@@ -155,7 +167,8 @@ def test_fixations_csv_loads_in_pandas_with_one_row_per_fixation(processed):
         t = vl.t[vl.segment == r.fixation_id]
         assert (r.start_s, r.end_s, r.n_samples) == (pytest.approx(t.min(), abs=1e-4), pytest.approx(t.max(), abs=1e-4),
                                                       len(t))
-        assert r.duration_s == pytest.approx(r.end_s - r.start_s, abs=2e-4)
+        # the time its samples stand for (the AOI measures' convention), not end - start
+        assert r.duration_s == pytest.approx(fixation_duration_s(t, sample_interval_s(vl.t)), abs=2e-4)
     targets = read_targets(out / "targets.json")
     assert {(fx, t["target"]) for t in targets for fx in t["fixations"]} == set(zip(f.fixation_id, f.target_id,
                                                                                     strict=True))
@@ -260,14 +273,15 @@ def test_the_export_formats_round_trip_through_their_one_reader(tmp_path, monkey
             step = float("1e-" + gaze_export.GAZE_FORMATS[k][1:-1]) if k in gaze_export.GAZE_FORMATS else 0.0
             np.testing.assert_allclose(back[k], cols[k], atol=step, equal_nan=True, err_msg=k)
     assert len(pd.read_csv(tmp_path / "gaze.csv")) == n
-    rows = [{"fixation_id": 0, "start_s": 0.5, "end_s": 1.25, "n_samples": 40, "target_id": 2, "motion": "static",
-             "status": "ok", "position_mm": [1.0, 2.0, 1500.0], "covariance_mm2": np.diag([4.0, 9.0, 400.0])},
-            {"fixation_id": 1, "start_s": 2.0, "end_s": 2.5, "n_samples": 12, "target_id": -1, "motion": "static",
-             "status": "insufficient-data", "position_mm": None, "covariance_mm2": None}]
+    rows = [{"fixation_id": 0, "start_s": 0.5, "end_s": 1.25, "duration_s": 0.75, "n_samples": 40, "target_id": 2,
+             "motion": "static", "status": "ok", "position_mm": [1.0, 2.0, 1500.0],
+             "covariance_mm2": np.diag([4.0, 9.0, 400.0])},
+            {"fixation_id": 1, "start_s": 2.0, "end_s": 2.5, "duration_s": 0.3, "n_samples": 12, "target_id": -1,
+             "motion": "static", "status": "insufficient-data", "position_mm": None, "covariance_mm2": None}]
     write_fixations_csv(tmp_path / "fixations.csv", rows)
     f = read_fixations_csv(tmp_path / "fixations.csv")
     assert list(f["target_id"]) == [2, -1] and list(f["status"]) == ["ok", "insufficient-data"]
-    assert f["duration_s"][0] == 0.75 and f["cov_zz_mm2"][0] == 400.0 and np.isnan(f["x_mm"][1])
+    assert list(f["duration_s"]) == [0.75, 0.3] and f["cov_zz_mm2"][0] == 400.0 and np.isnan(f["x_mm"][1])
     write_fixations_csv(tmp_path / "none.csv", [])
     assert all(len(v) == 0 for v in read_fixations_csv(tmp_path / "none.csv").values())
     mesh = PlyMesh(rng.normal(0, 1000, (5, 3)), rng.integers(0, 256, (5, 3)), np.array([[0, 1, 2]]),

@@ -333,3 +333,69 @@ def test_the_preview_draws_the_tracking_steps_detections_and_detects_nothing_aga
     s = ov.PREVIEW_WIDTH / W
     edge = small[0][int(260 * s) - 3:int(260 * s) + 4, int(300 * s) - 2:int(300 * s) + 3].reshape(-1, 3).astype(int)
     assert any(g - max(r, b) > 60 for b, g, r in edge), "no green outline where tracking found the marker"
+
+
+def test_process_hands_the_tracking_steps_detections_to_the_overlay(tmp_path, monkeypatch):
+    """``process`` keeps the markers tracking detected (``.marker_detections.npz``) and the
+    report's overlay draws them, detecting nothing again: when tracking ran in the same run (its
+    values) and when it was cached (the file read back)."""
+    import json
+
+    from wearable_gaze.formats.marker_detections import read_marker_detections
+    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.sim.simulate import simulate_scenario
+
+    class Refuse:
+        def __init__(self, *a, **k):
+            pass
+
+        def detect(self, image):
+            raise AssertionError("the overlay detected markers again")
+    session = tmp_path / "s"
+    simulate_scenario({"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [320, 180]}}, session,
+                      seed=0)
+    monkeypatch.setattr(ov, "MarkerDetector", Refuse)
+    out = tmp_path / "out"
+    for run in range(2):
+        res = process_session(session, out)
+        assert res.status["report"] == "done" and res.status["tracking"] == ("done", "cached")[run]
+        assert (out / ov.PREVIEW_NAME).stat().st_size > 0 and not (out / "overlay_error.txt").exists()
+        (out / "report.html").unlink()                         # the report alone is redone next
+    dets = read_marker_detections(out / ".marker_detections.npz")
+    assert len(dets) > 0 and sum(len(v) for v in dets.values()) > len(dets)
+    assert ".marker_detections.npz" in json.loads((out / ".steps.json").read_text())["tracking"]["outputs"]
+
+
+def test_the_tracking_steps_detections_are_the_markers_the_overlays_detector_finds(processed):
+    """On the shared processed session, in the frames the report's preview shows, the markers
+    tracking kept are those the overlay's own detector finds, refined as the full-resolution video
+    refines them: the same ids at the same corners, so the same outlines at the same pixels; the
+    preview's quick, unrefined detection (what the overlay drew before it was given them) finds
+    the same markers, their corners within 2.5 px of these (1.7 px median)."""
+    from calibration.images import to_grey
+    from wearable_gaze.formats.marker_detections import read_marker_detections
+    from wearable_gaze.formats.markermap import load_marker_map
+    from wearable_gaze.formats.poses import read_poses_csv
+
+    session, out, _ = processed
+    dets = read_marker_detections(out / ".marker_detections.npz")
+    mm = load_marker_map(session / "markers.json")
+    _, frames, T, _ = read_poses_csv(out / "poses.csv")
+    shown, _ = ov.preview_frames(frames[np.isfinite(T[:, 0, 0])], 30.0, dets)
+    refined, quick = MarkerDetector(mm.dictionary, refine="edges"), MarkerDetector(mm.dictionary, refine="none")
+    cap, i, compared, off = cv2.VideoCapture(str(session / "scene.mp4")), 0, 0, []
+    while compared < 12 and cap.grab():
+        if i in shown and dets[i]:
+            frame = cap.retrieve()[1]
+            mine = sorted((d.marker_id, d.corners_px.tolist()) for d in dets[i])
+            assert mine == sorted((d.marker_id, d.corners_px.tolist()) for d in refined.detect(frame)), i
+            marks = [ov.FrameMarks([(k, np.array(c), k in mm.poses) for k, c in m]) for m in (mine, [
+                (d.marker_id, d.corners_px.tolist()) for d in refined.detect(frame)])]
+            assert np.array_equal(ov.draw_marks(frame, marks[0]), ov.draw_marks(frame, marks[1]))
+            fast = {d.marker_id: d.corners_px for d in quick.detect(to_grey(frame))}
+            assert sorted(fast) == [k for k, _ in mine]
+            off += [np.abs(np.array(c) - fast[k]).max() for k, c in mine]
+            compared += 1
+        i += 1
+    cap.release()
+    assert compared == 12 and max(off) < 2.5

@@ -4,7 +4,9 @@ fixation ``process`` found, in time order.
 Columns (``FIXATION_COLUMNS``: name -> the dtype pandas reads it as, with no options; str: pandas 2's
 object, pandas 3's str):
 ``fixation_id`` (int64; viewlines.csv's ``segment``, gaze.csv's ``fixation_id``), ``start_s``,
-``end_s``, ``duration_s`` (float64, session clock, s; first and last sample), ``n_samples``
+``end_s`` (float64, session clock, s; first and last sample), ``duration_s`` (float64, s: the
+time its samples stand for, one sample interval each, gaps up to 75 ms counted whole, a longer one
+not: ``estimator.aoi.fixation_duration_s``, Tobii's I-VT convention), ``n_samples``
 (int64, its view lines), ``target_id`` (int64, the target it was merged into, -1 none),
 ``x_mm, y_mm, z_mm`` (float64, world frame): the fixation's own estimate from its own view lines
 (a moving fixation: its path's point at the middle knot), ``cov_xx_mm2, cov_xy_mm2, cov_xz_mm2,
@@ -46,7 +48,7 @@ FIXATION_CHECKS = Checks(tuple(_NUMBERS), ("x_mm", "y_mm", "z_mm", *COV_COLUMNS,
 
 def fixation_columns(rows: list[dict]) -> dict:
     """The columns of fixations.csv from one dict per fixation: ``fixation_id``, ``start_s``,
-    ``end_s``, ``n_samples``, ``target_id``, ``motion``, ``status``, ``position_mm`` ((3,) or
+    ``end_s``, ``duration_s``, ``n_samples``, ``target_id``, ``motion``, ``status``, ``position_mm`` ((3,) or
     None), ``covariance_mm2`` ((3, 3) or None) and, optionally, ``direction``
     (``estimator.direction.GazeDirection`` or None)."""
     pos = np.array([r["position_mm"] if r["position_mm"] is not None else np.full(3, np.nan) for r in rows],
@@ -56,7 +58,8 @@ def fixation_columns(rows: list[dict]) -> dict:
     start = np.array([r["start_s"] for r in rows], float)
     end = np.array([r["end_s"] for r in rows], float)
     cols = {"fixation_id": np.array([r["fixation_id"] for r in rows], int), "start_s": start, "end_s": end,
-            "duration_s": end - start, "n_samples": np.array([r["n_samples"] for r in rows], int),
+            "duration_s": np.array([r["duration_s"] for r in rows], float),
+            "n_samples": np.array([r["n_samples"] for r in rows], int),
             "target_id": np.array([r["target_id"] for r in rows], int)}
     cols |= {f"{a}_mm": pos[:, j] for j, a in enumerate("xyz")}
     cols |= {name: cov[:, i, j] for name, (i, j) in zip(COV_COLUMNS, COV_INDEX, strict=True)}

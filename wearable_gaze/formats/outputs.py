@@ -18,6 +18,8 @@ from .aoi_tables import FIXATION_NUMBERS, METRIC_CHECKS, METRIC_NUMBERS, TRANSIT
 from .fixations_table import FIXATION_CHECKS, FIXATION_COLUMNS
 from .gaze_export import GAZE_CHECKS, GAZE_COLUMNS
 from .jsonio import load_json
+from .marker_detections import NAME as DETECTIONS
+from .marker_detections import read_marker_detections
 from .poses import POSE_CHECKS
 from .tables import Checks, csv_header, read_table
 from .targets import (
@@ -41,15 +43,15 @@ class OutputFile:
 
     Attributes:
         name: its file name.
-        kind: 'json', 'csv', 'npy', 'ply', 'png', 'webp', 'html' or 'txt'.
+        kind: 'json', 'csv', 'npy', 'npz', 'ply', 'png', 'webp', 'mp4', 'html' or 'txt'.
         what: what it holds, and the step that writes it.
         schema: a JSON file's schema name (``jsonio.SCHEMA_NAMES``).
         columns: a CSV's columns always present, in order: name -> dtype ('int64', 'float64' or
             'str': a text column, pandas' object or str dtype).
         optional_columns: a CSV's columns present only in some sessions (name -> dtype).
         checks: a CSV's values: the ``tables.Checks`` its writer applied, and its reader does.
-        read: a CSV whose columns depend on its contents (aoi_fixations.csv's ``p_NAME``): its
-            reader, which checks them, in place of ``checks``.
+        read: a CSV whose columns depend on its contents (aoi_fixations.csv's ``p_NAME``), or a
+            binary file that has a reader: its reader, which checks it, in place of ``checks``.
     """
 
     name: str
@@ -72,6 +74,8 @@ PROCESS_OUTPUTS = (
                checks=POSE_CHECKS),
     OutputFile("built_map.json", "json", "tracking (--build-map): the marker map built from the video",
                schema="marker-map"),
+    OutputFile(DETECTIONS, "npz", "tracking (in a marker map): the markers detected in each frame tracked, which "
+               "the report's overlay draws", read=read_marker_detections),
     OutputFile(".viewlines_unsegmented.csv", "csv", "viewlines: the world view lines before segmentation",
                columns=_LINES),
     OutputFile(".viewlines_counts.json", "json", "viewlines: eye samples read, view lines written, dropped",

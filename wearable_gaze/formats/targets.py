@@ -78,7 +78,8 @@ depth interval along it (far null: no far end); every static target with enough 
 and it is a ``direction-only`` target's whole answer (its ``position_mm`` is null)."""
 DEPTH_ASSUMPTION = "depth_assumption"
 DWELL = "dwell_s"
-"""A record's dwell time: the sum of its fixations' durations (each first to last sample), s."""
+"""A record's dwell time: the sum of its fixations' durations (each the time its samples stand for,
+``estimator.aoi.fixation_duration_s``: fixations.csv's ``duration_s``), s."""
 DEPTH_KEYS = ("seen_from_mm", "distance_mm", "relative_sd", "interval68_mm", "interval95_mm")
 """The keys of a record's ``depth``: where it was seen from (the mean origin of its view lines,
 [x, y, z] world frame, mm), its distance from there (mm), the linearised relative sd of that

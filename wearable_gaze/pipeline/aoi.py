@@ -45,9 +45,10 @@ from estimator.aoi import (
     Mesh,
     Polygon,
     Sphere,
-    fixation_duration_s,
+    fixation_durations_s,
     plane_normal,
     probabilities,
+    sample_interval_s,
 )
 from estimator.frames import tangent_basis
 
@@ -93,7 +94,8 @@ class FixationGaze:
     clock, s), the target it was merged into (``target_id``, -1 none), its gazed point's
     distribution (``spread``, None when its lines gave neither a point nor a direction) and the
     time its samples stand for (``time_s``, ``estimator.aoi.fixation_duration_s``; None: not
-    known, ``end_s - start_s`` is taken)."""
+    known, ``end_s - start_s`` is taken: only for fixations made by hand, ``fixation_gaze``
+    always gives it)."""
 
     fixation_id: int
     start_s: float
@@ -292,31 +294,30 @@ def _grown_hull(corners, margin_mm: float) -> np.ndarray:
     return c0 + np.asarray(grown) @ E.T
 
 
-def sample_interval_s(segments) -> float:
-    """The sample interval of view lines (``segments``: ``read_viewlines_csv``'s), s: the median
-    step between consecutive distinct sample times of them all (NaN with fewer than two)."""
-    t = np.unique(np.concatenate([np.asarray(seg.samples.t_s, float) for seg in segments] or [np.zeros(0)]))
-    return float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+def lines_interval_s(segments) -> float:
+    """The sample interval of view lines (``segments``: ``read_viewlines_csv``'s), s
+    (``estimator.aoi.sample_interval_s`` of them all: NaN with fewer than two)."""
+    return sample_interval_s(np.concatenate([np.asarray(seg.samples.t_s, float) for seg in segments] or [np.zeros(0)]))
 
 
 def fixation_gaze(fixations: dict, segments, targets=()) -> tuple:
     """``FixationGaze`` of each row of fixations.csv (``read_fixations_csv``'s columns), in time
     order, seen from the mean origin of its view lines (``segments``: ``read_viewlines_csv``'s,
-    keyed by fixation id), its duration the time its samples there stand for (at the lines'
-    ``sample_interval_s``). Its gazed point's spread is its target's (``targets``: targets.json's
-    records) when it was merged into an ``ok`` target, which pools the lines of every fixation
-    the merge test found on that point; else its own estimate's (point and covariance); a
-    direction-only target's cone over its depth interval; None when it has none of them."""
-    origins, times = {}, {}
-    interval = sample_interval_s(segments)
+    keyed by fixation id), its duration the time its samples there stand for at the lines'
+    sample interval (``estimator.aoi.fixation_durations_s``, as fixations.csv's ``duration_s``
+    and the targets' dwell; that column when its lines are not there). Its gazed point's spread
+    is its target's (``targets``: targets.json's records) when it was merged into an ``ok``
+    target, which pools the lines of every fixation the merge test found on that point; else its
+    own estimate's (point and covariance); a direction-only target's cone over its depth
+    interval; None when it has none of them."""
+    origins = {}
     for seg in segments:
         if isinstance(seg.key, (int, np.integer)) and seg.key >= 0:
             s = seg.samples
             o = np.vstack([s.left_origin_mm[s.left_valid], s.right_origin_mm[s.right_valid]])
             if len(o):
                 origins[int(seg.key)] = o.mean(axis=0)
-            if len(s.t_s) and np.isfinite(interval):
-                times[int(seg.key)] = fixation_duration_s(s.t_s, interval)
+    times = _durations(fixations, segments)
     pooled = {int(t["target"]): (np.asarray(t["position_mm"], float), np.asarray(t["covariance_mm2"], float))
               for t in targets if t["status"] == "ok" and t.get("covariance_mm2") is not None}
     directions = {int(t["target"]): t["direction"] for t in targets
@@ -336,6 +337,23 @@ def fixation_gaze(fixations: dict, segments, targets=()) -> tuple:
         out.append(FixationGaze(fid, float(fixations["start_s"][i]), float(fixations["end_s"][i]), tid, spread,
                                 times.get(fid)))
     return tuple(out)
+
+
+def _durations(fixations: dict, segments) -> dict:
+    """{fixation id: duration s} of fixations.csv's rows (``fixations``): the time its view lines
+    (``segments``) stand for (``estimator.aoi.fixation_durations_s``), else its ``duration_s``."""
+    keys = [int(seg.key) if isinstance(seg.key, (int, np.integer)) and seg.key >= 0 else -1 for seg in segments]
+    t = np.concatenate([np.asarray(seg.samples.t_s, float) for seg in segments] or [np.zeros(0)])
+    labels = np.concatenate([np.full(len(seg.samples.t_s), k) for k, seg in zip(keys, segments, strict=True)]
+                            or [np.zeros(0, int)])
+    ids = sorted({k for k, seg in zip(keys, segments, strict=True) if k >= 0 and len(seg.samples.t_s)})
+    times = dict(zip(ids, fixation_durations_s(t, labels, ids), strict=True)) if len(t) > 1 else {}
+    given = fixations.get("duration_s")
+    if given is not None:
+        for fid, d in zip(fixations["fixation_id"], given, strict=True):
+            if int(fid) not in times and np.isfinite(d):
+                times[int(fid)] = float(d)
+    return times
 
 
 def _own_point(fixations: dict, i: int) -> np.ndarray:
@@ -406,7 +424,7 @@ def aoi_step(processed, specs, out=None, markers=None, conf: AoiConfig = AoiConf
     t = np.concatenate([s.samples.t_s for s in segments])
     fixations = fixation_gaze(read_fixations_csv(processed / "fixations.csv"), segments,
                               read_targets(processed / "targets.json"))
-    interval = sample_interval_s(segments)
+    interval = lines_interval_s(segments)
     end = float(t.max()) + (interval if np.isfinite(interval) else 0.0)
     res = run(conf, AoiInputs(areas, fixations, float(t.min()), end))
     out.mkdir(parents=True, exist_ok=True)

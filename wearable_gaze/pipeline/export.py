@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator import BinocularSamples
+from estimator.aoi import fixation_durations_s
 from estimator.frames import rotate_directions, transform_points
 from estimator.region import ray_exit, region_mesh
 from estimator.result import covariance_ellipsoid
@@ -35,11 +36,13 @@ HEAD_COLOUR = (128, 128, 128)
 
 def fixation_rows(result: TargetsResult) -> list[dict]:
     """One row of fixations.csv per fixation of the targets step (``formats.fixations_table``):
-    its times, samples, target, own estimate and covariance (a moving one's path at its middle
-    knot), motion and status."""
+    its times, duration (``estimator.aoi.fixation_durations_s``: the time its view lines stand
+    for, as the AOI measures and the targets' dwell count it), samples, target, own estimate and
+    covariance (a moving one's path at its middle knot), motion and status."""
     target_of = {f: tg.index for tg in result.targets for f in tg.fixations}
+    durations = fixation_durations_s(result.samples.t_s, result.labels, [f.index for f in result.fixations])
     rows = []
-    for f in result.fixations:
+    for f, duration in zip(result.fixations, durations, strict=True):
         t = result.samples.t_s[f.samples]
         pos = cov = None
         if f.trajectory is not None:
@@ -50,7 +53,8 @@ def fixation_rows(result: TargetsResult) -> list[dict]:
             if f.estimate is not None and f.estimate.ok:
                 pos, cov = f.estimate.position_mm, f.estimate.covariance_mm2
         rows.append({"fixation_id": f.index, "start_s": float(t.min()), "end_s": float(t.max()),
-                     "n_samples": len(f.samples), "target_id": target_of.get(f.index, -1), "motion": f.motion,
+                     "duration_s": float(duration), "n_samples": len(f.samples),
+                     "target_id": target_of.get(f.index, -1), "motion": f.motion,
                      "status": status, "position_mm": pos, "covariance_mm2": cov,
                      "direction": f.estimate.direction if f.estimate is not None else None})
     return rows

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator import BinocularSamples, GazeEstimate, Status
+from estimator.aoi import fixation_durations_s
 from estimator.errormodel import DEFAULT_BIAS_DEG, ErrorModel
 from estimator.frames import angle_deg
 from estimator.motion import MOVING, STATIC, TWO_POINTS, Trajectory, classify_lines, smooth_trajectory
@@ -97,9 +98,15 @@ def _fixation(samples: BinocularSamples, k: int, idx: np.ndarray, motion: str, m
 
 
 def dwell_s(t_s: np.ndarray, labels: np.ndarray, fixations) -> float:
-    """The sum of the durations of ``fixations`` (each from its first to its last view line's time
-    ``t_s``, ``labels`` (N,) the fixation of each), s: a target's dwell time."""
-    return float(sum(np.ptp(t_s[labels == f]) for f in fixations if np.any(labels == f)))
+    """A target's dwell time: the sum of the durations of its ``fixations``, s, each the time its
+    view lines stand for (``estimator.aoi.fixation_durations_s``: one sample interval per line,
+    gaps up to 75 ms filled, Tobii's I-VT convention; the AOI measures' and fixations.csv's).
+
+    Args:
+        t_s: (N,) the session's view lines' times, s; labels: (N,) the fixation of each, -1 none.
+        fixations: the target's fixation labels.
+    """
+    return float(np.sum(fixation_durations_s(t_s, labels, fixations)))
 
 
 def direction_only_groups(fixations: list) -> list:

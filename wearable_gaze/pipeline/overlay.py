@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import html
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,9 +78,10 @@ class OverlayInputs:
             or None (no markers drawn).
         video: the scene video file.
         detections: the tracking step's own marker detections, {frame number: [``MarkerDetection``]}
-            for every frame it ran the detector on (an empty list: none found), or None (the
-            overlay detects them). Given, the preview shows only such frames and detects nothing
-            again (``preview_frames``): detection was a quarter of the overlay's time.
+            for every frame it ran the detector on (an empty list: none found;
+            ``formats.marker_detections.MarkerDetections``), or None (the overlay detects them).
+            Given, the preview shows only such frames and detects nothing again
+            (``preview_frames``): detection was a quarter of the overlay's time.
     """
 
     camera: CameraCalibration
@@ -87,7 +89,7 @@ class OverlayInputs:
     eye_samples: EyeSamples
     marker_map: MarkerMap | None
     video: Path
-    detections: dict | None = None
+    detections: Mapping | None = None
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from ..formats.aois import read_aois
 from ..formats.atomic import remove_temporaries
 from ..formats.devices.common import read_import_report
 from ..formats.jsonio import load_json, write_json
+from ..formats.marker_detections import NAME as DETECTIONS
 from ..formats.person import person_correction_deg, read_person
 from ..formats.session import MANIFEST, load_session
 from ..formats.sfmmap import FEATURES as SFM_FEATURES
@@ -262,6 +263,9 @@ def _tracking_step(steps: Steps, cache: SessionCache, conf: ProcessConfig) -> No
     else:
         steps.run("tracking", video + [f.markers, f.stamps], {"every": every}, run_tracking, track,
                   cache.marker_inputs)
+    tracked = steps.outputs.get("tracking")
+    if tracked is not None and tracked.poses is not None:    # tracked in this run: not read back
+        cache.detections = tracked.poses.detections
 
 
 def _no_map_fix(f: SessionFiles) -> str:
@@ -354,7 +358,7 @@ def _report_step(steps: Steps, cache: SessionCache, conf: ProcessConfig,
     f, out = cache.files, cache.out
     overlay = steps.status.get("camera") in GOOD and f.eye_samples is not None
     paths = [out / "targets.csv", out / "viewlines.csv", out / "poses.csv"]
-    paths += [f.video] if conf.overlay and f.video else []
+    paths += [f.video, out / DETECTIONS] if conf.overlay and f.video else []
     paths += [p for p in (f.import_report, f.truth_targets, f.truth_head_poses, f.markers) if p]
     paths += [conf.sfm_map / SFM_FEATURES] if conf.sfm_map is not None else []
     if conf.aois is not None:                                  # the 3D view's areas

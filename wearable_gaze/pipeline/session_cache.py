@@ -21,6 +21,8 @@ from ..formats.camera import load_camera
 from ..formats.eye_rays import read_eye_rays
 from ..formats.eye_samples import EyeSamples, read_eye_csv
 from ..formats.eyes import load_eyes
+from ..formats.marker_detections import NAME as DETECTIONS
+from ..formats.marker_detections import MarkerDetections, read_marker_detections
 from ..formats.markermap import load_marker_map
 from ..formats.poses import read_poses_csv
 from ..formats.sfmmap import load_sfm_map
@@ -137,6 +139,13 @@ class SessionCache:
         return Poses(*read_poses_csv(self.poses_path))
 
     @cached_property
+    def detections(self) -> MarkerDetections | None:
+        """The markers the tracking step detected in each frame it tracked (``DETECTIONS``), or
+        None: it kept none (a device's or a still head's poses, a markerless map)."""
+        path = self.out / DETECTIONS
+        return read_marker_detections(path) if path.is_file() else None
+
+    @cached_property
     def targets(self) -> list[Target]:
         return [Target.from_row(r) for r in read_targets(self.out / "targets.json")]
 
@@ -197,7 +206,7 @@ class SessionCache:
         camera = self.camera
         eyes = self.eyes if self.eyes_path.is_file() else None
         return OverlayInputs(camera, eyes, self.eye_samples, self.marker_map if self.has_map() else None,
-                             cast(Path, self.files.video))
+                             cast(Path, self.files.video), self.detections)
 
     def report_inputs(self, conf: ProcessConfig, frame: TruthFrame | None,
                       overlay: bool) -> ReportInputs:

@@ -28,6 +28,8 @@ from ..formats.board import BOARD_FILE, read_board
 from ..formats.eye_samples import EyeSamples
 from ..formats.eyes import write_eyes
 from ..formats.jsonio import write_json
+from ..formats.marker_detections import NAME as DETECTIONS
+from ..formats.marker_detections import write_marker_detections
 from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.viewlines import write_viewlines_csv
@@ -134,8 +136,8 @@ class TrackingInputs:
 
 @dataclass(frozen=True)
 class TrackingOutputs:
-    """The poses tracked in the video and the map they were tracked in (None: taken from a
-    device or a still head)."""
+    """The poses tracked in the video (with their marker detections, ``Poses.detections``) and
+    the map they were tracked in (None: taken from a device or a still head)."""
 
     poses: Poses | None = None
     room: MarkerMap | FeatureMap | None = None
@@ -143,7 +145,9 @@ class TrackingOutputs:
 
 def run_tracking(conf: TrackingConfig, inputs: TrackingInputs, progress=None) -> TrackingOutputs:
     """The head poses (poses.csv): the device's, a still head's, or tracked in the scene video
-    (one frame in ``conf.every``, ``track.track_video``)."""
+    (one frame in ``conf.every``, ``track.track_video``); in a marker map, the markers detected
+    in each frame tracked too (``formats.marker_detections``, ``DETECTIONS`` beside poses.csv),
+    which the report's overlay draws."""
     if inputs.head_poses is not None:
         device_poses(inputs.head_poses, inputs.out)
         return TrackingOutputs()
@@ -162,6 +166,8 @@ def run_tracking(conf: TrackingConfig, inputs: TrackingInputs, progress=None) ->
     times = frame_times(video, inputs.stamps)
     poses = track_video(video, camera, room, times, conf.every, progress)
     write_poses_csv(inputs.out, poses.t, poses.frame, poses.T_world_from_cam, poses.columns)
+    if poses.detections is not None:                   # for the report's overlay: not detected again
+        write_marker_detections(inputs.out.parent / DETECTIONS, poses.detections)
     return TrackingOutputs(poses, room)
 
 

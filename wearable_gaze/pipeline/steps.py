@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import UserError
 from ..formats.atomic import write_text
 from ..formats.jsonio import load_json
+from ..formats.marker_detections import NAME as DETECTIONS
 from .aoi import AOI_OUTPUTS
 from .report import OPTIONAL_FILES as REPORT_OPTIONAL
 from .report import REPORT_FILES
@@ -32,7 +33,7 @@ ON_REQUEST = ("aoi",)
 OUTPUTS = {
     "camera": ("camera.json", "camera_undistorted.png"),
     "eyes": ("eyes.json",),
-    "tracking": ("poses.csv", "built_map.json"),
+    "tracking": ("poses.csv", "built_map.json", DETECTIONS),
     "viewlines": (".viewlines_unsegmented.csv", ".viewlines_counts.json"),
     "targets": ("viewlines.csv", "estimates.csv", "targets.csv", "targets.json", "target_labels.npy",
                 "device_comparison.csv", "target_paths.csv", "fixations.csv"),
@@ -44,7 +45,7 @@ OUTPUTS = {
 NEEDS = {"camera": (), "eyes": ("camera",), "tracking": ("camera",), "viewlines": ("eyes", "tracking"),
          "targets": ("viewlines",), "export": ("targets",), "aoi": ("targets",), "report": ("targets",)}
 # written or not: not needed to skip a step
-OPTIONAL = (*REPORT_OPTIONAL, "device_comparison.csv", "target_paths.csv", "built_map.json")
+OPTIONAL = (*REPORT_OPTIONAL, "device_comparison.csv", "target_paths.csv", "built_map.json", DETECTIONS)
 OTHER_FILES = ("summary.json", ".steps.json")
 GOOD = ("done", "cached", "external", "device")   # usable: outputs, a file given instead, or the device's own
 EXIT_NO_TARGET = 2

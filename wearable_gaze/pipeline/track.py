@@ -6,6 +6,7 @@ overlay)."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import logging
 from pathlib import Path
@@ -26,6 +27,7 @@ from ..errors import UserError
 from ..formats.atomic import atomic_path
 from ..formats.camera import load_camera
 from ..formats.images import read_grey_image
+from ..formats.marker_detections import MarkerDetections
 from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.sfmmap import load_sfm_map
@@ -91,15 +93,17 @@ def track_video_files(video, camera_path, out, markers=None, reference=None, ref
 def track_video(video: Path, camera: CameraCalibration, room: MarkerMap | FeatureMap, times=None, every: int = 1,
                 progress=None) -> Poses:
     """``track_poses`` of a video made by ``camera`` in a room with a marker map or a markerless
-    map (``room_locator``)."""
+    map (``room_locator``); with a marker map, the poses keep the markers detected in each frame
+    tracked (``Poses.detections``)."""
     cap, fps, n_total = open_video(Path(video), camera.image_size)
     try:
         poses = track_poses(cap, fps, n_total, room_locator(room, camera), times, every, progress=progress,
                             name=video)
     finally:
         cap.release()
-    if isinstance(room, MarkerMap):
-        check_markers_seen(poses, video, room.dictionary, "the marker map")
+    if not isinstance(room, MarkerMap):
+        return dataclasses.replace(poses, detections=None)        # a markerless map: no markers
+    check_markers_seen(poses, video, room.dictionary, "the marker map")
     return poses
 
 
@@ -140,9 +144,10 @@ def track_poses(cap, fps: float, n_total: int, locate, times=None, every: int = 
     fills the others by SLERP between tracked neighbours (status 'interpolated'; smooth head
     motion moves a few hundredths of a degree off the line between two poses 1/15 s apart).
     ``draw(frame, found, res)``: called on every frame tracked (all of them). ``name``: the
-    video, for messages.
+    video, for messages. The poses keep the markers ``locate`` detected in each frame it ran on
+    (``Poses.detections``; none for a locator without markers).
     """
-    rows, untimed = _track_frames(cap, locate, times, fps, n_total, every, progress, draw)
+    rows, untimed, found = _track_frames(cap, locate, times, fps, n_total, every, progress, draw)
     if untimed and not rows["frame"]:
         raise UserError(f"{name}: none of its {untimed} frames has a time in the frame-timestamp CSV; give "
                         "--timestamps with a row (frame,t) per frame")
@@ -152,7 +157,8 @@ def track_poses(cap, fps: float, n_total: int, locate, times=None, every: int = 
     T_all, status = _fill_poses(rows, every, fps, smooth_s)
     return Poses(np.array(rows["t"], float), np.array(rows["frame"], int), T_all,
                  {"n_markers": np.array(rows["n_markers"]), "n_points": np.array(rows["n_points"]),
-                  "reproj_rms_px": np.array(rows["reproj_rms_px"]), "status": status})
+                  "reproj_rms_px": np.array(rows["reproj_rms_px"]), "status": status},
+                 MarkerDetections.of(found))
 
 
 def room_locator(room: MarkerMap | FeatureMap, camera: CameraCalibration):
@@ -198,15 +204,18 @@ def _reference_locator(reference, reference_size_mm, camera: CameraCalibration):
 POSE_ROW = ("t", "frame", "T", "n_markers", "n_points", "reproj_rms_px", "status")
 
 
-def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progress, draw) -> tuple[dict, int]:
+def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progress,
+                  draw) -> tuple[dict, int, dict]:
     """Track the frames of ``cap``: one in ``every`` (all when ``draw``) and the last (of
     ``n_total``, when known: the frames after the last tracked one would have no pose, nor would
     the eye samples there), the others get a NaN pose marked 'interpolated'. ``draw(frame,
     found, res)`` is called on every tracked frame.
     A frame ``times`` has no time for (a recording cut short saves its video ahead of its
     timestamps) cannot be placed in time: it is left out, with a warning. Returns the columns
-    ``POSE_ROW``, one entry per frame kept, and the number of frames left out."""
+    ``POSE_ROW``, one entry per frame kept, the number of frames left out, and {frame: the
+    detections ``step`` returned} of the frames tracked."""
     rows: dict[str, list] = {k: [] for k in POSE_ROW}
+    detected: dict = {}
     i = untimed = 0
     while True:
         if times is not None and i not in times:
@@ -225,6 +234,7 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
             if not ok:
                 break
             res, found = step(to_grey(frame))
+            detected[i] = found
             values = (t, i, res.T_world_from_cam if res.ok else np.full((4, 4), np.nan), len(res.markers),
                       res.n_points, res.reproj_rms_px, res.status if res.ok else f"{res.status}: {res.reason}")
             if draw is not None:
@@ -236,7 +246,7 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
         i += 1
     if untimed and rows["frame"]:
         log.warning("%d of %d video frames have no time in the frame-timestamp CSV; they get no pose", untimed, i)
-    return rows, untimed
+    return rows, untimed, detected
 
 
 def _fill_poses(rows: dict, every: int, fps: float, smooth_s: float):

@@ -20,6 +20,7 @@ from estimator.direction import GazeDirection
 from estimator.errormodel_regions import Sight
 from estimator.motion import STATIC, Trajectory
 
+from ..formats.marker_detections import MarkerDetections
 from ..formats.targets import (  # noqa: F401  (TARGET_KEYS: a record's keys)
     DEPTH_ASSUMPTION,
     DIRECTION_COLUMN,
@@ -93,7 +94,8 @@ class Target:
             moving target.
         depth_assumption: the assumption that fixes its depth, in words
             (``pipeline.errorbudget.depth_assumption``), or None.
-        dwell_s: the sum of its fixations' durations (each first to last sample), s; NaN unknown.
+        dwell_s: the sum of its fixations' durations (each the time its samples stand for,
+            ``estimator.aoi.fixation_duration_s``: fixations.csv's ``duration_s``), s; NaN unknown.
 
     Two targets compare equal only when they are the same object (arrays have no single truth
     value): compare ``row()`` for equal values.
@@ -237,12 +239,16 @@ class Poses:
         T_world_from_cam: (N, 4, 4) head (scene camera) poses, mm; NaN where there is none.
         columns: the other columns of poses.csv, (N,) each: n_markers, n_points, reproj_rms_px,
             status ('ok', 'interpolated', or why there is no pose).
+        detections: the markers detected in each frame tracked, {frame: [``MarkerDetection``]}
+            (``formats.marker_detections.MarkerDetections``), or None: not kept (poses read back,
+            a device's).
     """
 
     t: np.ndarray
     frame: np.ndarray
     T_world_from_cam: np.ndarray
     columns: dict = field(default_factory=dict)
+    detections: MarkerDetections | None = None
 
     @property
     def n_posed(self) -> int:
