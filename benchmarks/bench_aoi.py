@@ -10,7 +10,9 @@ fixation) and its time to first fixation against the truth's first fixation samp
 again with the same DIR, it reuses the sessions and the steps that did not change.
 
 Targets (issue 28): each area's dwell within 10 % or 0.2 s of the truth's, time to first fixation
-within 0.2 s, the empty area 0 s; the batch's sessions x areas table holds every session.
+within 0.2 s, the empty area 0 s, "the same through ``batch`` for three sessions": the measures are
+read from the batch's own sessions x areas table (``batch_aoi_metrics.csv``), which must hold every
+session and area, each row equal to that session's ``aoi_metrics.csv``.
 """
 
 from __future__ import annotations
@@ -96,6 +98,29 @@ def why(session: Path, fx: dict, name: str, k: int, lost: dict) -> str:
     return "; ".join(x for x in parts if x)
 
 
+def batch_table(out: Path, sessions: list, n_areas: int) -> dict:
+    """{session name: its rows of the batch's ``batch_aoi_metrics.csv`` as aoi_metrics.csv's
+    columns}, checked: every session with ``n_areas`` rows, each equal to the session's own
+    aoi_metrics.csv (the measures are taken from the batch's table)."""
+    with open(out / "batch_aoi_metrics.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    table = {}
+    for s in sessions:
+        mine = [r for r in rows if r["session"] == s.name]
+        own = read_aoi_metrics(out / s.name / "aoi_metrics.csv")
+        assert len(mine) == n_areas == len(own["aoi"]), (s.name, len(mine), n_areas)
+        text = ("aoi", "group")
+        cols = {k: np.array([r[k] if k in text else float(r[k] or "nan") for r in mine], object if k in text else float)
+                for k in own}
+        for k, v in own.items():
+            same = [str(a or "") for a in v] == [str(a or "") for a in cols[k]] if k in text else \
+                np.allclose(v, cols[k], atol=1e-4, equal_nan=True)
+            assert same, (s.name, k, v, cols[k])
+        table[s.name] = cols
+    assert len(rows) == len(sessions) * n_areas, (len(rows), len(sessions), n_areas)
+    return table
+
+
 def aois_of(session: Path) -> dict:
     areas = [{"name": f"target {t['index']}", "box": {"center_mm": t["position_mm"], "size_mm": [BOX_MM] * 3}}
              for t in read_truth_targets(session / "truth" / "targets.json") if not t["moving"]]
@@ -122,9 +147,10 @@ def main():
         res = run_batch([root], Path(tmp) / "out", BatchSettings(overlay=False, aois=str(Path(tmp) / "aois.json")))
         assert not res.failed, res.failed
         fails, lost, short = 0, {}, 0.0
+        table = batch_table(Path(tmp) / "out", sessions, len(aois[0]["aois"]))
         print(f"{'session':<8} {'area':<10} {'truth dwell':>11} {'ours':>6} {'truth 1st':>9} {'ours':>6}  ok   why")
         for s in sessions:
-            m = read_aoi_metrics(Path(tmp) / "out" / s.name / "aoi_metrics.csv")
+            m = table[s.name]
             fx = read_aoi_fixations(Path(tmp) / "out" / s.name / "aoi_fixations.csv")
             truth = truth_measures(s)
             for j, name in enumerate(m["aoi"]):
@@ -138,12 +164,13 @@ def main():
                 print(f"{s.name:<8} {name:<10} {dwell:>11.2f} {m['dwell_s'][j]:>6.2f} {first:>9.2f} "
                       f"{m['first_fixation_s'][j]:>6.2f}  {'yes' if ok_dwell and ok_first else 'NO '}  "
                       + (why(s, fx, name, k, lost) if k is not None else ""))
-        table = (Path(tmp) / "out" / "batch_aoi_metrics.csv").read_text().splitlines()
-        print(f"batch_aoi_metrics.csv: {len(table) - 1} rows ({args.sessions} sessions x {len(aois[0]['aois'])} areas)")
+        print(f"batch_aoi_metrics.csv: {sum(len(m['aoi']) for m in table.values())} rows ({args.sessions} sessions x "
+              f"{len(aois[0]['aois'])} areas), each equal to its session's aoi_metrics.csv")
         print(f"dwell short of the truth's by {short:.2f} s in all: the fixations' late starts and early ends "
               f"{lost.get('edges', 0.0):.2f} s, true fixations no fixation found {lost.get('missed', 0.0):.2f} s, "
               f"the rest {short - lost.get('edges', 0.0) - lost.get('missed', 0.0):+.2f} s")
-        print(f"{fails} area(s) outside the targets")
+        print(f"{fails} area(s) outside the targets: {'PASS' if not fails else 'FAIL'} "
+              f"({len(sessions) * len(aois[0]['aois']) - fails} of {len(sessions) * len(aois[0]['aois'])} within)")
 
 
 if __name__ == "__main__":

@@ -10,11 +10,11 @@ threads) are both given: on a machine shared with other work, the CPU time is th
     python benchmarks/bench_report_cost.py [--duration 20] [--seed 0] [--targets 12] [--only demo,many,g2,aria]
                                            [--detections]
 
-``--detections``: for a session with a scene video, the report once more with the tracking step's
-marker detections handed to the overlay (``OverlayInputs.detections``; computed beforehand as
-tracking computes them, outside the timing): what the report costs once tracking writes them,
-beside the report run again without them (both with matplotlib already imported, which the first
-report run paid).
+``--detections``: for a session with a scene video, the report twice more, the overlay detecting
+the markers itself (``OverlayInputs.detections`` None: what the report did before the tracking
+step kept its detections) and given the tracking step's (``.marker_detections.npz``, what
+``process`` now passes it), both with matplotlib already imported, which the first report run
+paid: the two costs in one run, under the same load.
 
 Target: the report's share at most 25 % on every session.
 """
@@ -22,7 +22,6 @@ Target: the report's share at most 25 % on every session.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import os
@@ -68,28 +67,12 @@ def timed(fn) -> tuple[float, float, object]:
     return time.perf_counter() - w, time.process_time() - c, res
 
 
-def tracking_detections(root: Path, out: Path) -> dict | None:
-    """{frame: [MarkerDetection]} of the frames tracking detected markers in (poses.csv's rows not
-    'interpolated'), found as its locator finds them; None without a scene video or markers."""
-    import cv2
+def tracking_detections(out: Path):
+    """The tracking step's marker detections (``.marker_detections.npz``), or None: it kept none
+    (no scene video, no marker map)."""
+    from wearable_gaze.formats.marker_detections import NAME, read_marker_detections
 
-    from calibration.images import to_grey
-    from tracking.markers import MarkerDetector
-    from wearable_gaze.formats.markermap import load_marker_map
-
-    video = next(iter(sorted(root.glob("scene.mp4"))), None)
-    if video is None or not (root / "markers.json").is_file():
-        return None
-    with open(out / "poses.csv", newline="") as fh:
-        tracked = {int(r["frame"]) for r in csv.DictReader(fh) if r["status"] != "interpolated"}
-    detector = MarkerDetector(load_marker_map(root / "markers.json").dictionary, small_frames=True)
-    cap, found, i = cv2.VideoCapture(str(video)), {}, 0
-    while cap.grab():
-        if i in tracked:
-            found[i] = detector.detect(to_grey(cap.retrieve()[1]))
-        i += 1
-    cap.release()
-    return found
+    return read_marker_detections(out / NAME) if (out / NAME).is_file() else None
 
 
 def report_with(root: Path, out: Path, detections: dict | None) -> float:
@@ -127,7 +110,7 @@ def main():
             rest_w, rest_c, res = timed(lambda root=root, out=out: process_session(root, out, report=False))
             rep_w, rep_c, res2 = timed(lambda root=root, out=out: process_session(root, out))
             assert "report" not in res2.skipped and not res2.problems, res2.problems
-            dets = tracking_detections(root, out) if args.detections else None
+            dets = tracking_detections(out) if args.detections else None
             again = (report_with(root, out, None), report_with(root, out, dets)) if dets is not None else None
             rows.append((name, len(res.targets), rest_w, rep_w, rest_c, rep_c, again))
     print(f"process, one core (load {os.getloadavg()[0]:.1f} at the end); report share = report / (rest + report)")

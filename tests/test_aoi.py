@@ -272,6 +272,10 @@ def test_process_and_batch_with_aois(tmp_path, capsys, monkeypatch):
 
     # batch's table of all targets gives each target's dwell as the AOI step sums its fixations
     fx = read_aoi_fixations(tmp_path / "b" / "s1" / "aoi_fixations.csv")
+    table = pd.read_csv(tmp_path / "b" / "batch_aoi_metrics.csv")
+    assert all(table[k].dtype == np.int64 for k in ("visits", "revisits", "fixations"))       # counts, as integers
+    m = read_aoi_metrics(tmp_path / "b" / "s1" / "aoi_metrics.csv")
+    np.testing.assert_allclose(table["dwell_s"], m["dwell_s"], atol=1e-4)
     rows = pd.read_csv(tmp_path / "b" / "all_targets.csv")
     assert len(rows) > 0
     for _, r in rows.iterrows():

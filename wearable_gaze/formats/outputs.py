@@ -113,7 +113,7 @@ PROCESS_OUTPUTS = (
     *(OutputFile(n, "png", "report: a plot") for n in ("plot_depth_vs_observations.png", "plot_density_slices.png",
                                                          "plot_3d.png", "plot_top_view.png",
                                                          "plot_depth_over_time.png")),
-    OutputFile("overlay.mp4", "mp4", "report: the overlay video (H.264, the whole session at 10 fps, 640 px)"),
+    OutputFile("overlay.mp4", "mp4", "report: the overlay video (H.264, the whole session at about 10 fps, 640 px)"),
     OutputFile("overlay_full.mp4", "mp4", "report (--overlay-video): the overlay at full resolution, every frame"),
     OutputFile("overlay_error.txt", "txt", "report: why the overlay could not be made"),
     OutputFile("summary.json", "json", "process: what ran, failed and was found", schema="summary"),

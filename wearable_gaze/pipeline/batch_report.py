@@ -127,6 +127,8 @@ def write_batch_report(out, statuses: dict) -> list[dict]:
 
 AOI_MEASURES = ("dwell_s", "dwell_weighted_s", "visits", "fixations", "first_fixation_s", "share")
 """The measures of the batch's sessions x areas table plotted one figure each."""
+AOI_COUNTS = ("visits", "revisits", "fixations")
+"""Its columns that count (written as integers)."""
 
 
 def write_batch_aois(out: Path, names: list[str]) -> bool:
@@ -145,7 +147,10 @@ def write_batch_aois(out: Path, names: list[str]) -> bool:
     first = next(iter(rows.values()))
     for k in first:
         cols[k] = np.concatenate([m[k] for m in rows.values()])
-    write_table(out / "batch_aoi_metrics.csv", cols, {k: ".4f" for k in AOI_MEASURES if k in cols})
+        if k in AOI_COUNTS:                                     # counts as integers, as aoi_metrics.csv has them
+            cols[k] = cols[k].astype(np.int64)
+    write_table(out / "batch_aoi_metrics.csv", cols,
+                {k: ".4f" for k in AOI_MEASURES if k in cols and k not in AOI_COUNTS})
     for k in AOI_MEASURES:
         plot_grouped(rows, k, out / f"batch_aoi_{k}.png")
     return True
