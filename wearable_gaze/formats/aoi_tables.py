@@ -2,7 +2,8 @@
 
 - ``aoi_fixations.csv``: one row per fixation, in time order: ``fixation_id``, ``start_s``,
   ``end_s`` (its first and last sample, session clock, s), ``duration_s`` (the time it counts
-  for in the measures, s: one sample interval per sample, a blink inside it left out),
+  for in the measures, s: one sample interval per sample, gaps up to 75 ms counted whole, a
+  longer one (a blink) left out: ``estimator.aoi.fixation_duration_s``, as fixations.csv's),
   ``target_id`` (-1 none), ``aoi`` (the assigned area's name, ``none`` when no area reaches the
   assignment level), then ``p_<name>`` for each area in the AOI file's order and ``p_none``
   (probabilities; empty where the fixation has no gaze distribution);
@@ -38,13 +39,13 @@ def _fixation_checks(names) -> Checks:
 
 
 def write_aoi_fixations(path, rows: dict, names) -> None:
-    """``rows``: the columns (``fixation_id``, ``start_s``, ``end_s``, ``duration_s`` (optional:
-    ``end_s - start_s`` without it), ``target_id``, ``aoi`` (names), ``probabilities`` (N, K + 1))
-    for the areas ``names`` (K,)."""
+    """``rows``: the columns (``fixation_id``, ``start_s``, ``end_s``, ``duration_s`` (the time
+    its samples stand for, ``estimator.aoi.fixation_duration_s``), ``target_id``, ``aoi`` (names),
+    ``probabilities`` (N, K + 1)) for the areas ``names`` (K,)."""
     P = np.asarray(rows["probabilities"], float).reshape(-1, len(names) + 1)
     start, end = np.asarray(rows["start_s"], float), np.asarray(rows["end_s"], float)
     cols = {"fixation_id": np.asarray(rows["fixation_id"], int), "start_s": start, "end_s": end,
-            "duration_s": np.asarray(rows.get("duration_s", end - start), float),
+            "duration_s": np.asarray(rows["duration_s"], float),
             "target_id": np.asarray(rows["target_id"], int), "aoi": np.asarray(rows["aoi"], object)}
     cols |= {f"p_{n}": P[:, j] for j, n in enumerate((*names, "none"))}
     write_table(path, cols, _FMT | {f"p_{n}": ".5f" for n in (*names, "none")}, _fixation_checks(names))
