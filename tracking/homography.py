@@ -44,11 +44,12 @@ class PlanarTracker:
         if ref.ndim not in (2, 3):
             raise ValueError(f"reference must have shape (H, W) or (H, W, 3), got {ref.shape}")
         ref = to_grey(ref)
+        self.det: cv2.Feature2D
         if features == "sift":
-            self.det = cv2.SIFT_create(nfeatures=n_features)
+            self.det = cv2.SIFT.create(nfeatures=n_features)
             self.matcher = cv2.BFMatcher(cv2.NORM_L2)
         elif features == "orb":
-            self.det = cv2.ORB_create(nfeatures=n_features)
+            self.det = cv2.ORB.create(nfeatures=n_features)
             self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
         else:
             raise ValueError(f"features must be sift or orb, got {features!r}")

@@ -55,7 +55,7 @@ def image_features(grey, max_features: int = MAX_FEATURES, scale: float = FEATUR
     if g.ndim != 2 or g.dtype != np.uint8:
         raise ValueError(f"grey must be an (H, W) uint8 image, got {g.shape} {g.dtype}")
     small = g if scale == 1 else cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    kps, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(small, None)
+    kps, desc = cv2.SIFT.create(nfeatures=max_features).detectAndCompute(small, None)
     if desc is None or not kps:
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
     xy = (np.array([k.pt for k in kps], float) + 0.5) / scale - 0.5
@@ -127,7 +127,7 @@ class FeatureLocaliser:
         self.camera = camera
         self.f = float(camera.camera_matrix[0, 0])
         self.ransac_px, self.min_inliers, self.max_reproj_px = ransac_px, min_inliers, max_reproj_px
-        self._index = cv2.flann_Index(feature_map.descriptors, {"algorithm": 1, "trees": 4})
+        self._index = cv2.flann.Index(feature_map.descriptors, {"algorithm": 1, "trees": 4})
         self._checks = checks
         self.scales = (scale,) if scale == FEATURE_SCALE else (scale, FEATURE_SCALE)
         import pycolmap  # made once: pose() runs on every frame
