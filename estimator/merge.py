@@ -3,7 +3,7 @@ a fixation joins the earlier group whose lines and its own fit one point (a like
 test on the pooled view lines, each eye's calibration offsets marginalised), else it starts a
 group of its own. Groups never merge with each other, so a group's id, once given, keeps its
 meaning. ``process`` (``wearable_gaze.pipeline.fixations.merge_fixations``) and the live session
-(``wearable_gaze.live.estimation.TargetIds``) both use ``TargetMerger``.
+(``wearable_gaze.pipeline.live_estimation.TargetIds``) both use ``TargetMerger``.
 
 World frame, mm, seconds; angles in degrees where the name says ``_deg``."""
 
@@ -115,7 +115,7 @@ class TargetMerger:
         ``MERGE_LR_THRESHOLD``, the least of them) and whose pooled lines give a usable estimate,
         which becomes the group's; else it starts a group. ``key`` (e.g. the fixation's index) is
         kept in the group's ``members``."""
-        if not estimate.ok:
+        if not estimate.ok or estimate.position_mm is None:
             raise ValueError(f"a fixation without a usable estimate cannot be merged ({estimate.status.value})")
         origin = lines.origin_mm(0)
         scored: list[tuple] = []
@@ -152,6 +152,7 @@ class TargetMerger:
         g.parts.append(lines)
         g.members.append(key)
         g.estimate = merged
+        assert merged.position_mm is not None               # merged.ok: the caller's test
         chart = g.form.chart
         g.form = g.form.plus(self._form(lines, chart, g.form.p0))
         if g.form.n_lines >= RELINEARISE_GROWTH * g.form_lines:
