@@ -212,11 +212,10 @@ def _pool(size: int) -> ProcessPoolExecutor:
     one session where Python can (``RECYCLES_WORKERS``)."""
     from concurrent.futures import ProcessPoolExecutor
 
-    if sys.version_info >= (3, 11):                     # RECYCLES_WORKERS, as a check mypy reads
-        return ProcessPoolExecutor(size, _context(), initializer=_init_local_worker,
-                                   initargs=(this_process(),), max_tasks_per_child=1)
-    return ProcessPoolExecutor(size, _context(), initializer=_init_local_worker,
-                               initargs=(this_process(),))
+    # a keyword Python 3.10 lacks (its stubs too): passed only where there
+    recycle: dict[str, Any] = {"max_tasks_per_child": 1} if RECYCLES_WORKERS else {}
+    return ProcessPoolExecutor(size, _context(), initializer=_init_local_worker, initargs=(this_process(),),
+                               **recycle)
 
 
 class LocalRunner:
