@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import minimize
 
 from .frames import angle_deg
@@ -143,10 +144,10 @@ class TargetMerger:
         self._points[len(self.groups) - 1] = estimate.position_mm
         return len(self.groups) - 1
 
-    def _form(self, lines: BinocularSamples, chart: Chart, p) -> MergeForm:
+    def _form(self, lines: BinocularSamples, chart: Chart, p: np.ndarray) -> MergeForm:
         return fixation_form(lines, chart, p, np.deg2rad(self.sigma_deg), MERGE_FIXATION_DEG, self.pose_deg)
 
-    def _join(self, g: MergeGroup, lines: BinocularSamples, key, merged: GazeEstimate) -> None:
+    def _join(self, g: MergeGroup, lines: BinocularSamples, key: Hashable, merged: GazeEstimate) -> None:
         """``lines`` join ``g``, whose estimate becomes ``merged``; its form grows by theirs, or
         is linearised anew over all its lines at the new estimate (``RELINEARISE_GROWTH``)."""
         g.parts.append(lines)
@@ -161,7 +162,7 @@ class TargetMerger:
             g.form_lines = g.form.n_lines
 
 
-def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm, sigma_deg: float,
+def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm: ArrayLike, sigma_deg: float,
                    pose_deg: float = 0.0) -> float:
     """``merge_statistic`` of a group kept as its ``MergeForm`` and one fixation's view lines
     (world frame) whose estimate is ``start_mm`` (3,) mm: the least chi2 of one point against two,
@@ -169,7 +170,7 @@ def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm, sigma_deg
     point of then (the group's form is a quadratic already). O(the fixation's lines)."""
     sigma = np.deg2rad(sigma_deg)
 
-    def own(p):
+    def own(p: np.ndarray) -> MergeForm:
         return fixation_form(lines, form.chart, p, sigma, MERGE_FIXATION_DEG, pose_deg)
 
     xb, x = form.chart.coords(start_mm), form.p0
@@ -180,7 +181,7 @@ def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm, sigma_deg
     return together - apart
 
 
-def merge_statistic(a, b, sigma_deg: float, pose_deg: float = 0.0) -> float:
+def merge_statistic(a: tuple, b: tuple, sigma_deg: float, pose_deg: float = 0.0) -> float:
     """The likelihood-ratio statistic of one point against two (3 more parameters) for two sets
     of fixations (``a``, ``b``: (a list of each fixation's view lines as ``BinocularSamples``,
     world frame; a start point (3,) mm)), on the angular noise model (``sigma_deg``) with two
@@ -204,7 +205,7 @@ def merge_statistic(a, b, sigma_deg: float, pose_deg: float = 0.0) -> float:
     return together - apart
 
 
-def offset_chi2(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
+def offset_chi2(samples: BinocularSamples, start_mm: ArrayLike, sigma_rad: float) -> float:
     """The least chi2 of one fixation's view lines (world frame) at one point, searched from
     ``start_mm`` (3,) mm, with each eye's calibration offsets marginalised as ``merge_statistic``
     does (``MERGE_BIAS_DEG`` and ``MERGE_FIXATION_DEG``); ``sigma_rad`` the angular noise. The
@@ -218,13 +219,13 @@ def offset_chi2(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
     return chi2
 
 
-def offset_chi2_search(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
+def offset_chi2_search(samples: BinocularSamples, start_mm: ArrayLike, sigma_rad: float) -> float:
     """``offset_chi2`` by a BFGS search on the lines (``_bias_chi2``): the reference for tests."""
     return _min_bias_chi2([(line, 0, (0, 0)) for line in _eye_lines(samples)], np.asarray(start_mm, float),
                           sigma_rad)
 
 
-def _bias_chi2(X, chunks, sigma: float, pose_deg: float = 0.0) -> float:
+def _bias_chi2(X: np.ndarray, chunks: list[tuple], sigma: float, pose_deg: float = 0.0) -> float:
     """chi2 of line chunks, ``(eye lines, point k, fixation key)`` each, at their points ``X``
     (3K,) mm, with offsets marginalised: per eye one shared by all fixations (sd
     ``MERGE_BIAS_DEG`` per axis), per eye and fixation one (``MERGE_FIXATION_DEG``), and per
@@ -256,7 +257,7 @@ def _bias_chi2(X, chunks, sigma: float, pose_deg: float = 0.0) -> float:
     return total - float(np.sum(b * np.linalg.solve(A, b))) / s2
 
 
-def _min_bias_chi2(chunks, x0, sigma: float, pose_deg: float = 0.0) -> float:
+def _min_bias_chi2(chunks: list[tuple], x0: np.ndarray, sigma: float, pose_deg: float = 0.0) -> float:
     """The least ``_bias_chi2`` over the points, from ``x0`` (3K,) mm (searched in units of
     100 mm); ``sigma`` in radians."""
     x0 = np.asarray(x0, float)
