@@ -38,7 +38,7 @@ def opencv_version(text: str | None = None) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
-def marker_ids(ids) -> np.ndarray:
+def marker_ids(ids: ArrayLike | None) -> np.ndarray:
     """A detector's ids as an (N,) int64 array: ``None`` (OpenCV 4) and an empty array (OpenCV 5)
     both give shape (0,)."""
     if ids is None:
@@ -46,7 +46,7 @@ def marker_ids(ids) -> np.ndarray:
     return np.asarray(ids).reshape(-1).astype(np.int64)
 
 
-def detect_markers(detector, image) -> tuple[np.ndarray, np.ndarray]:
+def detect_markers(detector: cv2.aruco.ArucoDetector, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``detector.detectMarkers(image)`` as ((N, 4, 2) float64 corners px, (N,) int64 ids).
 
     Args:
@@ -67,7 +67,7 @@ def detect_markers(detector, image) -> tuple[np.ndarray, np.ndarray]:
     return c, ids
 
 
-def detect_charuco(detector, image) -> tuple[np.ndarray, np.ndarray]:
+def detect_charuco(detector: cv2.aruco.CharucoDetector, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``detector.detectBoard(image)``'s ChArUco corners as ((N, 1, 2) float32 px, (N, 1) int32
     ids); N = 0 (empty arrays of those shapes) when none is found, on every supported release."""
     ch_corners, ch_ids, _, _ = detector.detectBoard(image)

@@ -68,7 +68,7 @@ class RawMap:
     coef: np.ndarray
     tps: tuple | None = None
 
-    def __call__(self, raw) -> np.ndarray:
+    def __call__(self, raw: ArrayLike) -> np.ndarray:
         r = (check_points(raw, "raw", 2) - self.centre) / self.scale
         order = 3 if self.model == "cubic" else 2
         q = _monomials(r, order) @ self.coef
@@ -109,7 +109,7 @@ class RawMap:
         return cls(d["model"], np.asarray(d["centre"], float), float(d["scale"]), np.asarray(d["coef"], float), tps)
 
 
-def fit_raw_map(raw, q, model: str = "quadratic", smoothing: float = 1e-3) -> RawMap:
+def fit_raw_map(raw: ArrayLike, q: ArrayLike, model: str = "quadratic", smoothing: float = 1e-3) -> RawMap:
     """Least-squares fit of raw (K, 2) -> q (K, 2).
 
     Raises:
@@ -140,7 +140,7 @@ def fit_raw_map(raw, q, model: str = "quadratic", smoothing: float = 1e-3) -> Ra
     return RawMap(model, centre, scale, coef, tps)
 
 
-def _angle_deg(d1, d2) -> np.ndarray:
+def _angle_deg(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
     d1 = d1 / np.linalg.norm(d1, axis=-1, keepdims=True)
     d2 = d2 / np.linalg.norm(d2, axis=-1, keepdims=True)
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(d1, d2), axis=-1), (d1 * d2).sum(-1)))
@@ -164,18 +164,18 @@ class EyeCalibration:
     raw_map: RawMap
     report: dict = field(default_factory=dict)
 
-    def image_points(self, raw) -> np.ndarray:
+    def image_points(self, raw: ArrayLike) -> np.ndarray:
         """(N, 2) normalised image points q of raw readings (N, 2) (eq. 1-2)."""
         return self.raw_map(raw)
 
-    def directions(self, raw) -> np.ndarray:
+    def directions(self, raw: ArrayLike) -> np.ndarray:
         """(N, 3) unit view directions, scene-camera frame (eq. 3-4)."""
         q = self.raw_map(raw)
         p = self.plane_mm * np.column_stack([q, np.ones(len(q))])
         d = p - self.centre_mm
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
-    def lines(self, raw) -> ViewLines:
+    def lines(self, raw: ArrayLike) -> ViewLines:
         """View lines (eq. 1-4) in the camera frame of raw readings (N, 2); the caller keeps
         invalid samples (blinks) out or marks them."""
         d = self.directions(raw)
@@ -206,7 +206,8 @@ def plane_points(targets_cam_mm: ArrayLike, centre_mm: ArrayLike, plane_mm: floa
     return p[:, :2] / plane_mm
 
 
-def calibrate_eye(eye: str, raw, targets_cam_mm: ArrayLike, centre_mm, plane_mm: float | None = None,
+def calibrate_eye(eye: str, raw: ArrayLike, targets_cam_mm: ArrayLike, centre_mm: ArrayLike,
+                  plane_mm: float | None = None,
                   model: str = "quadratic", focal_px: float | None = None, outlier_deg: float = 1.0) -> EyeCalibration:
     """Fit one eye (paper eq. 1-2) to targets at known 3D positions.
 
@@ -306,7 +307,7 @@ def _leave_one_out(cal: EyeCalibration, raw: np.ndarray, q: np.ndarray, dirs: np
     return loo, rest_rms
 
 
-def compare_models(eye: str, raw, targets_cam_mm: np.ndarray, centre_mm: np.ndarray,
+def compare_models(eye: str, raw: ArrayLike, targets_cam_mm: np.ndarray, centre_mm: np.ndarray,
                    plane_mm: float | None = None) -> dict:
     """Leave-one-out RMS (deg) of each model the target count allows: does a richer model
     generalise better than the paper's quadratic?"""
@@ -374,7 +375,7 @@ def wall_pose(points_wall_mm: ArrayLike, points_norm: ArrayLike) -> WallPose:
 
 # --- eye centres from two distances ----------------------------------------------------------
 
-def estimate_centre(raw, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
+def estimate_centre(raw: ArrayLike, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
                     model: str = "quadratic") -> tuple[np.ndarray, np.ndarray]:
     """One eye's rotation centre from targets at two or more depths.
 
@@ -404,14 +405,14 @@ def estimate_centre(raw, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
     A = _monomials((raw - centre) / scale, 3 if model == "cubic" else 2)
     n = A.shape[1]
 
-    def tangents(e):
+    def tangents(e: np.ndarray) -> np.ndarray:
         d = P - e
         return d[:, :2] / d[:, 2:3]
 
     e0 = np.asarray(initial_mm, float)
     c0, *_ = np.linalg.lstsq(A, tangents(e0), rcond=None)
 
-    def resid(x):
+    def resid(x: np.ndarray) -> np.ndarray:
         e = x[:3]
         C = x[3:].reshape(n, 2)
         t = A @ C
@@ -432,7 +433,8 @@ def estimate_centre(raw, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
     return sol.x[:3], cov[:3, :3]
 
 
-def target_readings(target, raw, valid, t=None, settle_s: float = 0.2, clip: float = 3.0):
+def target_readings(target: ArrayLike, raw: ArrayLike, valid: ArrayLike, t: ArrayLike | None = None,
+                    settle_s: float = 0.2, clip: float = 3.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One robust reading per calibration target from a recording.
 
     Samples of each target's run that come within ``settle_s`` of the run's start (the eye is

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 
-def to_grey(image) -> np.ndarray:
+def to_grey(image: ArrayLike) -> np.ndarray:
     """The grey (H, W) image of an (H, W, 3) BGR image (``cv2.COLOR_BGR2GRAY``: OpenCV's luma
     weights); an (H, W) image is returned as it is (no copy)."""
     img = np.asarray(image)

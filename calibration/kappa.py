@@ -50,13 +50,13 @@ def fick_angles(directions: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     return np.arctan2(d[:, 0], d[:, 2]), np.arctan2(d[:, 1], np.hypot(d[:, 0], d[:, 2]))
 
 
-def from_fick_angles(h, v) -> np.ndarray:
+def from_fick_angles(h: ArrayLike, v: ArrayLike) -> np.ndarray:
     """Horizontal and vertical Fick angles (N,) rad -> (N, 3) unit directions."""
     h, v = np.asarray(h, float).reshape(-1), np.asarray(v, float).reshape(-1)
     return np.column_stack([np.cos(v) * np.sin(h), np.sin(v), np.cos(v) * np.cos(h)])
 
 
-def apply_kappa(directions: ArrayLike, kappa_deg) -> np.ndarray:
+def apply_kappa(directions: ArrayLike, kappa_deg: ArrayLike) -> np.ndarray:
     """Optical axes (N, 3) -> visual axes (N, 3) unit, with ``kappa_deg`` = (h, v) degrees added
     to the Fick angles. Rows that are not finite stay NaN."""
     d = np.asarray(directions, float).reshape(-1, 3)
@@ -98,7 +98,7 @@ class EyeKappa:
     n: int
 
 
-def fit_eye_kappa(centers_mm: ArrayLike, optical_axes, points_mm: ArrayLike) -> EyeKappa:
+def fit_eye_kappa(centers_mm: ArrayLike, optical_axes: ArrayLike, points_mm: ArrayLike) -> EyeKappa:
     """The offset of one eye that turns its optical axes toward the points looked at.
 
     Args:
@@ -146,7 +146,8 @@ class KappaFit:
     depth_mm: float | None = None
 
 
-def fit_kappa_targets(left_centers_mm: ArrayLike, left_axes, right_centers_mm: ArrayLike, right_axes,
+def fit_kappa_targets(left_centers_mm: ArrayLike, left_axes: ArrayLike, right_centers_mm: ArrayLike,
+                      right_axes: ArrayLike,
                       targets_mm: ArrayLike) -> KappaFit:
     """Per-eye offsets from samples during which the wearer looked at known points.
 
@@ -169,7 +170,8 @@ def points_on_rays(ray_directions: ArrayLike, depth_mm: float) -> np.ndarray:
     return p
 
 
-def fit_kappa_cyclopean(left_centers_mm: ArrayLike, left_axes, right_centers_mm: ArrayLike, right_axes, gaze_rays,
+def fit_kappa_cyclopean(left_centers_mm: ArrayLike, left_axes: ArrayLike, right_centers_mm: ArrayLike,
+                        right_axes: ArrayLike, gaze_rays: ArrayLike,
                         depth_mm: float) -> KappaFit:
     """Per-eye offsets that make each eye's visual axis meet the cyclopean gaze ray (from the
     scene camera's centre, e.g. a tracker's 2D gaze through the scene camera) at depth

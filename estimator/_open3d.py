@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+from typing import Any
 
 
 class Open3DUnavailable(ImportError):
@@ -16,7 +17,7 @@ class Open3DUnavailable(ImportError):
 
 
 @functools.lru_cache(maxsize=1)
-def import_open3d():
+def import_open3d() -> Any:
     """Return the ``open3d`` module, loading libusb-1.0 from ``libusb-package`` first if present."""
     try:
         import libusb_package

@@ -26,7 +26,9 @@ World frame, mm; angles in radians unless a name ends in ``_deg``.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -152,7 +154,7 @@ def sample_interval_s(t_s: ArrayLike) -> float:
     return float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
 
 
-def fixation_durations_s(t_s: ArrayLike, labels: ArrayLike, fixations) -> np.ndarray:
+def fixation_durations_s(t_s: ArrayLike, labels: ArrayLike, fixations: Iterable[int]) -> np.ndarray:
     """The duration (``fixation_duration_s``) of each of ``fixations`` (K,) (labels), s, at the
     sample interval of all the samples (``sample_interval_s``).
 
@@ -168,14 +170,14 @@ def fixation_durations_s(t_s: ArrayLike, labels: ArrayLike, fixations) -> np.nda
     return np.array([fixation_duration_s(t[lab == f], interval) for f in fixations], float)
 
 
-def _rays(origin_mm, pts_world) -> tuple[np.ndarray, np.ndarray]:
+def _rays(origin_mm: ArrayLike, pts_world: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """(N, 3) unit directions from ``origin_mm`` to each of ``pts_world`` and (N,) distances, mm."""
-    v = pts_world - origin_mm
+    v = np.asarray(pts_world) - np.asarray(origin_mm)
     dist = np.linalg.norm(v, axis=1)
     return v / np.maximum(dist, 1e-12)[:, None], dist
 
 
-def _claim(entry, hit, dist, tolerance_mm: float) -> np.ndarray:
+def _claim(entry: np.ndarray, hit: np.ndarray, dist: np.ndarray, tolerance_mm: float) -> np.ndarray:
     """An opaque area's claim: its ``entry`` distance (N,) where the ray ``hit`` it and the point
     (at ``dist``) lies no more than ``tolerance_mm`` in front of that; inf elsewhere."""
     return np.where(hit & (dist >= entry - tolerance_mm), entry, np.inf)
@@ -243,7 +245,7 @@ class Polygon:
     corners_mm: np.ndarray
     depth_tolerance_mm: float = DEPTH_TOLERANCE_MM
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         c = check_points(self.corners_mm, "corners_mm")
         if len(c) < 3:
             raise ValueError(f"a polygon needs at least 3 corners, got {len(c)}")
@@ -281,7 +283,7 @@ class Mesh:
     transparent: bool = False
     depth_tolerance_mm: float = DEPTH_TOLERANCE_MM
 
-    def _scene(self):
+    def _scene(self) -> Any:          # open3d.t.geometry.RaycastingScene
         o3d = import_open3d()
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.core.Tensor(np.asarray(self.vertices_mm, np.float32)),
@@ -303,7 +305,7 @@ class Mesh:
         return _claim(entry, np.isfinite(entry), dist, self.depth_tolerance_mm)
 
 
-def _basis(direction) -> np.ndarray:
+def _basis(direction: np.ndarray) -> np.ndarray:
     """(3, 2): ``tangent_basis`` of one unit direction (3,), its two vectors as columns."""
     b1, b2 = tangent_basis(direction)
     return np.column_stack([b1[0], b2[0]])
@@ -316,7 +318,7 @@ def plane_normal(corners_mm: ArrayLike) -> np.ndarray:
     return np.linalg.svd(c - c.mean(axis=0))[2][-1]
 
 
-def _inside_2d(pts, poly) -> np.ndarray:
+def _inside_2d(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
     """(N,) whether each of ``pts`` (N, 2) lies inside the polygon ``poly`` (K, 2) (even-odd)."""
     x, y = pts[:, 0:1], pts[:, 1:2]
     x0, y0 = poly[:, 0], poly[:, 1]
@@ -327,7 +329,7 @@ def _inside_2d(pts, poly) -> np.ndarray:
     return (np.sum(crosses & (x < xc), axis=1) % 2) == 1
 
 
-def probabilities(spread: GazeSpread, areas, n: int = SAMPLES) -> np.ndarray:
+def probabilities(spread: GazeSpread, areas: Sequence[Box | Sphere | Polygon | Mesh], n: int = SAMPLES) -> np.ndarray:
     """(K + 1,) the probability that the fixation's gazed point lies in each of the ``areas``
     (K of ``Box``, ``Sphere``, ``Polygon``, ``Mesh``), and last that it lies in none. They sum to
     1: a point in several goes to the one its ray meets first."""

@@ -44,7 +44,7 @@ from scipy.stats import norm
 from .errormodel import ErrorModel, _corr, eye_labels
 from .errormodel_regions import region_radius
 from .frames import tangent_basis
-from .lines import BinocularSamples
+from .lines import BinocularSamples, ViewLines
 from .result import NEAR_POINT_MM, GazeEstimate, Status
 
 MIN_DIRECTION_SAMPLES = 3
@@ -86,7 +86,7 @@ class GazeDirection:
         """JSON-ready (a ``direction`` of the target record): ``seen_from_mm``, ``unit``,
         ``cone95_deg``, ``depth95_mm`` [near, far or None], ``spread_deg``, ``n_samples``;
         ``decimals``: mm rounded to that many places (the live messages)."""
-        def r(v, d):
+        def r(v: float, d: int | None) -> float:
             return float(v) if d is None else round(float(v), d)
 
         near, far = self.depth95_mm
@@ -200,7 +200,7 @@ def depth_bounds(samples: BinocularSamples, origin_mm: ArrayLike, unit: ArrayLik
     return 1.0 / hi, (1.0 / lo if lo > 0 else float("inf"))
 
 
-def _bias_var_q(Hi, J, lines, model: ErrorModel | None) -> float:
+def _bias_var_q(Hi: np.ndarray, J: np.ndarray, lines: ViewLines, model: ErrorModel | None) -> float:
     """The inverse depth's variance, mm^-2, from each eye's bias (all its lines turned by one 2D
     angle, the eyes' correlated by ``bias_correlation``) and the pose offset (every line turned)."""
     if model is None:

@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import chi2, norm
 from scipy.stats import f as f_dist
 from scipy.stats import t as t_dist
@@ -26,7 +27,7 @@ FAR_SIDE_CAP = 10.0
 ``unresolved`` anyway)."""
 
 
-def far_side(C, point_mm, origin_mm, k: float) -> tuple[np.ndarray, float]:
+def far_side(C: np.ndarray, point_mm: ArrayLike, origin_mm: ArrayLike, k: float) -> tuple[np.ndarray, float]:
     """The covariance (3, 3) stretched along the line of sight so that its depth interval reaches
     the far end of the interval that is symmetric in inverse depth, and the stretch.
 
@@ -53,7 +54,7 @@ def far_side(C, point_mm, origin_mm, k: float) -> tuple[np.ndarray, float]:
     return S @ C @ S, float(f)
 
 
-def sight_info(C_lin, point_mm, origin_mm, k: float) -> dict:
+def sight_info(C_lin: np.ndarray, point_mm: ArrayLike, origin_mm: ArrayLike, k: float) -> dict:
     """What an estimate's ``info["error_model"]`` keeps so that its regions at any level can be
     drawn (``at_level``, ``depth_interval``): where its lines were seen from (``sight_origin_mm``,
     the eyes' mean origin, world, mm), the far side's ``k`` its covariance was stretched with,
@@ -98,16 +99,16 @@ class Sight:
         return cls(np.asarray(em["sight_origin_mm"], float), float(em["far_side_k"]), float(em["depth_rel_sd"]),
                    dof, ddof)
 
-    def level_covariance(self, C, point_mm, probability: float) -> np.ndarray:
+    def level_covariance(self, C: np.ndarray, point_mm: ArrayLike, probability: float) -> np.ndarray:
         """``at_level`` of the covariance ``C`` (3, 3) mm^2 of the point ``point_mm`` (3,) mm."""
         return at_level(C, point_mm, self.origin_mm, probability, self.far_side_k, self.depth_rel_sd,
                         scale_dof=self.scale_dof, depth_dof=self.depth_dof)
 
-    def depth_interval(self, point_mm, probability: float) -> tuple[float, float]:
+    def depth_interval(self, point_mm: ArrayLike, probability: float) -> tuple[float, float]:
         """``depth_interval`` of the point ``point_mm`` (3,) mm: (near, far) mm."""
         return depth_interval(point_mm, self.origin_mm, probability, self.depth_rel_sd, self.depth_dof)
 
-    def distance_mm(self, point_mm) -> float:
+    def distance_mm(self, point_mm: ArrayLike) -> float:
         """The distance of ``point_mm`` (3,) from ``origin_mm``, mm."""
         return float(np.linalg.norm(np.asarray(point_mm, float) - self.origin_mm))
 
@@ -126,8 +127,8 @@ def region_radius(probability: float, dof: int = 3, scale_dof: float = math.inf)
     return math.sqrt(chi2.ppf(probability, dof))
 
 
-def at_level(C, point_mm, origin_mm, probability: float, k: float, rel_sd: float, dof: int = 3,
-             scale_dof: float = math.inf, depth_dof: float = math.inf) -> np.ndarray:
+def at_level(C: np.ndarray, point_mm: ArrayLike, origin_mm: ArrayLike, probability: float, k: float, rel_sd: float,
+             dof: int = 3, scale_dof: float = math.inf, depth_dof: float = math.inf) -> np.ndarray:
     """The covariance (3, 3) mm^2 whose ``probability`` ellipsoid (chi2 with ``dof``) is the
     region of that level, from ``C``, the error model's covariance stretched by ``far_side``
     with ``k`` (the 95 % level's). The stretch that makes the 95 % region reach the far end of
@@ -161,7 +162,7 @@ def at_level(C, point_mm, origin_mm, probability: float, k: float, rel_sd: float
     return S @ C @ S
 
 
-def depth_interval(point_mm, origin_mm, probability: float, rel_sd: float,
+def depth_interval(point_mm: ArrayLike, origin_mm: ArrayLike, probability: float, rel_sd: float,
                    scale_dof: float = math.inf) -> tuple[float, float]:
     """The ``probability`` interval (near, far) of the distance of ``point_mm`` from
     ``origin_mm``, mm, symmetric in inverse depth (where vergence and parallax are Gaussian):

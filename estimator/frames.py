@@ -21,6 +21,8 @@ Transforms
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -45,7 +47,7 @@ def invert(T_b_from_a: ArrayLike) -> np.ndarray:
     return out
 
 
-def _stack_transforms(T, n: int, name: str) -> np.ndarray:
+def _stack_transforms(T: ArrayLike, n: int, name: str) -> np.ndarray:
     a = np.asarray(T, dtype=np.float64)
     if a.shape == (4, 4):
         check_transform(a, name)
@@ -77,7 +79,7 @@ def rotation_about_axis(axis: ArrayLike, angle_rad: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle_rad) * K + (1 - np.cos(angle_rad)) * (K @ K)
 
 
-def angle_deg(a: ArrayLike, b: ArrayLike):
+def angle_deg(a: ArrayLike, b: ArrayLike) -> Any:          # (...,) array, or a NumPy float
     """The angle between vectors ``a`` and ``b`` (..., 3), degrees (any lengths; ``atan2`` of the
     cross and dot products, accurate near 0 and 180)."""
     a, b = np.asarray(a, float), np.asarray(b, float)

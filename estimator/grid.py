@@ -8,6 +8,7 @@ World frame, mm.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -31,7 +32,7 @@ class DensityGrid:
         tensor: the ``open3d.core.Tensor`` holding the values.
     """
 
-    def __init__(self, center_mm, axes, spacing_mm, n: int):
+    def __init__(self, center_mm: ArrayLike, axes: ArrayLike, spacing_mm: float, n: int) -> None:
         o3d = import_open3d()
         self.center_mm = np.asarray(center_mm, dtype=np.float64).copy()
         self.axes = np.asarray(axes, dtype=np.float64).copy()
@@ -42,7 +43,7 @@ class DensityGrid:
         base = np.arange(self.n) - (self.n - 1) / 2.0
         self.offsets = [base * s for s in self.spacing_mm]
 
-    def index_to_world(self, ijk) -> np.ndarray:
+    def index_to_world(self, ijk: ArrayLike) -> np.ndarray:
         """World points (M, 3), mm, of (possibly fractional) voxel indices (M, 3)."""
         ijk = np.atleast_2d(np.asarray(ijk, dtype=np.float64))
         local = (ijk - (self.n - 1) / 2.0) * self.spacing_mm
@@ -53,7 +54,7 @@ class DensityGrid:
         ii = np.stack(np.meshgrid(*(np.arange(self.n),) * 3, indexing="ij"), -1).reshape(-1, 3)
         return self.index_to_world(ii)
 
-    def _local_points(self):
+    def _local_points(self) -> tuple[np.ndarray, np.ndarray]:
         """Voxel centres relative to the box centre (3, n^3), world axes (voxels on the contiguous
         axis: numpy is fast only when the long axis is innermost), and their squared norms (n^3,);
         independent of ``center_mm``, so they survive translations of the box."""
@@ -73,7 +74,7 @@ class DensityGrid:
         f = np.atleast_2d(np.asarray(origins_mm, float)) - self.center_mm
         return tan2_from_local(PT, Psq, f, directions)
 
-    def add_lines(self, origins_mm: ArrayLike, directions: ArrayLike, coefficients, chunk: int = 64) -> None:
+    def add_lines(self, origins_mm: ArrayLike, directions: ArrayLike, coefficients: ArrayLike, chunk: int = 64) -> None:
         """``values += sum_l coefficients[l] * tan2_l`` for lines (L, 3) origins and (L, 3) unit
         directions, world frame (see ``tan2_of_lines``)."""
         o = np.atleast_2d(origins_mm)
@@ -93,7 +94,7 @@ class DensityGrid:
         """(3,) int index of the largest value."""
         return np.array(np.unravel_index(int(np.argmax(self.values)), self.values.shape))
 
-    def to_point_cloud(self, log_values: bool = True):
+    def to_point_cloud(self, log_values: bool = True) -> Any:          # open3d.t.geometry.PointCloud
         """Voxel centres as an ``open3d.t.geometry.PointCloud`` (positions in mm, world frame) with
         per-point attributes ``density`` (probability mass per voxel, sums to 1 over the box) and
         ``log_density`` (relative to the maximum); ``log_values`` says whether ``values`` are logs."""
@@ -136,7 +137,7 @@ class _PendingBox:
     done: int = 0
 
 
-def _quadratic_fit_local(grid: DensityGrid, idx):
+def _quadratic_fit_local(grid: DensityGrid, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """3x3x3 quadratic fit around interior voxel ``idx``: ``(offset (3,), cov (3, 3))`` in the box
     frame, offset in mm from the box centre, covariance in mm^2; ``None`` if not a maximum within
     one voxel. (3x3 algebra in closed form: this runs once per streamed sample.)"""

@@ -7,6 +7,7 @@ right line each, either of which may be missing (blink, lost pupil: a monocular 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -34,7 +35,7 @@ class ViewLines:
     frame: str = "world"
     sample_index: np.ndarray | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         o = check_points(self.origins_mm, "origins_mm")
         d = normalize_directions(self.directions, "directions")
         check_same_rows(o, d, "origins_mm", "directions")
@@ -128,7 +129,7 @@ class BinocularSamples:
                                right.directions, frame=left.frame)
 
     @classmethod
-    def concatenate(cls, parts) -> BinocularSamples:
+    def concatenate(cls, parts: Iterable[BinocularSamples]) -> BinocularSamples:
         """Join ``BinocularSamples`` (same frame) end to end."""
         parts = list(parts)
         if not parts:
@@ -145,7 +146,7 @@ class BinocularSamples:
     def __len__(self) -> int:
         return len(self.t_s)
 
-    def select(self, index) -> BinocularSamples:
+    def select(self, index: slice | np.ndarray) -> BinocularSamples:
         """The samples at ``index`` (a slice, boolean mask or integer array)."""
         return BinocularSamples(self.t_s[index], self.left_origin_mm[index], self.left_direction[index],
                                 self.right_origin_mm[index], self.right_direction[index],
@@ -177,12 +178,12 @@ class BinocularSamples:
         return self.left_valid & self.right_valid
 
 
-def samples_from_stream(samples) -> BinocularSamples:
+def samples_from_stream(samples: Iterable[BinocularSample]) -> BinocularSamples:
     """Stack an iterable of ``BinocularSample`` into ``BinocularSamples`` (world frame)."""
     samples = list(samples)
     nan3 = np.full(3, np.nan)
 
-    def col(attr):
+    def col(attr: str) -> np.ndarray:
         return np.array([nan3 if getattr(s, attr) is None else np.asarray(getattr(s, attr), float)
                          for s in samples]).reshape(-1, 3)
 

@@ -3,7 +3,7 @@ a fixation joins the earlier group whose lines and its own fit one point (a like
 test on the pooled view lines, each eye's calibration offsets marginalised), else it starts a
 group of its own. Groups never merge with each other, so a group's id, once given, keeps its
 meaning. ``process`` (``wearable_gaze.pipeline.fixations.merge_fixations``) and the live session
-(``wearable_gaze.live.estimation.TargetIds``) both use ``TargetMerger``.
+(``wearable_gaze.pipeline.live_estimation.TargetIds``) both use ``TargetMerger``.
 
 World frame, mm, seconds; angles in degrees where the name says ``_deg``."""
 
@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import minimize
 
 from .frames import angle_deg
@@ -115,7 +116,7 @@ class TargetMerger:
         ``MERGE_LR_THRESHOLD``, the least of them) and whose pooled lines give a usable estimate,
         which becomes the group's; else it starts a group. ``key`` (e.g. the fixation's index) is
         kept in the group's ``members``."""
-        if not estimate.ok:
+        if not estimate.ok or estimate.position_mm is None:
             raise ValueError(f"a fixation without a usable estimate cannot be merged ({estimate.status.value})")
         origin = lines.origin_mm(0)
         scored: list[tuple] = []
@@ -143,15 +144,16 @@ class TargetMerger:
         self._points[len(self.groups) - 1] = estimate.position_mm
         return len(self.groups) - 1
 
-    def _form(self, lines: BinocularSamples, chart: Chart, p) -> MergeForm:
+    def _form(self, lines: BinocularSamples, chart: Chart, p: np.ndarray) -> MergeForm:
         return fixation_form(lines, chart, p, np.deg2rad(self.sigma_deg), MERGE_FIXATION_DEG, self.pose_deg)
 
-    def _join(self, g: MergeGroup, lines: BinocularSamples, key, merged: GazeEstimate) -> None:
+    def _join(self, g: MergeGroup, lines: BinocularSamples, key: Hashable, merged: GazeEstimate) -> None:
         """``lines`` join ``g``, whose estimate becomes ``merged``; its form grows by theirs, or
         is linearised anew over all its lines at the new estimate (``RELINEARISE_GROWTH``)."""
         g.parts.append(lines)
         g.members.append(key)
         g.estimate = merged
+        assert merged.position_mm is not None               # merged.ok: the caller's test
         chart = g.form.chart
         g.form = g.form.plus(self._form(lines, chart, g.form.p0))
         if g.form.n_lines >= RELINEARISE_GROWTH * g.form_lines:
@@ -160,7 +162,7 @@ class TargetMerger:
             g.form_lines = g.form.n_lines
 
 
-def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm, sigma_deg: float,
+def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm: ArrayLike, sigma_deg: float,
                    pose_deg: float = 0.0) -> float:
     """``merge_statistic`` of a group kept as its ``MergeForm`` and one fixation's view lines
     (world frame) whose estimate is ``start_mm`` (3,) mm: the least chi2 of one point against two,
@@ -168,7 +170,7 @@ def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm, sigma_deg
     point of then (the group's form is a quadratic already). O(the fixation's lines)."""
     sigma = np.deg2rad(sigma_deg)
 
-    def own(p):
+    def own(p: np.ndarray) -> MergeForm:
         return fixation_form(lines, form.chart, p, sigma, MERGE_FIXATION_DEG, pose_deg)
 
     xb, x = form.chart.coords(start_mm), form.p0
@@ -179,7 +181,7 @@ def form_statistic(form: MergeForm, lines: BinocularSamples, start_mm, sigma_deg
     return together - apart
 
 
-def merge_statistic(a, b, sigma_deg: float, pose_deg: float = 0.0) -> float:
+def merge_statistic(a: tuple, b: tuple, sigma_deg: float, pose_deg: float = 0.0) -> float:
     """The likelihood-ratio statistic of one point against two (3 more parameters) for two sets
     of fixations (``a``, ``b``: (a list of each fixation's view lines as ``BinocularSamples``,
     world frame; a start point (3,) mm)), on the angular noise model (``sigma_deg``) with two
@@ -203,7 +205,7 @@ def merge_statistic(a, b, sigma_deg: float, pose_deg: float = 0.0) -> float:
     return together - apart
 
 
-def offset_chi2(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
+def offset_chi2(samples: BinocularSamples, start_mm: ArrayLike, sigma_rad: float) -> float:
     """The least chi2 of one fixation's view lines (world frame) at one point, searched from
     ``start_mm`` (3,) mm, with each eye's calibration offsets marginalised as ``merge_statistic``
     does (``MERGE_BIAS_DEG`` and ``MERGE_FIXATION_DEG``); ``sigma_rad`` the angular noise. The
@@ -217,13 +219,13 @@ def offset_chi2(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
     return chi2
 
 
-def offset_chi2_search(samples: BinocularSamples, start_mm, sigma_rad: float) -> float:
+def offset_chi2_search(samples: BinocularSamples, start_mm: ArrayLike, sigma_rad: float) -> float:
     """``offset_chi2`` by a BFGS search on the lines (``_bias_chi2``): the reference for tests."""
     return _min_bias_chi2([(line, 0, (0, 0)) for line in _eye_lines(samples)], np.asarray(start_mm, float),
                           sigma_rad)
 
 
-def _bias_chi2(X, chunks, sigma: float, pose_deg: float = 0.0) -> float:
+def _bias_chi2(X: np.ndarray, chunks: list[tuple], sigma: float, pose_deg: float = 0.0) -> float:
     """chi2 of line chunks, ``(eye lines, point k, fixation key)`` each, at their points ``X``
     (3K,) mm, with offsets marginalised: per eye one shared by all fixations (sd
     ``MERGE_BIAS_DEG`` per axis), per eye and fixation one (``MERGE_FIXATION_DEG``), and per
@@ -255,7 +257,7 @@ def _bias_chi2(X, chunks, sigma: float, pose_deg: float = 0.0) -> float:
     return total - float(np.sum(b * np.linalg.solve(A, b))) / s2
 
 
-def _min_bias_chi2(chunks, x0, sigma: float, pose_deg: float = 0.0) -> float:
+def _min_bias_chi2(chunks: list[tuple], x0: np.ndarray, sigma: float, pose_deg: float = 0.0) -> float:
     """The least ``_bias_chi2`` over the points, from ``x0`` (3K,) mm (searched in units of
     100 mm); ``sigma`` in radians."""
     x0 = np.asarray(x0, float)

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .frames import tangent_basis
 from .likelihood import gnomonic_residuals
@@ -54,7 +55,7 @@ class Chart:
     R: np.ndarray
 
     @classmethod
-    def toward(cls, origin_mm, point_mm) -> Chart:
+    def toward(cls, origin_mm: ArrayLike, point_mm: ArrayLike) -> Chart:
         """The chart at ``origin_mm`` (3,) whose axis runs through ``point_mm`` (3,), mm."""
         o = np.asarray(origin_mm, float)
         axis = np.asarray(point_mm, float) - o
@@ -62,13 +63,13 @@ class Chart:
         b1, b2 = tangent_basis(axis[None])
         return cls(o.copy(), np.column_stack([b1[0], b2[0], axis]))
 
-    def coords(self, point_mm) -> np.ndarray:
+    def coords(self, point_mm: ArrayLike) -> np.ndarray:
         """The chart coordinates (3,) of ``point_mm`` (3,) mm."""
         w = self.R.T @ (np.asarray(point_mm, float) - self.origin)
         z = max(w[2], TINY_DEPTH_MM)
         return np.array([w[0] / z, w[1] / z, 1.0 / z])
 
-    def point(self, p) -> np.ndarray:
+    def point(self, p: np.ndarray) -> np.ndarray:
         """The point (3,) mm of chart coordinates ``p`` (3,) (``rho > 0``)."""
         return self.origin + self.R @ np.array([p[0], p[1], 1.0]) / p[2]
 
@@ -95,7 +96,7 @@ class MergeForm:
     c: float
     n_lines: int
 
-    def centred(self, p) -> MergeForm:
+    def centred(self, p: np.ndarray) -> MergeForm:
         """The same quadratic with its centre moved to ``p`` (3,) (exact: a change of variable)."""
         s = np.zeros(N_PARAMS)
         s[:3] = np.asarray(p, float) - self.p0
@@ -111,7 +112,7 @@ class MergeForm:
                          self.n_lines + o.n_lines)
 
 
-def fixation_form(samples: BinocularSamples, chart: Chart, p0, sigma_rad: float, fixation_deg: float,
+def fixation_form(samples: BinocularSamples, chart: Chart, p0: np.ndarray, sigma_rad: float, fixation_deg: float,
                   pose_deg: float) -> MergeForm:
     """The ``MergeForm`` of one fixation's view lines (world frame) linearised at the point of
     ``chart`` coordinates ``p0`` (3,): its per-eye offsets (prior sd ``fixation_deg`` per axis)

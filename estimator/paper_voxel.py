@@ -46,7 +46,7 @@ class PaperVoxelConfig:
     sphere_sigma_mm: float | None = None
     update: str = "add"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.sigma_deg > 0 or not self.voxel_mm > 0:
             raise ValueError("sigma_deg and voxel_mm must be positive")
         if self.update not in ("add", "multiply"):
@@ -123,7 +123,7 @@ class PaperVoxelEstimator:
         assert self.grid is not None
         return self.grid
 
-    def _update_one(self, s: BinocularSamples):
+    def _update_one(self, s: BinocularSamples) -> None:
         c, g = self.config, self._seeded_grid
         if not (s.left_valid[0] and s.right_valid[0]):
             return                                   # the method needs both lines for P_n
@@ -147,7 +147,7 @@ class PaperVoxelEstimator:
         else:
             g.values += np.log(contribution + 1e-12 * contribution.max() + 1e-300)
 
-    def _recentre(self):
+    def _recentre(self) -> None:
         g = self._seeded_grid
         idx = g.argmax()
         d = (idx - (g.n - 1) / 2.0)                       # voxels from the centre to P_M

@@ -75,7 +75,8 @@ class CredibleRegion:
         return self.origin_mm + distance_mm * self.direction
 
 
-def _region(origin_mm, direction, near_mm: float, far_mm: float, across, half_angles, probability: float):
+def _region(origin_mm: ArrayLike, direction: ArrayLike, near_mm: float, far_mm: float, across: ArrayLike,
+            half_angles: ArrayLike, probability: float) -> CredibleRegion:
     """A ``CredibleRegion`` with ``(across[0], across[1], direction)`` right-handed."""
     u, e = np.asarray(direction, float).reshape(3), np.array(across, float).reshape(2, 3)
     if np.dot(np.cross(e[0], e[1]), u) < 0:

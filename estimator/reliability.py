@@ -12,7 +12,7 @@ from .likelihood import MAX_TAN2, angular_tan2, reliability_weight, reliability_
 
 
 def reliability_weights_at(center_mm: ArrayLike, cov_mm2: ArrayLike, origins_mm: ArrayLike, directions: ArrayLike,
-                           sample_index, n_samples: int,
+                           sample_index: ArrayLike, n_samples: int,
                            sigma_rad: float, outlier_prob: float) -> np.ndarray:
     """Reliability weight (n_samples,) of each binocular sample given the posterior N(center, cov).
 
@@ -44,7 +44,7 @@ def reliability_weights_at(center_mm: ArrayLike, cov_mm2: ArrayLike, origins_mm:
 
 
 def reliability_weight_at(center_mm: np.ndarray, cov_mm2: np.ndarray, origins_mm: np.ndarray, directions: np.ndarray,
-                          valid, sigma_rad: float,
+                          valid: np.ndarray, sigma_rad: float,
                           outlier_prob: float) -> float:
     """``reliability_weights_at`` for one binocular sample (origins and directions (2, 3), valid
     (2,) bool), in scalar arithmetic: the streaming hot path."""

@@ -30,7 +30,7 @@ class _SampleBuffer:
         self.sum_do = 0.0
         self._alloc(capacity)
 
-    def _alloc(self, cap):
+    def _alloc(self, cap: int) -> None:
         old = getattr(self, "t", None)
         new = {"t": np.zeros(cap), "o": np.zeros((cap, 2, 3)), "d": np.zeros((cap, 2, 3)),
                "valid": np.zeros((cap, 2), bool), "weight": np.ones(cap)}
@@ -40,7 +40,7 @@ class _SampleBuffer:
         for k, arr in new.items():
             setattr(self, k, arr)
 
-    def _add_sums(self, o, d):
+    def _add_sums(self, o: np.ndarray, d: np.ndarray) -> None:
         """Add lines (L, 3) origins, (L, 3) unit directions to the running sums."""
         P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
         self.sum_P += P.sum(axis=0)
@@ -79,7 +79,7 @@ class _SampleBuffer:
             self._add_sums(self.o[i][v], self.d[i][v])
         return i
 
-    def append(self, samples: BinocularSamples):
+    def append(self, samples: BinocularSamples) -> slice:
         m = len(samples)
         if self.n + m > len(self.t):
             self._alloc(max(2 * len(self.t), self.n + m))
@@ -94,7 +94,7 @@ class _SampleBuffer:
         self._add_sums(self.o[sl][v], self.d[sl][v])
         return sl
 
-    def lines(self, sl=slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def lines(self, sl: slice | np.ndarray = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(origins (L, 3), directions (L, 3), sample index (L,)) of the valid lines in ``sl`` (a
         slice, or sample indices (M,) in increasing order)."""
         if isinstance(sl, slice):
@@ -110,7 +110,7 @@ class _SampleBuffer:
         return ViewLines(o, d, "world", si)
 
 
-def spread_samples(n: int, most: int, runs: int = 16):
+def spread_samples(n: int, most: int, runs: int = 16) -> slice | np.ndarray:
     """Indices of at most ``most`` of ``n`` samples standing for all of them: ``slice(0, n)`` when
     ``n <= most``, else (M,) increasing indices of ``runs`` runs of consecutive samples spread
     evenly over the ``n`` (consecutive, so that a fit over them still sees the residuals'
@@ -122,7 +122,7 @@ def spread_samples(n: int, most: int, runs: int = 16):
     return np.unique((starts[:, None] + np.arange(length)[None, :]).ravel())
 
 
-def _as_samples(sample) -> BinocularSamples:
+def _as_samples(sample: BinocularSample | BinocularSamples) -> BinocularSamples:
     if isinstance(sample, BinocularSamples):
         return sample
     if isinstance(sample, BinocularSample):

@@ -34,6 +34,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._checks import check_same_rows
 from .lines import BinocularSamples, ViewLines
@@ -75,7 +76,7 @@ class SeenBias:
                 "groups": self.groups, "left_out": self.left_out, "seen": self.seen}
 
 
-def seen_bias(samples: BinocularSamples, labels) -> SeenBias:
+def seen_bias(samples: BinocularSamples, labels: ArrayLike) -> SeenBias:
     """The per-eye bias std (per axis, degrees) that the groups of view lines show, pooled over
     the session (module docstring).
 
@@ -139,18 +140,20 @@ def group_sums(samples: BinocularSamples) -> tuple[np.ndarray, np.ndarray, float
     X = _start_point(ViewLines(o, d))
     sig = np.ones(2)
     for _ in range(4):                     # Gauss-Newton in each eye's noise units, the noise re-estimated
-        r, J = _residuals(X, o, d, h, v)
-        if r is None:
+        res = _residuals(X, o, d, h, v)
+        if res is None:
             return None
+        r, J = res
         sig = np.array([math.sqrt(np.sum(r[eye == e] ** 2) / max(2 * n - 1.5, 1.0)) for e in (0, 1)])
         w = 1.0 / sig[eye] ** 2
         H = np.einsum("n,nki,nkj->ij", w, J, J)
         if np.linalg.cond(H) > 1e12:
             return None
         X = X - np.linalg.solve(H, np.einsum("n,nki,nk->i", w, J, r))
-    r, J = _residuals(X, o, d, h, v)
-    if r is None:
+    res = _residuals(X, o, d, h, v)
+    if res is None:
         return None
+    r, J = res
     w = 1.0 / sig[eye] ** 2
     H = np.einsum("n,nki,nkj->ij", w, J, J)
     BtJ = np.concatenate([np.einsum("n,nki->ki", w[eye == e], J[eye == e]) for e in (0, 1)])   # (4, 3)
@@ -160,13 +163,14 @@ def group_sums(samples: BinocularSamples) -> tuple[np.ndarray, np.ndarray, float
     return q, S, float(math.sqrt(np.mean(r**2)))
 
 
-def _residuals(X, o, d, h, v):
+def _residuals(X: np.ndarray, o: np.ndarray, d: np.ndarray, h: np.ndarray, v: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray] | None:
     """Gnomonic residuals (N, 2) of the lines at ``X`` in the (h, v) axes, and their Jacobians
-    (N, 2, 3); (None, None) when the point is behind an eye."""
+    (N, 2, 3); None when the point is behind an eye."""
     w = X - o
     a = np.einsum("ij,ij->i", w, d)
     if np.any(a <= 0):
-        return None, None
+        return None
     r = np.column_stack([np.einsum("ij,ij->i", w, h), np.einsum("ij,ij->i", w, v)]) / a[:, None]
     J = np.stack([(h - r[:, [0]] * d) / a[:, None], (v - r[:, [1]] * d) / a[:, None]], axis=1)
     return r, J

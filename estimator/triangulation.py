@@ -128,7 +128,8 @@ def nearest_point_to_lines(lines: ViewLines, weights: ArrayLike | None = None,
     return _point_result(method, np.linalg.solve(A, b), None, lines)
 
 
-def _point_result(method: str, x, cov, lines: ViewLines, info: dict | None = None) -> GazeEstimate:
+def _point_result(method: str, x: np.ndarray, cov: np.ndarray | None, lines: ViewLines,
+                  info: dict | None = None) -> GazeEstimate:
     """OK, or BEHIND when the point lies behind most of the eyes (kept, not mirrored)."""
     ahead = np.einsum("ij,ij->i", x - lines.origins_mm, lines.directions)
     info = dict(info or {})

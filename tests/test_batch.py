@@ -368,3 +368,46 @@ def test_a_sessions_reason_is_one_printable_line_cut_to_its_length(tmp_path, mon
     reason = st["reason"]
     assert st["state"] == "failed" and reason.isprintable() and len(reason) == REASON_CHARS, reason
     assert reason.startswith(r"scene.mp4 \x1b[2J\x1b[31mred cannot be read: xxx") and reason.endswith("x...")
+
+
+def test_without_max_tasks_per_child_each_pool_gets_one_session_per_worker(monkeypatch):
+    """Python 3.10 has no ``max_tasks_per_child``: ``_pool`` leaves the keyword out there, and
+    ``LocalRunner`` gives each pool at most one session per worker and replaces it, so that no worker
+    runs two sessions (3.11 and later: one pool, which replaces each worker itself). The pools here
+    record what they are given and answer at once."""
+    import concurrent.futures
+    from concurrent.futures import Future
+
+    from wearable_gaze.pipeline import batch_workers
+
+    pools = []
+
+    class Pool:
+        def __init__(self, size):
+            self.size, self.given, self.shut = size, [], False
+            pools.append(self)
+
+        def submit(self, fn, task):
+            self.given.append(task)
+            fut = Future()
+            fut.set_result({"state": "done"})
+            return fut
+
+        def shutdown(self, wait=True):
+            self.shut = True
+
+    monkeypatch.setattr(batch_workers, "_pool", Pool)
+    for recycles, expected in ((False, [["a", "b"], ["c", "d"], ["e"]]), (True, [["a", "b", "c", "d", "e"]])):
+        monkeypatch.setattr(batch_workers, "RECYCLES_WORKERS", recycles)
+        pools.clear()
+        done = list(batch_workers.LocalRunner(2).run(["a", "b", "c", "d", "e"]))
+        assert sorted(t for t, _ in done) == ["a", "b", "c", "d", "e"]
+        assert [p.given for p in pools] == expected and all(p.shut for p in pools), recycles
+        assert [p.size for p in pools] == [min(2, len(g)) for g in expected]
+    monkeypatch.undo()
+    kwargs = []
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", lambda *a, **k: kwargs.append(k))
+    for recycles in (False, True):
+        monkeypatch.setattr(batch_workers, "RECYCLES_WORKERS", recycles)
+        batch_workers._pool(1)
+    assert [k.get("max_tasks_per_child") for k in kwargs] == [None, 1]

@@ -149,8 +149,8 @@ def test_the_live_session_answers_a_far_fixation_by_its_direction():
     fixation gave no target; now its target is direction-only and its message is valid."""
     from test_live_parts import _eyes, _record
 
-    from wearable_gaze.live.estimation import GazeEstimation
     from wearable_gaze.live.messages import target_message
+    from wearable_gaze.pipeline.live_estimation import GazeEstimation
 
     eyes = _eyes()
     est = GazeEstimation(eyes, "voxel")
@@ -239,7 +239,7 @@ def test_one_status_per_target_and_a_too_near_point_is_not_counted(real_data, tm
 def test_the_live_session_publishes_the_status_process_gives(rng):
     """A static fixation whose lines meet 40 mm in front of the eyes: process calls its target
     'too-near'; the live session published it 'ok' (the estimator's status), now 'too-near' too."""
-    from wearable_gaze.live.estimation import FinishedFixation, GazeEstimation
+    from wearable_gaze.pipeline.live_estimation import FinishedFixation, GazeEstimation
     from wearable_gaze.pipeline.target_status import estimate_status
 
     near = np.array([5.0, 0.0, 40.0])

@@ -23,13 +23,13 @@ from wearable_gaze.formats.serial_protocol import EyeRecord
 from wearable_gaze.formats.session import load_session
 from wearable_gaze.live.camera_in import CameraStats
 from wearable_gaze.live.clock import SessionClock
-from wearable_gaze.live.estimation import GazeEstimation, LiveEstimate, TargetIds, world_sample
 from wearable_gaze.live.head import HeadTracker, TrackingThread
 from wearable_gaze.live.loop import LiveSession
 from wearable_gaze.live.messages import estimate_message, target_message
 from wearable_gaze.live.publish import Publisher
 from wearable_gaze.live.record import FILES, Recorder
 from wearable_gaze.live.serial_in import SerialStats
+from wearable_gaze.pipeline.live_estimation import GazeEstimation, LiveEstimate, TargetIds, world_sample
 from wearable_gaze.pipeline.types import Target
 
 

@@ -21,7 +21,8 @@ from numpy.typing import ArrayLike
 from estimator._checks import check_array
 
 
-def refine_markers(image, corners: ArrayLike, modules: int, span=(0.06, 0.4), samples: int = 12, n_offsets: int = 25):
+def refine_markers(image: np.ndarray, corners: ArrayLike, modules: int, span: tuple[float, float] = (0.06, 0.4),
+                   samples: int = 12, n_offsets: int = 25) -> np.ndarray:
     """Refine many square markers' corners at once, from their outer edges.
 
     Args:
@@ -69,7 +70,7 @@ class _Profiles(NamedTuple):
     step: np.ndarray      # (N,) px: the spacing of those offsets
 
 
-def _edge_profiles(initial: np.ndarray, half: np.ndarray, span, samples: int,
+def _edge_profiles(initial: np.ndarray, half: np.ndarray, span: tuple[float, float], samples: int,
                    n_offsets: int) -> _Profiles:
     """The profiles of ``refine_markers``: edges 2i and 2i+1 are the two at corner i, side i-1
     (its far end is corner i), then side i (which starts at i)."""
@@ -139,7 +140,8 @@ def _intersect_edges(edge: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.n
     return p1_ + along[..., None] * d1, cnt, det
 
 
-def refine_marker_corners(image, corners: ArrayLike, modules: int, span=(0.06, 0.4), samples: int = 12) -> np.ndarray:
+def refine_marker_corners(image: np.ndarray, corners: ArrayLike, modules: int, span: tuple[float, float] = (0.06, 0.4),
+                          samples: int = 12) -> np.ndarray:
     """Refine one square marker's four corners (4, 2) px, in ``cv2.aruco`` order, from its
     outer edges (``refine_markers`` for one marker)."""
     return refine_markers(image, check_array(corners, "corners", (4, 2))[None], modules, span, samples)[0]

@@ -12,6 +12,7 @@ import logging
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calibration.camera import CameraCalibration
 from calibration.images import to_grey
@@ -35,8 +36,9 @@ class PlanarTracker:
         max_reproj_px: inlier RMS above which a pose is rejected.
     """
 
-    def __init__(self, reference, size_mm, camera: CameraCalibration, T_world_from_plane=None,
-                 features: str = "sift", min_inliers: int = 15, max_reproj_px: float = 2.0, n_features: int = 4000):
+    def __init__(self, reference: ArrayLike, size_mm: ArrayLike, camera: CameraCalibration,
+                 T_world_from_plane: ArrayLike | None = None, features: str = "sift", min_inliers: int = 15,
+                 max_reproj_px: float = 2.0, n_features: int = 4000) -> None:
         ref = np.asarray(reference)
         size_mm = check_vector(size_mm, "size_mm", 2)
         if not np.all(size_mm > 0):
@@ -44,11 +46,12 @@ class PlanarTracker:
         if ref.ndim not in (2, 3):
             raise ValueError(f"reference must have shape (H, W) or (H, W, 3), got {ref.shape}")
         ref = to_grey(ref)
+        self.det: cv2.Feature2D
         if features == "sift":
-            self.det = cv2.SIFT_create(nfeatures=n_features)
+            self.det = cv2.SIFT.create(nfeatures=n_features)
             self.matcher = cv2.BFMatcher(cv2.NORM_L2)
         elif features == "orb":
-            self.det = cv2.ORB_create(nfeatures=n_features)
+            self.det = cv2.ORB.create(nfeatures=n_features)
             self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
         else:
             raise ValueError(f"features must be sift or orb, got {features!r}")
@@ -69,7 +72,7 @@ class PlanarTracker:
         self.min_inliers = min_inliers
         self.max_reproj_px = max_reproj_px
 
-    def estimate(self, image) -> PoseResult:
+    def estimate(self, image: ArrayLike) -> PoseResult:
         img = to_grey(image)
         kp, des = self.det.detectAndCompute(img, None)
         if des is None or len(kp) < self.min_inliers:

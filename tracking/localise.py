@@ -46,7 +46,7 @@ RATIO = 0.8
 nearest descriptor of another 3D point."""
 
 
-def image_features(grey, max_features: int = MAX_FEATURES, scale: float = FEATURE_SCALE
+def image_features(grey: ArrayLike, max_features: int = MAX_FEATURES, scale: float = FEATURE_SCALE
                    ) -> tuple[np.ndarray, np.ndarray]:
     """SIFT features of one frame: positions (N, 2) in the frame's own pixels (OpenCV's
     convention, the first pixel's centre at 0, 0) and RootSIFT descriptors (N, 128) float32 of unit
@@ -55,14 +55,14 @@ def image_features(grey, max_features: int = MAX_FEATURES, scale: float = FEATUR
     if g.ndim != 2 or g.dtype != np.uint8:
         raise ValueError(f"grey must be an (H, W) uint8 image, got {g.shape} {g.dtype}")
     small = g if scale == 1 else cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    kps, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(small, None)
+    kps, desc = cv2.SIFT.create(nfeatures=max_features).detectAndCompute(small, None)
     if desc is None or not kps:
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
     xy = (np.array([k.pt for k in kps], float) + 0.5) / scale - 0.5
     return xy, root_sift(desc)
 
 
-def root_sift(desc) -> np.ndarray:
+def root_sift(desc: ArrayLike) -> np.ndarray:
     """RootSIFT (Arandjelovic and Zisserman 2012): the square root of the L1-normalised SIFT
     descriptors (N, 128), float32 of unit L2 length; compared by Euclidean distance it is the
     Hellinger kernel, which matches better than SIFT's own."""
@@ -71,7 +71,7 @@ def root_sift(desc) -> np.ndarray:
     return np.sqrt(d)
 
 
-def colmap_descriptors(desc) -> np.ndarray:
+def colmap_descriptors(desc: ArrayLike) -> np.ndarray:
     """Unit descriptors (N, 128) as COLMAP stores them: uint8 of 512 times each element."""
     return np.clip(np.round(np.asarray(desc, np.float32) * 512), 0, 255).astype(np.uint8)
 
@@ -90,7 +90,7 @@ class FeatureMap:
     descriptors: np.ndarray
     point_of: np.ndarray
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         P, D, idx = (np.asarray(self.points_world, float), np.asarray(self.descriptors, np.float32),
                      np.asarray(self.point_of, np.int64))
         if P.ndim != 2 or P.shape[1] != 3:
@@ -127,7 +127,7 @@ class FeatureLocaliser:
         self.camera = camera
         self.f = float(camera.camera_matrix[0, 0])
         self.ransac_px, self.min_inliers, self.max_reproj_px = ransac_px, min_inliers, max_reproj_px
-        self._index = cv2.flann_Index(feature_map.descriptors, {"algorithm": 1, "trees": 4})
+        self._index = cv2.flann.Index(feature_map.descriptors, {"algorithm": 1, "trees": 4})
         self._checks = checks
         self.scales = (scale,) if scale == FEATURE_SCALE else (scale, FEATURE_SCALE)
         import pycolmap  # made once: pose() runs on every frame
@@ -138,7 +138,7 @@ class FeatureLocaliser:
         self._options.ransac.max_error = ransac_px
         self._options.ransac.random_seed = 0
 
-    def matches(self, desc) -> tuple[np.ndarray, np.ndarray]:
+    def matches(self, desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(query rows (K,), map points (K,)) of descriptors (N, 128) that pass the ratio test
         against the nearest descriptor of another point; each map point kept once (its best)."""
         d = np.ascontiguousarray(desc, np.float32)
@@ -157,7 +157,7 @@ class FeatureLocaliser:
         first[1:] = p[order][1:] != p[order][:-1]
         return q[order][first], p[order][first]
 
-    def estimate(self, grey) -> PoseResult:
+    def estimate(self, grey: ArrayLike) -> PoseResult:
         """The pose of one frame, (H, W) uint8, distorted as the camera takes it: from its
         features at ``scales[0]``, or, when that fails, at ``scales[1]``."""
         for scale in self.scales:

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calibration.camera import aruco_dictionary as get_dictionary
 from calibration.cvcompat import detect_markers
@@ -32,7 +34,7 @@ class MarkerDetection(NamedTuple):
     corners_px: np.ndarray
 
 
-def detection(marker_id, corners_px) -> MarkerDetection:
+def detection(marker_id: int, corners_px: ArrayLike) -> MarkerDetection:
     """A ``MarkerDetection`` from an id and (4, 2) corners, px (checked, copied, read-only)."""
     c = np.array(corners_px, dtype=np.float64)
     if c.shape != (4, 2):
@@ -41,7 +43,7 @@ def detection(marker_id, corners_px) -> MarkerDetection:
     return MarkerDetection(int(marker_id), c)
 
 
-def split_repeated(detections) -> tuple[dict[int, np.ndarray], list[int], int]:
+def split_repeated(detections: Iterable[MarkerDetection]) -> tuple[dict[int, np.ndarray], list[int], int]:
     """({id: (4, 2) corners px} of the ids detected exactly once, the ids detected more than once
     (sorted), how many detections those were). An id seen more than once is ambiguous: at most one
     of them is the marker a map or a board means."""
@@ -52,7 +54,7 @@ def split_repeated(detections) -> tuple[dict[int, np.ndarray], list[int], int]:
     return unique, repeated, sum(seen[i] for i in repeated)
 
 
-def unique_by_id(detections) -> dict[int, np.ndarray]:
+def unique_by_id(detections: Iterable[MarkerDetection]) -> dict[int, np.ndarray]:
     """{id: (4, 2) corners px} of the markers whose id was detected exactly once; the ambiguous
     repeated ones are left out, with a log line (``split_repeated``)."""
     unique, repeated, _ = split_repeated(detections)
@@ -86,14 +88,15 @@ class MarkerDetector:
     ``refine``.
     """
 
-    def __init__(self, dictionary, refine: str = "edges", params=None, downscale: int | None = None,
-                 small_frames: bool = False):
+    def __init__(self, dictionary: str | cv2.aruco.Dictionary, refine: str = "edges",
+                 params: cv2.aruco.DetectorParameters | None = None, downscale: int | None = None,
+                 small_frames: bool = False) -> None:
         if refine not in ("edges", "subpix", "none", "apriltag"):
             raise ValueError(f"refine must be edges, subpix, none or apriltag, got {refine!r}")
         dic = get_dictionary(dictionary) if isinstance(dictionary, str) else dictionary
         self.modules = dic.markerSize + 2
         own = params is None
-        params = cv2.aruco.DetectorParameters() if own else params
+        params = cv2.aruco.DetectorParameters() if params is None else params
         params.cornerRefinementMethod = (cv2.aruco.CORNER_REFINE_APRILTAG if refine == "apriltag"
                                          else cv2.aruco.CORNER_REFINE_NONE)
         self._det = cv2.aruco.ArucoDetector(dic, params)
@@ -108,7 +111,7 @@ class MarkerDetector:
         self.downscale = downscale
         self.small_frames = small_frames
 
-    def detect(self, image) -> list[MarkerDetection]:
+    def detect(self, image: np.ndarray) -> list[MarkerDetection]:
         """Every marker in ``image`` ((H, W) grey or (H, W, 3) BGR), in the detector's order."""
         img = np.asarray(image)
         if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
@@ -136,7 +139,7 @@ class MarkerDetector:
             c = refine_markers(grey, c, self.modules)
         return [detection(i, ci) for i, ci in zip(ids, c, strict=True)]
 
-    def detect_unique(self, image) -> dict[int, np.ndarray]:
+    def detect_unique(self, image: np.ndarray) -> dict[int, np.ndarray]:
         """{id: (4, 2) corners px} of the markers in ``image`` whose id is seen exactly once
         (``unique_by_id``): for a board or a wall where each id is printed once."""
         return unique_by_id(self.detect(image))
@@ -149,7 +152,7 @@ COMMON_DICTIONARIES = ("DICT_4X4_50", "DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X
                        "DICT_ARUCO_ORIGINAL", "DICT_APRILTAG_25h9", "DICT_APRILTAG_36h11", "DICT_ARUCO_MIP_36h12")
 
 
-def likely_dictionary(images, exclude: str | None = None) -> tuple[str, int] | None:
+def likely_dictionary(images: Iterable[np.ndarray], exclude: str | None = None) -> tuple[str, int] | None:
     """The dictionary of ``COMMON_DICTIONARIES`` (other than ``exclude``) that finds the most
     markers in ``images`` (a few (H, W) grey or (H, W, 3) BGR images), with that count; None
     when none finds any. Ties go to the one listed first. Costs one detection per dictionary

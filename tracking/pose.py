@@ -83,7 +83,7 @@ class PoseResult:
         return self.status == OK
 
 
-def rotation_angle_deg(Ra, Rb) -> float:
+def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
     """Angle of the rotation between two (3, 3) rotations, degrees."""
     c = (np.trace(Ra.T @ Rb) - 1) / 2
     return float(np.degrees(np.arccos(np.clip(c, -1, 1))))
@@ -135,7 +135,7 @@ class MarkerPoseEstimator:
             res.reason = f"marker ids {repeated} each detected more than once (ambiguous), no other marker in view"
         return res
 
-    def _estimate(self, corners_px: dict, prev) -> PoseResult:
+    def _estimate(self, corners_px: dict, prev: np.ndarray | None) -> PoseResult:
         ids = sorted(corners_px)
         if not ids:
             return PoseResult(None, NO_MARKERS, "no marker of the map in view")
@@ -163,7 +163,8 @@ class MarkerPoseEstimator:
 
     # -- solvers ---------------------------------------------------------------------------
 
-    def _finish(self, ids, obj, x, rvec, tvec, inliers, ambiguous=False, refine=True) -> PoseResult:
+    def _finish(self, ids: list[int], obj: np.ndarray, x: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
+                inliers: np.ndarray, ambiguous: bool = False, refine: bool = True) -> PoseResult:
         obj_i, x_i = obj[inliers], x[inliers]
         rvec = np.asarray(rvec, float).reshape(3, 1).copy()     # OpenCV's LM wants (3, 1) columns
         tvec = np.asarray(tvec, float).reshape(3, 1).copy()
@@ -181,7 +182,7 @@ class MarkerPoseEstimator:
         cov = pose_covariance(obj_i, rvec, tvec, r, self.f)
         return PoseResult(invert(T_cw), OK, "", used, int(inliers.sum()), rms, cov, ambiguous)
 
-    def _multi(self, ids, obj, x) -> PoseResult:
+    def _multi(self, ids: list[int], obj: np.ndarray, x: np.ndarray) -> PoseResult:
         ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, x, np.eye(3), None, iterationsCount=100,
                                                  reprojectionError=self.ransac_px / self.f, confidence=0.999,
                                                  flags=cv2.SOLVEPNP_SQPNP)
@@ -191,7 +192,7 @@ class MarkerPoseEstimator:
         mask[inl.ravel()] = True
         return self._finish(ids, obj, x, rvec, tvec, mask)
 
-    def _single(self, marker_id, x, prev) -> PoseResult:
+    def _single(self, marker_id: int, x: np.ndarray, prev: np.ndarray | None) -> PoseResult:
         """IPPE's two solutions for a square; the better by reprojection unless the two are
         close, then the one nearer the previous pose (a flip is a jump of tens of degrees)."""
         # IPPE_SQUARE wants the corners (-s, s), (s, s), (s, -s), (-s, -s): a y-up marker frame,
@@ -223,7 +224,7 @@ class MarkerPoseEstimator:
         rvec, _ = cv2.Rodrigues(T_cw[:3, :3])
         return self._finish([marker_id], obj, x, rvec, T_cw[:3, 3].copy(), np.ones(4, bool), ambiguous)
 
-    def _pycolmap(self, ids, obj, x) -> PoseResult:
+    def _pycolmap(self, ids: list[int], obj: np.ndarray, x: np.ndarray) -> PoseResult:
         import pycolmap
 
         f = self.f

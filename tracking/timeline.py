@@ -18,7 +18,7 @@ MAX_POSE_GAP_S = 0.1
 ``max_gap_s``): the view-line step's, the exports' and the person step's, referenced from here."""
 
 
-def _times_and_poses(t, T, t_name: str, T_name: str):
+def _times_and_poses(t: ArrayLike, T: ArrayLike, t_name: str, T_name: str) -> tuple[np.ndarray, np.ndarray]:
     """(N,) times and (N, 4, 4) poses, checked (an empty sequence is 0 poses)."""
     T = np.asarray(T, float)
     T = T.reshape(0, 4, 4) if T.size == 0 else check_array(T, T_name, (None, 4, 4))
@@ -28,7 +28,8 @@ def _times_and_poses(t, T, t_name: str, T_name: str):
     return t, T
 
 
-def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = MAX_POSE_GAP_S) -> tuple[np.ndarray, np.ndarray]:
+def interpolate_poses(t_src: ArrayLike, T_src: ArrayLike, t_query: ArrayLike, max_gap_s: float = MAX_POSE_GAP_S
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """``T_world_from_cam`` at query times: SLERP for rotation, linear for translation, between
     the two valid poses around each query.
 
@@ -76,7 +77,8 @@ def interpolate_poses(t_src, T_src, t_query, max_gap_s: float = MAX_POSE_GAP_S) 
     return out, ok
 
 
-def nearest_in_time(t_src, values, t_query, max_dt: float, inclusive: bool = False) -> np.ndarray:
+def nearest_in_time(t_src: ArrayLike, values: ArrayLike, t_query: ArrayLike, max_dt: float,
+                    inclusive: bool = False) -> np.ndarray:
     """The value of the sample nearest each query time, or NaN where none is nearer than
     ``max_dt`` (or as near, ``inclusive``).
 
@@ -142,7 +144,7 @@ SPIKE_DEG = 5.0
 """... or turned farther than this from their SLERP (degrees; 3000 deg/s^2: 1.7 deg)."""
 
 
-def pose_spikes(t, T, max_gap_s: float = 0.2, spike_mm: float = SPIKE_MM,
+def pose_spikes(t: ArrayLike, T: ArrayLike, max_gap_s: float = 0.2, spike_mm: float = SPIKE_MM,
                 spike_deg: float = SPIKE_DEG) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which poses jump away from both neighbours and back: a marker pose fixed on one or two
     markers (a single marker's two IPPE solutions, a wrong corner) can land hundreds of mm off
@@ -184,7 +186,7 @@ def pose_spikes(t, T, max_gap_s: float = 0.2, spike_mm: float = SPIKE_MM,
     return spike, off_mm, off_deg
 
 
-def _neighbours_pose(t, T, good, j: int, max_gap_s: float):
+def _neighbours_pose(t: np.ndarray, T: np.ndarray, good: np.ndarray, j: int, max_gap_s: float) -> np.ndarray | None:
     """The pose at ``t[good[j]]`` its valid neighbours (indices ``good``) give: SLERP between the
     two around it when at most ``max_gap_s`` apart; else the two on one side, continued, when
     that side's nearer one is within half ``max_gap_s`` and the farther within ``max_gap_s``;
@@ -201,12 +203,12 @@ def _neighbours_pose(t, T, good, j: int, max_gap_s: float):
     return None
 
 
-def _extrapolate_back(t_far: float, T_far, t_near: float, T_near, t: float) -> np.ndarray:
+def _extrapolate_back(t_far: float, T_far: np.ndarray, t_near: float, T_near: np.ndarray, t: float) -> np.ndarray:
     """``extrapolate_pose`` backwards in time: the pose at ``t`` < ``t_near`` < ``t_far``."""
     return extrapolate_pose(-t_far, T_far, -t_near, T_near, -t)
 
 
-def smooth_poses(t, T, window_s: float, causal: bool = False) -> np.ndarray:
+def smooth_poses(t: ArrayLike, T: ArrayLike, window_s: float, causal: bool = False) -> np.ndarray:
     """Moving-average smoothing of poses (N, 4, 4) at times t (N,): translations averaged,
     rotations averaged as sign-aligned quaternions, over ``window_s`` seconds.
 

@@ -14,11 +14,14 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 log = logging.getLogger(__name__)
 
+Progress = Callable[[int, int], None]
+"""A progress callback, ``progress(done, total)``: what the steps and libraries report through."""
 LINE_INTERVAL_S = 5.0
 """Off a terminal, a step still running prints a line this often, s (the rule: at least every 10 s)."""
 LINE_INTERVAL_ENV = "WEARABLE_GAZE_PROGRESS_S"

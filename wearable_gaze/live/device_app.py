@@ -12,10 +12,10 @@ from pathlib import Path
 from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.markermap import load_marker_map
+from ..pipeline.live_estimation import GazeEstimation, RayEyes, warm_up
 from . import pupil_core_in
 from .allocator import bound_heap
 from .app import run_session
-from .estimation import GazeEstimation, RayEyes, warm_up
 from .head import MAX_WAIT_S, HeadTracker, TrackingThread
 from .loop import LiveSession
 from .publish import Publisher

@@ -10,8 +10,8 @@ import numpy as np
 
 from estimator.result import covariance_ellipsoid
 
+from ..pipeline.live_estimation import LiveEstimate
 from ..pipeline.types import Target
-from .estimation import LiveEstimate
 
 log = logging.getLogger(__name__)
 

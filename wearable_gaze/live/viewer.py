@@ -49,8 +49,8 @@ class RerunViewer(Subscriber):
         self.put(("target", target, lines))
 
     def _send(self, batch) -> None:
+        from ..pipeline.live_estimation import lines_to_samples
         from ..pipeline.rerun_view import log_estimate, log_head_pose, log_target
-        from .estimation import lines_to_samples
 
         for item in batch:
             try:

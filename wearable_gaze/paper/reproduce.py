@@ -8,7 +8,6 @@ below the Cramér-Rao bound of its own protocol).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,12 +15,12 @@ import numpy as np
 
 from estimator import closest_point_two_lines, cramer_rao_bound, make_estimator, run_estimator
 
+from ..progress import Progress
 from ..sim.protocol import PAPER_DEPTHS_MM, PAPER_TABLE1, Protocol, simulate_lines
 
 log = logging.getLogger(__name__)
 
 TABLE_METHODS = ("lse", "paper", "voxel", "ml")
-Progress = Callable[[int, int], None]
 
 
 @dataclass

@@ -39,6 +39,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from estimator.aoi import (
+    DEPTH_TOLERANCE_MM,
     SAMPLES,
     Box,
     GazeSpread,
@@ -85,7 +86,7 @@ class Area:
 
     name: str
     group: str | None
-    shape: object
+    shape: Box | Sphere | Polygon | Mesh
 
 
 @dataclass(frozen=True)
@@ -212,20 +213,25 @@ def areas_of(specs: list[AoiSpec], marker_map=None) -> tuple:
     return tuple(Area(s.name, s.group, _shape(s, marker_map)) for s in specs)
 
 
-def _shape(s: AoiSpec, marker_map):
+def _shape(s: AoiSpec, marker_map) -> Box | Sphere | Polygon | Mesh:
     p = s.params
-    tol = {"depth_tolerance_mm": float(p["depth_tolerance_mm"])} if "depth_tolerance_mm" in p else {}
-    solid = tol | {"transparent": bool(p.get("transparent", False))}
+    tol = float(p.get("depth_tolerance_mm", DEPTH_TOLERANCE_MM))
+    transparent = bool(p.get("transparent", False))
     if s.kind == "box":
         R = Rotation.from_euler("xyz", p.get("rotation_deg", [0, 0, 0]), degrees=True).as_matrix()
-        return Box(np.asarray(p["center_mm"], float), np.asarray(p["size_mm"], float), R, **solid)
+        return Box(np.asarray(p["center_mm"], float), np.asarray(p["size_mm"], float), R,
+                   transparent=transparent, depth_tolerance_mm=tol)
     if s.kind == "sphere":
-        return Sphere(np.asarray(p["center_mm"], float), float(p["radius_mm"]), **solid)
+        return Sphere(np.asarray(p["center_mm"], float), float(p["radius_mm"]),
+                      transparent=transparent, depth_tolerance_mm=tol)
     if s.kind == "mesh":
-        return Mesh(s.vertices_mm, s.faces, **solid)
+        if s.vertices_mm is None or s.faces is None:
+            raise UserError(f"AOI {s.name!r}: a mesh area without its vertices and faces; "
+                            "read the AOI file with read_aois")
+        return Mesh(s.vertices_mm, s.faces, transparent=transparent, depth_tolerance_mm=tol)
     if s.kind == "polygon":
         try:
-            return Polygon(np.asarray(p["corners_mm"], float), **tol)
+            return Polygon(np.asarray(p["corners_mm"], float), depth_tolerance_mm=tol)
         except ValueError as exc:
             raise UserError(f"AOI {s.name!r}: {exc}; give corners on one plane") from None
     ids = [p["id"]] if s.kind == "marker" else list(p["ids"])
@@ -236,7 +242,7 @@ def _shape(s: AoiSpec, marker_map):
         raise UserError(f"AOI {s.name!r}: marker(s) {missing} are not in the marker map "
                         f"(it holds {sorted(marker_map.poses)}); fix the ids")
     corners = np.vstack([marker_map.corners(i) for i in ids])
-    return Polygon(_grown_hull(corners, float(p.get("margin_mm", 0.0))), **tol)
+    return Polygon(_grown_hull(corners, float(p.get("margin_mm", 0.0))), depth_tolerance_mm=tol)
 
 
 AOI_COLOUR = "#00838f"

@@ -11,11 +11,13 @@ import gc
 import logging
 import os
 import socket
+import sys
 import time
 import traceback
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ..errors import UserError, one_line
 from ..formats.batch_status import (
@@ -29,11 +31,19 @@ from ..formats.batch_status import (
     write_status,
 )
 
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
+
+    from .batch import BatchSettings
+
 log = logging.getLogger(__name__)
 
 MAX_ATTEMPTS = 3
 """A session whose worker process dies this many times (a crash, the out-of-memory killer) fails."""
 DASK_EXTRA = "pip install 'wearable-gaze[dask]'"
+RECYCLES_WORKERS = sys.version_info >= (3, 11)
+"""Whether a local pool replaces each worker after one session itself (``max_tasks_per_child``,
+Python 3.11); without it (3.10) ``LocalRunner`` replaces the pool after one session per worker."""
 
 
 @dataclass(frozen=True)
@@ -43,7 +53,7 @@ class SessionTask:
     name: str
     session: str
     out: str
-    settings: object            # batch.BatchSettings
+    settings: BatchSettings
     fingerprint: str
     attempt: int = 1
 
@@ -197,37 +207,49 @@ def _context():
     return ctx
 
 
+def _pool(size: int) -> ProcessPoolExecutor:
+    """A pool of ``size`` local workers (``_context``, ``_init_local_worker``), each replaced after
+    one session where Python can (``RECYCLES_WORKERS``)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    # a keyword Python 3.10 lacks (its stubs too): passed only where there
+    recycle: dict[str, Any] = {"max_tasks_per_child": 1} if RECYCLES_WORKERS else {}
+    return ProcessPoolExecutor(size, _context(), initializer=_init_local_worker, initargs=(this_process(),),
+                               **recycle)
+
+
 class LocalRunner:
     """Worker processes on this machine (``concurrent.futures``), each running one session and
     replaced by a fresh one for the next (``max_tasks_per_child=1``), so no worker's memory can
-    grow across sessions. They are forked from a server process that has imported the pipeline
-    once (start method ``forkserver``; ``spawn`` where there is none), so a fresh worker costs
-    no import. A worker that dies (a crash, the out-of-memory killer) breaks the pool: its
-    sessions are submitted again to a new one, at most ``MAX_ATTEMPTS`` times in all.
+    grow across sessions. Python 3.10 has no ``max_tasks_per_child``: there each pool is given one
+    session per worker and replaced once they are done (``RECYCLES_WORKERS`` False; a worker that
+    finishes before another has started may take that one's session too). They are forked from a
+    server process that has imported the pipeline once (start method ``forkserver``; ``spawn``
+    where there is none), so a fresh worker costs no import. A worker that dies (a crash, the
+    out-of-memory killer) breaks the pool: its sessions are submitted again to a new one, at most
+    ``MAX_ATTEMPTS`` times in all.
 
     (One worker for several sessions, ``max_tasks_per_child`` > 1, deadlocks the pool on
     Python 3.11-3.14 when sessions are queued: CPython issue gh-115634.)"""
 
     def __init__(self, workers: int):
         self.workers = max(1, int(workers))
-        self.pool = None
+        self.pool: ProcessPoolExecutor | None = None
 
     def describe(self) -> str:
         return f"{self.workers} local worker process(es)"
 
     def run(self, tasks):
         """Yield (task, status dict or exception) as sessions finish."""
-        from concurrent.futures import ProcessPoolExecutor
         from concurrent.futures.process import BrokenProcessPool
 
         todo = list(tasks)
         with _single_threaded_children():               # the workers are started on demand, and replaced
             while todo:
-                self.pool = ProcessPoolExecutor(min(self.workers, len(todo)), _context(),
-                                                initializer=_init_local_worker, initargs=(this_process(),),
-                                                max_tasks_per_child=1)
-                futures = {self.pool.submit(run_session, t): t for t in todo}
-                todo = []
+                size = min(self.workers, len(todo))
+                wave, todo = (todo, []) if RECYCLES_WORKERS else (todo[:size], todo[size:])
+                self.pool = pool = _pool(size)
+                futures = {pool.submit(run_session, t): t for t in wave}
                 for fut in _as_completed(futures):
                     try:
                         result = fut.result()
@@ -235,7 +257,7 @@ class LocalRunner:
                         result = self._again(futures[fut], todo)
                     if result is not None:
                         yield futures[fut], result
-                self.pool.shutdown(wait=True)
+                pool.shutdown(wait=True)
                 self.pool = None
 
     @staticmethod
@@ -316,7 +338,7 @@ class DaskRunner:
         except (OSError, TimeoutError, ValueError) as exc:
             raise UserError(f"--scheduler {address}: cannot connect ({one_line(exc, 200)}); start the scheduler "
                             "('dask scheduler') or check the address") from None
-        self.futures = {}
+        self.futures: dict[Any, SessionTask] = {}          # Dask futures (distributed.Future)
 
     def describe(self) -> str:
         n = len(self.client.scheduler_info().get("workers", {}))

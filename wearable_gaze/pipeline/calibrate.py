@@ -141,6 +141,7 @@ def calibrate_camera_views(frames, spec, model: str = "pinhole", max_views: int 
         cal = calibrate_camera(views, size, spec, model)
     except ValueError as exc:
         raise UserError(f"camera calibration: {exc}") from None
+    assert size is not None and first is not None       # calibrate_camera needs views: one was read
     und, _ = undistort_image(first, cal, alpha=0.0)
     side = np.hstack([cv2.cvtColor(first, cv2.COLOR_GRAY2BGR), cv2.cvtColor(und, cv2.COLOR_GRAY2BGR)])
     cv2.putText(side, "original", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 1, (0, 0, 255), 2)
@@ -234,12 +235,12 @@ class EyeRecordings:
     files: WallsRecording
     eye: EyeSamples
     extra: dict
-    images: list
+    images: list[np.ndarray | UserError]
 
 
 def read_eye_recordings(files: WallsRecording) -> EyeRecordings:
     eye, extra = read_eye_csv(files.csv_path, ["recording", "target"])
-    images = []
+    images: list[np.ndarray | UserError] = []
     for w in files.walls:
         try:
             images.append(read_grey_image(w.image, "wall image",
@@ -303,16 +304,19 @@ def _wall_readings(rec: EyeRecordings, camera: CameraCalibration, progress):
     """The targets (K, 3) in the camera frame, each eye's readings of them (per recording) and
     the report of each wall recording."""
     csv_path, recs, extra, eye = rec.files.csv_path, rec.files.walls, rec.extra, rec.eye
-    targets_cam, readings, wall_report = [], [[], []], []
+    targets_cam: list[np.ndarray] = []
+    readings: list[list[np.ndarray]] = [[], []]         # per eye, per recording: (K, 2)
+    wall_report: list[dict] = []
     for r, wall in enumerate(recs):
         P, wp = _wall_targets(rec.images[r], rec.files.walls_path, wall, camera)
         sel = extra["recording"].astype(int) == wall.recording
         if not sel.any():
             raise UserError(f"{csv_path}: no samples of recording {wall.recording}; record it again")
-        ids = None
+        per_eye = [target_readings(extra["target"][sel], eye.raw[sel, e], eye.valid[sel, e],
+                                   eye.t[sel]) for e in range(2)]
+        ids = per_eye[0][0]                             # the targets shown: the same for both eyes
         for e in range(2):
-            ids, vals, _ = target_readings(extra["target"][sel], eye.raw[sel, e], eye.valid[sel, e], eye.t[sel])
-            readings[e].append(vals)
+            readings[e].append(per_eye[e][1])
         if ids.min() < 0 or ids.max() >= len(P):
             bad = ids.min() if ids.min() < 0 else ids.max()
             raise UserError(f"{csv_path}: target {bad} in recording {r}, but walls.json lists {len(P)} dots (0-"
@@ -407,7 +411,9 @@ def head_view_lines(eye: EyeSamples, eyes: list) -> BinocularSamples:
     for e, cal in enumerate(eyes[:2]):
         lines = cal.lines(eye.raw[:, e])
         arrays += [lines.origins_mm, np.where(eye.valid[:, e][:, None], lines.directions, np.nan)]
-    return BinocularSamples.from_arrays(eye.t, *arrays, frame="head")
+    left_origin, left_direction, right_origin, right_direction = arrays
+    return BinocularSamples.from_arrays(eye.t, left_origin, left_direction, right_origin,
+                                        right_direction, frame="head")
 
 
 def correct_head_lines(head: BinocularSamples, correction_deg) -> BinocularSamples:
@@ -443,6 +449,8 @@ def head_lines_to_world(head: BinocularSamples, poses: Poses, max_gap_s: float =
     arrays = []
     for o, d in ((head.left_origin_mm, head.left_direction), (head.right_origin_mm, head.right_direction)):
         arrays += [transform_points(T_wc[idx], o[idx]), rotate_directions(T_wc[idx], d[idx])]   # eq. 7-8
-    samples = BinocularSamples.from_arrays(head.t_s[idx], *arrays)
+    left_origin, left_direction, right_origin, right_direction = arrays
+    samples = BinocularSamples.from_arrays(head.t_s[idx], left_origin, left_direction, right_origin,
+                                           right_direction)
     return ViewLinesResult(samples, {"samples": int(len(head)), "written": int(len(idx)), "no_pose": int((~ok).sum()),
                                      "both_eyes_invalid": int((ok & ~valid).sum())})

@@ -6,11 +6,12 @@ lines tested for motion (``estimator.motion``: a moving point is published with 
 path) or merged with the static targets seen before (``estimator.merge``, as ``process`` merges).
 
 It lives in ``pipeline`` (no I/O here) so that ``process`` re-runs it on a live recording
-(``pipeline.live_replay``); ``live.estimation`` gives the live session its names."""
+(``pipeline.live_replay``); the live session (``wearable_gaze.live``) imports it from here."""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -226,8 +227,11 @@ class GazeEstimation:
         """
         sample = world_sample(self.eyes, t_s, rec, T_world_from_cam)
         ended = None
-        if rec.left_valid and rec.right_valid:              # one eye alone is off the cyclopean line by
-            cyc = sample.left_direction + sample.right_direction    # half the vergence: not a saccade
+        # both eyes valid (world_sample gives a line for each valid eye, None for the others); one
+        # eye alone is off the cyclopean line by half the vergence: not a saccade
+        if (sample.left_direction is not None and sample.right_direction is not None
+                and sample.left_origin_mm is not None and sample.right_origin_mm is not None):
+            cyc = sample.left_direction + sample.right_direction
             mid = 0.5 * (sample.left_origin_mm + sample.right_origin_mm)
             if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc), mid, self._segment_depth(mid)):
                 # a saccade seen, or a gap
@@ -282,7 +286,7 @@ class GazeEstimation:
         self._new_fixation()
         return done
 
-    def finish(self, done: FinishedFixation) -> Target:
+    def finish(self, done: FinishedFixation) -> Target | None:
         """The target of a finished fixation (in the loop's target worker, fixations in order).
 
         Its lines, thinned evenly to ``MAX_END_LINES``, are tested for motion
@@ -292,14 +296,15 @@ class GazeEstimation:
         (``TargetIds.id_for``, the merge test ``process`` runs), or a new one; its one fixation
         in ``fixations``; no Cramér-Rao bound (NaN); its status from
         ``pipeline.target_status.estimate_status`` (as ``process``) and its direction. One without
-        a usable point is direction-only (``direction_target``)."""
+        a usable point is direction-only (``direction_target``); None when its lines give no
+        direction either."""
         step = -(-len(done.lines) // MAX_END_LINES)                  # ceil: at most MAX_END_LINES
         samples = lines_to_samples(done.lines[::step]) if done.lines else None
         target = None if samples is None else self.moving_target(done, samples)
         if target is not None:
             return target
         est = done.estimate
-        if not est.ok:
+        if not est.ok or est.position_mm is None:
             return self.direction_target(done, samples)
         r = est.ellipsoid(0.95)
         index = (self.targets.new_own() if samples is None
@@ -346,7 +351,7 @@ class GazeEstimation:
                       method=self.method, crb_mm=float("nan"), moving=True, trajectory=path)
 
 
-def lines_to_samples(lines: list) -> BinocularSamples:
+def lines_to_samples(lines: Sequence[BinocularSample]) -> BinocularSamples:
     """Streaming ``BinocularSample`` (a missing eye's origin and direction None) as
     ``BinocularSamples`` (NaN where an eye is missing), world frame."""
     nan = np.full(3, np.nan)

@@ -33,6 +33,7 @@ from ..formats.marker_detections import write_marker_detections
 from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.viewlines import write_viewlines_csv
+from ..progress import Progress
 from .aoi import AoiConfig, AoiResult, aoi_step
 from .calibrate import (
     EyeRecordings,
@@ -78,7 +79,7 @@ class CameraInputs:
     out: Path
 
 
-def run_camera(conf: CameraConfig, inputs: CameraInputs, progress=None) -> CameraCalibration:
+def run_camera(conf: CameraConfig, inputs: CameraInputs, progress: Progress | None = None) -> CameraCalibration:
     """The scene camera calibrated from the session's board views, written to ``inputs.out``.
 
     Raises:
@@ -105,7 +106,7 @@ class EyesInputs:
     out: Path
 
 
-def run_eyes(conf: EyesConfig, inputs: EyesInputs, progress=None) -> dict:
+def run_eyes(conf: EyesConfig, inputs: EyesInputs, progress: Progress | None = None) -> dict:
     """The eye calibration (``calibrate.calibrate_eyes``), written to ``inputs.out``; returns
     its content (eyes.json's)."""
     result = calibrate_eyes(inputs.recordings, inputs.camera, conf.model, conf.centres, progress)
@@ -143,7 +144,7 @@ class TrackingOutputs:
     room: MarkerMap | FeatureMap | None = None
 
 
-def run_tracking(conf: TrackingConfig, inputs: TrackingInputs, progress=None) -> TrackingOutputs:
+def run_tracking(conf: TrackingConfig, inputs: TrackingInputs, progress: Progress | None = None) -> TrackingOutputs:
     """The head poses (poses.csv): the device's, a still head's, or tracked in the scene video
     (one frame in ``conf.every``, ``track.track_video``); in a marker map, the markers detected
     in each frame tracked too (``formats.marker_detections``, ``DETECTIONS`` beside poses.csv),
@@ -189,7 +190,7 @@ class ViewlinesInputs:
     counts: Path | None = None
 
 
-def run_viewlines(conf: ViewlinesConfig, inputs: ViewlinesInputs, progress=None) -> ViewLinesResult:
+def run_viewlines(conf: ViewlinesConfig, inputs: ViewlinesInputs, progress: Progress | None = None) -> ViewLinesResult:
     """World view lines (eq. 1-8, ``calibrate.view_lines``; an imported session's rays moved by
     the poses, ``calibrate.head_lines_to_world``), written unsegmented to ``inputs.out``."""
     if inputs.eye_rays is not None:
@@ -227,7 +228,7 @@ class TargetsInputs:
     eye_rays: BinocularSamples | None = None
 
 
-def run_targets(conf: TargetsConfig, inputs: TargetsInputs, progress=None) -> TargetsResult:
+def run_targets(conf: TargetsConfig, inputs: TargetsInputs, progress: Progress | None = None) -> TargetsResult:
     """Fixations segmented (``conf.segment``), the gaze bias sized from them, and the targets
     estimated (``fixations.find_targets``); writes the view lines with their segments, the
     targets, estimates and fixations tables (and device_comparison.csv)."""
@@ -268,7 +269,7 @@ class ExportInputs:
     eye_rays: BinocularSamples | None = None
 
 
-def run_export(conf: ExportConfig, inputs: ExportInputs, progress=None) -> None:
+def run_export(conf: ExportConfig, inputs: ExportInputs, progress: Progress | None = None) -> None:
     """gaze.csv (per eye sample) and targets.ply (``export.export_files``), the head lines with
     the person's correction (``conf.correction_deg``) if any."""
     if inputs.eye_rays is not None:
@@ -293,7 +294,7 @@ class AoiFolderInputs:
     marker_map: Path | None = None
 
 
-def run_aoi(conf: AoiConfig, inputs: AoiFolderInputs, progress=None) -> AoiResult:
+def run_aoi(conf: AoiConfig, inputs: AoiFolderInputs, progress: Progress | None = None) -> AoiResult:
     """The AOI tables and plot in the output folder (``aoi.aoi_step``)."""
     return aoi_step(inputs.out, inputs.specs, inputs.out, inputs.marker_map, conf)
 
@@ -322,7 +323,7 @@ class ReportInputs:
     overlay: Callable[[], OverlayInputs] | None = None
 
 
-def run_report(conf: ReportConfig, inputs: ReportInputs, progress=None) -> None:
+def run_report(conf: ReportConfig, inputs: ReportInputs, progress: Progress | None = None) -> None:
     """The plots, the overlay and report.html (``report.write_report``)."""
     write_report(inputs.out, inputs.title, inputs.overlay, progress, inputs.notes, inputs.truth,
                  inputs.marker_map, conf.overlay_video, inputs.room_points_mm, world=conf.world,

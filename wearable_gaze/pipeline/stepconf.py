@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -168,7 +169,7 @@ PRESETS = {
 frame in three tracked), 'every_frame' (every frame tracked), 'no_report' (no plots or report)."""
 
 
-def preset(name: str, **changes) -> ProcessConfig:
+def preset(name: str, **changes: Any) -> ProcessConfig:
     """The preset ``name`` (``PRESETS``) with ``changes`` to its fields.
 
     Raises:

@@ -180,7 +180,7 @@ class Steps:
         self.protect = {Path(p).resolve() for p in protect}      # files given as inputs: never removed
         self.state_path = out / ".steps.json"
         self.status = result.status
-        self.given = set()                                        # steps replaced by a file given
+        self.given: set[str] = set()                              # steps replaced by a file given
         self.current: str | None = None                          # the step running now
         self.outputs: dict = {}                                  # what each step run returned
         self.state = {} if force else self._load_state()
