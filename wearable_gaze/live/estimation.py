@@ -9,15 +9,18 @@ from ..pipeline.live_estimation import (
     MAX_MOTION_KNOTS,
     SEGMENT_DEPTH_SD,
     SIGMA_DEG,
+    EndedFixation,
     FinishedFixation,
     GazeEstimation,
     LiveEstimate,
     RayEyes,
     TargetIds,
     lines_to_samples,
+    thin_fixation,
     warm_up,
     world_sample,
 )
 
-__all__ = ["MAX_END_LINES", "MAX_MOTION_KNOTS", "SEGMENT_DEPTH_SD", "SIGMA_DEG", "FinishedFixation", "GazeEstimation",
-           "LiveEstimate", "RayEyes", "TargetIds", "lines_to_samples", "warm_up", "world_sample"]
+__all__ = ["MAX_END_LINES", "MAX_MOTION_KNOTS", "SEGMENT_DEPTH_SD", "SIGMA_DEG", "EndedFixation", "FinishedFixation",
+           "GazeEstimation", "LiveEstimate", "RayEyes", "TargetIds", "lines_to_samples", "thin_fixation", "warm_up",
+           "world_sample"]
