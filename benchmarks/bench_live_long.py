@@ -7,8 +7,9 @@ records (no video, no tracking, no serial line) over a session of ``--minutes`` 
 wearer looks at a new point every 1.5-3 s, swaying, except for one fixation held for
 ``--hold-s`` (120) s. Each finished fixation is turned into its target (``finish``, the motion
 and merge tests) as the loop's target worker would, outside the timed call (``--no-targets``: not
-at all). Timed: each ``add`` call, wall clock (``perf_counter``) and the thread's CPU time
-(``thread_time``; the machine may be loaded by other work).
+at all). The objects of before the session are frozen for the garbage collector, as the live
+session freezes them (``gc.freeze``). Timed: each ``add`` call, wall clock (``perf_counter``) and
+the thread's CPU time (``thread_time``; the machine may be loaded by other work).
 
     python benchmarks/bench_live_long.py fixation [--minutes 10] [--hold-s 120]
 
@@ -83,6 +84,7 @@ def run_fixation(args) -> None:
     eyes = _eyes()
     warm_up("voxel")
     est = GazeEstimation(eyes, "voxel")
+    gc.freeze()              # as ``LiveSession.run`` does: the collector scans only what the session makes
     wall, cpu, n_fix, k, t = [], [], [], 0, 0.0
     targets = 0
     for X, dur in _session_plan(args.minutes, args.hold_s, rng):

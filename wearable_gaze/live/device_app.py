@@ -21,6 +21,7 @@ from .loop import LiveSession
 from .publish import Publisher
 from .record import Recorder
 from .stats import LiveStats
+from .target_process import RemoteTargets
 from .track_process import RemoteTracker
 from .viewer import RerunViewer
 
@@ -52,6 +53,23 @@ def device_scheme(url: str) -> str:
     return scheme
 
 
+def _start_processes(method: str, marker_map, camera) -> tuple[RemoteTargets, RemoteTracker]:
+    """The target process and the tracking process, started together (each takes a second or more
+    to import its libraries), once both are ready."""
+    targets = RemoteTargets(method)
+    try:
+        remote = RemoteTracker(marker_map, camera)
+    except BaseException:
+        targets.close()
+        raise
+    try:
+        targets.ready()
+    except BaseException:
+        remote.close()
+        raise
+    return targets, remote
+
+
 def open_device_session(device_url: str, camera_calib, markers_path, record=None, publish=None,
                         method: str = "voxel", stdout: bool = True, status_stream=None, hold_s: float = 0.05,
                         stream=None, publish_queue: int = 1000, publish_stuck_s: float = 5.0,
@@ -72,13 +90,15 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
     marker_map = load_marker_map(markers_path)
     warm_up(method)                        # before connecting: the device streams meanwhile
     dev = _reader_module(name)
-    remote = RemoteTracker(marker_map, camera)          # ... and the tracking process's start
+    targets, remote = _start_processes(method, marker_map, camera)     # ... and the two processes' start
+    closers = [targets.close, remote.close]
     try:
         link = dev.open_link(device_url, camera) if name == "neon" else dev.open_link(device_url)
     except BaseException:
-        remote.close()
+        for close in reversed(closers):
+            close()
         raise
-    closers = [remote.close, link.close]
+    closers.append(link.close)
     try:
         size, fps = dev.probe_frames(link)
         if tuple(size) != tuple(camera.image_size):
@@ -105,7 +125,8 @@ def open_device_session(device_url: str, camera_calib, markers_path, record=None
         for close in reversed(closers):
             close()
         raise
-    return LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer, tracker), link
+    return (LiveSession(reader, frames, head, estimation, publisher, recorder, status_stream, viewer, tracker, targets),
+            link)
 
 
 def run_device_live(device_url: str, camera_calib, markers_path, record=None, publish=None, duration_s=None,

@@ -4,6 +4,7 @@ pose to estimation, what comes out published and recorded. The parts are built a
 
 from __future__ import annotations
 
+import gc
 import logging
 import queue
 import sys
@@ -104,10 +105,14 @@ class LiveSession:
             and the recording keeps the pose each sample took (``Recorder.sample_pose``:
             ``process`` re-runs with them). None: the loop tracks the newest frame between eye
             samples, which wait for a frame at most ``head.MAX_WAIT_S``.
+        targets: a ``target_process.RemoteTargets`` (a device session; closed with the
+            session): the target worker has it make each finished fixation's target, so that the
+            motion and merge tests share no interpreter lock with the loop. None: the worker
+            makes them itself (``estimation.finish``).
     """
 
     def __init__(self, reader, frames, head, estimation, publisher, recorder=None, status_stream=None, viewer=None,
-                 tracker: TrackingThread | None = None):
+                 tracker: TrackingThread | None = None, targets=None):
         self.reader, self.frames = reader, frames
         self.head, self.estimation = head, estimation
         self.tracker = tracker
@@ -121,7 +126,9 @@ class LiveSession:
         self.camera_ended_at: float | None = None
         self.publish_lock = threading.Lock()         # the loop and the target worker both publish
         self.viewer = viewer
-        self.worker = TargetWorker(self._finish if viewer is not None else estimation.finish, self._publish_target)
+        self.targets = targets
+        self.make_target = estimation.finish if targets is None else targets.finish
+        self.worker = TargetWorker(self._finish if viewer is not None else self.make_target, self._publish_target)
 
     def stop(self, *_):
         self.stop_event.set()
@@ -139,7 +146,7 @@ class LiveSession:
 
     def _finish(self, done):
         """A finished fixation's target (in the target worker), shown in the viewer with its lines."""
-        target = self.estimation.finish(done)
+        target = self.make_target(done)
         if target is not None:
             self.viewer.target(target, done.lines)
         return target
@@ -158,7 +165,7 @@ class LiveSession:
         s.eye_records, s.corrupt, s.lost, s.reader_dropped, s.reconnects = (r.records, r.corrupt, r.lost, r.dropped,
                                                                             r.reconnects)
         s.publish_dropped = self.publisher.dropped
-        s.distinct_targets = len(self.estimation.targets)
+        s.distinct_targets = len(self.estimation.targets) if self.targets is None else self.targets.n_ids
         return s
 
     def run(self, duration_s: float | None = None) -> LiveStats:
@@ -170,6 +177,10 @@ class LiveSession:
         """
         bound_heap()                                 # sessions one after another stay flat (allocator.py)
         release_free_memory()
+        # the objects of before the session are frozen (kept, scanned again once it ends): a full
+        # collection scans every object the process holds (the libraries, the setup) holding the
+        # interpreter's lock, 0.1-0.25 s of every thread's time once or twice a minute at 200 Hz
+        gc.freeze()
         switch, slice_s = sys.getswitchinterval(), thread_slice_s()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         set_thread_slice(GAZE_SLICE_S)               # this thread runs the loop (sched.py)
@@ -178,6 +189,7 @@ class LiveSession:
         finally:
             sys.setswitchinterval(switch)
             set_thread_slice(slice_s)
+            gc.unfreeze()
 
     def _run(self, duration_s: float | None) -> LiveStats:
         self.reader.start()
@@ -358,6 +370,8 @@ class LiveSession:
         if self.tracker is not None:
             self.tracker.close()
         self.worker.drain()                          # after an error too: the targets found are kept
+        if self.targets is not None:
+            self.targets.close()
         self.publisher.close()
         if self.viewer is not None:
             self.viewer.close(5.0)

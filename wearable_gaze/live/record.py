@@ -38,6 +38,10 @@ readings, the serial bytes and the eye calibration; ``process`` reads it as an i
 from, at that sample's time (empty: none), which ``process`` takes in place of tracking the video
 again, so that it re-runs on the poses the session used."""
 _BUFFER = 1 << 20      # large enough that only the flush schedule writes (whole lines) to the files
+VIDEO_NICE = 5
+"""The video encoder thread's niceness above the session's: it encodes each flush period's frames
+in one burst (15 at 30 fps, 1-3 ms each), during which a loop with samples waiting had half the
+core; it still has all the core the gaze path leaves (its queue holds 2 s of frames)."""
 
 
 class Recorder:
@@ -160,6 +164,11 @@ class Recorder:
     # --- the schedule ----------------------------------------------------------------------------
 
     def _video_worker(self):
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(),
+                           min(19, os.getpriority(os.PRIO_PROCESS, 0) + VIDEO_NICE))
+        except (AttributeError, OSError):          # not on Linux: the same priority
+            pass
         written = 0
         while True:
             item = self.video_q.get()

@@ -101,6 +101,8 @@ def world_sample(eyes, t_s: float, rec, T_world_from_cam) -> BinocularSample:
         T_world_from_cam: (4, 4) head pose at ``t_s``, mm.
     """
     valid = [e for e, ok in enumerate((rec.left_valid, rec.right_valid)) if ok]
+    if all(isinstance(eyes[e], RayEyes) for e in valid) and (fast := _ray_world(rec, valid, T_world_from_cam)):
+        return BinocularSample(t_s, *fast)
     cam = [eyes[e].lines(np.array([(rec.left, rec.right)[e]], float)) for e in valid]
     world = view_lines_to_world(ViewLines(np.concatenate([c.origins_mm for c in cam]),
                                           np.concatenate([c.directions for c in cam]), "cam"),
@@ -109,6 +111,33 @@ def world_sample(eyes, t_s: float, rec, T_world_from_cam) -> BinocularSample:
     for k, e in enumerate(valid):
         parts[2 * e:2 * e + 2] = world.origins_mm[k], world.directions[k]
     return BinocularSample(t_s, *parts)
+
+
+def _unit_rows(d: np.ndarray) -> np.ndarray:
+    return d / np.linalg.norm(d, axis=1)[:, None]
+
+
+def _ray_world(rec, valid: list, T_world_from_cam) -> list | None:
+    """``world_sample``'s four parts for a device's rays (``RayEyes``) without its argument checks
+    (a third of the loop's CPU time a sample), computed by the same numpy operations in the same
+    order, so the lines are bit for bit those of the checked path; None when a check would fail
+    (a direction not finite or near zero, a pose not a proper rigid transform): the checked
+    path then says why."""
+    raw = np.array([(rec.left, rec.right)[e] for e in valid], float)
+    T = np.asarray(T_world_from_cam, dtype=np.float64)
+    n_raw = np.linalg.norm(raw[:, 3:], axis=1)
+    if (raw.shape[1] != 6 or T.shape != (4, 4) or not np.all(np.isfinite(raw)) or np.any(n_raw <= 1e-12)
+            or not np.all(np.abs(T[:3, :3] @ T[:3, :3].T - np.eye(3)) <= 1e-6 + 1e-5 * np.eye(3))
+            or np.linalg.det(T[:3, :3]) < 0 or not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0])):
+        return None
+    d_cam = _unit_rows(raw[:, 3:] / n_raw[:, None])          # RayEyes.lines, then the lines of both eyes
+    R = np.broadcast_to(T, (len(raw), 4, 4))[:, :3, :3]
+    o_world = np.einsum("nij,nj->ni", R, raw[:, :3]) + np.broadcast_to(T, (len(raw), 4, 4))[:, :3, 3]
+    d_world = _unit_rows(np.einsum("nij,nj->ni", R, d_cam))
+    parts: list = [None] * 4
+    for k, e in enumerate(valid):
+        parts[2 * e:2 * e + 2] = o_world[k], d_world[k]
+    return parts
 
 
 class TargetIds:
@@ -287,19 +316,23 @@ class GazeEstimation:
         return done
 
     def finish(self, done: FinishedFixation) -> Target | None:
-        """The target of a finished fixation (in the loop's target worker, fixations in order).
+        """The target of a finished fixation (in the loop's target worker, fixations in order):
+        ``finish_ended`` of its lines thinned (``thin_fixation``)."""
+        return self.finish_ended(thin_fixation(done))
 
-        Its lines, thinned evenly to ``MAX_END_LINES``, are tested for motion
-        (``estimator.motion.classify_lines``, as ``process`` does): a moving point is a moving
-        target (``moving_target``) with a new id. A static one (``pipeline.types.Target``: its
-        own estimate) has as ``index`` the id of the target whose lines its own join
-        (``TargetIds.id_for``, the merge test ``process`` runs), or a new one; its one fixation
-        in ``fixations``; no Cramér-Rao bound (NaN); its status from
+    def finish_ended(self, done: EndedFixation) -> Target | None:
+        """The target of a finished fixation, its lines thinned (``thin_fixation``; fixations in
+        order: in the loop's target worker, or the live session's target process).
+
+        Its lines are tested for motion (``estimator.motion.classify_lines``, as ``process``
+        does): a moving point is a moving target (``moving_target``) with a new id. A static one
+        (``pipeline.types.Target``: its own estimate) has as ``index`` the id of the target whose
+        lines its own join (``TargetIds.id_for``, the merge test ``process`` runs), or a new one;
+        its one fixation in ``fixations``; no Cramér-Rao bound (NaN); its status from
         ``pipeline.target_status.estimate_status`` (as ``process``) and its direction. One without
         a usable point is direction-only (``direction_target``); None when its lines give no
         direction either."""
-        step = -(-len(done.lines) // MAX_END_LINES)                  # ceil: at most MAX_END_LINES
-        samples = lines_to_samples(done.lines[::step]) if done.lines else None
+        samples = done.samples
         target = None if samples is None else self.moving_target(done, samples)
         if target is not None:
             return target
@@ -316,7 +349,7 @@ class GazeEstimation:
                       method=self.method, crb_mm=float("nan"), sight=est.sight(),
                       direction=None if samples is None else gaze_direction(samples, DEFAULT_ERROR_MODEL))
 
-    def direction_target(self, done: FinishedFixation, samples: BinocularSamples | None) -> Target | None:
+    def direction_target(self, done: EndedFixation, samples: BinocularSamples | None) -> Target | None:
         """The target of a finished static fixation without a usable point: direction-only
         (``estimator.direction.with_direction``, as ``process`` answers it) with an id of its
         own, or None when its lines give no direction either."""
@@ -330,7 +363,7 @@ class GazeEstimation:
                       t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,), method=self.method,
                       crb_mm=float("nan"), direction=est.direction)
 
-    def moving_target(self, done: FinishedFixation, samples: BinocularSamples) -> Target | None:
+    def moving_target(self, done: EndedFixation, samples: BinocularSamples) -> Target | None:
         """The target of the finished fixation ``done`` when its (thinned) lines ``samples``
         (world frame, time order) are of a moving point, else None: its path
         (``estimator.motion.smooth_trajectory``) in ``trajectory``, its point the path's at the
@@ -345,10 +378,41 @@ class GazeEstimation:
         pos, cov = path.middle()
         radii = np.asarray(covariance_ellipsoid(pos, cov, 0.95).radii_mm, float)
         log.debug("fixation %d: a moving target over %d lines", done.fixation, len(samples))
+        t_end = done.t_end if done.t_last_line is None else done.t_last_line
         return Target(index=self.targets.new_own(), position_mm=np.asarray(pos, float), covariance_mm2=cov,
                       axes95_mm=radii, status=target_status(MOVING, pos, radii, samples), n_samples=done.n_samples,
-                      t_start=done.t_start, t_end=float(done.lines[-1].t_s), fixations=(done.fixation,),
+                      t_start=done.t_start, t_end=t_end, fixations=(done.fixation,),
                       method=self.method, crb_mm=float("nan"), moving=True, trajectory=path)
+
+
+@dataclass(frozen=True)
+class EndedFixation:
+    """A finished fixation as its target is made from it (``GazeEstimation.finish_ended``):
+    ``FinishedFixation``'s fields, its lines thinned evenly to at most ``MAX_END_LINES`` as arrays
+    (a few kB: the live session sends it to its target process).
+
+    Attributes:
+        samples: the thinned lines (world frame, time order), or None when it had none.
+        t_last_line: its last line's session time (before thinning), s, or None.
+        fixation, estimate, t_start, t_end, n_samples: ``FinishedFixation``'s.
+    """
+
+    fixation: int
+    samples: BinocularSamples | None
+    t_last_line: float | None
+    estimate: GazeEstimate
+    t_start: float
+    t_end: float
+    n_samples: int
+
+
+def thin_fixation(done: FinishedFixation) -> EndedFixation:
+    """``done`` with its lines thinned evenly to at most ``MAX_END_LINES`` (every ``step``-th
+    from the first) and as arrays, for ``GazeEstimation.finish_ended``."""
+    step = -(-len(done.lines) // MAX_END_LINES)                  # ceil: at most MAX_END_LINES
+    samples = lines_to_samples(done.lines[::step]) if done.lines else None
+    return EndedFixation(done.fixation, samples, float(done.lines[-1].t_s) if done.lines else None, done.estimate,
+                         done.t_start, done.t_end, done.n_samples)
 
 
 def lines_to_samples(lines: Sequence[BinocularSample]) -> BinocularSamples:
