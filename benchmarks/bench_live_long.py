@@ -75,7 +75,7 @@ def _session_plan(minutes: float, hold_s: float, rng) -> list:
 def _record(eyes, k, t, T, X, rng):
     """The raw readings of both eyes looking at ``X`` from head pose ``T``, with 0.2 deg noise."""
     X_cam = invert(T) @ np.append(X, 1.0)
-    raw = [plane_points(X_cam[None, :3], e.centre_mm, e.plane_mm)[0] + rng.normal(0, 0.0035, 2) for e in eyes]
+    raw = [plane_points(X_cam[None, :3], e.center_mm, e.plane_mm)[0] + rng.normal(0, 0.0035, 2) for e in eyes]
     return EyeRecord(k, t, tuple(raw[0]), tuple(raw[1]), True, True)
 
 

@@ -156,8 +156,8 @@ def moved_survey(args, unmoved: tuple, unmoved_rms: float) -> None:
     det = MarkerDetector(true_map.dictionary)
     cam = load_camera(root / "truth" / "camera.json")
     views, t_view = [], []
-    for name, grey in read_frames([root / "scene.mp4"], args.frames):
-        views.append(split_repeated(det.detect(grey))[0])
+    for name, gray in read_frames([root / "scene.mp4"], args.frames):
+        views.append(split_repeated(det.detect(gray))[0])
         t_view.append(int(name.rsplit("#", 1)[1]) / fps)
     before = [k for k, v in enumerate(views) if i in v and t_view[k] < mv["at_s"]]
     after = [k for k, v in enumerate(views) if i in v and t_view[k] >= mv["at_s"]]
@@ -202,7 +202,7 @@ def rough_survey(args) -> None:
         load_camera,
         write_camera,
     )
-    from wearable_gaze.formats.images import read_grey_image
+    from wearable_gaze.formats.images import read_gray_image
     from wearable_gaze.pipeline.calibrate import calibrate_camera_views, camera_json
 
     n = args.rough
@@ -210,7 +210,7 @@ def rough_survey(args) -> None:
                                    board_views=n, refine=False, name="-true")
     root = args.work / f"survey-{survey_tag(args.seed, args.seconds, None, args.camera)}-board{n}"
     rec = read_board(root / "calibration" / "camera")
-    cal = calibrate_camera_views(((f.name, read_grey_image(f)) for f in rec.views), rec.spec).calibration
+    cal = calibrate_camera_views(((f.name, read_gray_image(f)) for f in rec.views), rec.spec).calibration
     rough = args.work / f"rough-{n}-views-{survey_tag(args.seed, args.seconds, None, args.camera)}.json"
     write_camera(rough, camera_json(cal))
     K, Kt = cal.camera_matrix, load_camera(root / "truth" / "camera.json").camera_matrix

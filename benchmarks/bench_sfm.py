@@ -27,7 +27,7 @@ import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV loa
 import cv2
 import numpy as np
 
-from tracking.localise import FeatureLocaliser
+from tracking.localise import FeatureLocalizer
 from tracking.pose import rotation_angle_deg
 from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.poses import read_poses_csv
@@ -51,9 +51,9 @@ def true_poses(root: Path) -> dict:
     return dict(zip(frame.tolist(), T, strict=True))
 
 
-def localisation(sfm: Path, root: Path, step: int) -> None:
+def localization(sfm: Path, root: Path, step: int) -> None:
     fmap, _ = load_sfm_map(sfm)
-    loc = FeatureLocaliser(fmap, load_camera(root / "truth" / "camera.json"))
+    loc = FeatureLocalizer(fmap, load_camera(root / "truth" / "camera.json"))
     truth = true_poses(root)
     cap = cv2.VideoCapture(str(root / "scene.mp4"))
     rot, pos, dt, cpu, failed, k = [], [], [], [], 0, -1
@@ -64,9 +64,9 @@ def localisation(sfm: Path, root: Path, step: int) -> None:
             break
         if k % step:
             continue
-        grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         t0, c0 = time.perf_counter(), time.process_time()
-        res = loc.estimate(grey)
+        res = loc.estimate(gray)
         dt.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
         if not res.ok:
@@ -120,7 +120,7 @@ def main() -> None:
             print(line)
         print(f"reconstruction: {dt:.0f} s ({cpu:.0f} s CPU) for {args.frames} frames of a 60 s 720p survey on one "
               "core (target <= 600 s)")
-    localisation(sfm, walk, args.step)
+    localization(sfm, walk, args.step)
     e_markers, e_sfm = target_errors(walk, None), target_errors(walk, sfm)
     print(f"targets with markers {np.round(e_markers, 1).tolist()} mm, with the markerless map "
           f"{np.round(e_sfm, 1).tolist()} mm")

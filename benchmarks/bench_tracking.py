@@ -26,7 +26,7 @@ from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.markermap import load_marker_map
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.session import load_session
-from wearable_gaze.formats.video import grey_frames
+from wearable_gaze.formats.video import gray_frames
 from wearable_gaze.sim.simulate import simulate_scenario
 
 
@@ -40,7 +40,7 @@ def main():
         cam = load_camera(root / "truth" / "camera.json")
         mm = load_marker_map(s.path("marker_map"))
         _, _, T_true, _ = read_poses_csv(root / "truth" / "head_poses.csv")
-        frames = list(grey_frames(s.path("scene_video")))
+        frames = list(gray_frames(s.path("scene_video")))
 
     def run(detector):
         est = MarkerPoseEstimator(mm, cam)
@@ -63,8 +63,8 @@ def main():
             p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
             self.det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, mm.dictionary)), p)
 
-        def detect(self, grey):
-            c, ids, _ = self.det.detectMarkers(grey)
+        def detect(self, gray):
+            c, ids, _ = self.det.detectMarkers(gray)
             # every detection, as MarkerDetector.detect returns them
             return [] if ids is None else [detection(i, q.reshape(4, 2)) for i, q in zip(ids.ravel(), c, strict=True)]
 

@@ -116,9 +116,9 @@ def shoot(report: Path, name: str, out: Path) -> list[Path]:
             shutil.copyfile(report.parent / plot, shots[-1])
     print(f"{name}: {report}")
     print(f"  console errors: {errors or 'none'}")
-    colours = [t["colour"] for t in scene["targets"]]
+    colors = [t["colour"] for t in scene["targets"]]
     rgb = ["#" + "".join(f"{int(v):02x}" for v in c[c.index("(") + 1:-1].split(",")) for c in found["legend"]]
-    print(f"  targets {len(colours)}, distinct colours {len(set(colours))}; legend the same: {rgb == colours}; "
+    print(f"  targets {len(colors)}, distinct colours {len(set(colors))}; legend the same: {rgb == colors}; "
           f"table swatches {len(found['table'])}")
     print(f"  3D view drew {found['drawn']['']} items: {found['drawn']['-points']} cloud points (scene "
           f"{len(scene['points'])}), {found['drawn']['-aois']} AOI segments ({len(scene.get('aois', []))} areas: "

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from estimator._checks import check_points
 
 from . import cvcompat
-from .images import to_grey
+from .images import to_gray
 
 log = logging.getLogger(__name__)
 
@@ -136,19 +136,19 @@ def detect_board(image, spec: BoardSpec, name: str = "", min_corners: int = 8) -
     Chessboard: ``cv2.findChessboardCorners`` then ``cv2.cornerSubPix`` (5x5 window, as OpenCV's
     own calibration test). ChArUco: ``cv2.aruco.CharucoDetector`` and ``board.matchImagePoints``.
     """
-    grey = to_grey(image)
+    gray = to_gray(image)
     empty = BoardView(name, np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, int))
     if spec.type == "chessboard":
-        ok, corners = cv2.findChessboardCorners(grey, (spec.cols, spec.rows))
+        ok, corners = cv2.findChessboardCorners(gray, (spec.cols, spec.rows))
         if not ok:
             empty.reason = f"no {spec.cols}x{spec.rows} chessboard found"
             return empty
-        corners = cv2.cornerSubPix(grey, corners, (5, 5), (-1, -1),
+        corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1),
                                    (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.1))
         return BoardView(name, spec.object_points(), corners.reshape(-1, 2).astype(float),
                          np.arange(spec.cols * spec.rows))
     board = spec.charuco_board()
-    ch_corners, ch_ids = cvcompat.detect_charuco(cv2.aruco.CharucoDetector(board), grey)
+    ch_corners, ch_ids = cvcompat.detect_charuco(cv2.aruco.CharucoDetector(board), gray)
     if len(ch_ids) < min_corners:
         empty.reason = f"{len(ch_ids)} ChArUco corners found, need {min_corners}"
         return empty

@@ -57,19 +57,19 @@ class RawMap:
 
     Attributes:
         model: 'quadratic', 'cubic' or 'tps'.
-        centre, scale: raw normalisation, ``(r - centre) / scale``.
+        center, scale: raw normalisation, ``(r - centre) / scale``.
         coef: (n_terms, 2) polynomial coefficients on normalised raw.
         tps: for 'tps', (nodes (K, 2), weights (K, 2), smoothing) of the residual spline.
     """
 
     model: str
-    centre: np.ndarray
+    center: np.ndarray
     scale: float
     coef: np.ndarray
     tps: tuple | None = None
 
     def __call__(self, raw: ArrayLike) -> np.ndarray:
-        r = (check_points(raw, "raw", 2) - self.centre) / self.scale
+        r = (check_points(raw, "raw", 2) - self.center) / self.scale
         order = 3 if self.model == "cubic" else 2
         q = _monomials(r, order) @ self.coef
         if self.tps is not None:
@@ -82,7 +82,7 @@ class RawMap:
         (quadratic model only)."""
         if self.model != "quadratic":
             raise ValueError("only the quadratic model has the paper's coefficients")
-        (cx, cy), s = self.centre, self.scale
+        (cx, cy), s = self.center, self.scale
         # m((r - c) / s) = M m(r): rows are 1, x', y', x'^2, x'y', y'^2 in the monomials of r
         M = np.array([
             [1, 0, 0, 0, 0, 0],
@@ -95,7 +95,7 @@ class RawMap:
         return full[:, 0], full[:, 1]
 
     def to_dict(self) -> dict:
-        d = {"model": self.model, "centre": self.centre.tolist(), "scale": self.scale, "coef": self.coef.tolist()}
+        d = {"model": self.model, "centre": self.center.tolist(), "scale": self.scale, "coef": self.coef.tolist()}
         if self.tps is not None:
             d["tps"] = {"nodes": self.tps[0].tolist(), "values": self.tps[1].tolist(), "smoothing": self.tps[2]}
         return d
@@ -120,9 +120,9 @@ def fit_raw_map(raw: ArrayLike, q: ArrayLike, model: str = "quadratic", smoothin
     check_same_rows(raw, q, "raw", "q")
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
-    centre = raw.mean(axis=0)
-    scale = float(np.sqrt(((raw - centre) ** 2).sum(axis=1).mean())) or 1.0
-    r = (raw - centre) / scale
+    center = raw.mean(axis=0)
+    scale = float(np.sqrt(((raw - center) ** 2).sum(axis=1).mean())) or 1.0
+    r = (raw - center) / scale
     order = 3 if model == "cubic" else 2
     A = _monomials(r, order)
     if len(raw) < A.shape[1]:
@@ -137,7 +137,7 @@ def fit_raw_map(raw: ArrayLike, q: ArrayLike, model: str = "quadratic", smoothin
     if model == "tps":
         resid = q - A @ coef
         tps = (r, resid, smoothing)
-    return RawMap(model, centre, scale, coef, tps)
+    return RawMap(model, center, scale, coef, tps)
 
 
 def _angle_deg(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
@@ -152,14 +152,14 @@ class EyeCalibration:
 
     Attributes:
         eye: 'left' or 'right'.
-        centre_mm: (3,) rotation centre ``e_c``, scene-camera frame.
+        center_mm: (3,) rotation centre ``e_c``, scene-camera frame.
         plane_mm: ``l_c``, the calibration plane's distance along the optical axis.
         raw_map: raw -> q (normalised image coordinates).
         report: residuals and leave-one-out errors (see ``calibrate_eye``).
     """
 
     eye: str
-    centre_mm: np.ndarray
+    center_mm: np.ndarray
     plane_mm: float
     raw_map: RawMap
     report: dict = field(default_factory=dict)
@@ -172,17 +172,17 @@ class EyeCalibration:
         """(N, 3) unit view directions, scene-camera frame (eq. 3-4)."""
         q = self.raw_map(raw)
         p = self.plane_mm * np.column_stack([q, np.ones(len(q))])
-        d = p - self.centre_mm
+        d = p - self.center_mm
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def lines(self, raw: ArrayLike) -> ViewLines:
         """View lines (eq. 1-4) in the camera frame of raw readings (N, 2); the caller keeps
         invalid samples (blinks) out or marks them."""
         d = self.directions(raw)
-        return ViewLines(np.broadcast_to(self.centre_mm, d.shape).copy(), d, frame="cam")
+        return ViewLines(np.broadcast_to(self.center_mm, d.shape).copy(), d, frame="cam")
 
     def to_dict(self) -> dict:
-        d = {"eye": self.eye, "centre_mm": self.centre_mm.tolist(), "plane_mm": self.plane_mm,
+        d = {"eye": self.eye, "centre_mm": self.center_mm.tolist(), "plane_mm": self.plane_mm,
              "raw_map": self.raw_map.to_dict(), "report": self.report}
         if self.raw_map.model == "quadratic":
             a, b = self.raw_map.paper_coefficients()
@@ -196,17 +196,17 @@ class EyeCalibration:
                    RawMap.from_dict(d["raw_map"]), d.get("report", {}))
 
 
-def plane_points(targets_cam_mm: ArrayLike, centre_mm: ArrayLike, plane_mm: float) -> np.ndarray:
+def plane_points(targets_cam_mm: ArrayLike, center_mm: ArrayLike, plane_mm: float) -> np.ndarray:
     """(K, 2) normalised image points q where the lines from the eye centre through the targets
     (K, 3) meet the calibration plane z = l_c (so that eq. 3-4 reproduce those lines)."""
     P = check_points(targets_cam_mm, "targets_cam_mm")
-    e = check_vector(centre_mm, "centre_mm")
+    e = check_vector(center_mm, "centre_mm")
     s = (plane_mm - e[2]) / (P[:, 2] - e[2])
     p = e + s[:, None] * (P - e)
     return p[:, :2] / plane_mm
 
 
-def calibrate_eye(eye: str, raw: ArrayLike, targets_cam_mm: ArrayLike, centre_mm: ArrayLike,
+def calibrate_eye(eye: str, raw: ArrayLike, targets_cam_mm: ArrayLike, center_mm: ArrayLike,
                   plane_mm: float | None = None,
                   model: str = "quadratic", focal_px: float | None = None, outlier_deg: float = 1.0) -> EyeCalibration:
     """Fit one eye (paper eq. 1-2) to targets at known 3D positions.
@@ -215,7 +215,7 @@ def calibrate_eye(eye: str, raw: ArrayLike, targets_cam_mm: ArrayLike, centre_mm
         eye: 'left' or 'right'.
         raw: (K, 2) the eye's raw reading at each target (a robust average over the fixation).
         targets_cam_mm: (K, 3) target positions, scene-camera frame, mm.
-        centre_mm: (3,) the eye's rotation centre.
+        center_mm: (3,) the eye's rotation centre.
         plane_mm: l_c; default the targets' median depth.
         model: 'quadratic' (the paper's), 'cubic' or 'tps' (for more than 9 targets).
         focal_px: to report residuals in pixels too.
@@ -232,17 +232,17 @@ def calibrate_eye(eye: str, raw: ArrayLike, targets_cam_mm: ArrayLike, centre_mm
     raw = check_points(raw, "raw", 2)
     targets = check_points(targets_cam_mm, "targets_cam_mm")
     check_same_rows(raw, targets, "raw", "targets_cam_mm", "one row per target")
-    centre_mm = check_vector(centre_mm, "centre_mm")
+    center_mm = check_vector(center_mm, "centre_mm")
     idx = np.flatnonzero(_valid_readings(eye, raw))
     raw, targets = raw[idx], targets[idx]
-    dirs = targets - np.asarray(centre_mm, float)
+    dirs = targets - np.asarray(center_mm, float)
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     _check_not_collinear(eye, targets, dirs)
     lc = float(np.median(targets[:, 2])) if plane_mm is None else float(plane_mm)
-    centre = np.asarray(centre_mm, float)
-    q = plane_points(targets, centre, lc)
+    center = np.asarray(center_mm, float)
+    q = plane_points(targets, center, lc)
     raw_map = fit_raw_map(raw, q, model)
-    cal = EyeCalibration(eye, centre, lc, raw_map)
+    cal = EyeCalibration(eye, center, lc, raw_map)
     res = _angle_deg(cal.directions(raw), dirs)
     loo, rest_rms = _leave_one_out(cal, raw, q, dirs, model)
     outliers = [int(idx[k]) for k in range(len(raw))
@@ -300,21 +300,21 @@ def _leave_one_out(cal: EyeCalibration, raw: np.ndarray, q: np.ndarray, dirs: np
             fit = fit_raw_map(raw[keep], q[keep], model)
         except CalibrationError:
             continue
-        sub = EyeCalibration(cal.eye, cal.centre_mm, cal.plane_mm, fit)
+        sub = EyeCalibration(cal.eye, cal.center_mm, cal.plane_mm, fit)
         loo[k] = _angle_deg(sub.directions(raw[k:k + 1]), dirs[k:k + 1])[0]
         rest = _angle_deg(sub.directions(raw[keep]), dirs[keep])
         rest_rms[k] = float(np.sqrt(np.mean(rest**2)))
     return loo, rest_rms
 
 
-def compare_models(eye: str, raw: ArrayLike, targets_cam_mm: np.ndarray, centre_mm: np.ndarray,
+def compare_models(eye: str, raw: ArrayLike, targets_cam_mm: np.ndarray, center_mm: np.ndarray,
                    plane_mm: float | None = None) -> dict:
     """Leave-one-out RMS (deg) of each model the target count allows: does a richer model
     generalise better than the paper's quadratic?"""
     out = {}
     for model in MODELS:
         try:
-            cal = calibrate_eye(eye, raw, targets_cam_mm, centre_mm, plane_mm, model)
+            cal = calibrate_eye(eye, raw, targets_cam_mm, center_mm, plane_mm, model)
         except CalibrationError:
             continue
         if cal.report["loo_rms_deg"] is not None:
@@ -375,7 +375,7 @@ def wall_pose(points_wall_mm: ArrayLike, points_norm: ArrayLike) -> WallPose:
 
 # --- eye centres from two distances ----------------------------------------------------------
 
-def estimate_centre(raw: ArrayLike, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
+def estimate_center(raw: ArrayLike, targets_cam_mm: ArrayLike, initial_mm: ArrayLike,
                     model: str = "quadratic") -> tuple[np.ndarray, np.ndarray]:
     """One eye's rotation centre from targets at two or more depths.
 
@@ -400,9 +400,9 @@ def estimate_centre(raw: ArrayLike, targets_cam_mm: ArrayLike, initial_mm: Array
     if np.ptp(z) < 0.2 * np.median(z):
         raise CalibrationError("the eye centres need calibration targets at two wall distances (e.g. 1 m and "
                                "2 m); these are all at one distance")
-    centre = raw.mean(axis=0)
-    scale = float(np.sqrt(((raw - centre) ** 2).sum(axis=1).mean())) or 1.0
-    A = _monomials((raw - centre) / scale, 3 if model == "cubic" else 2)
+    center = raw.mean(axis=0)
+    scale = float(np.sqrt(((raw - center) ** 2).sum(axis=1).mean())) or 1.0
+    A = _monomials((raw - center) / scale, 3 if model == "cubic" else 2)
     n = A.shape[1]
 
     def tangents(e: np.ndarray) -> np.ndarray:

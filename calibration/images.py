@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 
-def to_grey(image: ArrayLike) -> np.ndarray:
+def to_gray(image: ArrayLike) -> np.ndarray:
     """The grey (H, W) image of an (H, W, 3) BGR image (``cv2.COLOR_BGR2GRAY``: OpenCV's luma
     weights); an (H, W) image is returned as it is (no copy)."""
     img = np.asarray(image)

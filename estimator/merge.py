@@ -45,7 +45,7 @@ MERGE_FIXATION_DEG = 0.1
 where the eye looks, which the head changes between revisits)."""
 
 
-RELINEARISE_GROWTH = 1.5
+RELINEARIZE_GROWTH = 1.5
 """A target's ``MergeForm`` is linearised again at its current estimate, from all its lines,
 when its lines have grown by this factor since the last time (so O(1) per line, amortised)."""
 
@@ -149,14 +149,14 @@ class TargetMerger:
 
     def _join(self, g: MergeGroup, lines: BinocularSamples, key: Hashable, merged: GazeEstimate) -> None:
         """``lines`` join ``g``, whose estimate becomes ``merged``; its form grows by theirs, or
-        is linearised anew over all its lines at the new estimate (``RELINEARISE_GROWTH``)."""
+        is linearised anew over all its lines at the new estimate (``RELINEARIZE_GROWTH``)."""
         g.parts.append(lines)
         g.members.append(key)
         g.estimate = merged
         assert merged.position_mm is not None               # merged.ok: the caller's test
         chart = g.form.chart
         g.form = g.form.plus(self._form(lines, chart, g.form.p0))
-        if g.form.n_lines >= RELINEARISE_GROWTH * g.form_lines:
+        if g.form.n_lines >= RELINEARIZE_GROWTH * g.form_lines:
             forms = [self._form(part, chart, chart.coords(merged.position_mm)) for part in g.parts]
             g.form = functools.reduce(MergeForm.plus, forms)
             g.form_lines = g.form.n_lines

@@ -96,7 +96,7 @@ class MergeForm:
     c: float
     n_lines: int
 
-    def centred(self, p: np.ndarray) -> MergeForm:
+    def centered(self, p: np.ndarray) -> MergeForm:
         """The same quadratic with its centre moved to ``p`` (3,) (exact: a change of variable)."""
         s = np.zeros(N_PARAMS)
         s[:3] = np.asarray(p, float) - self.p0
@@ -107,7 +107,7 @@ class MergeForm:
         """The sum of two forms of one chart, at this one's centre."""
         if other.chart is not self.chart:
             raise ValueError("forms of two charts cannot be summed")
-        o = other.centred(self.p0)
+        o = other.centered(self.p0)
         return MergeForm(self.chart, self.p0, self.N + o.N, self.g + o.g, self.c + o.c,
                          self.n_lines + o.n_lines)
 

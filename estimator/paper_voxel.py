@@ -89,7 +89,7 @@ class PaperVoxelEstimator:
                     continue
             else:
                 self._update_one(s)
-            self._recentre()
+            self._recenter()
         self._last = self._result()
         return self._last
 
@@ -113,7 +113,7 @@ class PaperVoxelEstimator:
                   center.round(1).tolist())
         for p in pend:
             self._update_one(p)
-            self._recentre()
+            self._recenter()
         self._pending = []
         return True
 
@@ -147,7 +147,7 @@ class PaperVoxelEstimator:
         else:
             g.values += np.log(contribution + 1e-12 * contribution.max() + 1e-300)
 
-    def _recentre(self) -> None:
+    def _recenter(self) -> None:
         g = self._seeded_grid
         idx = g.argmax()
         d = (idx - (g.n - 1) / 2.0)                       # voxels from the centre to P_M

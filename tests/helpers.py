@@ -225,10 +225,10 @@ def screenshot_bgr(locator) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(locator.screenshot(), np.uint8), cv2.IMREAD_COLOR)
 
 
-def colour_pixels(img, hex_colour: str, tol: int = 40) -> int:
-    """How many pixels of a BGR image are within ``tol`` (per channel) of ``hex_colour``
+def color_pixels(img, hex_color: str, tol: int = 40) -> int:
+    """How many pixels of a BGR image are within ``tol`` (per channel) of ``hex_color``
     ('#rrggbb')."""
-    r, g, b = (int(hex_colour[k:k + 2], 16) for k in (1, 3, 5))
+    r, g, b = (int(hex_color[k:k + 2], 16) for k in (1, 3, 5))
     return int(np.sum(np.all(np.abs(img.astype(int) - [b, g, r]) <= tol, axis=2)))
 
 

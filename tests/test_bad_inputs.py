@@ -1465,12 +1465,12 @@ def test_image_reader_keeps_libjpeg_warnings_off_stderr(tmp_path, capfd):
     import cv2
     import numpy as np
 
-    from wearable_gaze.formats.images import read_grey_image
+    from wearable_gaze.formats.images import read_gray_image
 
     img = (np.arange(64 * 48) % 251).astype(np.uint8).reshape(48, 64)
     data = cv2.imencode(".jpg", img)[1].tobytes()
     k = data.index(b"\xff\xdb")                          # the first quantisation table: junk before it
     (tmp_path / "a.jpg").write_bytes(data[:k] + b"\x12\x34\x56" + data[k:])
     capfd.readouterr()
-    assert read_grey_image(tmp_path / "a.jpg").shape == (48, 64)
+    assert read_gray_image(tmp_path / "a.jpg").shape == (48, 64)
     assert capfd.readouterr().err == ""

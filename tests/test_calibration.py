@@ -11,7 +11,7 @@ from calibration.camera import BoardView, CameraCalibration, calibrate_camera, d
 from calibration.eyes import (
     CalibrationError,
     calibrate_eye,
-    estimate_centre,
+    estimate_center,
     fit_raw_map,
     plane_points,
     target_readings,
@@ -178,25 +178,25 @@ def test_transposed_inputs_are_refused_naming_the_shape():
     model.sigma_deg = 0.05
     raw, _, _ = model.measure(P, rng, with_bias=False)
     raw = raw[:, 0]                                                      # (9, 2)
-    cal = calibrate_eye("left", raw, P, model.centres[0])
+    cal = calibrate_eye("left", raw, P, model.centers[0])
     assert cal.directions(raw).shape == (9, 3)
     q = cal.image_points(raw)
     bad = r"must have shape \(N, 2\), got \(2, 9\)"
     for call in (lambda: cal.directions(raw.T), lambda: cal.image_points(raw.T), lambda: cal.lines(raw.T),
                  lambda: fit_raw_map(raw.T, q), lambda: fit_raw_map(raw, q.T),
-                 lambda: calibrate_eye("left", raw.T, P, model.centres[0]),
-                 lambda: estimate_centre(raw.T, P, model.centres[0]),
+                 lambda: calibrate_eye("left", raw.T, P, model.centers[0]),
+                 lambda: estimate_center(raw.T, P, model.centers[0]),
                  lambda: wall_pose(P[:, :2].T, q), lambda: wall_pose(P[:, :2], q.T),
                  lambda: target_readings(np.arange(9), raw.T, np.ones(9, bool)),
                  lambda: undistort_points(q.T, np.eye(3), np.zeros(5))):
         with pytest.raises(ValueError, match=bad):
             call()
     with pytest.raises(ValueError, match=r"targets_cam_mm must have shape \(N, 3\), got \(3, 9\)"):
-        calibrate_eye("left", raw, P.T, model.centres[0])
+        calibrate_eye("left", raw, P.T, model.centers[0])
     with pytest.raises(ValueError, match=r"targets_cam_mm must have shape \(N, 3\), got \(3, 9\)"):
-        plane_points(P.T, model.centres[0], 1000.0)
+        plane_points(P.T, model.centers[0], 1000.0)
     with pytest.raises(ValueError, match=r"one row per target, got 9 and 8"):
-        calibrate_eye("left", raw, P[:8], model.centres[0])
+        calibrate_eye("left", raw, P[:8], model.centers[0])
     with pytest.raises(ValueError, match=r"corners must have shape \(N, 4, 2\), got \(2, 4, 3\)"):
         refine_markers(np.zeros((50, 50), np.uint8), np.zeros((2, 4, 3)), 6)
     T = np.tile(np.eye(4), (5, 1, 1))
@@ -221,20 +221,20 @@ def test_calibrate_eye_reports_residuals_loo_and_flags_an_outlier_target():
     model, _, P = _eye_setup(rng)
     model.sigma_deg = 0.05
     raw, _, _ = model.measure(P, rng, with_bias=False)
-    cal = calibrate_eye("left", raw[:, 0], P, model.centres[0], focal_px=640.0)
+    cal = calibrate_eye("left", raw[:, 0], P, model.centers[0], focal_px=640.0)
     rep = cal.report
     assert rep["rms_deg"] < 0.15 and rep["loo_rms_deg"] < 0.4 and rep["outliers"] == []
     assert len(rep["residual_px"]) == 9
     bad = raw[:, 0].copy()
     bad[4] += 60.0                                        # ~3.5 deg off at the centre target
-    rep = calibrate_eye("left", bad, P, model.centres[0]).report
+    rep = calibrate_eye("left", bad, P, model.centers[0]).report
     assert rep["outliers"] == [4]
     with pytest.raises(CalibrationError, match="left eye"):
-        calibrate_eye("left", np.full((9, 2), np.nan), P, model.centres[0])
+        calibrate_eye("left", np.full((9, 2), np.nan), P, model.centers[0])
     collinear = P.copy()
     collinear[:, 1] = 0.0
     with pytest.raises(CalibrationError, match="collinear"):
-        calibrate_eye("right", raw[:, 1], collinear, model.centres[1])
+        calibrate_eye("right", raw[:, 1], collinear, model.centers[1])
 
 
 def test_plane_points_put_each_target_on_its_line_from_the_eye_centre():
@@ -303,9 +303,9 @@ def test_calibration_study_meets_the_issue_targets():
     e = {k: float(np.mean(v)) for k, v in r.errors_deg.items()}
     assert e["both"] <= 0.15
     assert e["no correction"] > 3 * e["both"] and e["undistortion only"] > e["both"]
-    assert np.median(r.centre_errors_mm) < 3.0
+    assert np.median(r.center_errors_mm) < 3.0
     # the reported uncertainty is honest: errors are of the size it says
-    assert 0.3 < np.median(r.centre_errors_mm / r.centre_sigma_mm) < 2.0
+    assert 0.3 < np.median(r.center_errors_mm / r.center_sigma_mm) < 2.0
     assert "| both |" in r.format()
 
 
@@ -314,7 +314,7 @@ def test_estimate_centre_needs_two_distances():
     model, _, P = _eye_setup(rng)
     raw, _, _ = model.measure(P, rng, with_bias=False)
     with pytest.raises(CalibrationError, match="two wall distances"):
-        estimate_centre(raw[:, 0], P, [-32, 30, -20])
+        estimate_center(raw[:, 0], P, [-32, 30, -20])
 
 
 # --- end to end on a session -------------------------------------------------------------------
@@ -328,7 +328,7 @@ def test_calibrate_eyes_and_viewlines_on_a_rendered_session(session, tmp_path, c
     truth = json.loads((session / "truth" / "eyes.json").read_text())
     cals = load_eyes(eyes)
     for e in range(2):
-        assert np.linalg.norm(cals[e].centre_mm - truth["centres_mm"][e]) < 3.0
+        assert np.linalg.norm(cals[e].center_mm - truth["centres_mm"][e]) < 3.0
     vl = tmp_path / "viewlines.csv"
     assert main(["viewlines", str(session / "eye.csv"), "--eyes", str(eyes), "--poses",
                  str(session / "truth" / "head_poses.csv"), "-o", str(vl)]) == 0
@@ -447,19 +447,19 @@ def test_calibrate_camera_from_a_video_picks_views_for_coverage_and_fits_fisheye
 def test_to_grey_is_opencv_luma_of_bgr_and_leaves_grey_images_alone():
     """One conversion for every image: BGR (OpenCV's channel order) to luma 0.299 R + 0.587 G +
     0.114 B; a grey image passes through untouched (the same array)."""
-    from calibration.images import to_grey
+    from calibration.images import to_gray
 
     img = np.zeros((2, 3, 3), np.uint8)
     img[0, 0] = (255, 0, 0)            # blue
     img[0, 1] = (0, 0, 255)            # red
     img[0, 2] = (0, 255, 0)            # green
     img[1] = (10, 200, 90)
-    g = to_grey(img)
+    g = to_gray(img)
     assert g.shape == (2, 3) and g.dtype == np.uint8
     assert g[0].tolist() == [29, 76, 150]
     assert g[1, 0] == round(0.299 * 90 + 0.587 * 200 + 0.114 * 10)
-    grey = np.arange(12, dtype=np.uint8).reshape(3, 4)
-    assert to_grey(grey) is grey
+    gray = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    assert to_gray(gray) is gray
 
 
 def test_eye_calibration_logs_its_fit_and_outliers(caplog):
@@ -473,7 +473,7 @@ def test_eye_calibration_logs_its_fit_and_outliers(caplog):
     bad = raw[:, 0].copy()
     bad[4] += 60.0
     with caplog.at_level(logging.INFO, logger="calibration"):
-        rep = calibrate_eye("left", bad, P, model.centres[0]).report
+        rep = calibrate_eye("left", bad, P, model.centers[0]).report
     lines = [r.getMessage() for r in caplog.records if r.name == "calibration.eyes"]
     assert len(lines) == 1
     assert lines[0].startswith("left eye (quadratic): 9 targets, RMS ") and lines[0].endswith("outliers [4]")

@@ -32,10 +32,10 @@ def _biased(samples: BinocularSamples, beta_rad) -> BinocularSamples:
 def test_without_bias_or_excess_noise_it_is_the_inverse_fisher_information(rng):
     lines = walkabout_samples(X, rng, n=300).lines()
     plain = ml_point(lines)
-    modelled = ml_point(lines, MLConfig(error_model=ErrorModel(bias_deg=0.0, far_side_k=0.0)))
-    assert np.allclose(modelled.position_mm, plain.position_mm)
-    assert np.allclose(modelled.covariance_mm2, plain.covariance_mm2, rtol=1e-6)
-    em = modelled.info["error_model"]
+    modeled = ml_point(lines, MLConfig(error_model=ErrorModel(bias_deg=0.0, far_side_k=0.0)))
+    assert np.allclose(modeled.position_mm, plain.position_mm)
+    assert np.allclose(modeled.covariance_mm2, plain.covariance_mm2, rtol=1e-6)
+    em = modeled.info["error_model"]
     assert em["inflated"] is False and em["note"] == "" and em["sigma_eye_deg"] == [1.0, 1.0]
 
 

@@ -289,7 +289,7 @@ def test_the_export_formats_round_trip_through_their_one_reader(tmp_path, monkey
     write_ply(tmp_path / "m.ply", mesh)
     got = read_ply(tmp_path / "m.ply")
     np.testing.assert_allclose(got.vertices_mm, mesh.vertices_mm, atol=5e-4)
-    assert np.array_equal(got.colours, mesh.colours) and got.comments == ["a comment"]
+    assert np.array_equal(got.colors, mesh.colors) and got.comments == ["a comment"]
     assert np.array_equal(got.faces, mesh.faces) and np.array_equal(got.edges, mesh.edges)
     (tmp_path / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2 3 0 0 0\n")
     with pytest.raises(UserError, match=r"bad.ply: not a targets.ply"):

@@ -27,7 +27,7 @@ from wearable_gaze.formats.board import read_board, write_board
 from wearable_gaze.formats.camera import calibration_dict, camera_dict, load_camera, write_camera
 from wearable_gaze.formats.eye_samples import EYE_HEADER, EyeSamples, eye_csv_line, read_eye_csv, write_eye_csv
 from wearable_gaze.formats.eyes import eyes_dict, load_eyes, write_eyes
-from wearable_gaze.formats.images import read_grey_image, write_image
+from wearable_gaze.formats.images import read_gray_image, write_image
 from wearable_gaze.formats.jsonio import load_json
 from wearable_gaze.formats.markermap import (
     load_marker_map,
@@ -51,10 +51,10 @@ from wearable_gaze.formats.truth import read_truth_eyes, read_truth_targets, wri
 from wearable_gaze.formats.video import (
     FRAME_TIME_HEADER,
     frame_time_line,
-    grey_frames,
+    gray_frames,
     open_video_writer,
     read_frame_times,
-    sampled_grey_frames,
+    sampled_gray_frames,
     write_frame_times,
 )
 from wearable_gaze.formats.walls import read_walls, write_walls
@@ -146,7 +146,7 @@ def test_board_views_are_the_folders_images_and_written_as_png(tmp_path):
     (tmp_path / "notes.txt").write_text("not a view")
     rec = read_board(tmp_path)
     assert [p.name for p in rec.views] == ["view_000.png", "view_001.png", "view_002.png"]
-    assert all(np.array_equal(read_grey_image(p), v) for p, v in zip(rec.views, views, strict=True))
+    assert all(np.array_equal(read_gray_image(p), v) for p, v in zip(rec.views, views, strict=True))
     assert rec.truth_T_cam_from_board is None and "truth" not in (tmp_path / "board.json").read_text()
     (tmp_path / "board.json").write_text('{"version": 1, "board": {"type": "chessboard", "cols": 9, "rows": 1, '
                                          '"square_mm": 25}}')
@@ -247,30 +247,30 @@ def test_truth_files_written_back_as_the_old_code_wrote_them(tmp_path):
 
 def test_images_written_atomically_and_read_grey(tmp_path, monkeypatch):
     rng = np.random.default_rng(0)
-    grey = rng.integers(0, 256, (24, 32), dtype=np.uint8)
-    write_image(tmp_path / "a.png", grey)
-    cv2.imwrite(str(tmp_path / "b.png"), grey)
+    gray = rng.integers(0, 256, (24, 32), dtype=np.uint8)
+    write_image(tmp_path / "a.png", gray)
+    cv2.imwrite(str(tmp_path / "b.png"), gray)
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()      # the same PNG bytes
-    assert np.array_equal(read_grey_image(tmp_path / "a.png"), grey)
-    colour = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
-    write_image(tmp_path / "c.png", colour)
-    back = read_grey_image(tmp_path / "c.png").astype(int)            # the decoder's own conversion: within 1
-    assert back.shape == (24, 32) and np.abs(back - cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)).max() <= 1
+    assert np.array_equal(read_gray_image(tmp_path / "a.png"), gray)
+    color = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    write_image(tmp_path / "c.png", color)
+    back = read_gray_image(tmp_path / "c.png").astype(int)            # the decoder's own conversion: within 1
+    assert back.shape == (24, 32) and np.abs(back - cv2.cvtColor(color, cv2.COLOR_BGR2GRAY)).max() <= 1
     with pytest.raises(UserError, match=r"x\.png: missing or unreadable wall image .*; record it again$"):
-        read_grey_image(tmp_path / "x.png", "wall image", "record it again")
+        read_gray_image(tmp_path / "x.png", "wall image", "record it again")
     (tmp_path / "bad.png").write_bytes(b"\x89PNG garbage")
     with pytest.raises(UserError, match="not a readable image"):
-        read_grey_image(tmp_path / "bad.png")
+        read_gray_image(tmp_path / "bad.png")
     monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)          # a full disk: OpenCV says False
     with pytest.raises(UserError, match="could not write"):
         write_image(tmp_path / "a.png", np.zeros((4, 4), np.uint8))
-    assert np.array_equal(read_grey_image(tmp_path / "a.png"), grey)        # the old file is kept
+    assert np.array_equal(read_gray_image(tmp_path / "a.png"), gray)        # the old file is kept
     with pytest.raises(UserError, match="could not write"):
-        write_image(tmp_path / "new.png", grey)
+        write_image(tmp_path / "new.png", gray)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.png", "bad.png", "c.png"]   # nothing left
     monkeypatch.undo()
     with pytest.raises(UserError, match=r"\.png suffix"):
-        write_image(tmp_path / "d.unknown", grey)
+        write_image(tmp_path / "d.unknown", gray)
     assert not list(tmp_path.glob("*.unknown"))
 
 
@@ -391,7 +391,7 @@ def test_video_writer_and_grey_frames(tmp_path):
     for f in frames:
         w.write(f)
     w.release()
-    got = list(grey_frames(tmp_path / "v.avi"))
+    got = list(gray_frames(tmp_path / "v.avi"))
     assert len(got) == 4 and all(np.array_equal(g, f) for g, f in zip(got, frames, strict=True))
     with pytest.raises(UserError, match="use another name"):
         open_video_writer(tmp_path / "no_such_folder" / "v.avi", "FFV1", 10.0, (64, 48), refused="use another name")
@@ -399,10 +399,10 @@ def test_video_writer_and_grey_frames(tmp_path):
     for k in range(10):
         w.write(np.full((48, 64), 20 * k, np.uint8))
     w.release()
-    got = list(sampled_grey_frames(tmp_path / "ten.avi", 3))          # every 10 // 3 = 3rd frame
+    got = list(sampled_gray_frames(tmp_path / "ten.avi", 3))          # every 10 // 3 = 3rd frame
     assert [i for i, _ in got] == [0, 3, 6, 9] and all(np.all(g == 20 * i) for i, g in got)
     with pytest.raises(UserError, match="not a video"):
-        list(sampled_grey_frames(tmp_path / "nothing.avi", 3, refused="not a video"))
+        list(sampled_gray_frames(tmp_path / "nothing.avi", 3, refused="not a video"))
 
 
 FORMAT_NAMES = ("wearable-gaze-camera", "wearable-gaze-marker-map", "wearable-gaze-eyes", "wearable-gaze-session")

@@ -124,10 +124,10 @@ def _expected_angles(pos: dict, distance_mm: float) -> dict:
     front of target 5 (the poster's origin), perpendicular."""
     p = {k: np.array([x - pos[5][0], y - pos[5][1], distance_mm]) for k, (x, y) in pos.items()}
     u = {k: v / np.linalg.norm(v) for k, v in p.items()}
-    return {(i, j): np.degrees(np.arccos(np.clip(u[i] @ u[j], -1, 1))) for i, j in NEIGHBOURS}
+    return {(i, j): np.degrees(np.arccos(np.clip(u[i] @ u[j], -1, 1))) for i, j in NEIGHBORS}
 
 
-NEIGHBOURS = [(1, 2), (2, 3), (4, 5), (5, 6), (7, 8), (8, 9), (1, 4), (4, 7), (2, 5), (5, 8), (3, 6), (6, 9)]
+NEIGHBORS = [(1, 2), (2, 3), (4, 5), (5, 6), (7, 8), (8, 9), (1, 4), (4, 7), (2, 5), (5, 8), (3, 6), (6, 9)]
 ACCURACY_DEG = 1.43
 """Tobii Pro Glasses 2 accuracy in use: 1.43 deg (mean over 9-point grids, 3 wearers, 1-3 m;
 95 % CI 1.21-1.64; J. MacInnes, github.com/jeffmacinnes/glassesCalibration,

@@ -51,7 +51,7 @@ class _Pose:
 
 def _tracker(poses, hold_s=0.05):
     """A tracker whose 'frames' are the poses themselves (fake detection and pose)."""
-    return HeadTracker(detect=lambda grey: grey, estimate=lambda T: _Pose(T, [1, 2] if T is not None else []),
+    return HeadTracker(detect=lambda gray: gray, estimate=lambda T: _Pose(T, [1, 2] if T is not None else []),
                        hold_s=hold_s), poses
 
 
@@ -119,7 +119,7 @@ def _eyes():
 def _record(eyes, counter, t, T_world_from_cam, target_world, valid=(True, True), noise=None):
     """The raw readings of two eyes looking at ``target_world`` from head pose ``T``."""
     X_cam = invert(T_world_from_cam) @ np.append(target_world, 1.0)
-    raw = [plane_points(X_cam[None, :3], e.centre_mm, e.plane_mm)[0] for e in eyes]
+    raw = [plane_points(X_cam[None, :3], e.center_mm, e.plane_mm)[0] for e in eyes]
     if noise is not None:
         raw = [r + n for r, n in zip(raw, noise, strict=True)]
     return EyeRecord(counter, t, tuple(raw[0]), tuple(raw[1]), valid[0], valid[1])
@@ -134,7 +134,7 @@ def test_world_sample_lines_pass_through_the_gazed_point():
         X = rng.normal(0, 500, 3) + T[:3, 3] + T[:3, :3] @ [0, 0, 1500.0]
         s = world_sample(eyes, 1.5, _record(eyes, 0, 1.5, T, X), T)
         for o, d, e in ((s.left_origin_mm, s.left_direction, eyes[0]), (s.right_origin_mm, s.right_direction, eyes[1])):
-            assert o == pytest.approx(T[:3, :3] @ e.centre_mm + T[:3, 3])          # the eye, moved by the head
+            assert o == pytest.approx(T[:3, :3] @ e.center_mm + T[:3, 3])          # the eye, moved by the head
             to_x = (X - o) / np.linalg.norm(X - o)
             assert np.linalg.norm(np.cross(d, to_x)) < 1e-9 and d @ to_x > 0     # and looking at X
     one = world_sample(eyes, 0.0, _record(eyes, 0, 0.0, T, X, valid=(False, True)), T)
@@ -269,9 +269,9 @@ def test_the_recorder_writes_a_session_folder_that_reads_back(tmp_path):
     mm = MarkerMap("DICT_4X4_50", 80.0, {3: _pose(30.0, 100.0), 1: _pose()}, {3: "door"})
     root = tmp_path / "rec"
     rec = Recorder(root, (64, 48), 30.0, tmp_path / "camera.json", tmp_path / "eyes.json", mm, flush_s=0.05)
-    grey = np.zeros((48, 64), np.uint8)
+    gray = np.zeros((48, 64), np.uint8)
     for i in range(5):
-        rec.frame(i / 30.0, i, grey + 40 * i)
+        rec.frame(i / 30.0, i, gray + 40 * i)
     records = [EyeRecord(10 + i, i / 60.0, (2000.0 + i, 1990.5), (2010.25, 1980.0), True, i % 2 == 0)
                for i in range(7)]
     for i, r in enumerate(records):
@@ -496,7 +496,7 @@ class _ExactHead:
     def __init__(self, poses):
         self.poses = dict(poses)
 
-    def track(self, t, grey):
+    def track(self, t, gray):
         pass
 
     def must_wait(self, t_s, waited_s):

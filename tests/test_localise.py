@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from calibration.camera import CameraCalibration
 from estimator.frames import invert
-from tracking.localise import FeatureLocaliser, FeatureMap, image_features, root_sift, triangulate
+from tracking.localise import FeatureLocalizer, FeatureMap, image_features, root_sift, triangulate
 from tracking.pose import rotation_angle_deg
 from wearable_gaze.cli import main
 from wearable_gaze.formats.camera import load_camera
@@ -75,7 +75,7 @@ def test_matches_keep_a_point_seen_twice_and_drop_ambiguous_descriptors():
     def view():
         return root_sift(desc**2 * (1 + 0.02 * rng.uniform(size=desc.shape)))
     fmap = FeatureMap(pts, np.vstack([view(), view()]), np.r_[np.arange(len(pts)), np.arange(len(pts))])
-    loc = FeatureLocaliser(fmap, CAM)
+    loc = FeatureLocalizer(fmap, CAM)
     q, p = loc.matches(view()[:50])                                 # a third view of each
     assert len(q) >= 45 and np.all(p == q)
     # a query halfway between two points' descriptors is ambiguous: not matched
@@ -88,7 +88,7 @@ def test_matches_keep_a_point_seen_twice_and_drop_ambiguous_descriptors():
 def test_pose_from_matches_with_outliers_is_the_true_one_with_a_covariance():
     rng = np.random.default_rng(3)
     pts, desc = _synthetic_map(rng)
-    loc = FeatureLocaliser(FeatureMap(pts, desc, np.arange(len(pts))), CAM)
+    loc = FeatureLocalizer(FeatureMap(pts, desc, np.arange(len(pts))), CAM)
     T_cw = _pose(rng)
     x = (pts @ T_cw[:3, :3].T + T_cw[:3, 3])
     px = x[:, :2] / x[:, 2:] * 640 + [639.5, 359.5] + rng.normal(0, 0.5, (len(pts), 2))

@@ -129,11 +129,11 @@ def test_the_client_decodes_the_scene_video_at_the_frames_times(received):
     while (ok := cap.read())[0]:
         video.append(cv2.cvtColor(ok[1], cv2.COLOR_BGR2GRAY))
     t_frames = s.frame_times - min(s.t[0], s.frame_times[0]) + p0
-    for t, grey in frames:
+    for t, gray in frames:
         j = int(np.argmin(np.abs(t_frames - t)))
         assert abs(t_frames[j] - t) < 1e-4                         # a frame's time: its own
-        assert grey.shape == video[j].shape
-        assert np.mean(np.abs(grey.astype(float) - video[j])) < 4.0  # H.264 at the encoder's quality
+        assert gray.shape == video[j].shape
+        assert np.mean(np.abs(gray.astype(float) - video[j])) < 4.0  # H.264 at the encoder's quality
 
 
 def test_the_payload_layout_is_the_clients():

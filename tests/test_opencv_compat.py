@@ -16,7 +16,7 @@ from calibration import cvcompat
 from calibration.camera import aruco_dictionary, undistort_points
 from tracking.markers import MarkerDetector
 from wearable_gaze.cli import main
-from wearable_gaze.formats.video import grey_frames, open_video_writer
+from wearable_gaze.formats.video import gray_frames, open_video_writer
 
 
 class _Detector:
@@ -87,7 +87,7 @@ def test_charuco_corners_are_in_opencvs_pixel_convention_on_this_release():
 
 def _blank_ends(video, n_blank):
     """Rewrite ``video`` with its first and last ``n_blank`` frames a plain grey wall."""
-    frames = list(grey_frames(video))
+    frames = list(gray_frames(video))
     h, w = frames[0].shape
     out = video.with_name("blanked.mp4")
     writer = open_video_writer(out, "mp4v", 30.0, (w, h), is_color=False)

@@ -8,7 +8,7 @@ import shutil
 
 import numpy as np
 
-from tests.helpers import chromium_page, colour_pixels, screenshot_bgr
+from tests.helpers import chromium_page, color_pixels, screenshot_bgr
 from wearable_gaze.cli import main
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.pipeline.truth_match import match_targets
@@ -93,7 +93,7 @@ def test_report_in_headless_chromium_loads_shows_the_truth_and_a_3d_view_that_tu
     assert drawn > 100 and shot.std() > 10                                    # not blank
     assert len(scene["targets"]) == len(res.targets) and len(scene["markers"]) > 0
     for t in scene["targets"]:
-        assert colour_pixels(shot, t["colour"]) >= 15, t["label"]                 # each target in its colour
+        assert color_pixels(shot, t["colour"]) >= 15, t["label"]                 # each target in its colour
     assert np.mean(np.abs(turned.astype(int) - shot.astype(int))) > 1.0        # the drag turned the view
 
 

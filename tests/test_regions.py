@@ -95,10 +95,10 @@ def test_a_far_targets_drawn_region_stays_within_its_interval_not_behind_the_hea
     dist, along = _distances(_scene_points(t["region"]))
     assert np.all(dist >= near - 1) and np.all(dist <= far + 1) and np.all(along > 0.99 * near - 1)
     # the top view: every point drawn in the target's colour lies in front of the head
-    fig = report_plots.figure_top(d, report.colour)
+    fig = report_plots.figure_top(d, report.color)
     ax = fig.axes[0]
     u = (FAR - SEEN_FROM)[[0, 2]]
-    drawn = [ln.get_xydata() for ln in ax.lines if ln.get_color() == report.colour(2)]
+    drawn = [ln.get_xydata() for ln in ax.lines if ln.get_color() == report.color(2)]
     drawn += [p.get_path().transformed(p.get_patch_transform()).vertices for p in ax.patches]
     P = np.concatenate(drawn)
     assert len(P) > 10 and np.all((P - SEEN_FROM[[0, 2]]) @ u > 0)
@@ -115,13 +115,13 @@ def test_the_views_are_scaled_to_the_head_path_and_the_targets_not_to_the_ellips
     assert np.all(lo <= pts.min(axis=0)) and np.all(hi >= pts.max(axis=0))
     assert np.all(hi - lo <= (pts.max(axis=0) - pts.min(axis=0)).max() * 1.5 + 1000.0)
     assert np.allclose(np.array(report._scene(d, None, None)["box"]), [lo, hi], atol=0.5)
-    fig = report_plots.figure_top(d, report.colour)
+    fig = report_plots.figure_top(d, report.color)
     x0, x1 = fig.axes[0].get_xlim()
     z0, z1 = fig.axes[0].get_ylim()
     assert x0 <= pts[:, 0].min() and x1 >= pts[:, 0].max() and z0 <= pts[:, 2].min() and z1 >= pts[:, 2].max()
     assert max(x1 - x0, z1 - z0) < 6000.0                   # the scene is 3.6 m across; the ellipsoid 80 m
     report_plots._plt().close(fig)
-    fig = report_plots.figure_3d(d, report.colour)
+    fig = report_plots.figure_3d(d, report.color)
     ax = fig.axes[0]
     assert ax.get_xlim() == pytest.approx((lo[0], hi[0])) and ax.get_ylim() == pytest.approx((lo[2], hi[2]))
     assert ax.get_zlim() == pytest.approx((-hi[1], -lo[1]))
@@ -144,11 +144,11 @@ def test_an_open_interval_is_drawn_as_a_ray_to_the_edge_of_the_axes():
         end = np.array(g["axis"][1], float)
         assert np.min(np.minimum(np.abs(end - lo), np.abs(end - hi))) < 1.0            # on the box's edge
         assert np.allclose((end - SEEN_FROM) / np.linalg.norm(end - SEEN_FROM), u, atol=1e-3)
-    fig = report_plots.figure_top(d, report.colour)
+    fig = report_plots.figure_top(d, report.color)
     ax = fig.axes[0]
     x0, x1 = ax.get_xlim()
     for k in (1, 3):
-        dashed = [ln for ln in ax.lines if ln.get_color() == report.colour(k) and ln.get_linestyle() == "--"
+        dashed = [ln for ln in ax.lines if ln.get_color() == report.color(k) and ln.get_linestyle() == "--"
                   and len(ln.get_xydata()) == 2]                      # the line of sight
         assert dashed
         reach = dashed[0].get_xydata()[1]

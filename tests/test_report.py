@@ -49,10 +49,10 @@ def _target(index=0, position=(0.0, 0.0, 1000.0)):
                                          crb_mm=5.0, fixations=[0]))
 
 
-def _ring_colour(img, centre, radius):
+def _ring_color(img, center, radius):
     """The mean (R, G, B) of the drawn pixels at ``radius`` +-1.5 px around ``centre``."""
     yy, xx = np.mgrid[:img.shape[0], :img.shape[1]]
-    ring = np.abs(np.hypot(xx - centre[0], yy - centre[1]) - radius) < 1.5
+    ring = np.abs(np.hypot(xx - center[0], yy - center[1]) - radius) < 1.5
     ring &= img.sum(axis=2) > 200                                  # drawn, not the black background
     assert ring.sum() > 20, "nothing drawn at the gaze point"
     b, g, r = img[ring].mean(axis=0)
@@ -67,9 +67,9 @@ def test_each_eyes_gaze_circle_has_the_colour_the_caption_names():
     img = ov.draw_marks(np.zeros((H, W, 3), np.uint8), marks)
     text = ov.caption()
     radius = 14 * W / 1280
-    for e, (what, name, _) in enumerate(ov.EYE_COLOURS):
+    for e, (what, name, _) in enumerate(ov.EYE_COLORS):
         assert f"{name} {what}" in text
-        rgb = _ring_colour(img, px[e], radius)
+        rgb = _ring_color(img, px[e], radius)
         assert LOOKS[name](*rgb), (what, name, rgb)
 
 
@@ -285,7 +285,7 @@ def test_the_3d_and_top_views_of_54_targets_number_them_and_keep_their_layout(tm
     d = _data([_record(k, p) for k, p in enumerate(pts)])
     assert report_plots._numbered(d) and not report_plots._numbered(_data([_record(0, pts[0])]))
     for make, name in ((report_plots.figure_3d, "3d.png"), (report_plots.figure_top, "top.png")):
-        fig = make(d, report.colour)
+        fig = make(d, report.color)
         ax = fig.axes[0]
         legend = [t.get_text() for t in ax.get_legend().get_texts()]
         assert len(legend) <= 6 and any("54 targets" in t for t in legend), legend
@@ -372,7 +372,7 @@ def test_the_tracking_steps_detections_are_the_markers_the_overlays_detector_fin
     refines them: the same ids at the same corners, so the same outlines at the same pixels; the
     preview's quick, unrefined detection (what the overlay drew before it was given them) finds
     the same markers, their corners within 2.5 px of these (1.7 px median)."""
-    from calibration.images import to_grey
+    from calibration.images import to_gray
     from wearable_gaze.formats.marker_detections import read_marker_detections
     from wearable_gaze.formats.markermap import load_marker_map
     from wearable_gaze.formats.poses import read_poses_csv
@@ -392,7 +392,7 @@ def test_the_tracking_steps_detections_are_the_markers_the_overlays_detector_fin
             marks = [ov.FrameMarks([(k, np.array(c), k in mm.poses) for k, c in m]) for m in (mine, [
                 (d.marker_id, d.corners_px.tolist()) for d in refined.detect(frame)])]
             assert np.array_equal(ov.draw_marks(frame, marks[0]), ov.draw_marks(frame, marks[1]))
-            fast = {d.marker_id: d.corners_px for d in quick.detect(to_grey(frame))}
+            fast = {d.marker_id: d.corners_px for d in quick.detect(to_gray(frame))}
             assert sorted(fast) == [k for k, _ in mine]
             off += [np.abs(np.array(c) - fast[k]).max() for k, c in mine]
             compared += 1

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from conftest import AOIS
 
-from tests.helpers import chromium_page, colour_pixels, screenshot_bgr
-from wearable_gaze.pipeline.aoi import AOI_COLOUR
+from tests.helpers import chromium_page, color_pixels, screenshot_bgr
+from wearable_gaze.pipeline.aoi import AOI_COLOR
 
 ARIA = "aria_mps_sample_gen1"
 
@@ -54,12 +54,12 @@ def _rgb(css: str) -> str:
     return "#" + "".join(f"{int(v):02x}" for v in css[css.index("(") + 1:-1].split(","))
 
 
-def _lab_distance(colours: list) -> float:
-    """The least CIE76 colour difference between two of ``colours`` ('#rrggbb'; 2.3 is one just
+def _lab_distance(colors: list) -> float:
+    """The least CIE76 colour difference between two of ``colors`` ('#rrggbb'; 2.3 is one just
     noticeable difference, over 10 two colours no one confuses side by side)."""
     import cv2
 
-    rgb = np.array([[[int(c[k:k + 2], 16) for k in (1, 3, 5)] for c in colours]], np.uint8)
+    rgb = np.array([[[int(c[k:k + 2], 16) for k in (1, 3, 5)] for c in colors]], np.uint8)
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB)[0].astype(float)
     lab[:, 0] *= 100 / 255
     lab[:, 1:] -= 128
@@ -68,12 +68,12 @@ def _lab_distance(colours: list) -> float:
 
 def _check_targets(got: dict, n: int) -> None:
     """``n`` targets, each in a colour of its own, the same in the legend, the table and the view."""
-    colours = [t["colour"] for t in got["scene"]["targets"]]
-    assert len(colours) == n and len(set(colours)) == n, colours
-    assert n < 2 or _lab_distance(colours) > 10
-    assert [_rgb(c) for c in got["legend"]] == colours and [_rgb(c) for c in got["table"]] == colours
+    colors = [t["colour"] for t in got["scene"]["targets"]]
+    assert len(colors) == n and len(set(colors)) == n, colors
+    assert n < 2 or _lab_distance(colors) > 10
+    assert [_rgb(c) for c in got["legend"]] == colors and [_rgb(c) for c in got["table"]] == colors
     for t in got["scene"]["targets"]:
-        assert colour_pixels(got["shot"], t["colour"], tol=20) >= 10, t["label"]
+        assert color_pixels(got["shot"], t["colour"], tol=20) >= 10, t["label"]
 
 
 def test_real_tobii_g2_report_draws_its_poster_areas_and_twelve_targets_apart(g2_processed):
@@ -84,7 +84,7 @@ def test_real_tobii_g2_report_draws_its_poster_areas_and_twelve_targets_apart(g2
     _check_targets(got, 12)
     names = json.loads((AOIS / "tobii_g2_glassesvalidator_poster.json").read_text())["aois"]
     assert [a["name"] for a in got["scene"]["aois"]] == [a["name"] for a in names]
-    assert got["drawn"]["-aois"] >= 9 * 4 and colour_pixels(got["shot"], AOI_COLOUR) > 50
+    assert got["drawn"]["-aois"] >= 9 * 4 and color_pixels(got["shot"], AOI_COLOR) > 50
     assert got["videos"] == 0                                        # no scene video, no overlay
 
 

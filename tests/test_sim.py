@@ -107,15 +107,15 @@ def test_rendered_session_markers_match_projected_ground_truth(tmp_path):
         assert ok
         if i % 3:
             continue
-        grey = frame[..., 0]
-        corners, ids, _ = det.detectMarkers(grey)
+        gray = frame[..., 0]
+        corners, ids, _ = det.detectMarkers(gray)
         per_frame.append(0 if ids is None else len(ids))
         T_cw = np.linalg.inv(T[i])
         for c, mid in zip(corners, ids.ravel(), strict=True):
             assert int(mid) in Tm                                  # no false ids
             w = marker_corners_world(mm["marker_size_mm"], Tm[int(mid)])
             px, _ = cv2.projectPoints((T_cw[:3, :3] @ w.T).T + T_cw[:3, 3], np.zeros(3), np.zeros(3), K, D)
-            d = refine_marker_corners(grey, c.reshape(4, 2), 6) - px.reshape(4, 2)
+            d = refine_marker_corners(gray, c.reshape(4, 2), 6) - px.reshape(4, 2)
             errs.append(np.linalg.norm(d, axis=1))
             offsets.append(d)
     errs, offsets = np.concatenate(errs), np.concatenate(offsets)

@@ -25,7 +25,7 @@ from wearable_gaze.formats.markermap import load_marker_map
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.session import load_session
 from wearable_gaze.formats.truth import read_truth_moved_markers
-from wearable_gaze.formats.video import grey_frames
+from wearable_gaze.formats.video import gray_frames
 from wearable_gaze.sim.motion import make_motion
 from wearable_gaze.sim.scenario import resolve
 from wearable_gaze.sim.simulate import build_world, make_targets, scene_camera, simulate_scenario
@@ -225,8 +225,8 @@ BEFORE = {"markers.json": "7d84bf58e1d1476b715375ee1c4d8b230bdfec0eae0fcc94ee3b3
 def _content_digests(root):
     frames = hashlib.sha256()
     n = 0
-    for grey in grey_frames(root / "scene.avi"):
-        frames.update(np.ascontiguousarray(grey).tobytes())
+    for gray in gray_frames(root / "scene.avi"):
+        frames.update(np.ascontiguousarray(gray).tobytes())
         n += 1
     assert n > 0, "no frame decoded from scene.avi"
     return {"markers.json": hashlib.sha256((root / "markers.json").read_bytes()).hexdigest(),

@@ -156,7 +156,7 @@ def test_a_tracked_pose_that_jumps_off_the_heads_path_and_back_is_rejected(tmp_p
     poses[12] = _T(t=(240.0, 400.0, 0.0))
     tracked = iter([*range(0, 30, 2), 29])                # one in two, and the last
 
-    def locate(grey):
+    def locate(gray):
         i = next(tracked)
         return PoseResult(poses[i], OK, markers=[1], n_points=4, reproj_rms_px=0.1), []
     res = track_cmd.track_poses(_FrameSource(30), 30.0, 30, locate, every=2)

@@ -19,7 +19,7 @@ from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.markermap import load_marker_map, marker_map_dict, marker_map_from_dict
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.session import load_session
-from wearable_gaze.formats.video import grey_frames
+from wearable_gaze.formats.video import gray_frames
 from wearable_gaze.sim.camera import Camera
 from wearable_gaze.sim.noise import SensorNoise
 from wearable_gaze.sim.planes import Plane, marker_plane
@@ -76,7 +76,7 @@ def walk(tmp_path_factory):
     cam = load_camera(root / "truth" / "camera.json")
     mm = load_marker_map(s.path("marker_map"))
     _, _, T, extra = read_poses_csv(root / "truth" / "head_poses.csv")
-    return root, cam, mm, T, list(grey_frames(s.path("scene_video")))
+    return root, cam, mm, T, list(gray_frames(s.path("scene_video")))
 
 
 def _errors(results, T):
@@ -272,9 +272,9 @@ def test_homography_mode_on_a_textured_poster():
     for _ in range(8):
         d = rng.uniform(1000, 2000)
         yaw, el = np.deg2rad(rng.uniform(-30, 30)), np.deg2rad(rng.uniform(-15, 15))
-        centre = np.array([400.0, 300.0, 0.0])
-        c = centre + d * np.array([np.sin(yaw) * np.cos(el), np.sin(el), -np.cos(yaw) * np.cos(el)])
-        T = look_at(c, centre + rng.normal(0, 80, 3))
+        center = np.array([400.0, 300.0, 0.0])
+        c = center + d * np.array([np.sin(yaw) * np.cos(el), np.sin(el), -np.cos(yaw) * np.cos(el)])
+        T = look_at(c, center + rng.normal(0, 80, 3))
         r = tracker.estimate(noise.apply(render(cam, T, [plane])))
         assert r.ok, r.reason
         rot.append(rotation_angle_deg(r.T_world_from_cam[:3, :3], T[:3, :3]))
@@ -349,13 +349,13 @@ def test_homography_mode_places_the_camera_through_a_non_identity_plane_pose():
     plane = Plane(T_wp, (800.0, 600.0), tex, "poster")
     tracker = PlanarTracker(tex, (800.0, 600.0), cal, T_world_from_plane=T_wp)
     noise = SensorNoise(cam.image_size, rng)
-    centre_p = np.array([400.0, 300.0, 0.0])
+    center_p = np.array([400.0, 300.0, 0.0])
     rot, tr = [], []
     for _ in range(6):
         d = rng.uniform(1000, 1800)
         yaw = np.deg2rad(rng.uniform(-25, 25))
-        c_p = centre_p + d * np.array([np.sin(yaw), 0.1, -np.cos(yaw)])          # in the plane's frame
-        T_pc = look_at(c_p, centre_p + rng.normal(0, 50, 3))
+        c_p = center_p + d * np.array([np.sin(yaw), 0.1, -np.cos(yaw)])          # in the plane's frame
+        T_pc = look_at(c_p, center_p + rng.normal(0, 50, 3))
         T_wc = T_wp @ T_pc                                                      # the camera in the world
         r = tracker.estimate(noise.apply(render(cam, T_wc, [plane])))
         assert r.ok, r.reason
@@ -484,8 +484,8 @@ def test_smoothing_reduces_jitter_without_lag():
     err_sm = np.linalg.norm(sm[ok, :3, 3] - true[ok, :3, 3], axis=1)
     assert np.median(err_sm) < 0.6 * np.median(err_raw)
     lag = smooth_poses(t, true, 0.2, causal=True)[150:290, 0, 3] - true[150:290, 0, 3]
-    centred = smooth_poses(t, true, 0.2)[150:290, 0, 3] - true[150:290, 0, 3]   # (the last 0.1 s is one-sided)
-    assert np.abs(centred).max() < 0.5 < np.abs(lag).max()
+    centered = smooth_poses(t, true, 0.2)[150:290, 0, 3] - true[150:290, 0, 3]   # (the last 0.1 s is one-sided)
+    assert np.abs(centered).max() < 0.5 < np.abs(lag).max()
 
 
 def test_track_cli_writes_poses_and_an_overlay(walk, tmp_path, capsys):

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from wearable_gaze.pipeline import view3d
-from wearable_gaze.pipeline.aoi import AOI_COLOUR, Area, area_outline
+from wearable_gaze.pipeline.aoi import AOI_COLOR, Area, area_outline
 
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
                  "--disable-sync", "--no-first-run"]
 
 
-def _count(img, hex_colour: str, tol: int = 40) -> int:
-    r, g, b = (int(hex_colour[k:k + 2], 16) for k in (1, 3, 5))
+def _count(img, hex_color: str, tol: int = 40) -> int:
+    r, g, b = (int(hex_color[k:k + 2], 16) for k in (1, 3, 5))
     return int(np.sum(np.all(np.abs(img.astype(int) - [b, g, r]) <= tol, axis=2)))
 
 
@@ -41,7 +41,7 @@ def test_the_view_draws_the_areas_and_pans(tmp_path):
 
     head = np.array([[0.0, 0, 0], [300, 0, 0]])
     poster = Area("poster", None, Box(np.array([0.0, 0, 2000]), np.array([600.0, 400, 100]), np.eye(3)))
-    scene = view3d.scene([], head, aois=[(poster.name, AOI_COLOUR, area_outline(poster))])
+    scene = view3d.scene([], head, aois=[(poster.name, AOI_COLOR, area_outline(poster))])
     page_html = f"<!DOCTYPE html><html><body>{view3d.html_block(scene, False, 'a test world')}</body></html>"
     (tmp_path / "v.html").write_text(page_html)
     errors = []
@@ -67,12 +67,12 @@ def test_the_view_draws_the_areas_and_pans(tmp_path):
         finally:
             b.close()
     assert errors == []
-    assert _count(before, AOI_COLOUR) > 50 and "areas of interest" in text and "a test world" in text
+    assert _count(before, AOI_COLOR) > 50 and "areas of interest" in text and "a test world" in text
 
-    def centre_x(img):
+    def center_x(img):
         ys, xs = np.nonzero(np.all(np.abs(img.astype(int) - [0x8f, 0x83, 0x00]) <= 40, axis=2))
         return xs.mean()
-    assert centre_x(panned) - centre_x(before) > 20     # followed the pointer right (less: beyond the focus)
+    assert center_x(panned) - center_x(before) > 20     # followed the pointer right (less: beyond the focus)
 
 
 def test_labels_of_areas_on_top_of_each_other_are_not_drawn_over_each_other(tmp_path):
@@ -89,7 +89,7 @@ def test_labels_of_areas_on_top_of_each_other_are_not_drawn_over_each_other(tmp_
         return Area(name, None, Box(np.array([x, 0.0, 2000]), np.array([30.0, 30, 30]), np.eye(3)))
     areas = [box("poster target 1", 0.0), box("poster target 2", 15.0), box("far to the side", 1500.0)]
     scene = view3d.scene([], np.array([[0.0, 0, 0], [300, 0, 0]]),
-                         aois=[(a.name, AOI_COLOUR, area_outline(a)) for a in areas])
+                         aois=[(a.name, AOI_COLOR, area_outline(a)) for a in areas])
     (tmp_path / "v.html").write_text(f"<!DOCTYPE html><html><body>{view3d.html_block(scene, False)}</body></html>")
     with sync_api.sync_playwright() as pw:
         b = pw.chromium.launch(executable_path=browser, args=CHROMIUM_ARGS)

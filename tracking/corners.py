@@ -74,7 +74,7 @@ def _edge_profiles(initial: np.ndarray, half: np.ndarray, span: tuple[float, flo
                    n_offsets: int) -> _Profiles:
     """The profiles of ``refine_markers``: edges 2i and 2i+1 are the two at corner i, side i-1
     (its far end is corner i), then side i (which starts at i)."""
-    centre = initial.mean(axis=1)                                              # (N, 2)
+    center = initial.mean(axis=1)                                              # (N, 2)
     fr = np.linspace(span[0], span[1], samples)
     j_idx = np.array([[(i - 1) % 4, i] for i in range(4)]).ravel()             # (8,)
     rev = np.array([True, False] * 4)
@@ -82,7 +82,7 @@ def _edge_profiles(initial: np.ndarray, half: np.ndarray, span: tuple[float, flo
     end = initial[:, (j_idx + 1) % 4]
     tangent = (end - start) / np.linalg.norm(end - start, axis=2, keepdims=True)
     normal = np.stack([-tangent[..., 1], tangent[..., 0]], axis=-1)
-    flip = np.einsum("nek,nek->ne", centre[:, None] - 0.5 * (start + end), normal) < 0
+    flip = np.einsum("nek,nek->ne", center[:, None] - 0.5 * (start + end), normal) < 0
     normal[flip] *= -1                                                    # point inward (dark side)
     frac = np.where(rev[:, None], 1.0 - fr[None], fr[None])                    # (8, K)
     base = start[:, :, None] + frac[None, :, :, None] * (end - start)[:, :, None]   # (N, 8, K, 2)

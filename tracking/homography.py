@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from calibration.camera import CameraCalibration
-from calibration.images import to_grey
+from calibration.images import to_gray
 from estimator._checks import check_transform, check_vector
 from estimator.frames import invert
 
@@ -45,7 +45,7 @@ class PlanarTracker:
             raise ValueError(f"size_mm must be a positive (width, height), got {size_mm.tolist()}")
         if ref.ndim not in (2, 3):
             raise ValueError(f"reference must have shape (H, W) or (H, W, 3), got {ref.shape}")
-        ref = to_grey(ref)
+        ref = to_gray(ref)
         self.det: cv2.Feature2D
         if features == "sift":
             self.det = cv2.SIFT.create(nfeatures=n_features)
@@ -73,7 +73,7 @@ class PlanarTracker:
         self.max_reproj_px = max_reproj_px
 
     def estimate(self, image: ArrayLike) -> PoseResult:
-        img = to_grey(image)
+        img = to_gray(image)
         kp, des = self.det.detectAndCompute(img, None)
         if des is None or len(kp) < self.min_inliers:
             return PoseResult(None, TOO_FEW, f"{0 if des is None else len(kp)} features in the frame")

@@ -46,12 +46,12 @@ RATIO = 0.8
 nearest descriptor of another 3D point."""
 
 
-def image_features(grey: ArrayLike, max_features: int = MAX_FEATURES, scale: float = FEATURE_SCALE
+def image_features(gray: ArrayLike, max_features: int = MAX_FEATURES, scale: float = FEATURE_SCALE
                    ) -> tuple[np.ndarray, np.ndarray]:
     """SIFT features of one frame: positions (N, 2) in the frame's own pixels (OpenCV's
     convention, the first pixel's centre at 0, 0) and RootSIFT descriptors (N, 128) float32 of unit
-    length. ``grey``: (H, W) uint8."""
-    g = np.asarray(grey)
+    length. ``gray``: (H, W) uint8."""
+    g = np.asarray(gray)
     if g.ndim != 2 or g.dtype != np.uint8:
         raise ValueError(f"grey must be an (H, W) uint8 image, got {g.shape} {g.dtype}")
     small = g if scale == 1 else cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -104,7 +104,7 @@ class FeatureMap:
         object.__setattr__(self, "point_of", idx)
 
 
-class FeatureLocaliser:
+class FeatureLocalizer:
     """The pose of a frame from its features matched to a ``FeatureMap``.
 
     Args:
@@ -157,11 +157,11 @@ class FeatureLocaliser:
         first[1:] = p[order][1:] != p[order][:-1]
         return q[order][first], p[order][first]
 
-    def estimate(self, grey: ArrayLike) -> PoseResult:
+    def estimate(self, gray: ArrayLike) -> PoseResult:
         """The pose of one frame, (H, W) uint8, distorted as the camera takes it: from its
         features at ``scales[0]``, or, when that fails, at ``scales[1]``."""
         for scale in self.scales:
-            xy, desc = image_features(grey, QUERY_FEATURES if scale == self.scales[0] else MAX_FEATURES, scale)
+            xy, desc = image_features(gray, QUERY_FEATURES if scale == self.scales[0] else MAX_FEATURES, scale)
             q, p = self.matches(desc)
             if len(q) < self.min_inliers:
                 res = PoseResult(None, TOO_FEW, f"{len(q)} features matched to the map, need {self.min_inliers}",

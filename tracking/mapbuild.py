@@ -115,7 +115,7 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
         ValueError: no marker seen, the origin never seen (or not in ``prior``), a seen id
             without a size.
     """
-    obs = _normalised(views, K, dist, model)
+    obs = _normalized(views, K, dist, model)
     ids = sorted({i for v in obs for i in v})
     if not ids:
         raise ValueError("no marker was detected in any view")
@@ -132,7 +132,7 @@ def build_marker_map(views, K, dist, dictionary: str, sizes, origin: int | None 
     intr, markers, cams = _intrinsics(views, size, origin, markers, cams, K, dist, model, image_size, refine)
     if intr.refined:
         K, dist = intr.camera_matrix, intr.dist_coeffs
-        obs = _normalised(views, K, dist, model)
+        obs = _normalized(views, K, dist, model)
     adj, moved, rms_unsplit = adjust_with_moves(obs, size, origin, markers, cams, float(K[0, 0]),
                                                  markers[origin], tally)
     rms = residual_rms(adj.residuals)
@@ -224,7 +224,7 @@ def similarity_errors(A, B) -> tuple[np.ndarray, float]:
     return np.linalg.norm(A @ T[:3, :3].T + T[:3, 3] - B, axis=1), float(np.cbrt(np.linalg.det(T[:3, :3])))
 
 
-def _normalised(views, K, dist, model: str = "pinhole") -> list:
+def _normalized(views, K, dist, model: str = "pinhole") -> list:
     """Each view's corners as normalised image coordinates (undistorted to convergence,
     ``calibration.camera.undistort_points``: OpenCV's default 5 iterations left the simulated
     survey's map, k1 = -0.28, 2.6 mm off its true shape)."""

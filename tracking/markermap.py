@@ -75,12 +75,12 @@ def pose_from_corners(C: np.ndarray, size: float, i: int) -> np.ndarray:
     if np.abs(sides - size).max() > tol or abs(diag[0] - diag[1]) > tol:
         raise MarkerMapError(f"marker {i}: its corners are not a square of side {size:g} mm (sides "
                              f"{', '.join(f'{s:.1f}' for s in sides)} mm)")
-    centre = C.mean(axis=0)
+    center = C.mean(axis=0)
     x = (C[1] - C[0]) + (C[2] - C[3])
     y = (C[3] - C[0]) + (C[2] - C[1])
     x /= np.linalg.norm(x)
     y -= x * (x @ y)
     y /= np.linalg.norm(y)
     T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, np.cross(x, y), centre
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, np.cross(x, y), center
     return T

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike
 
 from calibration.camera import aruco_dictionary as get_dictionary
 from calibration.cvcompat import detect_markers
-from calibration.images import to_grey
+from calibration.images import to_gray
 
 from .corners import refine_markers
 
@@ -116,11 +116,11 @@ class MarkerDetector:
         img = np.asarray(image)
         if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
             raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
-        grey = to_grey(img)
-        k = self.downscale or (2 if grey.shape[1] >= 1200 and self.refine != "apriltag" else 1)
-        small = grey if k == 1 else cv2.resize(grey, (grey.shape[1] // k, grey.shape[0] // k),
+        gray = to_gray(img)
+        k = self.downscale or (2 if gray.shape[1] >= 1200 and self.refine != "apriltag" else 1)
+        small = gray if k == 1 else cv2.resize(gray, (gray.shape[1] // k, gray.shape[0] // k),
                                                interpolation=cv2.INTER_AREA)
-        full = k == 1 and not (self.small_frames and grey.shape[1] < 1200)
+        full = k == 1 and not (self.small_frames and gray.shape[1] < 1200)
         c, ids = detect_markers(self._det if full else self._det_small, small)
         if len(ids) == 0:
             return []
@@ -132,11 +132,11 @@ class MarkerDetector:
         c = c * k + (k - 1) / 2
         if self.refine in ("edges", "subpix"):
             win = max(2, min(5, int(np.min(np.linalg.norm(np.diff(c, axis=1), axis=2)) / (2 * self.modules))))
-            pts = cv2.cornerSubPix(grey, c.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1),
+            pts = cv2.cornerSubPix(gray, c.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1),
                                    (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01))
             c = pts.reshape(-1, 4, 2).astype(float)
         if self.refine == "edges":
-            c = refine_markers(grey, c, self.modules)
+            c = refine_markers(gray, c, self.modules)
         return [detection(i, ci) for i, ci in zip(ids, c, strict=True)]
 
     def detect_unique(self, image: np.ndarray) -> dict[int, np.ndarray]:

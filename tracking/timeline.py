@@ -171,7 +171,7 @@ def pose_spikes(t: ArrayLike, T: ArrayLike, max_gap_s: float = 0.2, spike_mm: fl
     good = np.flatnonzero(np.all(np.isfinite(T.reshape(len(T), -1)), axis=1))
     off_mm, off_deg = np.full(len(t), np.nan), np.full(len(t), np.nan)
     for j, k in enumerate(good):
-        Ti = _neighbours_pose(t, T, good, j, max_gap_s)
+        Ti = _neighbors_pose(t, T, good, j, max_gap_s)
         if Ti is None:
             continue
         off_mm[k] = np.linalg.norm(T[k, :3, 3] - Ti[:3, 3])
@@ -186,7 +186,7 @@ def pose_spikes(t: ArrayLike, T: ArrayLike, max_gap_s: float = 0.2, spike_mm: fl
     return spike, off_mm, off_deg
 
 
-def _neighbours_pose(t: np.ndarray, T: np.ndarray, good: np.ndarray, j: int, max_gap_s: float) -> np.ndarray | None:
+def _neighbors_pose(t: np.ndarray, T: np.ndarray, good: np.ndarray, j: int, max_gap_s: float) -> np.ndarray | None:
     """The pose at ``t[good[j]]`` its valid neighbours (indices ``good``) give: SLERP between the
     two around it when at most ``max_gap_s`` apart; else the two on one side, continued, when
     that side's nearer one is within half ``max_gap_s`` and the farther within ``max_gap_s``;

@@ -1,7 +1,7 @@
 """Still images: the calibration recordings' board views and wall images, a ``track --reference``
 photo, the camera calibration's preview (docs/session.md, calibration/; listed in docs/formats.md).
 
-One reader, ``read_grey_image`` (any format OpenCV decodes: ``IMAGE_EXT``), and one writer,
+One reader, ``read_gray_image`` (any format OpenCV decodes: ``IMAGE_EXT``), and one writer,
 ``write_image`` (atomic; the format from the name's suffix, PNG for every file the program
 writes).
 """
@@ -26,7 +26,7 @@ JPEG_START, JPEG_END, JPEG_SCAN = b"\xff\xd8", b"\xff\xd9", b"\xff\xda"      # S
 log = logging.getLogger(__name__)
 
 
-def read_grey_image(path, what: str = "image", fix: str = "pass a PNG, JPEG, BMP or TIFF image") -> np.ndarray:
+def read_gray_image(path, what: str = "image", fix: str = "pass a PNG, JPEG, BMP or TIFF image") -> np.ndarray:
     """The image at ``path`` as (H, W) uint8 grey (a colour image converted by OpenCV).
 
     Raises:

@@ -29,14 +29,14 @@ class PlyMesh:
 
     Attributes:
         vertices_mm: (N, 3) world frame, mm.
-        colours: (N, 3) uint8 RGB.
+        colors: (N, 3) uint8 RGB.
         faces: (F, 3) vertex indices of triangles.
         edges: (E, 2) vertex indices of line segments.
         comments: header comments (one line each), after ``UNITS_COMMENT``.
     """
 
     vertices_mm: np.ndarray
-    colours: np.ndarray
+    colors: np.ndarray
     faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), int))
     edges: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), int))
     comments: list = field(default_factory=list)
@@ -45,7 +45,7 @@ class PlyMesh:
 def write_ply(path, mesh: PlyMesh) -> None:
     """Write ``mesh`` as an ASCII PLY, atomically."""
     v = np.asarray(mesh.vertices_mm, float).reshape(-1, 3)
-    c = np.asarray(mesh.colours, np.uint8).reshape(-1, 3)
+    c = np.asarray(mesh.colors, np.uint8).reshape(-1, 3)
     f = np.asarray(mesh.faces, int).reshape(-1, 3)
     e = np.asarray(mesh.edges, int).reshape(-1, 2)
     if len(c) != len(v) or (f.size and (f.min() < 0 or f.max() >= len(v))) or (e.size and (e.min() < 0 or

@@ -1,7 +1,7 @@
 """Scene videos and their frame timestamps (docs/session.md, "scene video" and
 ``scene_timestamps.csv``; listed in docs/formats.md).
 
-Video frames are read as grey images (``grey_frames``, every k-th: ``sampled_grey_frames``; ``open_video``
+Video frames are read as grey images (``gray_frames``, every k-th: ``sampled_gray_frames``; ``open_video``
 for a capture to step through) and written
 through ``open_video_writer`` (OpenCV's FFMPEG backend: mp4v, MJPG, FFV1, which browsers do not
 play) or, for a browser, ``BrowserVideoWriter`` (H.264 in MP4 through PyAV). The frame-timestamp CSV (columns
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.images import to_grey
+from calibration.images import to_gray
 
 from ..errors import UserError
 from .tables import read_table, write_table
@@ -29,7 +29,7 @@ FRAME_TIME_HEADER = ",".join(FRAME_TIME_COLUMNS) + "\n"
 log = logging.getLogger(__name__)
 
 
-def grey_frames(path):
+def gray_frames(path):
     """Yield every frame of a video as a (H, W) uint8 grey image."""
     import cv2
 
@@ -39,7 +39,7 @@ def grey_frames(path):
             ok, frame = cap.read()
             if not ok:
                 return
-            yield to_grey(frame)
+            yield to_gray(frame)
     finally:
         cap.release()
 
@@ -55,7 +55,7 @@ def video_fps(path) -> float:
         cap.release()
 
 
-def grey_frames_at(path, frames) -> dict:
+def gray_frames_at(path, frames) -> dict:
     """{frame index: (H, W) uint8 grey image} of the frames ``frames`` (indices from 0) of a video,
     decoded in order (the frames between are skipped undecoded); an index past its end is absent."""
     import cv2
@@ -68,14 +68,14 @@ def grey_frames_at(path, frames) -> dict:
             if i in want:
                 ok, frame = cap.retrieve()
                 if ok:
-                    out[i] = to_grey(frame)
+                    out[i] = to_gray(frame)
             i += 1
     finally:
         cap.release()
     return out
 
 
-def sampled_grey_frames(path, max_frames: int, refused: str | None = None):
+def sampled_gray_frames(path, max_frames: int, refused: str | None = None):
     """Yield (frame index, (H, W) uint8 grey image) of every k-th frame of a video, k = its frame
     count // ``max_frames`` (at least 1): about ``max_frames`` frames spread over it; the frames
     between are skipped undecoded.
@@ -95,7 +95,7 @@ def sampled_grey_frames(path, max_frames: int, refused: str | None = None):
             if i % step == 0:
                 ok, frame = cap.retrieve()
                 if ok:
-                    yield i, to_grey(frame)
+                    yield i, to_gray(frame)
             i += 1
     finally:
         cap.release()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import cv2
 
-from calibration.images import to_grey
+from calibration.images import to_gray
 
 from .input_thread import InputThread
 
@@ -107,10 +107,10 @@ class FrameSource(InputThread):
                     self.stats.missed += int(round((now - last) / period)) - 1
                 failing = False
                 last = now
-                grey = to_grey(frame)
+                gray = to_gray(frame)
                 if self.sink is not None:
-                    self.sink(t - self.t0, i, grey)
-                item = (t, i, grey, frame)
+                    self.sink(t - self.t0, i, gray)
+                item = (t, i, gray, frame)
                 self.stats.skipped += put_newest(self.queue, item)
                 self.stats.frames += 1
                 i += 1

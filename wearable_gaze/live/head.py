@@ -57,9 +57,9 @@ class HeadTracker:
         return cls(MarkerDetector(marker_map.dictionary).detect, MarkerPoseEstimator(marker_map, camera).estimate,
                    hold_s, max_age_s=max_age_s)
 
-    def track(self, t_s: float, grey) -> bool:
+    def track(self, t_s: float, gray) -> bool:
         """Track one frame taken at session time ``t_s`` (s); True when it gave a pose."""
-        res = self.estimate(self.detect(grey))
+        res = self.estimate(self.detect(gray))
         return self.add(t_s, bool(res.ok), res.T_world_from_cam, len(res.markers))
 
     def add(self, t_s: float, ok: bool, T_world_from_cam, n_markers: int) -> bool:
@@ -147,10 +147,10 @@ class TrackingThread(threading.Thread):
         if self.remote is not None:
             self.remote.close()
 
-    def _track(self, t_s: float, grey) -> bool:
+    def _track(self, t_s: float, gray) -> bool:
         if self.remote is None:
-            return self.head.track(t_s, grey)
-        return self.head.add(t_s, *self.remote.track(grey))
+            return self.head.track(t_s, gray)
+        return self.head.add(t_s, *self.remote.track(gray))
 
     def run(self) -> None:
         try:

@@ -277,8 +277,8 @@ class LiveSession:
         if not items:
             return False
         self.tracking_skipped += len(items) - 1
-        t, _, grey, _ = items[-1]
-        if self.head.track(t - self.frames.t0, grey) and self.viewer is not None:
+        t, _, gray, _ = items[-1]
+        if self.head.track(t - self.frames.t0, gray) and self.viewer is not None:
             self.viewer.head(*self.head.poses[-1])
         return True
 

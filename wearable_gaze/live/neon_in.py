@@ -286,11 +286,11 @@ class WorldFrames(_Stream):
             if 1.5 <= gap <= 5.0:
                 self.stats.missed += int(round(gap)) - 1
         self._prev_t = t
-        grey = av_frame.to_ndarray(format="gray")
+        gray = av_frame.to_ndarray(format="gray")
         local, t_s = self._session_time(t)
         if self.sink is not None:
-            self.sink(t_s, self.n, grey)
-        item = (local, self.n, grey, None)
+            self.sink(t_s, self.n, gray)
+        item = (local, self.n, gray, None)
         self.n += 1
         self.stats.frames += 1
         self.stats.skipped += put_newest(self.queue, item)

@@ -29,7 +29,7 @@ from urllib.parse import parse_qsl, urlparse
 import numpy as np
 import zmq
 
-from calibration.images import to_grey
+from calibration.images import to_gray
 
 from ..errors import UserError
 from ..formats.devices.pupil_net import (
@@ -348,11 +348,11 @@ class WorldFrames(_Subscriber):
             self.stats.missed += fr.index - self.last_index - 1
         self.last_index = fr.index
         local, t_s = self._session_time(fr.t)
-        colour = fr.image if fr.image.ndim == 3 else None
-        grey = to_grey(fr.image) if colour is not None else fr.image
+        color = fr.image if fr.image.ndim == 3 else None
+        gray = to_gray(fr.image) if color is not None else fr.image
         if self.sink is not None:
-            self.sink(t_s, self.n, grey)
-        item = (local, self.n, grey, colour)
+            self.sink(t_s, self.n, gray)
+        item = (local, self.n, gray, color)
         self.n += 1
         self.stats.frames += 1
         self.stats.skipped += put_newest(self.queue, item)

@@ -134,7 +134,7 @@ class Recorder:
                     self.ray_rows.append((t, rec.left, rec.left_valid, rec.right, rec.right_valid))
                 self.n_eye += 1
 
-    def frame(self, t: float, index: int, grey) -> None:
+    def frame(self, t: float, index: int, gray) -> None:
         """A captured frame at session time ``t``, s (the video thread encodes it once its
         timestamp row has been flushed, so that a killed recording's video holds no frame
         without a time)."""
@@ -143,7 +143,7 @@ class Recorder:
                 return
             self.ts.write(frame_time_line(index, t))
             self.n_frames += 1
-        self.video_q.put(grey)
+        self.video_q.put(gray)
 
     def sample_pose(self, t: float, T_world_from_cam) -> None:
         """The head pose (4, 4) mm the session gave its eye sample at session time ``t``, s (None:

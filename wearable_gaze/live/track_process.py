@@ -35,8 +35,8 @@ def _serve(conn, marker_map, camera, nice: int) -> None:
     detect, estimate = MarkerDetector(marker_map.dictionary).detect, MarkerPoseEstimator(marker_map, camera).estimate
     conn.send("ready")
     while (shape := conn.recv()) is not None:
-        grey = np.frombuffer(conn.recv_bytes(), np.uint8).reshape(shape)
-        res = estimate(detect(grey))
+        gray = np.frombuffer(conn.recv_bytes(), np.uint8).reshape(shape)
+        res = estimate(detect(gray))
         conn.send((bool(res.ok), res.T_world_from_cam if res.ok else None, len(res.markers)))
 
 
@@ -64,12 +64,12 @@ class RemoteTracker:
             raise RuntimeError("the head-tracking process did not start (a script that opens a live session "
                                "must do so under 'if __name__ == \"__main__\":')")
 
-    def track(self, grey) -> tuple[bool, np.ndarray | None, int]:
+    def track(self, gray) -> tuple[bool, np.ndarray | None, int]:
         """(pose found, ``T_world_from_cam`` (4, 4) mm or None, markers used) of one grey frame
         (H, W) uint8."""
-        grey = np.ascontiguousarray(grey, np.uint8)
-        self.conn.send(grey.shape)
-        self.conn.send_bytes(memoryview(grey).cast("B"))
+        gray = np.ascontiguousarray(gray, np.uint8)
+        self.conn.send(gray.shape)
+        self.conn.send_bytes(memoryview(gray).cast("B"))
         return self.conn.recv()
 
     def close(self) -> None:

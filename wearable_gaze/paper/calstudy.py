@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.camera import undistort_points
-from calibration.eyes import calibrate_eye, estimate_centre, wall_pose
+from calibration.eyes import calibrate_eye, estimate_center, wall_pose
 from tracking.markermap import marker_corners_world
 
 from ..sim.camera import Camera
@@ -33,8 +33,8 @@ VARIANTS = ("no correction", "undistortion only", "tilt correction only", "both"
 @dataclass
 class StudyResult:
     errors_deg: dict          # variant -> (trials,) mean error per trial
-    centre_errors_mm: np.ndarray   # (trials, 2) two-distance centre estimate error per eye
-    centre_sigma_mm: np.ndarray    # (trials, 2) its reported standard deviation (norm)
+    center_errors_mm: np.ndarray   # (trials, 2) two-distance centre estimate error per eye
+    center_sigma_mm: np.ndarray    # (trials, 2) its reported standard deviation (norm)
     settings: dict
 
     def format(self) -> str:
@@ -51,21 +51,21 @@ class StudyResult:
             lines.append(f"| {v} | {np.mean(e):.3f} | {np.percentile(e, 95):.3f} |")
         lines.append("")
         lines.append("Paper (section 2.3.3, real EMR-8): 1.4 deg without corrections, 0.9 deg with both.")
-        ce = self.centre_errors_mm
+        ce = self.center_errors_mm
         lines.append(f"Eye centres from 5x5 grids at {s['near_wall_mm']:.0f} and {s['second_wall_mm']:.0f} mm "
                      f"({s['centre_samples_per_target']} samples per dot): "
                      f"error median {np.median(ce):.2f} mm, 95th percentile {np.percentile(ce, 95):.2f} mm, "
                      f"max {ce.max():.2f} mm over {ce.size} eyes; reported sigma median "
-                     f"{np.median(self.centre_sigma_mm):.2f} mm")
+                     f"{np.median(self.center_sigma_mm):.2f} mm")
         return "\n".join(lines)
 
 
-def _test_points(rng, n, centre):
+def _test_points(rng, n, center):
     yaw = np.deg2rad(rng.uniform(-20, 20, n))
     pitch = np.deg2rad(rng.uniform(-20, 20, n))
     depth = rng.uniform(500, 4000, n)
     d = np.column_stack([np.tan(yaw), np.tan(pitch), np.ones(n)])
-    return centre + d * (depth / d[:, 2])[:, None]
+    return center + d * (depth / d[:, 2])[:, None]
 
 
 def _wall_observation(camera, wall, model, rng, target_noise_px, samples, with_noise=True):
@@ -92,17 +92,17 @@ def _wall_observation(camera, wall, model, rng, target_noise_px, samples, with_n
 def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000.0, second_wall_mm: float = 2000.0,
                           tilt_deg: float = 10.0, target_noise_px: float = 0.3, sigma_deg: float = 1.0,
                           samples_per_target: int = 60, n_test: int = 400, near_wall_mm: float = 500.0,
-                          centre_samples_per_target: int = 90,
+                          center_samples_per_target: int = 90,
                           progress=None) -> StudyResult:
     """Run the study; ``progress(done, total)`` is called after each trial."""
     rng = np.random.default_rng(seed)
     camera = Camera.wide_scene_camera()
     errors: dict[str, list[float]] = {v: [] for v in VARIANTS}
-    centre_err, centre_sig = [], []
+    center_err, center_sig = [], []
     for trial in range(trials):
         # a different head and headset each trial: the centres are not where the nominal guess is
         model = EyeModel.make(rng, ipd_mm=rng.uniform(58, 70), sigma_deg=sigma_deg,
-                              centre_offset_mm=(rng.uniform(-3, 3), rng.uniform(20, 40), rng.uniform(-30, -10)))
+                              center_offset_mm=(rng.uniform(-3, 3), rng.uniform(20, 40), rng.uniform(-30, -10)))
         wall = CalibrationWall(wall_mm, tilt_deg * (1 if trial % 2 == 0 else -1))
         targets, px_t, px_r, corners_wall, raw_t = _wall_observation(camera, wall, model, rng, target_noise_px,
                                                                      samples_per_target)
@@ -110,23 +110,23 @@ def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000
             P = _targets_seen(variant, camera, wall, px_t, px_r, corners_wall)
             errs = []
             for e in range(2):
-                cal = calibrate_eye(("left", "right")[e], raw_t[:, e], P, model.centres[e], plane_mm=wall_mm)
-                X = _test_points(rng, n_test, model.centres[e])
+                cal = calibrate_eye(("left", "right")[e], raw_t[:, e], P, model.centers[e], plane_mm=wall_mm)
+                X = _test_points(rng, n_test, model.centers[e])
                 raw_x, true_dirs, _ = _noise_free(model, X)
                 cos = (cal.directions(raw_x[:, e]) * true_dirs[:, e]).sum(1)
                 errs.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
             errors[variant].append(float(np.mean(errs)))
         walls = ((near_wall_mm, -8.0), (second_wall_mm, 6.0))
-        ce, cs = _centre_errors(camera, model, rng, walls, target_noise_px,
-                                centre_samples_per_target)
-        centre_err.append(ce)
-        centre_sig.append(cs)
+        ce, cs = _center_errors(camera, model, rng, walls, target_noise_px,
+                                center_samples_per_target)
+        center_err.append(ce)
+        center_sig.append(cs)
         if progress:
             progress(trial + 1, trials)
     settings = dict(trials=trials, seed=seed, wall_mm=wall_mm, second_wall_mm=second_wall_mm, tilt_deg=tilt_deg,
-                    near_wall_mm=near_wall_mm, centre_samples_per_target=centre_samples_per_target,
+                    near_wall_mm=near_wall_mm, centre_samples_per_target=center_samples_per_target,
                     target_noise_px=target_noise_px, sigma_deg=sigma_deg, samples_per_target=samples_per_target)
-    return StudyResult({k: np.array(v) for k, v in errors.items()}, np.array(centre_err), np.array(centre_sig),
+    return StudyResult({k: np.array(v) for k, v in errors.items()}, np.array(center_err), np.array(center_sig),
                        settings)
 
 
@@ -147,7 +147,7 @@ def _targets_seen(variant: str, camera: Camera, wall: CalibrationWall, px_t, px_
     return wall.distance_mm * np.column_stack([norm_t, np.ones(len(norm_t))])
 
 
-def _centre_errors(camera: Camera, model: EyeModel, rng, walls, target_noise_px: float,
+def _center_errors(camera: Camera, model: EyeModel, rng, walls, target_noise_px: float,
                    samples: int) -> tuple[list, list]:
     """Each eye's centre estimated from 5x5 grids on ``walls`` ((distance mm, tilt deg), both
     corrections): its error, mm, and its reported sd (the root of its covariance's trace), mm."""
@@ -163,8 +163,8 @@ def _centre_errors(camera: Camera, model: EyeModel, rng, walls, target_noise_px:
     ce, cs = [], []
     for e in range(2):
         nominal = np.array([(-32.0, 32.0)[e], 30.0, -20.0])
-        c, cov = estimate_centre(np.vstack([r[:, e] for r in raws]), np.vstack(Ps), nominal)
-        ce.append(np.linalg.norm(c - model.centres[e]))
+        c, cov = estimate_center(np.vstack([r[:, e] for r in raws]), np.vstack(Ps), nominal)
+        ce.append(np.linalg.norm(c - model.centers[e]))
         cs.append(float(np.sqrt(np.trace(cov))))
     return ce, cs
 

@@ -245,7 +245,7 @@ def _shape(s: AoiSpec, marker_map) -> Box | Sphere | Polygon | Mesh:
     return Polygon(_grown_hull(corners, float(p.get("margin_mm", 0.0))), depth_tolerance_mm=tol)
 
 
-AOI_COLOUR = "#00838f"
+AOI_COLOR = "#00838f"
 """The areas' colour in the report's 3D view (no target's: Kelly's colours hold no teal)."""
 MAX_MESH_EDGES = 3000
 """A mesh area is outlined by at most this many of its edges in the 3D view."""
@@ -279,7 +279,7 @@ def area_outline(area: Area) -> np.ndarray:
 def aoi_outlines(specs, marker_map=None) -> list:
     """[(name, colour, segments (K, 2, 3) mm)] of an AOI file's areas (``specs``: ``read_aois``'s)
     for the report's 3D view (``view3d.scene``'s ``aois``); [] without any."""
-    return [(a.name, AOI_COLOUR, area_outline(a)) for a in areas_of(list(specs or ()), marker_map)]
+    return [(a.name, AOI_COLOR, area_outline(a)) for a in areas_of(list(specs or ()), marker_map)]
 
 
 def _grown_hull(corners, margin_mm: float) -> np.ndarray:

@@ -25,7 +25,7 @@ from calibration.eyes import (
     CalibrationError,
     calibrate_eye,
     compare_models,
-    estimate_centre,
+    estimate_center,
     target_readings,
     wall_pose,
 )
@@ -39,14 +39,14 @@ from ..errors import UserError, check_output
 from ..formats.camera import calibration_dict, is_preview, load_camera, preview_path, write_camera
 from ..formats.eye_samples import EyeSamples, read_eye_csv
 from ..formats.eyes import eyes_dict, load_eyes
-from ..formats.images import IMAGE_EXT, image_files, read_grey_image, write_image
+from ..formats.images import IMAGE_EXT, image_files, read_gray_image, write_image
 from ..formats.person import person_correction_deg, read_person
 from ..formats.poses import read_poses_csv
-from ..formats.video import sampled_grey_frames
+from ..formats.video import sampled_gray_frames
 from ..formats.walls import Wall, WallsRecording, read_walls
 from .types import CameraResult, Poses, ViewLinesResult
 
-NOMINAL_CENTRES_MM = np.array([[-32.0, 30.0, -20.0], [32.0, 30.0, -20.0]])
+NOMINAL_CENTERS_MM = np.array([[-32.0, 30.0, -20.0], [32.0, 30.0, -20.0]])
 
 log = logging.getLogger(__name__)
 
@@ -79,21 +79,21 @@ def read_frames(files, max_video_frames: int, what: str = "the board"):
     ``max_video_frames``) of video files; ``what`` the images show, for messages."""
     for f in files:
         if f.suffix.lower() in IMAGE_EXT:
-            yield f.name, read_grey_image(f, fix=f"pass PNG, JPEG, BMP or TIFF images of {what}")
+            yield f.name, read_gray_image(f, fix=f"pass PNG, JPEG, BMP or TIFF images of {what}")
             continue
         refused = f"{f}: neither an image nor a video OpenCV can open; pass images or a video of {what}"
-        for i, grey in sampled_grey_frames(f, max_video_frames, refused):
-            yield f"{f.name}#{i}", grey
+        for i, gray in sampled_gray_frames(f, max_video_frames, refused):
+            yield f"{f.name}#{i}", gray
 
 
-def check_frame_size(name: str, grey, cam) -> None:
+def check_frame_size(name: str, gray, cam) -> None:
     """Refuse a frame (H, W) of another size than the camera calibration's (``name``: which).
 
     Raises:
         UserError: naming the two sizes and the fix.
     """
-    if (grey.shape[1], grey.shape[0]) != tuple(cam.image_size):
-        raise UserError(f"{name} is {grey.shape[1]}x{grey.shape[0]} but the camera calibration is for "
+    if (gray.shape[1], gray.shape[0]) != tuple(cam.image_size):
+        raise UserError(f"{name} is {gray.shape[1]}x{gray.shape[0]} but the camera calibration is for "
                         f"{cam.image_size[0]}x{cam.image_size[1]}; use this camera's calibration at this size")
 
 
@@ -243,14 +243,14 @@ def read_eye_recordings(files: WallsRecording) -> EyeRecordings:
     images: list[np.ndarray | UserError] = []
     for w in files.walls:
         try:
-            images.append(read_grey_image(w.image, "wall image",
+            images.append(read_gray_image(w.image, "wall image",
                                           f"record the wall again or fix 'image' in {files.walls_path}"))
         except UserError as exc:
             images.append(exc)
     return EyeRecordings(files, eye, extra, images)
 
 
-def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centres=None, progress=None) -> dict:
+def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centers=None, progress=None) -> dict:
     """``calibrate_eyes`` from files: writes eyes.json and returns its content. The eyes step
     ``process`` runs (``session_steps.run_eyes``)."""
     from .session_steps import EyesInputs, run_eyes  # the steps' module imports this one
@@ -259,14 +259,14 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centre
     check_output(out, [camera_path, files.csv_path, files.walls_path, *files.images], "-o")
     camera = load_camera(camera_path)
     inputs = EyesInputs(camera, read_eye_recordings(files), Path(out))
-    return run_eyes(EyesConfig(model, centres), inputs, progress)
+    return run_eyes(EyesConfig(model, centers), inputs, progress)
 
 
-def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "quadratic", centres=None,
+def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "quadratic", centers=None,
                    progress=None) -> dict:
     """The eye calibration of a session's recordings (docs/session.md): wall poses from their
     reference markers, per-target readings, eye centres from two or more wall distances (or
-    ``centres``, or a nominal headset geometry), and eq. 1-2 per eye. Returns the content of
+    ``centers``, or a nominal headset geometry), and eq. 1-2 per eye. Returns the content of
     eyes.json."""
     n = len(rec.files.walls)
     P, readings, wall_report = _wall_readings(rec, camera, progress)
@@ -277,14 +277,14 @@ def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "
         if not np.isfinite(raw).any():
             raise UserError(f"no valid {name}-eye samples in {rec.files.csv_path}: check the {name} eye's sensor and "
                             "record the calibration again")
-        if centres is not None:
-            c, cov, how = np.asarray(centres[e], float), None, "given"
+        if centers is not None:
+            c, cov, how = np.asarray(centers[e], float), None, "given"
         elif np.ptp(depths) > 0.2 * np.median(depths):
             ok = np.all(np.isfinite(raw), axis=1)
-            c, cov = estimate_centre(raw[ok], P[ok], NOMINAL_CENTRES_MM[e])
+            c, cov = estimate_center(raw[ok], P[ok], NOMINAL_CENTERS_MM[e])
             how = "two-distance"
         else:
-            c, cov, how = NOMINAL_CENTRES_MM[e], None, "nominal (one wall distance: record a second to estimate it)"
+            c, cov, how = NOMINAL_CENTERS_MM[e], None, "nominal (one wall distance: record a second to estimate it)"
         try:
             cal = calibrate_eye(name, raw, P, c, plane_mm=float(depths[0]), model=model,
                                 focal_px=float(camera.camera_matrix[0, 0]))

@@ -28,10 +28,10 @@ from .types import Poses, Target, TargetsResult
 
 log = logging.getLogger(__name__)
 
-COLOURS = np.array([[214, 39, 40], [31, 119, 180], [44, 160, 44], [148, 103, 189], [255, 127, 14], [140, 86, 75],
+COLORS = np.array([[214, 39, 40], [31, 119, 180], [44, 160, 44], [148, 103, 189], [255, 127, 14], [140, 86, 75],
                     [227, 119, 194], [23, 190, 207]], np.uint8)
 """The targets' colours, in turn (the report's)."""
-HEAD_COLOUR = (128, 128, 128)
+HEAD_COLOR = (128, 128, 128)
 
 
 def fixation_rows(result: TargetsResult) -> list[dict]:
@@ -222,17 +222,17 @@ def targets_mesh(targets: list[Target], poses: Poses, paths: dict | None = None)
         if np.all(np.isfinite(tg.position_mm)) or region is not None:
             _add_target(parts, tg, region, lo, hi, sphere)
     for index, (_, pos, _) in sorted((paths or {}).items()):
-        first = parts.add(np.asarray(pos, float), COLOURS[index % len(COLOURS)])
+        first = parts.add(np.asarray(pos, float), COLORS[index % len(COLORS)])
         parts.add_path_edges(first, len(pos))
         parts.notes.append(f"target {index}'s path (a moving target): vertices {first}-"
                            f"{parts.n - 1}, the edges")
     posed = np.flatnonzero(np.all(np.isfinite(poses.T_world_from_cam[:, :3, 3]), axis=1))
     if len(posed):
-        first = parts.add(poses.T_world_from_cam[posed, :3, 3], np.array(HEAD_COLOUR, np.uint8))
+        first = parts.add(poses.T_world_from_cam[posed, :3, 3], np.array(HEAD_COLOR, np.uint8))
         parts.add_path_edges(first, len(posed))
         parts.notes.append(f"head path (scene camera positions at posed frames): vertices {first}-"
                            f"{parts.n - 1}, the edges")
-    return PlyMesh(_cat(parts.vertices, (0, 3), float), _cat(parts.colours, (0, 3), np.uint8),
+    return PlyMesh(_cat(parts.vertices, (0, 3), float), _cat(parts.colors, (0, 3), np.uint8),
                    _cat(parts.faces, (0, 3), int), _cat(parts.edges, (0, 2), int),
                    ["wearable-gaze targets.ply (docs/formats.md)", *parts.notes])
 
@@ -243,17 +243,17 @@ class _MeshParts:
 
     def __init__(self):
         self.vertices: list[np.ndarray] = []
-        self.colours: list[np.ndarray] = []
+        self.colors: list[np.ndarray] = []
         self.faces: list[np.ndarray] = []
         self.edges: list[np.ndarray] = []
         self.notes: list[str] = []
         self.n = 0                                  # vertices so far
 
-    def add(self, points: np.ndarray, colour: np.ndarray) -> int:
+    def add(self, points: np.ndarray, color: np.ndarray) -> int:
         """Append vertices (k, 3) in one colour (3,); the index of the first."""
         first = self.n
         self.vertices.append(points)
-        self.colours.append(np.repeat(colour[None], len(points), 0))
+        self.colors.append(np.repeat(color[None], len(points), 0))
         self.n += len(points)
         return first
 
@@ -268,23 +268,23 @@ def _add_target(parts: _MeshParts, tg: Target, region, lo: np.ndarray, hi: np.nd
     """A static target's part of targets.ply (see ``targets_mesh``): its point or line of sight,
     then its credible region or else its ellipsoid (the unit ``sphere``'s (vertices, faces)
     scaled), in its colour, and its note."""
-    colour = COLOURS[tg.index % len(COLOURS)]
+    color = COLORS[tg.index % len(COLORS)]
     text = f"target {tg.index} ({tg.status}):"
     if np.all(np.isfinite(tg.position_mm)):
-        first = parts.add(np.asarray(tg.position_mm, float)[None], colour)
+        first = parts.add(np.asarray(tg.position_mm, float)[None], color)
         text += f" vertex {first} (its point)"
     elif region is not None:                      # no point: its line of sight as an edge
         reach = region.far_mm if region.closed else ray_exit(region.origin_mm, region.direction,
                                                               lo, hi)
         ends = np.stack([region.point_at(region.near_mm),
                          region.point_at(max(reach, region.near_mm))])
-        first = parts.add(ends, colour)
+        first = parts.add(ends, color)
         parts.edges.append(np.array([[first, first + 1]]))
         text += f" vertices {first}-{first + 1} (its line of sight over its region, the edge)"
     if region is not None:
         rv, rf, _ = region_mesh(region, ray_exit(region.origin_mm, region.direction, lo, hi))
         parts.faces.append(rf + parts.n)
-        first = parts.add(rv, colour)
+        first = parts.add(rv, color)
         what = (f"{region.near_mm:.0f}-{region.far_mm:.0f} mm" if region.closed else
                 f"{region.near_mm:.0f} mm on, no far end: open, cut at the box's edge")
         text += (f", its 95 % credible region (distance from {_xyz(region.origin_mm)} {what}) "
@@ -293,7 +293,7 @@ def _add_target(parts: _MeshParts, tg: Target, region, lo: np.ndarray, hi: np.nd
         unit, faces = sphere
         ell = covariance_ellipsoid(tg.position_mm, tg.covariance_mm2, 0.95)
         parts.faces.append(faces + parts.n)
-        first = parts.add(tg.position_mm + (unit * ell.radii_mm) @ ell.axes.T, colour)
+        first = parts.add(tg.position_mm + (unit * ell.radii_mm) @ ell.axes.T, color)
         text += f", its 95 % ellipsoid vertices {first}-{parts.n - 1}"
     parts.notes.append(text)
 

@@ -136,9 +136,9 @@ def _detect_views(files, max_frames: int, cam, dictionary: str, progress=None):
     total = frames_total(files, max_frames)
     views, names = [], []
     repeated: dict[int, int] = {}
-    for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room's markers")):
-        check_frame_size(name, grey, cam)
-        unique, rep, _ = split_repeated(detector.detect(grey))
+    for k, (name, gray) in enumerate(read_frames(files, max_frames, "the room's markers")):
+        check_frame_size(name, gray, cam)
+        unique, rep, _ = split_repeated(detector.detect(gray))
         for i in rep:
             repeated[i] = repeated.get(i, 0) + 1
         views.append(unique)

@@ -11,7 +11,7 @@ What is drawn is what was seen: markers only where the detector found them in th
 projected from the map, which puts markers far outside the view on lines across the frame);
 points only inside the calibrated field of view (outside it the distortion polynomial folds them
 back into the image); labels moved inside the frame. The colours are named once, in RGB
-(``EYE_COLOURS`` ...), handed to OpenCV as BGR by ``bgr`` and named in the caption (``caption``).
+(``EYE_COLORS`` ...), handed to OpenCV as BGR by ``bgr`` and named in the caption (``caption``).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration
-from calibration.images import to_grey
+from calibration.images import to_gray
 from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector
 
@@ -43,7 +43,7 @@ EYE_TIME_S = 0.05            # the eye sample drawn on a frame is at most this f
 TARGET_TIME_S = 0.15         # the target of the view line nearest the frame, if this near
 
 # (what, colour name in the caption, RGB): one table for the drawing and the words
-EYE_COLOURS = (("left eye", "orange", (255, 140, 0)), ("right eye", "magenta", (255, 0, 255)))
+EYE_COLORS = (("left eye", "orange", (255, 140, 0)), ("right eye", "magenta", (255, 0, 255)))
 MAP_MARKER = ("marker of the map", "green", (0, 200, 0))
 OTHER_MARKER = ("marker not in the map", "yellow", (255, 220, 0))
 TARGET = ("target", "red", (230, 0, 0))
@@ -58,8 +58,8 @@ def bgr(rgb) -> tuple[int, int, int]:
 
 
 def caption() -> str:
-    """The sentence under the overlay, naming each colour as ``EYE_COLOURS`` ... draw it (HTML)."""
-    (l_what, l_name, _), (r_what, r_name, _) = EYE_COLOURS
+    """The sentence under the overlay, naming each colour as ``EYE_COLORS`` ... draw it (HTML)."""
+    (l_what, l_name, _), (r_what, r_name, _) = EYE_COLORS
     return html.escape(
         f"Scene video: {MAP_MARKER[1]} outlines, the markers detected in the frame ({OTHER_MARKER[1]}: detected "
         f"but not in the map); circles, each eye's gaze point ({l_name} {l_what}, {r_name} {r_what}); "
@@ -234,7 +234,7 @@ def draw_marks(frame, marks: FrameMarks) -> np.ndarray:
         cv2.polylines(img, [np.round(np.asarray(c) * 16).astype(np.int32)], True, bgr(rgb), lw, cv2.LINE_AA, shift=4)
         put_label(img, str(mid), np.asarray(c)[0], rgb, 0.5 * s, lw, offset=(0, -4))
     for e, px in marks.gaze:
-        cv2.circle(img, _pt(px), max(int(round(14 * s)), 2), bgr(EYE_COLOURS[e][2]), max(int(round(3 * s)), 1),
+        cv2.circle(img, _pt(px), max(int(round(14 * s)), 2), bgr(EYE_COLORS[e][2]), max(int(round(3 * s)), 1),
                    cv2.LINE_AA)
     for k, px, dist_mm in marks.targets:
         cv2.drawMarker(img, _pt(px), bgr(TARGET[2]), cv2.MARKER_CROSS, max(int(round(40 * s)), 4),
@@ -338,7 +338,7 @@ def _write_frames(cap, row: dict, shown: set, writers, drawing, progress, n_tota
         if not ok:
             break
         if k is not None:
-            found = [] if detector is None else known[i] if i in known else detector.detect(to_grey(frame))
+            found = [] if detector is None else known[i] if i in known else detector.detect(to_gray(frame))
             frame = draw_marks(frame, frame_marks(inp, found, targets, T_p[k], float(t_p[k]), r_max))
         if full is not None:
             full.write(frame)

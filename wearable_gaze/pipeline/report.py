@@ -55,7 +55,7 @@ log = logging.getLogger(__name__)
 PLOTS = report_plots.PLOTS
 REPORT_FILES = ("report.html", *PLOTS, PREVIEW_NAME, VIDEO_NAME, "overlay_error.txt")   # all write_report writes
 OPTIONAL_FILES = (PREVIEW_NAME, VIDEO_NAME, "overlay_error.txt")                        # ... not always
-COLOURS = report_plots.COLOURS
+COLORS = report_plots.COLORS
 
 __all__ = ["OverlayInputs", "ReportTruth", "write_report", "load_truth", "REPORT_FILES", "PLOTS"]
 
@@ -66,9 +66,9 @@ def session_title(root: Path) -> str:
     return "/".join(Path(root).resolve().parts[-2:])
 
 
-def colour(index: int) -> str:
+def color(index: int) -> str:
     """Target ``index``'s colour, '#rrggbb', the same in every plot, the table and the 3D view."""
-    return COLOURS[int(index) % len(COLOURS)]
+    return COLORS[int(index) % len(COLORS)]
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,7 @@ class ReportData:
     tlabels: np.ndarray
     flabels: np.ndarray
     head: np.ndarray
-    centre: np.ndarray
+    center: np.ndarray
     est: dict
     orig: np.ndarray
     cyc: np.ndarray
@@ -161,7 +161,7 @@ class ReportData:
         walking session is no place the person looked from (the real Aria sample: 0.76 m, against
         2.1 m from where the target was looked at)."""
         o = self.orig[self.tlabels == tg.index]
-        o = o if len(o) else self.centre[None]
+        o = o if len(o) else self.center[None]
         return float(np.median(np.linalg.norm(np.asarray(tg.position_mm) - o, axis=1)) / 1000)
 
     def ellipsoid(self, tg) -> np.ndarray | None:
@@ -264,7 +264,7 @@ def write_report(out: Path, title: str, overlay=None, progress=None, notes=(), t
     out = Path(out)
     t_p, frame_p, T_p, _ = read_poses_csv(out / "poses.csv")
     d = report_data(out, T_p, truth)
-    images = report_plots.write_plots(d, out, colour, truth) + [plot_depth_over_time(d, out, colour)]
+    images = report_plots.write_plots(d, out, color, truth) + [plot_depth_over_time(d, out, color)]
     images += [(n, c) for n, c in AOI_PLOTS.items() if (out / n).is_file()]
     if progress:
         progress(3, 5)
@@ -298,7 +298,7 @@ def _scene(d: ReportData, truth: ReportTruth | None, marker_map: MarkerMap | Non
         if len(lines) > view3d.MAX_LINES:
             lines = lines[np.linspace(0, len(lines) - 1, view3d.MAX_LINES).round().astype(int)]
         targets.append(view3d.SceneTarget(
-            tg.index, colour(tg.index), tg.position_mm,
+            tg.index, color(tg.index), tg.position_mm,
             None if tg.index in d.paths or tg.index in d.regions else d.ellipsoid(tg), lines,
             d.paths[tg.index][1] if tg.index in d.paths else None,
             np.asarray(tt["position_mm"], float) if "position_mm" in tt else None,
@@ -349,7 +349,7 @@ def _target_rows(d: ReportData) -> tuple[str, str]:
     for t in d.targets:
         sd = float(np.sqrt(np.sum(np.asarray(t.axes95_mm) ** 2)) / K95)
         dist = d.distance_m(t)
-        cells = (f'<td><span class="swatch" style="background:{colour(t.index)}"></span>{t.index}</td>'
+        cells = (f'<td><span class="swatch" style="background:{color(t.index)}"></span>{t.index}</td>'
                  f"<td>{_position(t)}</td>" + _cells(dist, fmt="{:.2f}") + f"<td>{_intervals(t)}</td>"
                  + f"<td>{_xyz(t.axes95_mm, ' / ')}</td><td>{t.n_samples}</td><td>{t.t_start:.1f}&ndash;{t.t_end:.1f}"
                  f"</td>" + _cells(t.dwell_s, fmt="{:.1f}")

@@ -16,7 +16,7 @@ from .regions import region_lines
 
 PLOTS = ("plot_depth_vs_observations.png", "plot_density_slices.png", "plot_3d.png", "plot_top_view.png",
          "plot_depth_over_time.png")
-COLOURS = ["#be0032", "#0067a5", "#008856", "#f38400", "#875692", "#882d17", "#e68fac", "#2b3d26", "#f3c300",
+COLORS = ["#be0032", "#0067a5", "#008856", "#f38400", "#875692", "#882d17", "#e68fac", "#2b3d26", "#f3c300",
            "#a1caf1", "#8db600", "#604e97", "#f99379", "#654522", "#dcd300", "#b3446c", "#e25822", "#c2b280",
            "#848482", "#f6a600"]
 """The targets' colours: Kelly's 20 colours of maximum contrast (K. L. Kelly, "Twenty-two colors of
@@ -46,11 +46,11 @@ def _save(fig, path: Path, fixed: bool = False):
     _plt().close(fig)
 
 
-def write_plots(d, out: Path, colour, truth) -> list:
+def write_plots(d, out: Path, color, truth) -> list:
     """Write the first four ``PLOTS`` into ``out``; [(file name, caption)]. ``colour(index)``: a
     target's colour."""
-    return [_plot_depth(d, out, colour), _plot_density(d, out), _plot_3d(d, out, colour),
-            _plot_top(d, out, colour)]
+    return [_plot_depth(d, out, color), _plot_density(d, out), _plot_3d(d, out, color),
+            _plot_top(d, out, color)]
 
 
 def _truth_point(d, tg):
@@ -107,12 +107,12 @@ def _left_out(shown: int, total: int, what: str) -> str:
     return f" ({shown} of {total} {what} shown: the first by number)" if shown < total else ""
 
 
-def _plot_depth(d, out: Path, colour) -> tuple[str, str]:
+def _plot_depth(d, out: Path, color) -> tuple[str, str]:
     """Distance from the head against the view lines fed in: one panel per target (its fixations,
     in its colour, 95 % band clipped at 0; the true distance dashed), then one for the fixations
     merged into no target."""
     plt = _plt()
-    groups = [(f"target {tg.index}", colour(tg.index), tg, list(tg.fixations)) for tg in d.targets]
+    groups = [(f"target {tg.index}", color(tg.index), tg, list(tg.fixations)) for tg in d.targets]
     merged = {f for tg in d.targets for f in tg.fixations}
     alone = [int(k) for k in np.unique(d.est["segment"]).astype(int) if int(k) not in merged]
     if alone:
@@ -126,7 +126,7 @@ def _plot_depth(d, out: Path, colour) -> tuple[str, str]:
             if not sel.any():
                 continue
             mine = d.flabels == k
-            eye = d.orig[mine].mean(axis=0) if mine.any() else d.centre
+            eye = d.orig[mine].mean(axis=0) if mine.any() else d.center
             P = np.column_stack([d.est["x"][sel], d.est["y"][sel], d.est["z"][sel]])
             depth = np.linalg.norm(P - eye, axis=1) / 1000
             n = np.searchsorted(np.sort(d.samples.t_s[mine]), d.est["t"][sel], side="right")
@@ -155,7 +155,7 @@ def _slice_axes(d, tg) -> tuple[np.ndarray, np.ndarray]:
     """(across, along): unit vectors (3,) spanning the slice through a target: horizontal
     across its view lines, and along their mean direction."""
     sel = d.tlabels == tg.index
-    u = np.mean(d.cyc[sel], axis=0) if sel.any() else tg.position_mm - d.centre
+    u = np.mean(d.cyc[sel], axis=0) if sel.any() else tg.position_mm - d.center
     u = u / np.linalg.norm(u)
     h = np.cross([0.0, -1.0, 0.0], u)
     h = h / np.linalg.norm(h) if np.linalg.norm(h) > 1e-6 else np.array([1.0, 0.0, 0.0])
@@ -202,14 +202,14 @@ def _plot_density(d, out: Path) -> tuple[str, str]:
             + _left_out(len(static), len(every), "static targets"))
 
 
-def _plot_3d(d, out: Path, colour) -> tuple[str, str]:
+def _plot_3d(d, out: Path, color) -> tuple[str, str]:
     """The still 3D view (``figure_3d``) saved."""
-    _save(figure_3d(d, colour), out / PLOTS[2])
+    _save(figure_3d(d, color), out / PLOTS[2])
     return (PLOTS[2], "3D view (still): head path, view lines, targets and their 95 % credible regions (dashed: "
             "no far end; an arrow: running on past the axes); the view above can be turned")
 
 
-def figure_3d(d, colour):
+def figure_3d(d, color):
     """3D view (a matplotlib figure): head path, every 10th view line of each target, the targets
     (a moving one as its path) with their credible regions, the truth; equal scales on the three
     axes (x, z, up: -y), which hold the head path and the targets (``ReportData.box``). Lines
@@ -224,11 +224,11 @@ def figure_3d(d, colour):
     many = _numbered(d)
     for k, region in d.regions.items():
         r = region_lines(region, lo, hi)
-        _region_3d(ax, r, colour(k))
+        _region_3d(ax, r, color(k))
         if many and k not in d.paths and not _has_point(d, k):
-            ax.text(*_xzu(r.axis[1]), f" {k}", color=colour(k), **NUMBER_STYLE)
+            ax.text(*_xzu(r.axis[1]), f" {k}", color=color(k), **NUMBER_STYLE)
     for tg in d.targets:
-        X, c = tg.position_mm, colour(tg.index)
+        X, c = tg.position_mm, color(tg.index)
         segments = [[_xzu(a), _xzu(b)] for a, b in line_segments(tg, d)]
         if segments:
             ax.add_collection3d(Line3DCollection(segments, colors=c, linewidths=0.3, alpha=0.5))
@@ -315,15 +315,15 @@ def top_limits(d) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([mid[0] - half, -np.inf, mid[2] - half]), np.array([mid[0] + half, np.inf, mid[2] + half]))
 
 
-def _plot_top(d, out: Path, colour) -> tuple[str, str]:
+def _plot_top(d, out: Path, color) -> tuple[str, str]:
     """The top view (``figure_top``) saved."""
-    _save(figure_top(d, colour), out / PLOTS[3])
+    _save(figure_top(d, color), out / PLOTS[3])
     return (PLOTS[3], "Top view: each target's 95 % credible region seen from above, its distance interval along "
             "the line of sight by its lateral extent (dashed: no far end; an arrow: it runs on past the axes, "
             "to the far end written beside it)")
 
 
-def figure_top(d, colour):
+def figure_top(d, color):
     """Top view (a matplotlib figure, x-z): head path, view lines, each target's 95 % credible
     region seen from above (a target without one: its 95 % ellipsoid's shadow; a moving target:
     its path, with its 95 % ellipsoid's shadow at every 10th knot); the truth. The axes hold the
@@ -338,13 +338,13 @@ def figure_top(d, colour):
     drawn = [(k, region_lines(region, lo, hi)) for k, region in d.regions.items()]
     many = _numbered(d)
     for k, r in drawn:
-        _region_top(ax, r, colour(k), hi[0] - lo[0])
+        _region_top(ax, r, color(k), hi[0] - lo[0])
         if many and k not in d.paths and not _has_point(d, k):
-            ax.annotate(f" {k}", (r.axis[1, 0], r.axis[1, 2]), color=colour(k), **NUMBER_STYLE)
+            ax.annotate(f" {k}", (r.axis[1, 0], r.axis[1, 2]), color=color(k), **NUMBER_STYLE)
     if any(r.open for _, r in drawn):
         ax.plot([], [], "--", color="#555555", label="dashed: no far end (95 %)")
     for tg in d.targets:
-        X, c = tg.position_mm, colour(tg.index)
+        X, c = tg.position_mm, color(tg.index)
         segments = [[(a[0], a[2]), (b[0], b[2])] for a, b in line_segments(tg, d)]
         if segments:
             ax.add_collection(LineCollection(segments, colors=c, linewidths=0.3, alpha=0.4), autolim=False)
@@ -413,14 +413,14 @@ def _region_top(ax, r, c: str, span_mm: float) -> None:
                     fontsize=7, color=c, ha="right" if right else "left", va="top" if up else "bottom")
 
 
-def _shadow(Ellipse, X, M, colour: str, lw: float):
+def _shadow(Ellipse, X, M, color: str, lw: float):
     """The outline of an ellipsoid {p: (p - X)^T M^-1 (p - X) <= 1} (M (3, 3), mm^2) seen from
     above: the x-z block of M is its shadow's."""
     S = np.asarray(M, float)[np.ix_([0, 2], [0, 2])]
     w, V = np.linalg.eigh(S)
     w = np.sqrt(np.clip(w, 0, None))
     angle = float(np.degrees(np.arctan2(V[1, 1], V[0, 1])))
-    return Ellipse((X[0], X[2]), 2 * w[1], 2 * w[0], angle=angle, fill=False, color=colour, lw=lw)
+    return Ellipse((X[0], X[2]), 2 * w[1], 2 * w[0], angle=angle, fill=False, color=color, lw=lw)
 
 
 def line_segments(tg, d, every: int = 10):

@@ -26,17 +26,17 @@ def _fixation_spans(d, tg) -> list[tuple[float, float, np.ndarray]]:
     return out
 
 
-def _running(d, colour, ax, target_of: dict) -> float:
+def _running(d, color, ax, target_of: dict) -> float:
     """Draw each fixation's running estimate; the largest distance drawn, m."""
     top = 0.0
     for k in np.unique(d.est["segment"]).astype(int):
         sel = d.est["segment"] == k
         mine = d.flabels == k
-        eye = d.orig[mine].mean(axis=0) if mine.any() else d.centre
+        eye = d.orig[mine].mean(axis=0) if mine.any() else d.center
         P = np.column_stack([d.est["x"][sel], d.est["y"][sel], d.est["z"][sel]])
         depth = np.linalg.norm(P - eye, axis=1) / 1000
         tg = target_of.get(k)
-        c = colour(tg.index) if tg is not None else "#888888"
+        c = color(tg.index) if tg is not None else "#888888"
         t = d.est["t"][sel]
         ax.plot(t, depth, "-", lw=1.2, color=c)
         r = np.nan_to_num(d.est["radius95_mm"][sel], nan=0.0) / 1000
@@ -46,12 +46,12 @@ def _running(d, colour, ax, target_of: dict) -> float:
     return top
 
 
-def plot_depth_over_time(d, out: Path, colour) -> tuple[str, str]:
+def plot_depth_over_time(d, out: Path, color) -> tuple[str, str]:
     """Write ``DEPTH_OVER_TIME`` into ``out``; (its name, its caption)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9.0, 3.8), layout="constrained")
     target_of = {f: tg for tg in d.targets for f in tg.fixations}
-    top = _running(d, colour, ax, target_of)
+    top = _running(d, color, ax, target_of)
     spans = []
     for tg in d.targets:
         if tg.sight is None or not np.all(np.isfinite(tg.position_mm)):
@@ -59,23 +59,23 @@ def plot_depth_over_time(d, out: Path, colour) -> tuple[str, str]:
         for a, b, eye in _fixation_spans(d, tg):
             D = float(np.linalg.norm(tg.position_mm - eye)) / 1000
             near, far = (v / 1000 for v in tg.sight.depth_interval(tg.position_mm, 0.95))
-            spans.append((a, b, D, near, far, colour(tg.index), tg.index))
+            spans.append((a, b, D, near, far, color(tg.index), tg.index))
             top = max(top, D)
     ymax = max(1.6 * top, 1.0)
-    labelled = set()
+    labeled = set()
     for a, b, D, near, far, c, k in spans:
         open_top = not np.isfinite(far) or far > ymax
         ax.fill_between([a, b], [near] * 2, [min(far, ymax)] * 2, color=c, alpha=0.18, lw=0,
                         hatch="//" if open_top else None)
-        ax.plot([a, b], [D, D], color=c, lw=2.5, label=None if k in labelled else f"target {k}")
-        labelled.add(k)
+        ax.plot([a, b], [D, D], color=c, lw=2.5, label=None if k in labeled else f"target {k}")
+        labeled.add(k)
     ax.set_ylim(0, ymax)
     ax.set_xlabel("session time (s)")
     ax.set_ylabel("distance from the eyes (m)")
     if not spans and not len(d.est["t"]):
         _empty(ax, "no estimate")
-    elif labelled:
-        ax.legend(fontsize=7, ncol=min(len(labelled), 6), loc="upper left")
+    elif labeled:
+        ax.legend(fontsize=7, ncol=min(len(labeled), 6), loc="upper left")
     _save(fig, out / DEPTH_OVER_TIME)
     return (DEPTH_OVER_TIME, "The gaze's distance over time: each fixation's running estimate (line, band: its 95 % "
             "radius) and each target's 95 % depth interval over its fixations (shaded; hatched and cut at the top "

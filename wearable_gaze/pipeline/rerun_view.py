@@ -130,20 +130,20 @@ def target_ellipsoids(targets: list, viewpoints_mm=None) -> dict:
     """
     rows = []
     for t in targets:
-        centre = np.asarray(t.position_mm, float)
-        if not np.all(np.isfinite(centre)):
+        center = np.asarray(t.position_mm, float)
+        if not np.all(np.isfinite(center)):
             continue
         if t.covariance_mm2 is not None and np.all(np.isfinite(t.covariance_mm2)):
             half, axes = ellipsoid_axes(t.covariance_mm2)
-            rows.append((t.index, centre, half[0], axes[0], True))
+            rows.append((t.index, center, half[0], axes[0], True))
         elif np.all(np.isfinite(t.axes95_mm)) and viewpoints_mm and t.index in viewpoints_mm:
-            axes = line_of_sight_axes(centre, viewpoints_mm[t.index])[0]
-            rows.append((t.index, centre, np.asarray(t.axes95_mm, float), axes, False))
+            axes = line_of_sight_axes(center, viewpoints_mm[t.index])[0]
+            rows.append((t.index, center, np.asarray(t.axes95_mm, float), axes, False))
     if not rows:
         return {"index": np.zeros(0, int), "centers": np.zeros((0, 3)), "half_sizes": np.zeros((0, 3)),
                 "quaternions": np.zeros((0, 4)), "from_covariance": np.zeros(0, bool)}
-    indices, centres, halves, rotations, from_covariance = zip(*rows, strict=True)
-    return {"index": np.array(indices), "centers": np.array(centres),
+    indices, centers, halves, rotations, from_covariance = zip(*rows, strict=True)
+    return {"index": np.array(indices), "centers": np.array(centers),
             "half_sizes": np.array(halves), "quaternions": quaternions_xyzw(np.array(rotations)),
             "from_covariance": np.array(from_covariance)}
 

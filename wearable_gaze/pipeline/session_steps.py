@@ -109,7 +109,7 @@ class EyesInputs:
 def run_eyes(conf: EyesConfig, inputs: EyesInputs, progress: Progress | None = None) -> dict:
     """The eye calibration (``calibrate.calibrate_eyes``), written to ``inputs.out``; returns
     its content (eyes.json's)."""
-    result = calibrate_eyes(inputs.recordings, inputs.camera, conf.model, conf.centres, progress)
+    result = calibrate_eyes(inputs.recordings, inputs.camera, conf.model, conf.centers, progress)
     write_eyes(inputs.out, result)
     return result
 

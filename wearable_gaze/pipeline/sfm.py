@@ -26,7 +26,7 @@ from estimator.frames import similarity_transform
 from tracking.localise import (
     FEATURE_SCALE,
     MAX_FEATURES,
-    FeatureLocaliser,
+    FeatureLocalizer,
     FeatureMap,
     colmap_descriptors,
     image_features,
@@ -41,7 +41,7 @@ from ..formats.camera import load_camera
 from ..formats.images import IMAGE_EXT, write_image
 from ..formats.markermap import load_marker_map
 from ..formats.sfmmap import write_sfm_map
-from ..formats.video import grey_frames_at, video_fps
+from ..formats.video import gray_frames_at, video_fps
 from ..progress import staged
 from .calibrate import check_frame_size, input_files, read_frames
 from .mapping import DEFAULT_DICT, frames_total
@@ -134,12 +134,12 @@ def _frames(files, cam: CameraCalibration, detector: MarkerDetector, max_frames:
     folder.mkdir()
     total = frames_total(files, max_frames)
     out: dict[str, list] = {"names": [], "features": [], "markers": []}
-    for k, (name, grey) in enumerate(read_frames(files, max_frames, "the room")):
-        check_frame_size(name, grey, cam)
-        write_image(folder / f"{k:05d}.jpg", grey)
+    for k, (name, gray) in enumerate(read_frames(files, max_frames, "the room")):
+        check_frame_size(name, gray, cam)
+        write_image(folder / f"{k:05d}.jpg", gray)
         out["names"].append(name)
-        out["features"].append(image_features(grey))
-        out["markers"].append(unique_by_id(detector.detect(grey)))
+        out["features"].append(image_features(gray))
+        out["markers"].append(unique_by_id(detector.detect(gray)))
         if progress:
             progress(k + 1, max(k + 1, total))
     if len(out["names"]) < 3:
@@ -242,13 +242,13 @@ def _world_by_distance(in_sfm: FeatureMap, cam: CameraCalibration, video: Path, 
     ``mm`` apart; the world is the camera's frame at ``t_a`` (x right, y down, z forward), mm."""
     fps = video_fps(video)
     idx = [int(round(t * fps)) for t in (t_a, t_b)]
-    grey = grey_frames_at(video, idx)
-    localiser = FeatureLocaliser(in_sfm, cam, scale=FEATURE_SCALE)
+    gray = gray_frames_at(video, idx)
+    localizer = FeatureLocalizer(in_sfm, cam, scale=FEATURE_SCALE)
     poses = []
     for t, i in zip((t_a, t_b), idx, strict=True):
-        if i not in grey:
+        if i not in gray:
             raise UserError(f"--distance: {video} has no frame at {t:g} s; give times within the video")
-        res = localiser.estimate(grey[i])
+        res = localizer.estimate(gray[i])
         if not res.ok or res.T_world_from_cam is None:          # (ok: never None)
             raise UserError(f"--distance: the frame at {t:g} s could not be placed in the reconstruction "
                             f"({res.reason}); choose times when the camera faced the surveyed walls")

@@ -29,11 +29,11 @@ class CameraConfig:
 @dataclass(frozen=True)
 class EyesConfig:
     """The eyes step: the raw -> image ``model`` ('quadratic', 'cubic', 'tps') and the eyes'
-    ``centres`` if known, head frame mm (None: found from two or more wall distances, else a
+    ``centers`` if known, head frame mm (None: found from two or more wall distances, else a
     nominal headset's; ``calibrate.calibrate_eyes``)."""
 
     model: str = "quadratic"
-    centres: np.ndarray | None = None
+    centers: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,9 @@ import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration
-from calibration.images import to_grey
+from calibration.images import to_gray
 from tracking.homography import PlanarTracker
-from tracking.localise import FeatureLocaliser, FeatureMap
+from tracking.localise import FeatureLocalizer, FeatureMap
 from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector, likely_dictionary
 from tracking.pose import MarkerPoseEstimator
@@ -26,12 +26,12 @@ from tracking.timeline import SPIKE_DEG, SPIKE_MM, interpolate_poses, pose_spike
 from ..errors import UserError
 from ..formats.atomic import atomic_path
 from ..formats.camera import load_camera
-from ..formats.images import read_grey_image
+from ..formats.images import read_gray_image
 from ..formats.marker_detections import MarkerDetections
 from ..formats.markermap import load_marker_map
 from ..formats.poses import write_poses_csv
 from ..formats.sfmmap import load_sfm_map
-from ..formats.video import open_video, open_video_writer, read_frame_times, sampled_grey_frames
+from ..formats.video import open_video, open_video_writer, read_frame_times, sampled_gray_frames
 from .types import Poses
 
 log = logging.getLogger(__name__)
@@ -117,7 +117,7 @@ def check_markers_seen(poses: Poses, video, dictionary: str, source: str) -> Non
     """
     if np.any(np.asarray(poses.columns.get("n_markers", [0])) > 0):
         return
-    raise no_marker_error(dictionary, [g for _, g in sampled_grey_frames(video, 5)], f"{video}",
+    raise no_marker_error(dictionary, [g for _, g in sampled_gray_frames(video, 5)], f"{video}",
                           f"the dictionary of {source}", 'write "dictionary": "{}" in the map')
 
 
@@ -167,10 +167,10 @@ def room_locator(room: MarkerMap | FeatureMap, camera: CameraCalibration):
     no detections)."""
     if isinstance(room, MarkerMap):
         return marker_locator(room, camera)
-    localiser = FeatureLocaliser(room, camera)
+    localizer = FeatureLocalizer(room, camera)
 
-    def locate(grey):
-        return localiser.estimate(grey), []
+    def locate(gray):
+        return localizer.estimate(gray), []
     return locate
 
 
@@ -180,15 +180,15 @@ def marker_locator(marker_map: MarkerMap, camera: CameraCalibration):
     detector = MarkerDetector(marker_map.dictionary, small_frames=True)
     estimator = MarkerPoseEstimator(marker_map, camera)
 
-    def locate(grey):
-        found = detector.detect(grey)
+    def locate(gray):
+        found = detector.detect(gray)
         return estimator.estimate(found), found
     return locate
 
 
 def _reference_locator(reference, reference_size_mm, camera: CameraCalibration):
     """grey (H, W) uint8 -> (pose result, no detections), from a photo of a flat surface."""
-    ref = read_grey_image(reference, "reference image", "give a PNG or JPEG photo of the surface")
+    ref = read_gray_image(reference, "reference image", "give a PNG or JPEG photo of the surface")
     if reference_size_mm is None or min(reference_size_mm) <= 0:
         raise UserError("--reference-size-mm W H: the surface's physical width and height in mm")
     try:
@@ -196,8 +196,8 @@ def _reference_locator(reference, reference_size_mm, camera: CameraCalibration):
     except ValueError as exc:
         raise UserError(f"{reference}: {exc}") from None
 
-    def locate(grey):
-        return tracker.estimate(grey), []
+    def locate(gray):
+        return tracker.estimate(gray), []
     return locate
 
 
@@ -233,7 +233,7 @@ def _track_frames(cap, step, times, fps: float, n_total: int, every: int, progre
             ok, frame = cap.read()
             if not ok:
                 break
-            res, found = step(to_grey(frame))
+            res, found = step(to_gray(frame))
             detected[i] = found
             values = (t, i, res.T_world_from_cam if res.ok else np.full((4, 4), np.nan), len(res.markers),
                       res.n_points, res.reproj_rms_px, res.status if res.ok else f"{res.status}: {res.reason}")

@@ -29,7 +29,7 @@ class SceneTarget:
 
     Attributes:
         index: the target's number (as in the table and the plots).
-        colour: its colour, '#rrggbb' (as in the plots' legends).
+        color: its colour, '#rrggbb' (as in the plots' legends).
         position_mm: (3,) the estimate; NaN none.
         ellipsoid_mm: (3, 3) the 95 % ellipsoid's semi-axes as rows (vectors, mm), or None.
         lines_mm: (K, 2, 3) view lines drawn, each from the eye to the target's distance.
@@ -41,7 +41,7 @@ class SceneTarget:
     """
 
     index: int
-    colour: str
+    color: str
     position_mm: np.ndarray
     ellipsoid_mm: np.ndarray | None
     lines_mm: np.ndarray
@@ -103,7 +103,7 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
         "head": _mm(_thin(head_mm, MAX_HEAD_POINTS)),
         "truth_head": None if truth_head_mm is None else _mm(_thin(truth_head_mm, MAX_HEAD_POINTS)),
         "targets": [{
-            "index": int(t.index), "colour": t.colour, "label": f"target {t.index}",
+            "index": int(t.index), "colour": t.color, "label": f"target {t.index}",
             "position": _mm(t.position_mm),
             "ellipsoid": None if t.ellipsoid_mm is None or not np.all(np.isfinite(t.ellipsoid_mm))
             else [[round(float(v), 1) for v in r] for r in t.ellipsoid_mm],
@@ -116,8 +116,8 @@ def scene(targets: list, head_mm, markers_mm=None, truth_head_mm=None, other_tru
         } for t in targets],
         "other_truth": [{"label": label, "position": _mm(p)} for label, p in other_truth],
         "points": [] if points_mm is None else _mm(_thin(points_mm, MAX_ROOM_POINTS)),
-        "aois": [{"name": name, "colour": colour, "segments": [[_mm(a), _mm(b)] for a, b in segs]}
-                 for name, colour, segs in aois],
+        "aois": [{"name": name, "colour": color, "segments": [[_mm(a), _mm(b)] for a, b in segs]}
+                 for name, color, segs in aois],
     }
 
 

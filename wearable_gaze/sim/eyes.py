@@ -107,7 +107,7 @@ class EyeModel:
     """Both eyes: rotation centres in the scene-camera frame, sensors, noise and bias.
 
     Attributes:
-        centres: (2, 3) left and right eye rotation centres, scene-camera frame, mm (the
+        centers: (2, 3) left and right eye rotation centres, scene-camera frame, mm (the
             left eye at negative x).
         sensors: (left, right) ``EyeSensor``.
         sigma_deg: angular noise per tangent axis, degrees.
@@ -116,18 +116,18 @@ class EyeModel:
             or a person's systematic offset the calibration did not see).
     """
 
-    centres: np.ndarray
+    centers: np.ndarray
     sensors: tuple
     sigma_deg: float = 1.0
     bias_deg: np.ndarray = None
 
     @classmethod
-    def make(cls, rng: np.random.Generator, ipd_mm: float = 64.0, centre_offset_mm=(0.0, 30.0, -20.0),
+    def make(cls, rng: np.random.Generator, ipd_mm: float = 64.0, center_offset_mm=(0.0, 30.0, -20.0),
              sigma_deg: float = 1.0, bias_deg=None) -> EyeModel:
-        off = np.asarray(centre_offset_mm, float)
-        centres = np.array([[-ipd_mm / 2, 0, 0], [ipd_mm / 2, 0, 0]]) + off
+        off = np.asarray(center_offset_mm, float)
+        centers = np.array([[-ipd_mm / 2, 0, 0], [ipd_mm / 2, 0, 0]]) + off
         bias = np.zeros((2, 2)) if bias_deg is None else np.asarray(bias_deg, float).reshape(2, 2)
-        return cls(centres, (EyeSensor.random(rng), EyeSensor.random(rng)), float(sigma_deg), bias)
+        return cls(centers, (EyeSensor.random(rng), EyeSensor.random(rng)), float(sigma_deg), bias)
 
     def measure(self, gaze_cam, rng: np.random.Generator, with_bias: bool = True):
         """Raw readings of both eyes looking at points.
@@ -148,7 +148,7 @@ class EyeModel:
         true = np.empty((n, 2, 3))
         noisy = np.empty((n, 2, 3))
         for e in range(2):
-            d = gaze_cam - self.centres[e]
+            d = gaze_cam - self.centers[e]
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             true[:, e] = d
             m = d
@@ -163,7 +163,7 @@ class EyeModel:
         return raw, true, noisy
 
     def to_dict(self) -> dict:
-        return {"centres_mm": self.centres.tolist(), "sigma_deg": self.sigma_deg,
+        return {"centres_mm": self.centers.tolist(), "sigma_deg": self.sigma_deg,
                 "bias_deg": self.bias_deg.tolist(),
                 "sensors": [s.to_dict() for s in self.sensors]}
 

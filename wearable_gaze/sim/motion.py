@@ -144,9 +144,9 @@ def make_motion(spec: dict, duration_s: float, rng: np.random.Generator,
         goal = np.asarray(spec["walk_to_mm"], float)
         path = goal - start
         dist = np.linalg.norm(path)
-        travelled = np.minimum(t * float(spec["speed_mm_s"]), dist)
-        pos = start + travelled[:, None] * path / max(dist, 1e-9)
-        bob = 20.0 * np.sin(2 * np.pi * 1.8 * t) * (travelled < dist)
+        traveled = np.minimum(t * float(spec["speed_mm_s"]), dist)
+        pos = start + traveled[:, None] * path / max(dist, 1e-9)
+        bob = 20.0 * np.sin(2 * np.pi * 1.8 * t) * (traveled < dist)
         pos = pos + np.column_stack([0.3 * amp_mm * noise[:, 0], bob, 0.0 * t])
     else:
         raise ValueError(f"unknown head motion {kind!r}")

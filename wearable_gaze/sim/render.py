@@ -114,8 +114,8 @@ def _sample_texture(plane, rays, texels, ss: int) -> np.ndarray:
         lev, k, shift = plane.boxed(k, box)
     else:
         # footprint: texels per sample at the box centre -> pyramid level
-        centre_row, centre_col = rays.shape[0] // 2, rays.shape[1] // 2
-        k = _pyramid_level(texels, centre_row, centre_col, plane.max_texel_step * ss)
+        center_row, center_col = rays.shape[0] // 2, rays.shape[1] // 2
+        k = _pyramid_level(texels, center_row, center_col, plane.max_texel_step * ss)
         lev, k = plane.level2(k)
         shift = 0.0
     f = 2.0**k                  # exact: pyrDown rounds odd sizes up, so tex_w / width is not
@@ -179,10 +179,10 @@ def _render_shell(camera: Camera, T_cam_from_world, planes, background: float) -
             shift = np.array([[1, 0, xs], [0, 1, ys], [0, 0, 1.0]])
             sub = canvas[ys:ye, xs:xe]
             if clipped:
-                colour = cv2.warpPerspective(lev, A @ shift, (xe - xs, ye - ys),
+                color = cv2.warpPerspective(lev, A @ shift, (xe - xs, ye - ys),
                                              flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                              borderMode=cv2.BORDER_REPLICATE)
-                cv2.copyTo(colour, inside[ys - y0:ye - y0, xs - x0:xe - x0], sub)
+                cv2.copyTo(color, inside[ys - y0:ye - y0, xs - x0:xe - x0], sub)
             else:
                 cv2.warpPerspective(lev, A @ shift, (xe - xs, ye - ys), dst=sub,
                                     flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,

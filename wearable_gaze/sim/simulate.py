@@ -121,13 +121,13 @@ def _board_views(camera: Camera, spec: dict, n: int, rng: np.random.Generator):
         extent = obj.max(axis=0) - obj.min(axis=0)
         depth = rng.uniform(2.2, 4.0) * max(extent[:2])
         u, v = rng.uniform(0.15, 0.85) * w, rng.uniform(0.15, 0.85) * h
-        centre = depth * np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], 1.0])
-        T = look_at(centre, 2 * centre)                   # facing the camera, z away from it
+        center = depth * np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], 1.0])
+        T = look_at(center, 2 * center)                   # facing the camera, z away from it
         axis = rng.normal(size=3)
         axis[2] = 0
         from estimator.frames import rotation_about_axis
         T[:3, :3] = rotation_about_axis(axis, np.deg2rad(rng.uniform(10, 40))) @ T[:3, :3]
-        T[:3, 3] = centre - T[:3, :3] @ ((obj.min(axis=0) + obj.max(axis=0)) / 2)
+        T[:3, 3] = center - T[:3, :3] @ ((obj.min(axis=0) + obj.max(axis=0)) / 2)
         pts = (T[:3, :3] @ obj.T).T + T[:3, 3]
         if np.any(pts[:, 2] < 100):
             continue
@@ -335,7 +335,7 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     files["truth_markers"] = "truth/markers.json"
 
     truth = root / "truth"
-    _write_truth_lines(truth, t_eye, plan, gaze_w, T_eye, eye_model.centres, true_c, noisy_c, valid)
+    _write_truth_lines(truth, t_eye, plan, gaze_w, T_eye, eye_model.centers, true_c, noisy_c, valid)
     _write_truth_targets(truth, targets, plan, t_eye, dur)
     files["truth_gaze"] = "truth/gaze.csv"
     files["truth_viewlines"] = "truth/viewlines.csv"
@@ -351,24 +351,24 @@ def _session_recording(root, scn, camera, eye_model, noise, files, manifest, rng
     manifest["n_eye_samples"] = len(t_eye)
 
 
-def _write_truth_lines(truth: Path, t_eye, plan, gaze_w, T_eye, centres_head, true_c, noisy_c, valid) -> None:
+def _write_truth_lines(truth: Path, t_eye, plan, gaze_w, T_eye, centers_head, true_c, noisy_c, valid) -> None:
     """truth/gaze.csv (the gazed point, each eye's centre, true and measured direction, world frame)
     and truth/viewlines.csv (the measured lines of the samples that fixate a target).
 
     Args:
         t_eye: (N,) sample times, s.  plan: the gaze plan (target, phase per sample).
         gaze_w: (N, 3) gazed points, world, mm.  T_eye: (N, 4, 4) ``T_world_from_head`` per sample.
-        centres_head: (2, 3) eye centres, head frame, mm.
+        centers_head: (2, 3) eye centres, head frame, mm.
         true_c, noisy_c: (N, 2, 3) true and measured directions, head frame.  valid: (N, 2) bool.
     """
-    centres_w = np.einsum("nij,ej->nei", T_eye[:, :3, :3], centres_head) + T_eye[:, None, :3, 3]
+    centers_w = np.einsum("nij,ej->nei", T_eye[:, :3, :3], centers_head) + T_eye[:, None, :3, 3]
     true_w = np.einsum("nij,nej->nei", T_eye[:, :3, :3], true_c)
     noisy_w = np.einsum("nij,nej->nei", T_eye[:, :3, :3], noisy_c)
     cols = {"t": t_eye, "target": plan.target, "phase": plan.phase,
             "gaze_x": gaze_w[:, 0], "gaze_y": gaze_w[:, 1], "gaze_z": gaze_w[:, 2]}
     for e, side in enumerate(("left", "right")):
         for k, ax in enumerate("xyz"):
-            cols[f"{side}_o{ax}"] = centres_w[:, e, k]
+            cols[f"{side}_o{ax}"] = centers_w[:, e, k]
         for k, ax in enumerate("xyz"):
             cols[f"{side}_true_d{ax}"] = true_w[:, e, k]
         for k, ax in enumerate("xyz"):
@@ -377,8 +377,8 @@ def _write_truth_lines(truth: Path, t_eye, plan, gaze_w, T_eye, centres_head, tr
     use = (plan.target >= 0) & valid.any(axis=1)
     nan = np.full((len(t_eye), 3), np.nan)
     samples = BinocularSamples.from_arrays(
-        t_eye, centres_w[:, 0], np.where(valid[:, :1], noisy_w[:, 0], nan),
-        centres_w[:, 1], np.where(valid[:, 1:], noisy_w[:, 1], nan))
+        t_eye, centers_w[:, 0], np.where(valid[:, :1], noisy_w[:, 0], nan),
+        centers_w[:, 1], np.where(valid[:, 1:], noisy_w[:, 1], nan))
     write_viewlines_csv(truth / "viewlines.csv", samples.select(np.flatnonzero(use)), plan.target[use])
 
 

@@ -51,10 +51,10 @@ def gaze_payload(px, worn: bool, left, right, pupil_mm=(3.5, 3.5), lids=None) ->
                                 *map(float, left), float(pupil_mm[1]), *map(float, right), *map(float, lids))
 
 
-def _eye(centre, axis, aperture) -> tuple[tuple, bool]:
+def _eye(center, axis, aperture) -> tuple[tuple, bool]:
     """One eye's (6,) line in the head frame and whether it is usable: finite, the centre within
     ``MAX_CENTER_MM`` of the scene camera, the axis pointing forward, the lid open."""
-    c = T_HEAD_FROM_NEON_SCENE[:3, :3] @ np.asarray(centre, float) + T_HEAD_FROM_NEON_SCENE[:3, 3]
+    c = T_HEAD_FROM_NEON_SCENE[:3, :3] @ np.asarray(center, float) + T_HEAD_FROM_NEON_SCENE[:3, 3]
     a = T_HEAD_FROM_NEON_SCENE[:3, :3] @ np.asarray(axis, float)
     n = float(np.linalg.norm(a))
     ok = bool(np.all(np.isfinite(c)) and np.isfinite(n) and n > 0.5)

@@ -205,9 +205,9 @@ def _binocular(src: Path, imp, chunks: _GazeChunks, progress) -> dict:
     g_why = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, object)
     order = np.argsort(g_t, kind="stable")
     g_t, g_d, g_why = g_t[order], g_d[order], g_why[order]
-    t_ns, centres, axes = eyes.read_eye_states(src / eyes.EYE_STATES)
+    t_ns, centers, axes = eyes.read_eye_states(src / eyes.EYE_STATES)
     imp.count(f"{eyes.EYE_STATES} rows", len(t_ns))
-    ok = eyes.eye_validity(centres, axes, chunks.drops)
+    ok = eyes.eye_validity(centers, axes, chunks.drops)
     gaze = nearest_in_time(g_t, g_d, t_ns, eyes.MATCH_NS, inclusive=True)
     j = np.clip(np.searchsorted(g_t, t_ns), 0, max(len(g_t) - 1, 0))
     if len(g_t):
@@ -215,14 +215,14 @@ def _binocular(src: Path, imp, chunks: _GazeChunks, progress) -> dict:
             bad = (g_t[j] == t_ns) & (g_why[j] == reason) & ok.any(axis=0)
             chunks.drops[reason] += int(bad.sum())
             ok[:, bad] = False
-    vis, kappa = eyes.visual_axes(src, centres, axes, ok, gaze)
+    vis, kappa = eyes.visual_axes(src, centers, axes, ok, gaze)
     t = (t_ns - chunks.start_ns) / 1e9
     keep = ok.any(axis=0) & (np.maximum.accumulate(np.concatenate([[-np.inf], t]))[:-1] < t)
     chunks.drops["sample: no valid eye or a time that does not increase"] += int((~keep).sum())
     k = np.flatnonzero(keep)
     for a in range(0, len(k), CHUNK):
         s = k[a:a + CHUNK]
-        imp.add_rays(t[s], centres[0][s], vis[0][s], ok[0][s], centres[1][s], vis[1][s], ok[1][s])
+        imp.add_rays(t[s], centers[0][s], vis[0][s], ok[0][s], centers[1][s], vis[1][s], ok[1][s])
     imp.note(f"per-eye rays from {eyes.EYE_STATES}: optical axes turned into visual axes by the kappa offset fitted "
              f"on the export's gaze ray at {eyes.KAPPA_DEPTH_MM:g} mm (an assumed depth; docs/importers.md)")
     return kappa
@@ -365,6 +365,6 @@ def write_recording(sim, dst: Path, start_ns: int = 1_700_000_000_000_000_000, e
     if eye_states:
         r = sim.rays
         valid = [np.asarray(r.left_valid, bool)[:, None], np.asarray(r.right_valid, bool)[:, None]]
-        centres = np.stack([np.where(valid[e], o, np.nan) for e, o in enumerate((r.left_origin_mm, r.right_origin_mm))])
+        centers = np.stack([np.where(valid[e], o, np.nan) for e, o in enumerate((r.left_origin_mm, r.right_origin_mm))])
         axes = np.stack([np.where(valid[e], d, np.nan) for e, d in enumerate((r.left_direction, r.right_direction))])
-        eyes.write_eye_states(dst / eyes.EYE_STATES, t_ns, centres, axes, sec, rec)
+        eyes.write_eye_states(dst / eyes.EYE_STATES, t_ns, centers, axes, sec, rec)

@@ -29,7 +29,7 @@ from .neon import IED_RANGE_MM, KAPPA_DEPTH_MM, MAX_CENTER_MM, MAX_FIT_SAMPLES
 EYE_STATES = "3d_eye_states.csv"
 T_COL = "timestamp [ns]"
 SIDES = ("left", "right")
-CENTRE_COLS = {s: [f"eye ball center {s} {a} [mm]" for a in "xyz"] for s in SIDES}
+CENTER_COLS = {s: [f"eye ball center {s} {a} [mm]" for a in "xyz"] for s in SIDES}
 AXIS_COLS = {s: [f"optical axis {s} {a}" for a in "xyz"] for s in SIDES}
 MATCH_NS = 5_000_000        # a gaze sample within 5 ms of an eye state is the same eye frame's
 
@@ -56,7 +56,7 @@ def read_eye_states(path: Path, chunk: int = 20000) -> tuple[np.ndarray, np.ndar
     Raises:
         UserError: a missing column, a time that is not integer nanoseconds.
     """
-    cols = [T_COL] + [c for s in SIDES for c in CENTRE_COLS[s] + AXIS_COLS[s]]
+    cols = [T_COL] + [c for s in SIDES for c in CENTER_COLS[s] + AXIS_COLS[s]]
     head = csv_header(path, "Pupil Cloud 3d_eye_states CSV", "download the export again", cols)
     idx = [head.index(c) for c in cols]
     ts, vals = [], []
@@ -67,38 +67,38 @@ def read_eye_states(path: Path, chunk: int = 20000) -> tuple[np.ndarray, np.ndar
         vals.append(np.array([[float(r[k]) if r[k].strip() else np.nan for k in idx[1:]] for r in whole], float))
     t = np.concatenate(ts) if ts else np.zeros(0, np.int64)
     v = np.concatenate(vals).reshape(-1, 12) if vals else np.zeros((0, 12))
-    centres = np.stack([v[:, 0:3], v[:, 6:9]])
+    centers = np.stack([v[:, 0:3], v[:, 6:9]])
     axes = np.stack([v[:, 3:6], v[:, 9:12]])
-    return t, centres, axes
+    return t, centers, axes
 
 
-def eye_validity(centres, axes, drops) -> np.ndarray:
+def eye_validity(centers, axes, drops) -> np.ndarray:
     """(2, n) bool: each eye's sample is usable; the reasons for the rest are added to ``drops``."""
-    ok = np.ones(centres.shape[:2], bool)
+    ok = np.ones(centers.shape[:2], bool)
     for e, side in enumerate(SIDES):
-        for reason, bad in (("not finite", ~(np.all(np.isfinite(centres[e]), axis=1)
+        for reason, bad in (("not finite", ~(np.all(np.isfinite(centers[e]), axis=1)
                                              & np.all(np.isfinite(axes[e]), axis=1))),
                             ("axis not pointing forward", np.nan_to_num(axes[e][:, 2]) <= 0),
-                            (f"centre beyond {MAX_CENTER_MM:g} mm", np.linalg.norm(np.nan_to_num(centres[e]),
+                            (f"centre beyond {MAX_CENTER_MM:g} mm", np.linalg.norm(np.nan_to_num(centers[e]),
                                                                                   axis=1) > MAX_CENTER_MM)):
             bad = bad & ok[e]
             drops[f"{side} eye: {reason}"] += int(bad.sum())
             ok[e] &= ~bad
     both = ok.all(axis=0)
-    ied = np.linalg.norm(np.nan_to_num(centres[0] - centres[1]), axis=1)
+    ied = np.linalg.norm(np.nan_to_num(centers[0] - centers[1]), axis=1)
     odd = both & ((ied < IED_RANGE_MM[0]) | (ied > IED_RANGE_MM[1]))
     drops[f"sample: eye distance outside {IED_RANGE_MM[0]:g}-{IED_RANGE_MM[1]:g} mm"] += int(odd.sum())
     ok[:, odd] = False
     return ok
 
 
-def visual_axes(src: Path, centres, axes, ok, gaze_dirs) -> tuple[np.ndarray, dict]:
+def visual_axes(src: Path, centers, axes, ok, gaze_dirs) -> tuple[np.ndarray, dict]:
     """Kappa (b) on at most ``MAX_FIT_SAMPLES`` binocular samples: (visual axes (2, n, 3), the
     report's ``kappa`` entry)."""
     both = np.flatnonzero(ok.all(axis=0) & np.all(np.isfinite(gaze_dirs), axis=1))
     pick = both[np.linspace(0, len(both) - 1, min(len(both), MAX_FIT_SAMPLES)).astype(int)] if len(both) else both
     try:
-        fit = fit_kappa_cyclopean(centres[0][pick], axes[0][pick], centres[1][pick], axes[1][pick],
+        fit = fit_kappa_cyclopean(centers[0][pick], axes[0][pick], centers[1][pick], axes[1][pick],
                                   gaze_dirs[pick], KAPPA_DEPTH_MM)
     except ValueError as exc:
         raise UserError(f"{src / EYE_STATES}: cannot fit the kappa offset from the export's gaze ({exc}); import "
@@ -107,20 +107,20 @@ def visual_axes(src: Path, centres, axes, ok, gaze_dirs) -> tuple[np.ndarray, di
     report = {"method": fit.method, "depth_mm": fit.depth_mm, "samples": {"left": fit.left.n, "right": fit.right.n},
               "left_deg": fit.left.kappa_deg.round(4).tolist(), "right_deg": fit.right.kappa_deg.round(4).tolist(),
               "source": "the export's gaze ray (gaze.csv) at a fixed depth",
-              "rays_before": vergence_summary(centres[0][pick], axes[0][pick], centres[1][pick], axes[1][pick]),
-              "rays_after": vergence_summary(centres[0][pick], vis[0][pick], centres[1][pick], vis[1][pick])}
+              "rays_before": vergence_summary(centers[0][pick], axes[0][pick], centers[1][pick], axes[1][pick]),
+              "rays_after": vergence_summary(centers[0][pick], vis[0][pick], centers[1][pick], vis[1][pick])}
     return vis, report
 
 
-def write_eye_states(path: Path, t_ns, centres, optical_axes, section: str, recording: str) -> None:
+def write_eye_states(path: Path, t_ns, centers, optical_axes, section: str, recording: str) -> None:
     """``3d_eye_states.csv`` as Cloud writes it (the writer's side, for the round trip): t_ns (n,),
     centres and optical axes (2, n, 3) in the scene camera's frame (NaN: an eye without data)."""
     cols = {"section id": [section] * len(t_ns), "recording id": [recording] * len(t_ns), T_COL: t_ns,
             "pupil diameter left [mm]": np.full(len(t_ns), 3.5), "pupil diameter right [mm]": np.full(len(t_ns), 3.5)}
     formats = {T_COL: "d"}
     for e, s in enumerate(SIDES):
-        for k, c in enumerate(CENTRE_COLS[s]):
-            cols[c] = centres[e][:, k]
+        for k, c in enumerate(CENTER_COLS[s]):
+            cols[c] = centers[e][:, k]
             formats[c] = ".4f"
     for e, s in enumerate(SIDES):
         for k, c in enumerate(AXIS_COLS[s]):

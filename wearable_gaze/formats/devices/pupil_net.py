@@ -106,10 +106,10 @@ def _vec(value, what: str) -> np.ndarray:
     return v
 
 
-def _eye(centre, normal, eye: int) -> tuple[tuple, bool]:
+def _eye(center, normal, eye: int) -> tuple[tuple, bool]:
     """One eye's (6,) line in the head frame and whether it is usable (the importer's checks:
     the centre within ``MAX_EYE_DISTANCE_MM`` of the world camera, the normal unit and forward)."""
-    c, n = _vec(centre, f"eye {eye} centre"), _vec(normal, f"eye {eye} normal")
+    c, n = _vec(center, f"eye {eye} centre"), _vec(normal, f"eye {eye} normal")
     c = T_HEAD_FROM_WORLD_CAMERA[:3, :3] @ c + T_HEAD_FROM_WORLD_CAMERA[:3, 3]
     n = T_HEAD_FROM_WORLD_CAMERA[:3, :3] @ n
     ok = bool(np.linalg.norm(c) <= MAX_EYE_DISTANCE_MM and abs(np.linalg.norm(n) - 1) <= 0.01 and n[2] >= 0)
