@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -30,6 +31,7 @@ from scipy.optimize import least_squares
 
 from estimator import ViewLines
 from estimator._checks import check_points, check_same_rows, check_vector
+from estimator.deprecation import module_getattr, renamed_kwargs
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +52,7 @@ def _monomials(r: np.ndarray, order: int) -> np.ndarray:
     return np.column_stack(cols)
 
 
+@renamed_kwargs({"centre": "center"})
 @dataclass
 class RawMap:
     """Raw reading (N, 2) -> normalised image point q (N, 2): a polynomial (eq. 1-2 for order 2)
@@ -146,6 +149,7 @@ def _angle_deg(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(d1, d2), axis=-1), (d1 * d2).sum(-1)))
 
 
+@renamed_kwargs({"centre_mm": "center_mm"})
 @dataclass
 class EyeCalibration:
     """One eye's calibration.
@@ -196,6 +200,7 @@ class EyeCalibration:
                    RawMap.from_dict(d["raw_map"]), d.get("report", {}))
 
 
+@renamed_kwargs({"centre_mm": "center_mm"})
 def plane_points(targets_cam_mm: ArrayLike, center_mm: ArrayLike, plane_mm: float) -> np.ndarray:
     """(K, 2) normalised image points q where the lines from the eye centre through the targets
     (K, 3) meet the calibration plane z = l_c (so that eq. 3-4 reproduce those lines)."""
@@ -206,6 +211,7 @@ def plane_points(targets_cam_mm: ArrayLike, center_mm: ArrayLike, plane_mm: floa
     return p[:, :2] / plane_mm
 
 
+@renamed_kwargs({"centre_mm": "center_mm"})
 def calibrate_eye(eye: str, raw: ArrayLike, targets_cam_mm: ArrayLike, center_mm: ArrayLike,
                   plane_mm: float | None = None,
                   model: str = "quadratic", focal_px: float | None = None, outlier_deg: float = 1.0) -> EyeCalibration:
@@ -307,6 +313,7 @@ def _leave_one_out(cal: EyeCalibration, raw: np.ndarray, q: np.ndarray, dirs: np
     return loo, rest_rms
 
 
+@renamed_kwargs({"centre_mm": "center_mm"})
 def compare_models(eye: str, raw: ArrayLike, targets_cam_mm: np.ndarray, center_mm: np.ndarray,
                    plane_mm: float | None = None) -> dict:
     """Leave-one-out RMS (deg) of each model the target count allows: does a richer model
@@ -476,3 +483,7 @@ def target_readings(target: ArrayLike, raw: ArrayLike, valid: ArrayLike, t: Arra
         out[k] = r[keep].mean(axis=0)
         counts[k] = int(keep.sum())
     return ids, out, counts
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"estimate_centre": "estimate_center"})

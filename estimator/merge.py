@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize
 
+from .deprecation import module_getattr
 from .frames import angle_deg
 from .likelihood import gnomonic_residuals
 from .lines import BinocularSamples
@@ -264,3 +265,7 @@ def _min_bias_chi2(chunks: list[tuple], x0: np.ndarray, sigma: float, pose_deg: 
     fit = minimize(lambda z: _bias_chi2(100.0 * z, chunks, sigma, pose_deg), x0 / 100.0, method="BFGS",
                    options={"gtol": 1e-4})
     return float(fit.fun)
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"RELINEARISE_GROWTH": "RELINEARIZE_GROWTH"})

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .deprecation import renamed_kwargs
 from .frames import tangent_basis
 from .likelihood import gnomonic_residuals
 from .lines import BinocularSamples
@@ -74,6 +75,7 @@ class Chart:
         return self.origin + self.R @ np.array([p[0], p[1], 1.0]) / p[2]
 
 
+@renamed_kwargs({"centred": "centered"})
 @dataclass(frozen=True)
 class MergeForm:
     """``chi2(p0 + dp, b) = c + 2 g . z + z^T N z`` with ``z = (dp, b)`` (7,): the merge test's

@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
 from calibration.camera import CameraCalibration
+from estimator.deprecation import module_getattr, renamed_kwargs
 from estimator.frames import invert
 
 from .pnp import pose_covariance, pose_fault, reprojection_residuals, rms_px
@@ -46,6 +48,7 @@ RATIO = 0.8
 nearest descriptor of another 3D point."""
 
 
+@renamed_kwargs({"grey": "gray"})
 def image_features(gray: ArrayLike, max_features: int = MAX_FEATURES, scale: float = FEATURE_SCALE
                    ) -> tuple[np.ndarray, np.ndarray]:
     """SIFT features of one frame: positions (N, 2) in the frame's own pixels (OpenCV's
@@ -157,6 +160,7 @@ class FeatureLocalizer:
         first[1:] = p[order][1:] != p[order][:-1]
         return q[order][first], p[order][first]
 
+    @renamed_kwargs({"grey": "gray"})
     def estimate(self, gray: ArrayLike) -> PoseResult:
         """The pose of one frame, (H, W) uint8, distorted as the camera takes it: from its
         features at ``scales[0]``, or, when that fails, at ``scales[1]``."""
@@ -213,3 +217,7 @@ def triangulate(T_cam_from_world: ArrayLike, x_norm: ArrayLike) -> np.ndarray:
         X = X[:3] / X[3]
         w = np.maximum(P[:, 2, :3] @ X + P[:, 2, 3], 1e-9)
     return X
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"FeatureLocaliser": "FeatureLocalizer"})

@@ -13,9 +13,12 @@ import logging
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+from estimator.deprecation import module_getattr
 
 from ..errors import UserError
 from .atomic import atomic_path
@@ -92,3 +95,7 @@ def write_image(path, img: np.ndarray) -> None:
 def image_files(folder) -> list[Path]:
     """The image files (``IMAGE_EXT``, any case) directly in ``folder``, sorted by name."""
     return sorted(q for q in Path(folder).iterdir() if q.suffix.lower() in IMAGE_EXT)
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"read_grey_image": "read_gray_image"})

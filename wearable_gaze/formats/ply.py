@@ -17,12 +17,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from estimator.deprecation import renamed_kwargs
+
 from ..errors import UserError
 from .atomic import write_text
 
 UNITS_COMMENT = "units: mm; frame: world (the marker map's; OpenCV axes x right, y down, z forward)"
 
 
+@renamed_kwargs({"colours": "colors"})
 @dataclass
 class PlyMesh:
     """A coloured mesh with polylines.

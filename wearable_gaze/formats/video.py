@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calibration.images import to_gray
+from estimator.deprecation import module_getattr
 
 from ..errors import UserError
 from .tables import read_table, write_table
@@ -216,3 +218,8 @@ def read_frame_times(path) -> tuple[np.ndarray, np.ndarray]:
     if len(bad):
         raise UserError(f"{path} line {bad[0] + 3}: frame times must increase; fix or remove the row")
     return tab["frame"].astype(int), t
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"grey_frames": "gray_frames", "grey_frames_at": "gray_frames_at",
+                                             "sampled_grey_frames": "sampled_gray_frames"})

@@ -21,6 +21,7 @@ import numpy as np
 
 from calibration.camera import undistort_points
 from calibration.eyes import calibrate_eye, estimate_center, wall_pose
+from estimator.deprecation import renamed_kwargs
 from tracking.markermap import marker_corners_world
 
 from ..sim.camera import Camera
@@ -30,6 +31,7 @@ from ..sim.world import CalibrationWall
 VARIANTS = ("no correction", "undistortion only", "tilt correction only", "both")
 
 
+@renamed_kwargs({"centre_errors_mm": "center_errors_mm", "centre_sigma_mm": "center_sigma_mm"})
 @dataclass
 class StudyResult:
     errors_deg: dict          # variant -> (trials,) mean error per trial
@@ -89,6 +91,7 @@ def _wall_observation(camera, wall, model, rng, target_noise_px, samples, with_n
     return targets, px_t, px_r, corners_wall, raw.mean(axis=1)
 
 
+@renamed_kwargs({"centre_samples_per_target": "center_samples_per_target"})
 def run_calibration_study(trials: int = 50, seed: int = 0, wall_mm: float = 1000.0, second_wall_mm: float = 2000.0,
                           tilt_deg: float = 10.0, target_noise_px: float = 0.3, sigma_deg: float = 1.0,
                           samples_per_target: int = 60, n_test: int = 400, near_wall_mm: float = 500.0,

@@ -33,6 +33,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -51,6 +52,7 @@ from estimator.aoi import (
     probabilities,
     sample_interval_s,
 )
+from estimator.deprecation import module_getattr
 from estimator.frames import tangent_basis
 
 from ..errors import UserError
@@ -496,3 +498,7 @@ def format_metrics(res: AoiResult, conf: AoiConfig = AoiConfig()) -> str:
     lines.append(f"{len(res.assigned)} fixations, {unassigned} in no area (below "
                  f"{conf.assign_probability:.0%} in any)")
     return "\n".join(lines)
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"AOI_COLOUR": "AOI_COLOR"})

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -31,6 +32,7 @@ from calibration.eyes import (
 )
 from calibration.kappa import apply_kappa
 from estimator import BinocularSamples
+from estimator.deprecation import module_getattr, renamed_kwargs
 from estimator.frames import rotate_directions, transform_points
 from tracking.markers import MarkerDetector
 from tracking.timeline import MAX_POSE_GAP_S, interpolate_poses
@@ -86,6 +88,7 @@ def read_frames(files, max_video_frames: int, what: str = "the board"):
             yield f"{f.name}#{i}", gray
 
 
+@renamed_kwargs({"grey": "gray"})
 def check_frame_size(name: str, gray, cam) -> None:
     """Refuse a frame (H, W) of another size than the camera calibration's (``name``: which).
 
@@ -250,6 +253,7 @@ def read_eye_recordings(files: WallsRecording) -> EyeRecordings:
     return EyeRecordings(files, eye, extra, images)
 
 
+@renamed_kwargs({"centres": "centers"})
 def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", centers=None, progress=None) -> dict:
     """``calibrate_eyes`` from files: writes eyes.json and returns its content. The eyes step
     ``process`` runs (``session_steps.run_eyes``)."""
@@ -262,6 +266,7 @@ def calibrate_eyes_files(src, camera_path, out, model: str = "quadratic", center
     return run_eyes(EyesConfig(model, centers), inputs, progress)
 
 
+@renamed_kwargs({"centres": "centers"})
 def calibrate_eyes(rec: EyeRecordings, camera: CameraCalibration, model: str = "quadratic", centers=None,
                    progress=None) -> dict:
     """The eye calibration of a session's recordings (docs/session.md): wall poses from their
@@ -454,3 +459,7 @@ def head_lines_to_world(head: BinocularSamples, poses: Poses, max_gap_s: float =
                                            right_direction)
     return ViewLinesResult(samples, {"samples": int(len(head)), "written": int(len(idx)), "no_pose": int((~ok).sum()),
                                      "both_eyes_invalid": int((ok & ~valid).sum())})
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"NOMINAL_CENTRES_MM": "NOMINAL_CENTERS_MM"})

@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from estimator import BinocularSamples
 from estimator.aoi import fixation_durations_s
+from estimator.deprecation import module_getattr
 from estimator.frames import rotate_directions, transform_points
 from estimator.region import ray_exit, region_mesh
 from estimator.result import covariance_ellipsoid
@@ -304,3 +306,7 @@ def _xyz(p) -> str:
 
 def _cat(parts: list, shape: tuple, dtype) -> np.ndarray:
     return np.concatenate(parts).astype(dtype) if parts else np.zeros(shape, dtype)
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"COLOURS": "COLORS", "HEAD_COLOUR": "HEAD_COLOR"})

@@ -21,12 +21,14 @@ import html
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from calibration.camera import CameraCalibration
 from calibration.images import to_gray
+from estimator.deprecation import module_getattr
 from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector
 
@@ -349,3 +351,7 @@ def _write_frames(cap, row: dict, shown: set, writers, drawing, progress, n_tota
             progress(i + 1, max(n_total, i + 1))
         i += 1
     return n_shown
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"EYE_COLOURS": "EYE_COLORS"})

@@ -12,10 +12,12 @@ import html
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from estimator import BinocularSamples, fisher_information
+from estimator.deprecation import module_getattr, renamed_kwargs
 from estimator.errormodel import K95  # the 95 % ellipsoid's semi-axes over the standard deviations
 from tracking.markermap import MarkerMap
 
@@ -97,6 +99,7 @@ def load_truth(targets_path, head_poses_path=None) -> ReportTruth | None:
     return ReportTruth(read_truth_targets(targets_path), head)
 
 
+@renamed_kwargs({"centre": "center"})
 @dataclass(frozen=True)
 class ReportData:
     """What the report reads from the processing outputs (world frame, mm).
@@ -463,3 +466,7 @@ window.addEventListener("load", () => {{
 </body></html>
 """
     write_text(out / "report.html", page)
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"colour": "color", "COLOURS": "COLORS"})

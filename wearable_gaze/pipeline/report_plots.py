@@ -5,10 +5,12 @@ truth beside it when the session has one. ``d`` is the report's ``report.ReportD
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from estimator import angular_log_likelihood
+from estimator.deprecation import module_getattr, renamed_kwargs
 from estimator.errormodel import K95
 
 from ..formats.atomic import atomic_path
@@ -46,6 +48,7 @@ def _save(fig, path: Path, fixed: bool = False):
     _plt().close(fig)
 
 
+@renamed_kwargs({"colour": "color"})
 def write_plots(d, out: Path, color, truth) -> list:
     """Write the first four ``PLOTS`` into ``out``; [(file name, caption)]. ``colour(index)``: a
     target's colour."""
@@ -209,6 +212,7 @@ def _plot_3d(d, out: Path, color) -> tuple[str, str]:
             "no far end; an arrow: running on past the axes); the view above can be turned")
 
 
+@renamed_kwargs({"colour": "color"})
 def figure_3d(d, color):
     """3D view (a matplotlib figure): head path, every 10th view line of each target, the targets
     (a moving one as its path) with their credible regions, the truth; equal scales on the three
@@ -323,6 +327,7 @@ def _plot_top(d, out: Path, color) -> tuple[str, str]:
             "to the far end written beside it)")
 
 
+@renamed_kwargs({"colour": "color"})
 def figure_top(d, color):
     """Top view (a matplotlib figure, x-z): head path, view lines, each target's 95 % credible
     region seen from above (a target without one: its 95 % ellipsoid's shadow; a moving target:
@@ -433,3 +438,7 @@ def line_segments(tg, d, every: int = 10):
             X = np.array([np.interp(d.samples.t_s[j], t, P[:, m]) for m in range(3)])
         if np.all(np.isfinite(X)):
             yield d.orig[j], d.orig[j] + d.cyc[j] * np.linalg.norm(X - d.orig[j])
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"COLOURS": "COLORS"})

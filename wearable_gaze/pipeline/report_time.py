@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.deprecation import renamed_kwargs
+
 from .report_plots import PLOTS, _empty, _plt, _save
 
 DEPTH_OVER_TIME = PLOTS[4]
@@ -46,6 +48,7 @@ def _running(d, color, ax, target_of: dict) -> float:
     return top
 
 
+@renamed_kwargs({"colour": "color"})
 def plot_depth_over_time(d, out: Path, color) -> tuple[str, str]:
     """Write ``DEPTH_OVER_TIME`` into ``out``; (its name, its caption)."""
     plt = _plt()

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from estimator.deprecation import renamed_kwargs
 from estimator.segments import SegmentConfig
 from tracking.timeline import MAX_POSE_GAP_S
 
@@ -26,6 +27,7 @@ class CameraConfig:
     max_views: int = 40
 
 
+@renamed_kwargs({"centres": "centers"})
 @dataclass(frozen=True)
 class EyesConfig:
     """The eyes step: the raw -> image ``model`` ('quadratic', 'cubic', 'tps') and the eyes'

@@ -16,6 +16,8 @@ from importlib import resources
 
 import numpy as np
 
+from estimator.deprecation import renamed_kwargs
+
 from .regions import RegionLines
 
 MAX_HEAD_POINTS = 1500       # the head path is thinned to at most this many points
@@ -23,6 +25,7 @@ MAX_LINES = 40               # view lines drawn per target
 MAX_ROOM_POINTS = 3000       # a markerless map's points are thinned to at most this many
 
 
+@renamed_kwargs({"colour": "color"})
 @dataclass(frozen=True)
 class SceneTarget:
     """One target as the 3D view draws it (world frame, mm).

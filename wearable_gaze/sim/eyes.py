@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimator import perturb_directions
+from estimator.deprecation import renamed_kwargs
 from estimator.frames import rotation_about_axis
 
 log = logging.getLogger(__name__)
@@ -102,6 +103,7 @@ class EyeSensor:
                    float(d["cubic"]))
 
 
+@renamed_kwargs({"centres": "centers"})
 @dataclass
 class EyeModel:
     """Both eyes: rotation centres in the scene-camera frame, sensors, noise and bias.
@@ -122,6 +124,7 @@ class EyeModel:
     bias_deg: np.ndarray = None
 
     @classmethod
+    @renamed_kwargs({"centre_offset_mm": "center_offset_mm"})
     def make(cls, rng: np.random.Generator, ipd_mm: float = 64.0, center_offset_mm=(0.0, 30.0, -20.0),
              sigma_deg: float = 1.0, bias_deg=None) -> EyeModel:
         off = np.asarray(center_offset_mm, float)

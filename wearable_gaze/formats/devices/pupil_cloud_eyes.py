@@ -17,10 +17,12 @@ outside ``neon.IED_RANGE_MM`` loses both eyes. The table is read whole (about 11
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calibration.kappa import apply_kappa, fit_kappa_cyclopean, vergence_summary
+from estimator.deprecation import module_getattr, renamed_kwargs
 
 from ...errors import UserError
 from ..tables import csv_header, iter_csv_chunks, write_table
@@ -72,6 +74,7 @@ def read_eye_states(path: Path, chunk: int = 20000) -> tuple[np.ndarray, np.ndar
     return t, centers, axes
 
 
+@renamed_kwargs({"centres": "centers"})
 def eye_validity(centers, axes, drops) -> np.ndarray:
     """(2, n) bool: each eye's sample is usable; the reasons for the rest are added to ``drops``."""
     ok = np.ones(centers.shape[:2], bool)
@@ -92,6 +95,7 @@ def eye_validity(centers, axes, drops) -> np.ndarray:
     return ok
 
 
+@renamed_kwargs({"centres": "centers"})
 def visual_axes(src: Path, centers, axes, ok, gaze_dirs) -> tuple[np.ndarray, dict]:
     """Kappa (b) on at most ``MAX_FIT_SAMPLES`` binocular samples: (visual axes (2, n, 3), the
     report's ``kappa`` entry)."""
@@ -112,6 +116,7 @@ def visual_axes(src: Path, centers, axes, ok, gaze_dirs) -> tuple[np.ndarray, di
     return vis, report
 
 
+@renamed_kwargs({"centres": "centers"})
 def write_eye_states(path: Path, t_ns, centers, optical_axes, section: str, recording: str) -> None:
     """``3d_eye_states.csv`` as Cloud writes it (the writer's side, for the round trip): t_ns (n,),
     centres and optical axes (2, n, 3) in the scene camera's frame (NaN: an eye without data)."""
@@ -127,3 +132,7 @@ def write_eye_states(path: Path, t_ns, centers, optical_axes, section: str, reco
             cols[c] = optical_axes[e][:, k]
             formats[c] = ".8f"
     write_table(path, cols, formats)
+
+
+if not TYPE_CHECKING:      # old names (issue 30), for one release; unseen by mypy
+    __getattr__ = module_getattr(globals(), {"CENTRE_COLS": "CENTER_COLS"})
