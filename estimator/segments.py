@@ -78,28 +78,28 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     Args:
         samples: view lines in the world frame, in time order.
     """
-    n = len(samples)
-    labels = np.full(n, -1)
-    d = cyclopean_directions(samples)
-    valid = np.all(np.isfinite(d), axis=1)
+    n_samples = len(samples)
+    labels = np.full(n_samples, -1)
+    directions = cyclopean_directions(samples)
+    valid = np.all(np.isfinite(directions), axis=1)
     idx = np.flatnonzero(valid)
     if len(idx) == 0:
         return labels
-    dv, tv = d[idx], samples.t_s[idx]
-    w = config.window
-    m = len(idx)
-    score = np.zeros(m)
-    for k in range(w, m - w + 1):
-        a = np.median(dv[k - w:k], axis=0)
-        b = np.median(dv[k:k + w], axis=0)
-        score[k] = angle_deg(a, b)
+    dv, tv = directions[idx], samples.t_s[idx]
+    window = config.window
+    n_valid = len(idx)
+    score = np.zeros(n_valid)
+    for k in range(window, n_valid - window + 1):
+        before = np.median(dv[k - window:k], axis=0)
+        after = np.median(dv[k:k + window], axis=0)
+        score[k] = angle_deg(before, after)
     # saccades: local maxima of the score above the threshold (one per jump)
     cuts = []
     k = 0
-    while k < m:
+    while k < n_valid:
         if score[k] > config.jump_deg:
             j = k
-            while j + 1 < m and score[j + 1] > config.jump_deg:
+            while j + 1 < n_valid and score[j + 1] > config.jump_deg:
                 j += 1
             cuts.append((k, j, k + int(np.argmax(score[k:j + 1]))))
             k = j + 1
@@ -107,20 +107,22 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
             k += 1
     # gaps in time (long blinks, lost samples) also end a fixation
     gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s)
-    bounds = sorted({0, m} | {c[2] for c in cuts} | set((gaps + 1).tolist()))
+    bounds = sorted({0, n_valid} | {c[2] for c in cuts} | set((gaps + 1).tolist()))
     label = 0
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+    for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
         # drop the samples inside the jump region around each cut and trim the ends
-        ta, tb = tv[a] + config.trim_s, tv[b - 1] - config.trim_s
-        sel = np.arange(a, b)
+        ta, tb = tv[start] + config.trim_s, tv[stop - 1] - config.trim_s
+        sel = np.arange(start, stop)
         for c0, c1, _ in cuts:
-            sel = sel[(sel < c0 - w // 2) | (sel > c1 + w // 2)] if c0 - w // 2 <= sel.max(initial=-1) else sel
+            if c0 - window // 2 <= sel.max(initial=-1):
+                sel = sel[(sel < c0 - window // 2) | (sel > c1 + window // 2)]
         sel = sel[(tv[sel] >= ta) & (tv[sel] <= tb)]
         if len(sel) == 0 or tv[sel[-1]] - tv[sel[0]] < config.min_fixation_s:
             continue
         labels[idx[sel]] = label
         label += 1
-    log.info("%d fixations in %d samples (%d valid; %d saccades, %d time gaps)", label, n, m, len(cuts), len(gaps))
+    log.info("%d fixations in %d samples (%d valid; %d saccades, %d time gaps)", label, n_samples, n_valid, len(cuts),
+             len(gaps))
     return labels
 
 

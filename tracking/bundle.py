@@ -137,19 +137,20 @@ def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int
     Stops when a step lowers the cost by less than 1e-10 of it, or after ``max_iter`` steps;
     ``progress(steps taken, max_iter)`` is called after each."""
     views, objs = np.array(views, float), np.array(objs, float).reshape(-1, 6)
-    g = np.zeros(0) if shared is None else np.array(shared, float).ravel()
-    f = (lambda v, o, _: fun(v, o)) if shared is None else fun
+    common = np.zeros(0) if shared is None else np.array(shared, float).ravel()
+    residuals_of = (lambda v, o, _: fun(v, o)) if shared is None else fun
     V, M = len(views), len(objs)
-    r = f(views, objs, g)
-    cost, lam, converged, it = huber_cost(r, huber), 1e-3, False, 0
+    res = residuals_of(views, objs, common)
+    cost, lam, converged, it = huber_cost(res, huber), 1e-3, False, 0
     while it < max_iter:
         it += 1
-        w = _huber_weights(r, huber)
-        blocks = _normal_equations(*_jacobians(f, views, objs, g, r), r, w, view_of, obj_of, V, M)
+        weights = _huber_weights(res, huber)
+        blocks = _normal_equations(*_jacobians(residuals_of, views, objs, common, res), res, weights, view_of, obj_of,
+                                   V, M)
         while True:
             dv, do = _schur_step(*blocks, lam)
-            nv, no, ng = views + dv, objs + do[:6 * M].reshape(M, 6), g + do[6 * M:]
-            nr = f(nv, no, ng)
+            nv, no, ng = views + dv, objs + do[:6 * M].reshape(M, 6), common + do[6 * M:]
+            nr = residuals_of(nv, no, ng)
             ncost = huber_cost(nr, huber) if np.all(np.isfinite(nr)) else np.inf
             if ncost <= cost:
                 break
@@ -160,14 +161,15 @@ def bundle_adjust(fun, views, objs, view_of, obj_of, huber: float, max_iter: int
             converged = True                     # no step lowers the cost: at the minimum
             break
         small = cost - ncost <= 1e-10 * cost
-        views, objs, g, r, cost, lam = nv, no, ng, nr, ncost, max(lam / 10.0, 1e-9)
+        views, objs, common, res, cost, lam = nv, no, ng, nr, ncost, max(lam / 10.0, 1e-9)
         if progress is not None:
             progress(it, max_iter)
         if small:
             converged = True
             break
-    w = _huber_weights(r, huber)
-    Hvv, B, Hoo, _, _ = _normal_equations(*_jacobians(f, views, objs, g, r), r, w, view_of, obj_of, V, M)
+    weights = _huber_weights(res, huber)
+    Hvv, B, Hoo, _, _ = _normal_equations(*_jacobians(residuals_of, views, objs, common, res), res, weights, view_of,
+                                          obj_of, V, M)
     S = _schur(np.linalg.pinv(Hvv), B, Hoo)
     log.debug("bundle adjustment: %d steps, cost %.4g, converged %s", it, cost, converged)
-    return BundleResult(views, objs, r, S, it, converged, g)
+    return BundleResult(views, objs, res, S, it, converged, common)
