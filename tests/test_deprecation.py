@@ -169,7 +169,7 @@ def test_each_renamed_attribute_reads_the_new_one_with_a_warning(module, name, r
         assert getattr(cls, old).fget(types.SimpleNamespace(**{new: value})) is value
 
 
-def test_the_old_eye_centre_keywords_give_the_same_results():
+def test_the_old_british_keywords_give_the_same_results():
     """End to end on two of them: the calibration plane's points and the simulated eyes."""
     from calibration.eyes import EyeCalibration, plane_points
     from wearable_gaze.sim.eyes import EyeModel
