@@ -29,7 +29,7 @@ def _warn(where: str, old: str, new: str) -> None:
 
 def _renamed_call(func: Callable, renames: Mapping[str, str], where: str) -> Callable:
     @functools.wraps(func)
-    def call(*args, **kwargs):
+    def call(*args: Any, **kwargs: Any) -> Any:
         for old in renames.keys() & kwargs.keys():
             new = renames[old]
             if new in kwargs:
@@ -41,7 +41,7 @@ def _renamed_call(func: Callable, renames: Mapping[str, str], where: str) -> Cal
 
 
 def _old_attribute(old: str, new: str, where: str) -> property:
-    def read(self):
+    def read(self: Any) -> Any:
         _warn(where, old, new)
         return getattr(self, new)
     return property(read, doc=f"Deprecated name of ``{new}``.")
