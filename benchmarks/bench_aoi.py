@@ -27,7 +27,7 @@ import numpy as np
 
 from wearable_gaze.formats.aoi_tables import read_aoi_fixations, read_aoi_metrics
 from wearable_gaze.formats.truth import read_truth_targets
-from wearable_gaze.pipeline.batch import BatchSettings, run_batch
+from wearable_gaze.pipeline.batch.run import BatchSettings, run_batch
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SCENARIO = {"base": "lab-walkabout", "duration_s": 20.0, "camera": {"resolution": [640, 360]},

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from _args import size_and_seed
 
-from wearable_gaze.pipeline.batch import BatchSettings, run_batch
+from wearable_gaze.pipeline.batch.run import BatchSettings, run_batch
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SCENARIO = {"base": "lab-walkabout", "duration_s": 6.0, "camera": {"resolution": [640, 360]},

@@ -19,7 +19,7 @@ Counted per true fixation of a fixed target:
   angular spread of the samples' cyclopean directions (the mean of the two eyes' unit
   directions) about their mean, divided by their number (times the lag-one time-correlation
   factor), plus the error model's per-eye bias (process's: the calibration's leave-one-out
-  residual and the slippage the session's lines show, ``pipeline.errorbudget``) seen through the
+  residual and the slippage the session's lines show, ``pipeline.steps.errorbudget``) seen through the
   cyclopean mean and the pose offset of a tracked head, at 95 % along the covariance's longest
   axis (chi-square, 2 dof; Student's when the slippage, sized from few combinations of the eyes'
   angles, counts: ``ErrorModel.slip_dof``).
@@ -41,8 +41,8 @@ from estimator.direction import GazeDirection
 from wearable_gaze.formats.fixations_table import read_fixations_csv
 from wearable_gaze.formats.targets import read_targets
 from wearable_gaze.formats.truth import read_truth_targets
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.truth_match import TruthFrame
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import TruthFrame
 from wearable_gaze.sim.simulate import simulate_scenario
 
 

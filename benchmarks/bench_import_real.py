@@ -19,7 +19,7 @@ import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV loa
 from _args import size_and_seed
 
 from wearable_gaze.pipeline.importer import import_recording
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 
 REAL = Path(os.environ.get("WEARABLE_GAZE_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 SAMPLES = [("aria-mps", "aria_mps_sample_gen1", 30.0),

@@ -52,7 +52,7 @@ from wearable_gaze.formats.eye_samples import read_eye_csv
 from wearable_gaze.formats.session import load_session
 from wearable_gaze.live.app import open_session
 from wearable_gaze.live.stats import LatencyHistogram
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 from wearable_gaze.sim.emulate import RecorderEmulator
 from wearable_gaze.sim.simulate import simulate_scenario
 

@@ -37,7 +37,7 @@ import zmq
 
 from wearable_gaze.formats.eye_rays import read_eye_rays
 from wearable_gaze.live.device_app import open_device_session
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 from wearable_gaze.sim.pupil_core_emu import device_stream
 
 

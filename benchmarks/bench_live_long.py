@@ -1,6 +1,6 @@
 """Latency over a long fixation and memory over a long day (issue 29).
 
-``fixation``: the live session's estimation part (``wearable_gaze.pipeline.live_estimation.
+``fixation``: the live session's estimation part (``wearable_gaze.pipeline.steps.live_estimation.
 GazeEstimation.add``: world lines from an eye record and its head pose, the online fixation
 segmenter, the streaming voxel estimator), driven directly with simulated 200 Hz binocular eye
 records (no video, no tracking, no serial line) over a session of ``--minutes`` (10) in which the
@@ -45,7 +45,7 @@ from scipy.spatial.transform import Rotation
 from calibration.eyes import EyeCalibration, RawMap, plane_points
 from estimator.frames import invert
 from wearable_gaze.formats.serial_protocol import EyeRecord
-from wearable_gaze.pipeline.live_estimation import GazeEstimation, warm_up
+from wearable_gaze.pipeline.steps.live_estimation import GazeEstimation, warm_up
 
 RATE_HZ = 200.0
 
@@ -122,7 +122,7 @@ def run_fixation(args) -> None:
 
 def run_sessions(args) -> None:
     from wearable_gaze.live.app import open_session
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
     from wearable_gaze.sim.emulate import RecorderEmulator
     from wearable_gaze.sim.simulate import simulate_scenario
 

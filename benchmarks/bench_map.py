@@ -51,7 +51,7 @@ import numpy as np
 
 from tracking.mapbuild import similarity_errors
 from wearable_gaze.formats.markermap import load_marker_map
-from wearable_gaze.pipeline.mapping import build_map_files
+from wearable_gaze.pipeline.maps.markers import build_map_files
 from wearable_gaze.sim.simulate import simulate_scenario
 
 MOVED_SHIFT_MM = [150.0, 0.0, 0.0]
@@ -94,8 +94,8 @@ def survey_map(work: Path, seed: int, seconds: float, frames: int, moved: int | 
 def walkabout_errors(work: Path, seed: int, built_path: Path) -> tuple[list, list]:
     """Target errors (mm) of lab-walkabout ``seed`` processed with its true map and with the built
     one (the built world moved into the true one by the origin marker's pose)."""
-    from wearable_gaze.pipeline.process import process_session
-    from wearable_gaze.pipeline.truth_match import match_targets
+    from wearable_gaze.pipeline.process.session import process_session
+    from wearable_gaze.pipeline.report.truth_match import match_targets
 
     root = work / f"walkabout-{seed}"
     if not (root / "session.json").is_file():
@@ -140,7 +140,7 @@ def moved_survey(args, unmoved: tuple, unmoved_rms: float) -> None:
     from tracking.markers import MarkerDetector, split_repeated
     from wearable_gaze.formats.camera import load_camera
     from wearable_gaze.formats.truth import read_truth_moved_markers
-    from wearable_gaze.pipeline.calibrate import read_frames
+    from wearable_gaze.pipeline.steps.calibrate import read_frames
 
     i = args.moved
     true_map, out, built, dt = survey_map(args.work, args.seed, args.seconds, args.frames, i, args.camera)
@@ -203,7 +203,7 @@ def rough_survey(args) -> None:
         write_camera,
     )
     from wearable_gaze.formats.images import read_gray_image
-    from wearable_gaze.pipeline.calibrate import calibrate_camera_views, camera_json
+    from wearable_gaze.pipeline.steps.calibrate import calibrate_camera_views, camera_json
 
     n = args.rough
     true_map, _, _, _ = survey_map(args.work, args.seed, args.seconds, args.frames, camera=args.camera,

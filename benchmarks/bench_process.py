@@ -17,7 +17,7 @@ from pathlib import Path
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 from _args import size_and_seed
 
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 
 

@@ -32,7 +32,7 @@ from pathlib import Path
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 
 from wearable_gaze.pipeline.importer import import_recording
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 
 REPO = Path(__file__).resolve().parents[1]
@@ -78,7 +78,7 @@ def tracking_detections(out: Path):
 def report_with(root: Path, out: Path, detections: dict | None) -> float:
     """CPU s of the report step alone (its record dropped from .steps.json) with ``detections``
     handed to the overlay (None: it detects)."""
-    from wearable_gaze.pipeline import report
+    from wearable_gaze.pipeline.report import page as report
 
     state = out / ".steps.json"
     steps = json.loads(state.read_text())

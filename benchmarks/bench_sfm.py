@@ -32,7 +32,7 @@ from tracking.pose import rotation_angle_deg
 from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.sfmmap import load_sfm_map
-from wearable_gaze.pipeline.sfm import build_sfm_files, format_sfm_report
+from wearable_gaze.pipeline.maps.sfm import build_sfm_files, format_sfm_report
 from wearable_gaze.sim.simulate import simulate_scenario
 
 
@@ -86,8 +86,8 @@ def localization(sfm: Path, root: Path, step: int) -> None:
 
 def target_errors(root: Path, sfm: Path | None) -> list:
     """Errors (mm) of the fixated targets of ``root`` processed with its markers or with ``sfm``."""
-    from wearable_gaze.pipeline.process import process_session
-    from wearable_gaze.pipeline.truth_match import match_targets
+    from wearable_gaze.pipeline.process.session import process_session
+    from wearable_gaze.pipeline.report.truth_match import match_targets
 
     out = root / ("processed-sfm" if sfm else "processed-markers")
     res = process_session(root, out, report=False, sfm_map=sfm)

@@ -31,15 +31,15 @@ from pathlib import Path
 
 import _onecore  # noqa: F401  (first: pins one core before numpy and OpenCV load)
 
-from wearable_gaze.pipeline import steps
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process import stepcache as steps
+from wearable_gaze.pipeline.process.session import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 
 RESOLUTION = [640, 360]
 
 
 class _CpuClock:
-    """Stands in for the ``time`` module in ``wearable_gaze.pipeline.steps``: its step timings in
+    """Stands in for the ``time`` module in ``wearable_gaze.pipeline.process.stepcache``: its step timings in
     CPU seconds."""
 
     perf_counter = staticmethod(time.process_time)

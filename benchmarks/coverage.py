@@ -39,9 +39,9 @@ from estimator.merge import MERGE_POSE_DEG
 from estimator.segments import SegmentConfig, segment_fixations
 from estimator.slippage import seen_bias
 from wearable_gaze.formats.viewlines import read_viewlines_csv
-from wearable_gaze.pipeline.errorbudget import session_error_model
-from wearable_gaze.pipeline.fixations import find_targets
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.steps.errorbudget import session_error_model
+from wearable_gaze.pipeline.steps.fixations import find_targets
 from wearable_gaze.sim.simulate import simulate_scenario
 
 REAL = Path(os.environ.get("WEARABLE_GAZE_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
@@ -94,7 +94,7 @@ def session_targets(work: Path, rng, k: int, seed: int, method: str, model: str,
 
 def session_model(model: str, eyes_path: Path, samples, labels):
     """The error model: ``on`` as ``process`` builds it (the calibration's leave-one-out errors and
-    the bias the session's lines show, ``pipeline.errorbudget``), ``fixed`` as before issue 27
+    the bias the session's lines show, ``pipeline.steps.errorbudget``), ``fixed`` as before issue 27
     (those errors and a fixed 0.5 deg slippage added), ``none`` (sigma alone: None); and the bias
     the lines showed (``on`` only, else None)."""
     if model == "none":
@@ -137,8 +137,8 @@ def aria_coverage(work: Path, model: str) -> None:
     from wearable_gaze.formats.devices import aria
     from wearable_gaze.formats.devices.common import read_import_report
     from wearable_gaze.formats.poses import read_poses_csv
-    from wearable_gaze.pipeline.device import surface_reference
     from wearable_gaze.pipeline.importer import import_recording
+    from wearable_gaze.pipeline.steps.device import surface_reference
     from wearable_gaze.pipeline.types import Poses
 
     src = REAL / "aria_mps_sample_gen1"

@@ -31,9 +31,9 @@ from scipy.stats import chi2
 
 from estimator.segments import SegmentConfig, segment_fixations
 from wearable_gaze.formats.viewlines import read_viewlines_csv
-from wearable_gaze.pipeline.errorbudget import session_error_model
-from wearable_gaze.pipeline.fixations import find_targets
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.steps.errorbudget import session_error_model
+from wearable_gaze.pipeline.steps.fixations import find_targets
 from wearable_gaze.sim.simulate import simulate_scenario
 
 

@@ -161,7 +161,7 @@ FAULTS = (
           (MERGE + "test_a_revisit_joins_its_target_which_is_estimated_again_and_a_poorly_fixed_fixation_does_not",
            MERGE + "test_live_ids_partition_the_fixations_as_process_merges_the_same_lines")),
     Fault("export-clock-offset-sign", "step: export (gaze.csv's device clock)",
-          "wearable_gaze/pipeline/export.py",
+          "wearable_gaze/pipeline/steps/export.py",
           'cols = {"sample": np.arange(n), "t_s": head.t_s, "device_t_s": head.t_s + clock_offset_s,',
           'cols = {"sample": np.arange(n), "t_s": head.t_s, "device_t_s": head.t_s - clock_offset_s,',
           (EXPORTS + "test_gaze_columns_of_hand_made_samples_carry_the_device_clock_and_the_world_lines",

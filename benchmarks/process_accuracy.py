@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 from _args import size_and_seed
 
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.truth_match import match_positions
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import match_positions
 from wearable_gaze.sim.simulate import simulate_scenario
 
 

@@ -28,7 +28,7 @@ from real_data_table import REAL
 from estimator.triangulation import closest_point_two_lines
 from wearable_gaze.formats.eye_rays import read_eye_rays
 from wearable_gaze.pipeline.importer import import_recording
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 
 FPS = 25.0
 

@@ -17,7 +17,7 @@ Sources, and where each comes from:
   sensitivity. ``bias_from_calibration`` takes it from the eye calibration's leave-one-out
   residuals, ``estimator.slippage`` the slippage after it from the session's own lines (how
   each eye's residuals sit off its fixations' points beyond their noise);
-  ``wearable_gaze.pipeline.errorbudget`` puts them together with a device's published accuracy
+  ``wearable_gaze.pipeline.steps.errorbudget`` puts them together with a device's published accuracy
   where there is no calibration. Without any, ``DEFAULT_BIAS_DEG``.
 
 - Head-position error from tracking over a fixation (``pose_position_mm``): both eyes' origins

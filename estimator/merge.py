@@ -2,8 +2,8 @@
 a fixation joins the earlier group whose lines and its own fit one point (a likelihood-ratio
 test on the pooled view lines, each eye's calibration offsets marginalised), else it starts a
 group of its own. Groups never merge with each other, so a group's id, once given, keeps its
-meaning. ``process`` (``wearable_gaze.pipeline.fixations.merge_fixations``) and the live session
-(``wearable_gaze.pipeline.live_estimation.TargetIds``) both use ``TargetMerger``.
+meaning. ``process`` (``wearable_gaze.pipeline.steps.fixations.merge_fixations``) and the live session
+(``wearable_gaze.pipeline.steps.live_estimation.TargetIds``) both use ``TargetMerger``.
 
 World frame, mm, seconds; angles in degrees where the name says ``_deg``."""
 

@@ -63,7 +63,7 @@ def processed(tmp_path_factory):
     (session folder, output folder, ``ProcessResult``). No test writes into either folder (one
     that processes again works on a copy, e.g. test_process_stale's), so no result depends on
     the order the tests run in."""
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
     from wearable_gaze.sim.simulate import simulate_scenario
 
     base = tmp_path_factory.mktemp("proc")
@@ -100,7 +100,7 @@ def g2_processed(tmp_path_factory):
     areas of interest (``AOIS``): (base folder, its ``s`` the session and ``out`` the outputs;
     ``ProcessResult``). Shared by tests/test_import_real.py and tests/test_report_browser.py."""
     from wearable_gaze.pipeline.importer import import_recording
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     src = real_data_root() / G2_SAMPLE
     if not src.is_dir():

@@ -12,8 +12,8 @@ import numpy as np
 
 from wearable_gaze.formats.devices.common import ImportOptions
 from wearable_gaze.pipeline.importer import export_recording, import_recording
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.truth_match import match_targets
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import match_targets
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SCENARIO = {"base": "lab-walkabout", "duration_s": 12.0,

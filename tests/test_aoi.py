@@ -1,5 +1,5 @@
 """Areas of interest in the room (issue 28): the probability that a fixation's gazed point lies in
-an area (estimator/aoi.py), the per-area measures (pipeline/aoi.py), the AOI file and tables, and
+an area (estimator/aoi.py), the per-area measures (pipeline/steps/aoi.py), the AOI file and tables, and
 ``wearable-gaze aoi``."""
 
 import itertools
@@ -15,7 +15,7 @@ from estimator.frames import angle_deg
 from wearable_gaze.errors import UserError
 from wearable_gaze.formats.aoi_tables import read_aoi_fixations, read_aoi_metrics, read_aoi_transitions
 from wearable_gaze.formats.aois import read_aois, write_aois
-from wearable_gaze.pipeline.aoi import AoiConfig, AoiInputs, Area, FixationGaze, areas_of, run
+from wearable_gaze.pipeline.steps.aoi import AoiConfig, AoiInputs, Area, FixationGaze, areas_of, run
 
 EYE = np.zeros(3)
 AHEAD = np.array([0.0, 0.0, 2000.0])
@@ -288,7 +288,7 @@ def test_a_direction_only_target_gives_its_fixations_its_cone_over_its_interval(
     ``direction``): its spread is that cone over that depth interval, uniform in inverse depth."""
     from estimator import BinocularSamples
     from wearable_gaze.formats.viewlines import Segment
-    from wearable_gaze.pipeline.aoi import fixation_gaze
+    from wearable_gaze.pipeline.steps.aoi import fixation_gaze
 
     n = 10
     o = np.zeros((n, 3))
@@ -328,7 +328,7 @@ def test_the_aoi_steps_fixation_lasts_what_its_view_lines_samples_stand_for():
     lines' sample interval (not fixations.csv's first-to-last span), and dwell sums those."""
     from estimator import BinocularSamples
     from wearable_gaze.formats.viewlines import Segment
-    from wearable_gaze.pipeline.aoi import fixation_gaze, lines_interval_s
+    from wearable_gaze.pipeline.steps.aoi import fixation_gaze, lines_interval_s
 
     dt = 0.02
     t = np.concatenate([np.arange(50) * dt, 1.2 + np.arange(50) * dt])      # a 0.22 s blink after 1 s
@@ -350,7 +350,7 @@ def test_a_targets_dwell_is_the_sum_of_its_fixations_not_its_span(processed):
     which is less than its first-to-last span when it was revisited; the CLI table shows it."""
     from wearable_gaze.formats.fixations_table import read_fixations_csv
     from wearable_gaze.formats.targets import read_targets
-    from wearable_gaze.pipeline.steps import format_result
+    from wearable_gaze.pipeline.process.stepcache import format_result
 
     _, out, res = processed
     fx = read_fixations_csv(out / "fixations.csv")
@@ -377,8 +377,8 @@ def test_every_users_duration_is_the_aoi_measures_one_not_first_to_last(processe
     from wearable_gaze.formats.poses import read_poses_csv
     from wearable_gaze.formats.targets import read_targets
     from wearable_gaze.formats.viewlines import read_viewlines_csv
-    from wearable_gaze.pipeline.aoi import fixation_gaze
-    from wearable_gaze.pipeline.report import _target_rows, report_data
+    from wearable_gaze.pipeline.report.page import _target_rows, report_data
+    from wearable_gaze.pipeline.steps.aoi import fixation_gaze
 
     _, out, res = processed
     vl = pd.read_csv(out / "viewlines.csv")

@@ -17,8 +17,8 @@ import pytest
 from wearable_gaze.cli import main
 from wearable_gaze.formats.batch_status import read_status
 from wearable_gaze.formats.tables import read_table
-from wearable_gaze.pipeline.batch import BatchSettings, find_sessions, output_names, run_batch
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.batch.run import BatchSettings, find_sessions, output_names, run_batch
+from wearable_gaze.pipeline.process.session import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SCENARIO = {"base": "lab-walkabout", "duration_s": 5.0, "camera": {"resolution": [640, 360]},
@@ -271,7 +271,7 @@ def test_a_stopped_pools_manager_thread_ends_without_a_traceback():
     import threading
     from types import SimpleNamespace
 
-    from wearable_gaze.pipeline.batch_workers import _quiet_end
+    from wearable_gaze.pipeline.batch.workers import _quiet_end
 
     seen = []
     previous, threading.excepthook = threading.excepthook, lambda args: seen.append((args.thread.name, args.exc_type))
@@ -305,7 +305,7 @@ def test_an_internal_error_in_one_session_fails_that_session_and_the_batch_goes_
     so the planted fault reaches the worker."""
     distributed = pytest.importorskip("distributed", reason="Dask's distributed is not installed (pip install "
                                                            "'wearable-gaze[dask]'; the test extra has it)")
-    from wearable_gaze.pipeline import process
+    from wearable_gaze.pipeline.process import session as process
 
     root, ref = study
     real = process.process_session
@@ -337,8 +337,8 @@ def test_run_session_reports_an_internal_error_as_that_session_failing(tmp_path,
     """The worker itself (no pool): a planted ``ZeroDivisionError`` in ``process_session`` is
     returned and written as a failed status with the reason and traceback, not raised."""
     from wearable_gaze.formats.batch_status import LOCK_FILE
-    from wearable_gaze.pipeline import process
-    from wearable_gaze.pipeline.batch_workers import SessionTask, run_session
+    from wearable_gaze.pipeline.batch.workers import SessionTask, run_session
+    from wearable_gaze.pipeline.process import session as process
 
     def planted(session, out, **kwargs):
         raise ZeroDivisionError("planted: division by zero")
@@ -357,8 +357,8 @@ def test_a_sessions_reason_is_one_printable_line_cut_to_its_length(tmp_path, mon
     runs long: its status's reason is one printable line (the escape shown, not sent, as the CLI's
     messages), cut to ``REASON_CHARS`` ending ``...``."""
     from wearable_gaze.errors import UserError
-    from wearable_gaze.pipeline import process
-    from wearable_gaze.pipeline.batch_workers import REASON_CHARS, SessionTask, run_session
+    from wearable_gaze.pipeline.batch.workers import REASON_CHARS, SessionTask, run_session
+    from wearable_gaze.pipeline.process import session as process
 
     def planted(session, out, **kwargs):
         raise UserError("scene.mp4 \x1b[2J\x1b[31mred\n\tcannot be read: " + "x" * 1000)
@@ -378,7 +378,7 @@ def test_without_max_tasks_per_child_each_pool_gets_one_session_per_worker(monke
     import concurrent.futures
     from concurrent.futures import Future
 
-    from wearable_gaze.pipeline import batch_workers
+    from wearable_gaze.pipeline.batch import workers as batch_workers
 
     pools = []
 

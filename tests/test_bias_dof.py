@@ -15,7 +15,7 @@ from estimator.errormodel import ErrorModel
 from estimator.errormodel_regions import region_radius
 from estimator.slippage import SeenBias
 from wearable_gaze.formats.targets import record_sight, target_record
-from wearable_gaze.pipeline.errorbudget import BiasPrior, session_bias, with_bias
+from wearable_gaze.pipeline.steps.errorbudget import BiasPrior, session_bias, with_bias
 
 
 def _coverage(slip_dof: float, trials: int = 120) -> tuple[float, float]:

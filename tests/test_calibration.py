@@ -422,7 +422,7 @@ def test_calibration_cli_errors_are_one_line(tmp_path, capsys):
 
 
 def test_calibrate_camera_from_a_video_picks_views_for_coverage_and_fits_fisheye(session, tmp_path):
-    from wearable_gaze.pipeline.calibrate import calibrate_camera_files
+    from wearable_gaze.pipeline.steps.calibrate import calibrate_camera_files
 
     frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
               for p in sorted((session / "calibration" / "camera").glob("*.png"))]

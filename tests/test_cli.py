@@ -251,7 +251,7 @@ def test_paths_in_a_session_must_stay_inside_it(sim_session, tmp_path):
 
 def test_plainly_wrong_camera_calibration_is_marked_untrusted():
     from calibration.camera import CameraCalibration
-    from wearable_gaze.pipeline.calibrate import camera_json, format_camera_report, plausibility_warnings
+    from wearable_gaze.pipeline.steps.calibrate import camera_json, format_camera_report, plausibility_warnings
 
     bad = CameraCalibration(np.array([[1304.0, 0, 640], [0, 469.0, 360], [0, 0, 1]]), np.zeros(5), (1280, 720),
                             "pinhole", 1.9, [], None)
@@ -297,7 +297,7 @@ def test_an_unexpected_exception_is_a_bug_not_a_bad_input(monkeypatch, capsys, t
 
 def test_parse_ids():
     from wearable_gaze.errors import UserError
-    from wearable_gaze.pipeline.marker_sheets import parse_ids
+    from wearable_gaze.pipeline.maps.sheets import parse_ids
 
     assert parse_ids("0-3,7,2") == [0, 1, 2, 3, 7]
     assert parse_ids(" 5 ") == [5]

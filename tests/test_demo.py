@@ -12,7 +12,7 @@ import pytest
 from wearable_gaze.cli import main
 from wearable_gaze.errors import UserError
 from wearable_gaze.pipeline.demo import DEMO_PREFIX, demo_folder, fresh_folder, run_demo
-from wearable_gaze.pipeline.steps import ON_REQUEST, STEPS
+from wearable_gaze.pipeline.process.stepcache import ON_REQUEST, STEPS
 
 SHORT = {"seed": 0, "duration_s": 4.0, "resolution": (640, 360)}      # a short demo: ~10 s
 

@@ -96,8 +96,8 @@ def _session(rng):
 
 
 def test_find_targets_answers_every_fixation_and_each_has_a_direction(rng):
-    from wearable_gaze.pipeline.export import fixation_rows
-    from wearable_gaze.pipeline.fixations import find_targets
+    from wearable_gaze.pipeline.steps.export import fixation_rows
+    from wearable_gaze.pipeline.steps.fixations import find_targets
 
     samples, labels, points = _session(rng)
     res = find_targets(samples, labels, "voxel", 0.5, error_model=ErrorModel(bias_deg=0.3))
@@ -117,8 +117,8 @@ def test_a_direction_only_target_in_every_export(rng, tmp_path):
     from wearable_gaze.formats.fixations_table import read_fixations_csv
     from wearable_gaze.formats.tables import read_table
     from wearable_gaze.formats.targets import TARGET_CSV_CHECKS, read_targets
-    from wearable_gaze.pipeline.export import targets_mesh, write_fixations_step
-    from wearable_gaze.pipeline.fixations import find_targets, write_targets_step
+    from wearable_gaze.pipeline.steps.export import targets_mesh, write_fixations_step
+    from wearable_gaze.pipeline.steps.fixations import find_targets, write_targets_step
     from wearable_gaze.pipeline.types import Poses
 
     samples, labels, points = _session(rng)
@@ -150,7 +150,7 @@ def test_the_live_session_answers_a_far_fixation_by_its_direction():
     from test_live_parts import _eyes, _record
 
     from wearable_gaze.live.messages import target_message
-    from wearable_gaze.pipeline.live_estimation import GazeEstimation
+    from wearable_gaze.pipeline.steps.live_estimation import GazeEstimation
 
     eyes = _eyes()
     est = GazeEstimation(eyes, "voxel")
@@ -175,7 +175,7 @@ def statuses_everywhere(res, out) -> tuple[list, list, list, int, int]:
     import json
     import re
 
-    from wearable_gaze.pipeline.steps import format_result
+    from wearable_gaze.pipeline.process.stepcache import format_result
 
     text = format_result(res)
     table = re.findall(r"^\s*\d+ .*?\d+\.\d-\d+\.\d\s+\S+\s+(\S+)", text, flags=re.M)      # after the dwell
@@ -196,7 +196,7 @@ def test_process_answers_every_fixation_of_a_still_head_looking_far(tmp_path):
     from wearable_gaze.formats.fixations_table import read_fixations_csv
     from wearable_gaze.formats.targets import read_targets
     from wearable_gaze.formats.truth import read_truth_targets
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
     from wearable_gaze.sim.simulate import simulate_scenario
 
     scn = {"base": "lab-walkabout", "duration_s": 12.0, "camera": {"resolution": [640, 360]},
@@ -226,7 +226,7 @@ def test_one_status_per_target_and_a_too_near_point_is_not_counted(real_data, tm
     moving fixations whose point is too near were 'too-near' in the table and targets.json but
     'moving' in the report, and counted among the fixated targets."""
     from wearable_gaze.pipeline.importer import import_recording
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     import_recording(real_data / "tufts_gaze_depth" / "test.csv", tmp_path / "s", "pupil-core")
     res = process_session(tmp_path / "s", tmp_path / "out", overlay=False)
@@ -239,8 +239,8 @@ def test_one_status_per_target_and_a_too_near_point_is_not_counted(real_data, tm
 def test_the_live_session_publishes_the_status_process_gives(rng):
     """A static fixation whose lines meet 40 mm in front of the eyes: process calls its target
     'too-near'; the live session published it 'ok' (the estimator's status), now 'too-near' too."""
-    from wearable_gaze.pipeline.live_estimation import FinishedFixation, GazeEstimation
-    from wearable_gaze.pipeline.target_status import estimate_status
+    from wearable_gaze.pipeline.steps.live_estimation import FinishedFixation, GazeEstimation
+    from wearable_gaze.pipeline.steps.target_status import estimate_status
 
     near = np.array([5.0, 0.0, 40.0])
     s = diverging(near, rng, n=60, bias_deg=0.0, sigma_deg=0.2)

@@ -312,7 +312,7 @@ def test_map_markerless_names_its_folder_as_given(tmp_path, monkeypatch, capsys)
     """``map --markerless ... -o sfm/`` (as docs/tracking.md writes it) prints ``sfm/``, not ``sfm//``,
     in the line a user copies from (the reconstruction itself is stubbed: only the printing is tested)."""
     from wearable_gaze.cli import main
-    from wearable_gaze.pipeline import sfm
+    from wearable_gaze.pipeline.maps import sfm
 
     monkeypatch.setattr(sfm, "build_sfm_files", lambda *a, **k: None)
     monkeypatch.setattr(sfm, "format_sfm_report", lambda build: [])

@@ -15,9 +15,9 @@ from estimator.errormodel import ErrorModel, bias_from_calibration
 from estimator.merge import MERGE_POSE_DEG
 from wearable_gaze.cli import main
 from wearable_gaze.formats.viewlines import write_viewlines_csv
-from wearable_gaze.pipeline.errorbudget import TRACKED_POSITION_MM, session_error_model
-from wearable_gaze.pipeline.estimate import radius95_mm, running_estimate
-from wearable_gaze.pipeline.fixations import find_targets
+from wearable_gaze.pipeline.steps.errorbudget import TRACKED_POSITION_MM, session_error_model
+from wearable_gaze.pipeline.steps.estimate import radius95_mm, running_estimate
+from wearable_gaze.pipeline.steps.fixations import find_targets
 
 TARGET = [120.0, -40.0, 1200.0]
 

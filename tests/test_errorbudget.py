@@ -1,4 +1,4 @@
-"""The bias sized from the data (``pipeline.errorbudget``, issue 27): the eye calibration's
+"""The bias sized from the data (``pipeline.steps.errorbudget``, issue 27): the eye calibration's
 leave-one-out errors with no fixed slippage floor, the slippage the session's lines show on top, a
 device kind's published accuracy (its source recorded) where nothing was calibrated here, and an
 assumption that fixes a depth named next to every target in targets.json and the report."""
@@ -12,7 +12,8 @@ from estimator.errormodel import DEFAULT_BIAS_DEG
 from estimator.errormodel_regions import Sight
 from estimator.slippage import SeenBias
 from wearable_gaze.formats.targets import read_targets, write_targets
-from wearable_gaze.pipeline.errorbudget import (
+from wearable_gaze.pipeline.report.page import _intervals
+from wearable_gaze.pipeline.steps.errorbudget import (
     bias_note,
     calibration_prior,
     depth_assumption,
@@ -20,7 +21,6 @@ from wearable_gaze.pipeline.errorbudget import (
     session_bias,
     session_error_model,
 )
-from wearable_gaze.pipeline.report import _intervals
 from wearable_gaze.pipeline.types import Target
 
 

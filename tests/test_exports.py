@@ -22,7 +22,7 @@ from wearable_gaze.formats.ply import read_ply
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.formats.targets import read_estimates, read_target_labels, read_targets, record_region
-from wearable_gaze.pipeline.steps import OTHER_FILES, OUTPUTS
+from wearable_gaze.pipeline.process.stepcache import OTHER_FILES, OUTPUTS
 
 pd = pytest.importorskip("pandas", reason="pandas comes with the neon extra (pip install -e '.[test]')")
 
@@ -304,7 +304,7 @@ def test_gaze_columns_of_hand_made_samples_carry_the_device_clock_and_the_world_
     ``pose-slerp-transposed``)."""
     from estimator import BinocularSamples
     from estimator.frames import rotate_directions, rotation_about_axis, transform_points
-    from wearable_gaze.pipeline.export import gaze_columns
+    from wearable_gaze.pipeline.steps.export import gaze_columns
     from wearable_gaze.pipeline.types import Poses
 
     rng = np.random.default_rng(39)

@@ -18,7 +18,7 @@ from wearable_gaze.formats.devices.common import SessionImport, read_simulated_r
 from wearable_gaze.formats.eye_rays import EyeRaysWriter, read_eye_rays
 from wearable_gaze.formats.gaze_export import read_gaze_csv
 from wearable_gaze.formats.outputs import check_output
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 
 
 def _import_simulated(session, out, pose_source, gaze=True):
@@ -213,7 +213,7 @@ def test_a_poorly_fixed_fixation_is_not_merged_into_a_well_fixed_one(rng):
     the other lines; the lines' likelihood ratio keeps them apart. Two fixations of one point
     still merge."""
     from tests.helpers import same_target
-    from wearable_gaze.pipeline.fixations import find_targets
+    from wearable_gaze.pipeline.steps.fixations import find_targets
 
     def fixation(point, heads, t0):
         lo, ro = heads - [32, 0, 0], heads + [32, 0, 0]
@@ -242,8 +242,8 @@ def test_a_target_whose_depth_is_not_fixed_is_unresolved_not_ok(rng):
     the distance): the target is published as 'unresolved'. The
     same lines toward 1 m give an 'ok' target, and a moving target's point nearer the eyes than
     anyone fixates is 'too-near', not 'moving'."""
-    from wearable_gaze.pipeline.estimate import UNRESOLVED, target_status
-    from wearable_gaze.pipeline.fixations import find_targets
+    from wearable_gaze.pipeline.steps.estimate import UNRESOLVED, target_status
+    from wearable_gaze.pipeline.steps.fixations import find_targets
 
     t = np.arange(30) / 60.0
     lo, ro = np.tile([-32.0, 0, 0], (30, 1)), np.tile([32.0, 0, 0], (30, 1))

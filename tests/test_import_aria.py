@@ -395,8 +395,8 @@ def test_real_sample_through_process_beats_the_devices_own_depth_where_the_head_
     points (dist_std <= 20 mm) along the device's gaze direction, median over the fixation
     (research: F0 ml 2093 mm, reference 2382 mm, depth_m 1260 mm)."""
     from wearable_gaze.formats.viewlines import read_viewlines_csv
-    from wearable_gaze.pipeline.device import surface_reference
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
+    from wearable_gaze.pipeline.steps.device import surface_reference
     from wearable_gaze.pipeline.types import Poses
 
     run(sample, tmp_path / "s")
@@ -433,7 +433,7 @@ def test_real_sample_keeps_its_point_cloud_and_the_report_draws_it(sample, tmp_p
     import re
 
     from wearable_gaze.formats.ply import read_ply
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     run(sample, tmp_path / "s")
     pts = read_ply(tmp_path / "s" / "device_points.ply").vertices_mm

@@ -124,7 +124,7 @@ def test_gen2_real_goes_through_process_with_no_failed_step(sample, tmp_path):
     import json
 
     from wearable_gaze.pipeline.importer import import_recording
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     import_recording(sample, tmp_path / "s")
     res = process_session(tmp_path / "s", tmp_path / "out")

@@ -102,7 +102,7 @@ def test_a_walking_2d_only_session_finds_its_targets_within_twice_the_binocular_
     # the report says where the depth came from, and how far the head moved in each fixation
     import re
 
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     process_session(tmp_path / "imported", tmp_path / "out", overlay=False)
     page = (tmp_path / "out" / "report.html").read_text()
@@ -157,7 +157,7 @@ def test_the_real_invisible_export_goes_through_process_with_a_direction_per_tar
     fixation's direction, never its depth: every fixation the segmenter finds is a
     direction-only target whose depth interval is the whole of it (before: no target at all,
     exit status 2)."""
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     run_import(pupil_cloud, real_data / FOLLOW, tmp_path / "s")
     res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)

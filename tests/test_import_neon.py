@@ -149,7 +149,7 @@ def test_real_sample_through_process_finds_fixations_where_neon_found_them(sampl
     fixations for at least 80 % of their time (measured 95-100 %), and each target must be in
     front of the eyes at a vergence depth; the depth itself is set by the kappa fit's 1 m
     assumption (docs/importers.md), so only its plausibility is asserted."""
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     run_import(sample, tmp_path / "s")
     res = process_session(tmp_path / "s", tmp_path / "out", overlay=False)

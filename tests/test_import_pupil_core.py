@@ -89,7 +89,7 @@ def test_tufts_rows_are_counted_with_reasons_and_never_used(real_data, tmp_path)
 
 def test_tufts_through_import_and_process_shows_its_rays_measure_no_depth(real_data, tmp_path):
     from wearable_gaze.pipeline.importer import import_recording
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     manifest, _ = import_recording(real_data / TUFTS, tmp_path / "s", "pupil-core")
     assert manifest["source"]["pose_source"] == "still_head"

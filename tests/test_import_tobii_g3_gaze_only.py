@@ -13,7 +13,7 @@ from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.formats.targets import read_target_paths, write_target_paths
 from wearable_gaze.pipeline.importer import import_recording
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
 
 G3 = "eyedentify3d_tobii_g3"
 

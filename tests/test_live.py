@@ -19,8 +19,8 @@ from wearable_gaze.formats.eye_samples import read_eye_csv
 from wearable_gaze.formats.serial_protocol import DEFAULT_PROTOCOL
 from wearable_gaze.live.serial_in import EyeReader, LineSplitter
 from wearable_gaze.live.stats import LatencyHistogram
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.truth_match import match_targets
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import match_targets
 from wearable_gaze.sim.emulate import RecorderEmulator
 from wearable_gaze.sim.simulate import simulate_scenario
 

@@ -6,7 +6,7 @@ import numpy as np
 from tests.test_live_parts import _eyes, _pose, _record, _walk
 from wearable_gaze.live.messages import target_message
 from wearable_gaze.live.publish import Publisher
-from wearable_gaze.pipeline.live_estimation import MAX_MOTION_KNOTS, GazeEstimation
+from wearable_gaze.pipeline.steps.live_estimation import MAX_MOTION_KNOTS, GazeEstimation
 
 RATE = 60.0
 PATH_RMS_MM = 60.0

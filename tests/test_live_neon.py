@@ -17,8 +17,8 @@ from wearable_gaze.cli import main
 from wearable_gaze.errors import UserError
 from wearable_gaze.live import neon_in
 from wearable_gaze.live.device_app import open_device_session
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.truth_match import match_targets
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import match_targets
 from wearable_gaze.sim.neon_emu import NeonEmulator, session_camera
 from wearable_gaze.sim.pupil_core_emu import device_stream
 

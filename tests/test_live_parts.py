@@ -29,7 +29,7 @@ from wearable_gaze.live.messages import estimate_message, target_message
 from wearable_gaze.live.publish import Publisher
 from wearable_gaze.live.record import FILES, Recorder
 from wearable_gaze.live.serial_in import SerialStats
-from wearable_gaze.pipeline.live_estimation import GazeEstimation, LiveEstimate, TargetIds, world_sample
+from wearable_gaze.pipeline.steps.live_estimation import GazeEstimation, LiveEstimate, TargetIds, world_sample
 from wearable_gaze.pipeline.types import Target
 
 
@@ -524,7 +524,7 @@ def test_a_slow_fixation_end_does_not_hold_the_next_samples_and_every_target_is_
     then slow) runs in the target worker: the loop goes on estimating meanwhile, and at the
     session's end it waits for the worker, so every target is published and recorded, in
     fixation order with the ids ``process`` would give (A, B, A: 0, 1, 0)."""
-    import wearable_gaze.pipeline.live_estimation as estimation
+    import wearable_gaze.pipeline.steps.live_estimation as estimation
 
     eyes = _eyes()
     A, B = np.array([100.0, -50.0, 1500.0]), np.array([-500.0, 150.0, 1200.0])

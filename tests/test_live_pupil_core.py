@@ -16,8 +16,8 @@ from wearable_gaze.formats.fixations_table import read_fixations_csv
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.viewlines import read_viewlines_csv
 from wearable_gaze.live.device_app import open_device_session
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.truth_match import match_targets
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import match_targets
 from wearable_gaze.sim.pupil_core_emu import PupilCoreEmulator, device_stream
 
 
@@ -114,7 +114,7 @@ def test_the_recording_holds_every_sample_received_and_process_finds_the_same_ta
 
 def test_process_on_the_live_recording_gives_the_targets_live_published(live_run):
     """``process`` re-runs live's own online segmentation and streaming estimates on the samples
-    live estimated, with their poses (pipeline/live_replay.py): each target id live published
+    live estimated, with their poses (pipeline/steps/live_replay.py): each target id live published
     comes back at the point of its last message, to the messages' rounding (0.1 mm a coordinate);
     offline segmentation and merged estimates put them 4.5-269 mm away."""
     rec, msgs, code, err, _ = live_run

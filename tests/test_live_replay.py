@@ -1,4 +1,4 @@
-"""``pipeline.live_replay``: ``process``'s re-run of a live ``--device`` session's estimation (issue
+"""``pipeline.steps.live_replay``: ``process``'s re-run of a live ``--device`` session's estimation (issue
 29). The end-to-end check (a session served by the Pupil Core emulator, recorded, processed) is
 tests/test_live_pupil_core.py's; here the replay is fed a stream directly."""
 
@@ -8,8 +8,8 @@ from test_live_parts import _pose
 
 from estimator import BinocularSamples, Status
 from wearable_gaze.errors import UserError
-from wearable_gaze.pipeline.live_estimation import FinishedFixation, GazeEstimation, RayEyes
-from wearable_gaze.pipeline.live_replay import _result, replay
+from wearable_gaze.pipeline.steps.live_estimation import FinishedFixation, GazeEstimation, RayEyes
+from wearable_gaze.pipeline.steps.live_replay import _result, replay
 from wearable_gaze.pipeline.types import Target
 
 

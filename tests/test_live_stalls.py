@@ -20,7 +20,7 @@ from tracking.markermap import MarkerMap
 from wearable_gaze.formats.devices.pupil_net import RaySample
 from wearable_gaze.live.record import VIDEO_NICE, Recorder
 from wearable_gaze.live.target_process import RemoteTargets
-from wearable_gaze.pipeline.live_estimation import GazeEstimation, RayEyes, thin_fixation, world_sample
+from wearable_gaze.pipeline.steps.live_estimation import GazeEstimation, RayEyes, thin_fixation, world_sample
 
 
 def _finished_fixations():

@@ -23,7 +23,7 @@ from wearable_gaze.cli import main
 from wearable_gaze.formats.camera import load_camera
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.sfmmap import load_sfm_map
-from wearable_gaze.pipeline.track import track_video
+from wearable_gaze.pipeline.steps.track import track_video
 from wearable_gaze.sim.simulate import simulate_scenario
 
 K = np.array([[640.0, 0, 639.5], [0, 640.0, 359.5], [0, 0, 1]])
@@ -159,7 +159,7 @@ def test_a_markerless_map_records_its_markers_and_the_truth_is_moved_into_its_wo
 
     from tracking.markermap import square_corners
     from wearable_gaze.formats.markermap import load_marker_map
-    from wearable_gaze.pipeline.process_options import truth_frame
+    from wearable_gaze.pipeline.process.options import truth_frame
 
     sess, sfm, _ = survey
     meta = json.loads((sfm / "sfm_map.json").read_text())
@@ -290,7 +290,7 @@ def test_a_map_placed_loosely_by_its_markers_says_so():
     or a distance does not."""
     from types import SimpleNamespace
 
-    from wearable_gaze.pipeline.sfm import LOOSE_PLACEMENT_MM, SfmBuild, format_sfm_report
+    from wearable_gaze.pipeline.maps.sfm import LOOSE_PLACEMENT_MM, SfmBuild, format_sfm_report
 
     fmap = SimpleNamespace(points_world=np.zeros((10, 3)))
 

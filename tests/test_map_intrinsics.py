@@ -147,7 +147,7 @@ def test_a_survey_mapped_with_its_own_8_view_calibration_flags_nothing_and_place
     e_ref, _ = similarity_errors(A, B)
     # the map of the same views with the true intrinsics, as they are
     from tracking.markers import MarkerDetector, split_repeated
-    from wearable_gaze.pipeline.calibrate import read_frames
+    from wearable_gaze.pipeline.steps.calibrate import read_frames
 
     det = MarkerDetector(true_map.dictionary)
     views = [split_repeated(det.detect(g))[0] for _, g in read_frames([root / "scene.mp4"], 300)]
@@ -169,7 +169,7 @@ def test_map_extend_starts_from_the_earlier_maps_refined_intrinsics(survey_corne
     from calibration.camera import CameraCalibration
     from tracking.markermap import MarkerMap
     from wearable_gaze.formats.markermap import marker_map_dict, write_marker_map
-    from wearable_gaze.pipeline.mapping import intrinsics_json, start_intrinsics
+    from wearable_gaze.pipeline.maps.markers import intrinsics_json, start_intrinsics
 
     views, cam, truth, side = survey_corners
     K_rough = cam.camera_matrix.copy()

@@ -268,8 +268,8 @@ def test_process_builds_the_map_from_the_sessions_own_video_when_it_has_none(tmp
     ``--build-map``; with it, the map is built from the scene video (the markers the walk sees,
     matching the true map's after the best similarity), the session is tracked with it, and the
     fixated targets are found where the truth, moved into the built map's world, puts them."""
-    from wearable_gaze.pipeline.process import process_session
-    from wearable_gaze.pipeline.truth_match import match_targets
+    from wearable_gaze.pipeline.process.session import process_session
+    from wearable_gaze.pipeline.report.truth_match import match_targets
     from wearable_gaze.sim.simulate import simulate_scenario
 
     root = tmp_path / "s"

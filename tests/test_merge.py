@@ -11,9 +11,9 @@ from estimator.merge import MERGE_LR_THRESHOLD, MERGE_POSE_DEG, TargetMerger, me
 from estimator.result import Status, failed
 from tests.helpers import same_target
 from tests.test_live_parts import _eyes, _pose, _record
-from wearable_gaze.pipeline.estimate import DEFAULT_ERROR_MODEL
-from wearable_gaze.pipeline.fixations import merge_fixations
-from wearable_gaze.pipeline.live_estimation import SIGMA_DEG, GazeEstimation
+from wearable_gaze.pipeline.steps.estimate import DEFAULT_ERROR_MODEL
+from wearable_gaze.pipeline.steps.fixations import merge_fixations
+from wearable_gaze.pipeline.steps.live_estimation import SIGMA_DEG, GazeEstimation
 from wearable_gaze.pipeline.types import Fixation
 
 RATE = 60.0

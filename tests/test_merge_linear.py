@@ -18,9 +18,9 @@ from estimator.merge import (
 )
 from estimator.mergeform import Chart, fixation_form
 from tests.test_merge import A, _fixation, _off
-from wearable_gaze.pipeline.estimate import DEFAULT_ERROR_MODEL, model_options, running_estimate, target_merger
-from wearable_gaze.pipeline.fixations import merge_fixations
-from wearable_gaze.pipeline.live_estimation import SIGMA_DEG
+from wearable_gaze.pipeline.steps.estimate import DEFAULT_ERROR_MODEL, model_options, running_estimate, target_merger
+from wearable_gaze.pipeline.steps.fixations import merge_fixations
+from wearable_gaze.pipeline.steps.live_estimation import SIGMA_DEG
 from wearable_gaze.pipeline.types import Fixation
 
 POSE_DEG = DEFAULT_ERROR_MODEL.pose_offset_deg

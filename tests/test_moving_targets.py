@@ -16,8 +16,8 @@ from wearable_gaze.formats.ply import read_ply
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.formats.targets import read_target_paths, read_targets, write_target_paths
 from wearable_gaze.formats.truth import read_truth_targets
-from wearable_gaze.pipeline.fixations import find_targets
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.steps.fixations import find_targets
 from wearable_gaze.pipeline.types import Target
 from wearable_gaze.sim.simulate import simulate_scenario
 
@@ -167,7 +167,7 @@ def test_a_pursuit_cut_by_a_blink_is_one_moving_target_and_a_jump_is_two():
     moving target whose path spans both; a second piece that starts 10 deg off where the first
     ended is a target of its own."""
     from estimator.motion import MOVING, smooth_trajectory
-    from wearable_gaze.pipeline.fixations import join_pursuits
+    from wearable_gaze.pipeline.steps.fixations import join_pursuits
     from wearable_gaze.pipeline.types import Fixation
 
     rng = np.random.default_rng(2)

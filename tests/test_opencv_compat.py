@@ -127,7 +127,7 @@ def test_track_a_video_that_starts_and_ends_without_markers(blank_ended_session,
 
 
 def test_process_a_session_whose_video_starts_and_ends_without_markers(blank_ended_session, tmp_path):
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     root, n = blank_ended_session
     res = process_session(root, tmp_path / "out")

@@ -23,9 +23,9 @@ import pytest
 
 from wearable_gaze.cli import main
 from wearable_gaze.formats.person import read_person, read_validation, write_validation
-from wearable_gaze.pipeline.person import learn_bias
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.truth_match import match_targets
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import match_targets
+from wearable_gaze.pipeline.steps.person import learn_bias
 from wearable_gaze.sim.simulate import simulate_scenario
 
 BIAS_P = [[1.2, -0.8], [1.0, -1.1]]

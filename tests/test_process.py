@@ -11,7 +11,7 @@ import numpy as np
 from tests.helpers import chromium_page, color_pixels, screenshot_bgr
 from wearable_gaze.cli import main
 from wearable_gaze.formats.tables import read_table
-from wearable_gaze.pipeline.truth_match import match_targets
+from wearable_gaze.pipeline.report.truth_match import match_targets
 
 # the fixture ``processed`` (tests/conftest.py): a simulated session processed once per test run
 

@@ -15,11 +15,11 @@ from estimator.frames import rotation_about_axis, similarity_transform
 from wearable_gaze.cli import main
 from wearable_gaze.formats.devices.common import SessionImport, read_simulated_recording
 from wearable_gaze.formats.markermap import load_marker_map, marker_map_dict, write_marker_map
-from wearable_gaze.pipeline.batch import BatchSettings, session_fingerprint
-from wearable_gaze.pipeline.batch_report import truth_errors
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.process_options import markerless_corners
-from wearable_gaze.pipeline.truth_match import TruthFrame, fit_truth_frame
+from wearable_gaze.pipeline.batch.run import BatchSettings, session_fingerprint
+from wearable_gaze.pipeline.batch.summary import truth_errors
+from wearable_gaze.pipeline.process.options import markerless_corners
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.report.truth_match import TruthFrame, fit_truth_frame
 from wearable_gaze.sim.simulate import simulate_scenario
 
 WALLS = [{"distance_mm": 1000.0, "grid": [3, 3], "tilt_deg": 12.0},

@@ -10,11 +10,11 @@ import shutil
 import numpy as np
 import pytest
 
-import wearable_gaze.pipeline.session_steps as steps_mod
+import wearable_gaze.pipeline.process.session_steps as steps_mod
 from wearable_gaze.cli import main
 from wearable_gaze.formats.poses import read_poses_csv
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.steps import ON_REQUEST, STEPS
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.process.stepcache import ON_REQUEST, STEPS
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}
@@ -148,7 +148,7 @@ def test_an_exception_in_a_step_removes_the_outputs_of_the_steps_after_it(proces
 def test_a_corrupt_step_cache_is_redone_with_a_warning(processed, caplog, garbage):
     s, out = processed
     (out / ".steps.json").write_bytes(garbage)
-    with caplog.at_level(logging.WARNING, logger="wearable_gaze.pipeline.process"):
+    with caplog.at_level(logging.WARNING, logger="wearable_gaze.pipeline.process.session"):
         res = process_session(s, out, overlay=False)
     assert res.skipped == [] and res.targets and res.problems == []
     assert any(".steps.json is unreadable" in r.getMessage() for r in caplog.records)

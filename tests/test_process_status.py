@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-import wearable_gaze.pipeline.session_steps as steps_mod
+import wearable_gaze.pipeline.process.session_steps as steps_mod
 from wearable_gaze.cli import main
 from wearable_gaze.errors import UserError
 from wearable_gaze.formats.batch_status import (
@@ -24,9 +24,9 @@ from wearable_gaze.formats.batch_status import (
     take_lock,
     this_process,
 )
-from wearable_gaze.pipeline import batch_workers
-from wearable_gaze.pipeline.batch import BatchSettings, run_batch
-from wearable_gaze.pipeline.process import process_session
+from wearable_gaze.pipeline.batch import workers as batch_workers
+from wearable_gaze.pipeline.batch.run import BatchSettings, run_batch
+from wearable_gaze.pipeline.process.session import process_session
 from wearable_gaze.sim.simulate import simulate_scenario
 
 SMALL = {"base": "lab-walkabout", "duration_s": 4.0, "camera": {"resolution": [640, 360]}}

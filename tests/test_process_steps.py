@@ -9,12 +9,12 @@ from collections import Counter
 import numpy as np
 import pytest
 
-import wearable_gaze.pipeline.calibrate as calibrate_mod
-import wearable_gaze.pipeline.process as process_mod
-import wearable_gaze.pipeline.session_cache as cache_mod
-import wearable_gaze.pipeline.track as track_mod
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.steps import ON_REQUEST, STEPS
+import wearable_gaze.pipeline.process.session as process_mod
+import wearable_gaze.pipeline.process.session_cache as cache_mod
+import wearable_gaze.pipeline.steps.calibrate as calibrate_mod
+import wearable_gaze.pipeline.steps.track as track_mod
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.process.stepcache import ON_REQUEST, STEPS
 from wearable_gaze.pipeline.types import TARGET_KEYS, Target
 from wearable_gaze.sim.simulate import simulate_scenario
 
@@ -89,7 +89,7 @@ def test_the_settings_are_one_frozen_config_with_named_presets():
     and the presets are complete configurations differing from the default only where named."""
     import dataclasses
 
-    from wearable_gaze.pipeline.stepconf import PRESETS, ProcessConfig, preset
+    from wearable_gaze.pipeline.process.stepconf import PRESETS, ProcessConfig, preset
 
     conf = ProcessConfig()
     with pytest.raises(dataclasses.FrozenInstanceError):

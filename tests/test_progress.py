@@ -14,7 +14,7 @@ from helpers import TimedLog, slow_down
 
 import tracking.mapadjust as mapadjust
 import tracking.mapbuild as mapbuild
-import wearable_gaze.pipeline.mapping as mapping
+import wearable_gaze.pipeline.maps.markers as mapping
 import wearable_gaze.progress as progress_module
 from wearable_gaze.cli import main
 from wearable_gaze.progress import LINE_INTERVAL_S, heartbeat, progress_bar, staged, step_bars
@@ -184,7 +184,7 @@ def test_process_build_map_names_the_maps_adjustment_in_its_lines(every, monkeyp
     nothing) while the map's adjustment ran; now its lines name it."""
     import json
 
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
     from wearable_gaze.sim.simulate import simulate_scenario
 
     root = tmp_path / "s"
@@ -206,7 +206,7 @@ def test_process_build_map_names_the_maps_adjustment_in_its_lines(every, monkeyp
 def test_estimate_prints_lines_while_it_estimates(every, monkeypatch, tmp_path):
     """``estimate`` on a long view-line file printed nothing until its table; made slow here
     (1 s), its log shows "estimating: still running" every interval, and the table on stdout."""
-    import wearable_gaze.pipeline.estimate as estimate_module
+    import wearable_gaze.pipeline.steps.estimate as estimate_module
     from wearable_gaze.formats.viewlines import write_viewlines_csv
     from wearable_gaze.sim.protocol import simulate_lines
 
@@ -227,10 +227,10 @@ VIEWLINES = {"written": 10, "samples": 10, "no_pose": 0, "both_eyes_invalid": 0}
 
 
 @pytest.mark.parametrize("argv, module, name, result, line", [
-    (["fixations", "lines.csv", "-o", "fix.csv"], "wearable_gaze.pipeline.segmentation", "fixations_file",
+    (["fixations", "lines.csv", "-o", "fix.csv"], "wearable_gaze.pipeline.steps.segmentation", "fixations_file",
      FIXATIONS, "segmenting"),
     (["viewlines", "eye.csv", "--eyes", "eyes.json", "--poses", "poses.csv", "-o", "out.csv"],
-     "wearable_gaze.pipeline.calibrate", "viewlines_files", VIEWLINES, "view lines"),
+     "wearable_gaze.pipeline.steps.calibrate", "viewlines_files", VIEWLINES, "view lines"),
     (["export-recording", "session", "-o", "rec", "--format", "tobii-g3"], "wearable_gaze.pipeline.importer",
      "export_recording", "wearable-gaze import rec", "exporting"),
 ])

@@ -16,7 +16,7 @@ from wearable_gaze.formats.gaze_export import read_gaze_csv
 from wearable_gaze.formats.outputs import check_output
 from wearable_gaze.formats.tables import MAX_ABS
 from wearable_gaze.formats.targets import read_target_paths, read_targets
-from wearable_gaze.pipeline import fixations
+from wearable_gaze.pipeline.steps import fixations
 
 G2B = Path("gazemapper_example2")
 FPS = 25.0          # coding.tsv counts scene-video frames at 25 fps; session time is scene-video time

@@ -16,10 +16,11 @@ from estimator.errormodel import FAR_SIDE_K, K95
 from estimator.errormodel_regions import Sight
 from estimator.region import ray_exit, region_mesh, region_of_direction
 from wearable_gaze.formats.targets import record_region, target_record
-from wearable_gaze.pipeline import report, report_plots
-from wearable_gaze.pipeline.export import targets_mesh
-from wearable_gaze.pipeline.regions import region_lines, scene_box
-from wearable_gaze.pipeline.report import ReportData
+from wearable_gaze.pipeline.report import page as report
+from wearable_gaze.pipeline.report import plots as report_plots
+from wearable_gaze.pipeline.report.page import ReportData
+from wearable_gaze.pipeline.report.regions import region_lines, scene_box
+from wearable_gaze.pipeline.steps.export import targets_mesh
 from wearable_gaze.pipeline.types import Poses, Target
 
 SEEN_FROM = np.array([-15.0, 69.0, -22.0])

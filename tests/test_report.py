@@ -15,8 +15,8 @@ from tracking.markermap import MarkerMap
 from tracking.markers import MarkerDetector
 from wearable_gaze.formats.eye_samples import EyeSamples
 from wearable_gaze.formats.targets import target_record
-from wearable_gaze.pipeline import overlay as ov
-from wearable_gaze.pipeline import view3d
+from wearable_gaze.pipeline.report import overlay as ov
+from wearable_gaze.pipeline.report import view3d
 from wearable_gaze.pipeline.types import Target
 
 W, H = 640, 480
@@ -235,8 +235,8 @@ def test_the_3d_views_data_survives_its_embedding():
 
 def test_process_overlay_video_option_reaches_the_report_step(tmp_path, monkeypatch):
     from wearable_gaze.cli import main
-    from wearable_gaze.pipeline import process
-    from wearable_gaze.pipeline.steps import ProcessResult
+    from wearable_gaze.pipeline.process import session as process
+    from wearable_gaze.pipeline.process.stepcache import ProcessResult
 
     seen = []
 
@@ -257,7 +257,7 @@ def test_a_targets_distance_is_from_where_it_was_looked_at():
     for a target without samples)."""
     from types import SimpleNamespace
 
-    from wearable_gaze.pipeline.report import ReportData
+    from wearable_gaze.pipeline.report.page import ReportData
 
     x = np.linspace(0.0, 10000.0, 101)                         # the head walks 10 m along x
     orig = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
@@ -278,7 +278,8 @@ def test_the_3d_and_top_views_of_54_targets_number_them_and_keep_their_layout(tm
 
     from test_regions import _data, _record
 
-    from wearable_gaze.pipeline import report, report_plots
+    from wearable_gaze.pipeline.report import page as report
+    from wearable_gaze.pipeline.report import plots as report_plots
 
     rng = np.random.default_rng(0)
     pts = np.column_stack([rng.uniform(-1500, 1500, 54), rng.uniform(-500, 500, 54), rng.uniform(800, 4000, 54)])
@@ -342,7 +343,7 @@ def test_process_hands_the_tracking_steps_detections_to_the_overlay(tmp_path, mo
     import json
 
     from wearable_gaze.formats.marker_detections import read_marker_detections
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
     from wearable_gaze.sim.simulate import simulate_scenario
 
     class Refuse:

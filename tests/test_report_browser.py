@@ -12,7 +12,7 @@ import pytest
 from conftest import AOIS
 
 from tests.helpers import chromium_page, color_pixels, screenshot_bgr
-from wearable_gaze.pipeline.aoi import AOI_COLOR
+from wearable_gaze.pipeline.steps.aoi import AOI_COLOR
 
 ARIA = "aria_mps_sample_gen1"
 
@@ -21,7 +21,7 @@ ARIA = "aria_mps_sample_gen1"
 def aria_processed(tmp_path_factory, real_data_module):
     """The real Aria gen1 sample imported and processed with areas on its floor (tests/data/aois)."""
     from wearable_gaze.pipeline.importer import import_recording
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
 
     if not (real_data_module / ARIA).is_dir():
         pytest.skip(f"the real Aria sample is not at {real_data_module / ARIA}")

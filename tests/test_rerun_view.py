@@ -17,7 +17,7 @@ from estimator.result import covariance_ellipsoid
 from tracking.markermap import MarkerMap
 from wearable_gaze.cli import main
 from wearable_gaze.errors import UserError
-from wearable_gaze.pipeline.rerun_view import (
+from wearable_gaze.pipeline.report.rerun_view import (
     RERUN_MISSING,
     SPAWN,
     ellipsoid_axes,

@@ -13,8 +13,8 @@ from estimator.segments import SegmentConfig
 from wearable_gaze.cli import main
 from wearable_gaze.formats.tables import read_table
 from wearable_gaze.formats.viewlines import write_viewlines_csv
-from wearable_gaze.pipeline.process import process_session
-from wearable_gaze.pipeline.segmentation import fixations_file, measured_rate_hz, segment_config
+from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.steps.segmentation import fixations_file, measured_rate_hz, segment_config
 from wearable_gaze.sim.protocol import simulate_lines
 from wearable_gaze.sim.simulate import simulate_scenario
 

@@ -8,12 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-import wearable_gaze.pipeline.track as track_cmd
+import wearable_gaze.pipeline.steps.track as track_cmd
 from calibration.camera import CameraCalibration
 from estimator.frames import rotation_about_axis
 from wearable_gaze.cli import main
 from wearable_gaze.formats.poses import read_poses_csv
-from wearable_gaze.pipeline.track import track_video_files as track_video
+from wearable_gaze.pipeline.steps.track import track_video_files as track_video
 from wearable_gaze.sim.simulate import simulate_scenario
 
 # the simulated lab camera at 640x360: 90 degrees across, strong barrel distortion

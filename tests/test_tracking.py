@@ -529,7 +529,7 @@ def test_track_cli_bad_inputs_are_one_line(walk, tmp_path, capsys):
 
 
 def test_marker_sheets_print_at_exact_scale(tmp_path):
-    from wearable_gaze.pipeline.marker_sheets import write_marker_sheets
+    from wearable_gaze.pipeline.maps.sheets import write_marker_sheets
 
     paths = write_marker_sheets("DICT_4X4_50", [3, 4], 80.0, tmp_path / "sheet.png", dpi=200)
     img = cv2.imread(str(paths[0]), cv2.IMREAD_GRAYSCALE)

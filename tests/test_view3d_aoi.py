@@ -7,8 +7,8 @@ import shutil
 import numpy as np
 import pytest
 
-from wearable_gaze.pipeline import view3d
-from wearable_gaze.pipeline.aoi import AOI_COLOR, Area, area_outline
+from wearable_gaze.pipeline.report import view3d
+from wearable_gaze.pipeline.steps.aoi import AOI_COLOR, Area, area_outline
 
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
                  "--disable-sync", "--no-first-run"]

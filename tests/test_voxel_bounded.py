@@ -39,7 +39,7 @@ def _counting(monkeypatch):
 
 
 def _offline(samples, config=CFG):
-    """The estimate of ``process`` (``pipeline.estimate.running_estimate``): the samples added in
+    """The estimate of ``process`` (``pipeline.steps.estimate.running_estimate``): the samples added in
     20 batches, each box laid at once."""
     est = VoxelEstimator(config)
     for part in np.array_split(np.arange(len(samples)), 20):

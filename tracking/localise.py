@@ -5,7 +5,7 @@ the camera's pose from those 2D-3D matches (pycolmap's LO-RANSAC absolute pose a
 The same features serve the map and the frames (``image_features``): SIFT on the frame at half
 size (OpenCV's SIFT doubles its input first, so half size is full detail without the doubling's
 fourfold cost), RootSIFT-normalised. The map is built from them by pycolmap
-(``wearable_gaze.pipeline.sfm``) and carries, for each of its 3D points, the descriptor of every
+(``wearable_gaze.pipeline.maps.sfm``) and carries, for each of its 3D points, the descriptor of every
 view that saw it (``FeatureMap``).
 
 Frames: the map's points are in the world frame (mm) that the map was scaled and placed in; the

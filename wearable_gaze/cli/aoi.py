@@ -6,7 +6,7 @@ from . import args as A
 
 
 def cmd_aoi(args) -> int:
-    from ..pipeline.aoi import AoiConfig, aoi_folder, format_metrics
+    from ..pipeline.steps.aoi import AoiConfig, aoi_folder, format_metrics
 
     conf = AoiConfig(assign_probability=args.assign_probability)
     res = aoi_folder(args.processed, args.aois, args.out, args.markers, conf)

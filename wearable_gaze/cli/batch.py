@@ -26,8 +26,8 @@ def scheduler_address(text):
 
 def cmd_batch(args) -> int:
     from ..formats.aois import read_aois
-    from ..pipeline.batch import BatchSettings, format_summary, run_batch
-    from ..pipeline.process_options import check_map_options
+    from ..pipeline.batch.run import BatchSettings, format_summary, run_batch
+    from ..pipeline.process.options import check_map_options
     from ..progress import progress_bar
     from .process import build_map_option
 

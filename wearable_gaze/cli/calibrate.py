@@ -11,7 +11,7 @@ from . import args as A
 
 def cmd_calibrate_camera(args) -> int:
     from ..formats.camera import calibration_dict
-    from ..pipeline.calibrate import calibrate_camera_files, format_camera_report
+    from ..pipeline.steps.calibrate import calibrate_camera_files, format_camera_report
     from ..progress import progress_bar
 
     with progress_bar("detecting the board", 1) as cb:
@@ -27,7 +27,7 @@ def cmd_calibrate_camera(args) -> int:
 
 
 def cmd_calibrate_eyes(args) -> int:
-    from ..pipeline.calibrate import calibrate_eyes_files, format_eyes_report
+    from ..pipeline.steps.calibrate import calibrate_eyes_files, format_eyes_report
     from ..progress import progress_bar
 
     with progress_bar("calibrating the eyes", 1) as cb:
@@ -38,7 +38,7 @@ def cmd_calibrate_eyes(args) -> int:
 
 
 def cmd_viewlines(args) -> int:
-    from ..pipeline.calibrate import viewlines_files
+    from ..pipeline.steps.calibrate import viewlines_files
     from ..progress import heartbeat
 
     with heartbeat("view lines"):               # a long recording: a line every few seconds in a log

@@ -14,8 +14,8 @@ from . import args as A
 
 
 def cmd_estimate(args) -> int:
-    from ..pipeline import estimate as est
-    from ..pipeline.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note
+    from ..pipeline.steps import estimate as est
+    from ..pipeline.steps.estimate import DEFAULT_ERROR_MODEL, estimate_file, format_table, skipped_note
     from ..progress import heartbeat
 
     if args.export_density and args.method not in ("voxel", "paper"):

@@ -9,7 +9,7 @@ SETTINGS = {"window": "window", "jump_deg": "jump_deg", "min_fixation_s": "min_f
 
 
 def cmd_fixations(args) -> int:
-    from ..pipeline.segmentation import fixations_file
+    from ..pipeline.steps.segmentation import fixations_file
     from ..progress import heartbeat
 
     settings = {field: getattr(args, attr) for attr, field in SETTINGS.items() if getattr(args, attr) is not None}

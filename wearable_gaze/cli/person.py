@@ -4,7 +4,7 @@ from __future__ import annotations
 
 
 def cmd_learn_bias(args) -> int:
-    from ..pipeline.person import format_person, learn_bias_file
+    from ..pipeline.steps.person import format_person, learn_bias_file
 
     person = learn_bias_file(args.session, args.validation, args.out, args.processed, args.eyes)
     print(format_person(person))

@@ -19,7 +19,7 @@ def check_rerun(args, inputs=()) -> None:
             raise UserError("--rerun-frames needs --rerun (out.rrd, a viewer's address, or nothing to spawn one)")
         return
     from ..errors import check_output
-    from ..pipeline.rerun_view import parse_rerun_dest, require_rerun
+    from ..pipeline.report.rerun_view import parse_rerun_dest, require_rerun
 
     kind, where = parse_rerun_dest(args.rerun)
     require_rerun()
@@ -33,8 +33,8 @@ EXIT_STATUS = ("exit status: 0 targets estimated and every step that ran succeed
 
 
 def cmd_process(args) -> int:
-    from ..pipeline.process import process_session
-    from ..pipeline.steps import format_result
+    from ..pipeline.process.session import process_session
+    from ..pipeline.process.stepcache import format_result
     from ..progress import step_bars
 
     check_rerun(args, [args.session, args.camera, args.eyes, args.person, args.markers])
@@ -55,7 +55,7 @@ def cmd_process(args) -> int:
 def build_map_option(args) -> tuple | None:
     """``--build-map MM [--map-dict DICT]`` as (side mm, dictionary), or None; ``--map-dict``
     alone, which nothing would use, refused."""
-    from ..pipeline.mapping import DEFAULT_DICT
+    from ..pipeline.maps.markers import DEFAULT_DICT
 
     if args.build_map is None:
         if args.map_dict is not None:
@@ -110,7 +110,7 @@ def add_process(sub) -> None:
 
 def add_rerun_option(parser, help_text: str) -> None:
     """``--rerun [DEST]``: no value spawns a viewer (or connects to the local one)."""
-    from ..pipeline.rerun_view import SPAWN
+    from ..pipeline.report.rerun_view import SPAWN
 
     parser.add_argument("--rerun", nargs="?", const=SPAWN, default=None, metavar="out.rrd|URL", help=help_text)
 

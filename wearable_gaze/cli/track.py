@@ -7,7 +7,7 @@ from . import args as A
 
 
 def cmd_track(args) -> int:
-    from ..pipeline.track import track_video_files
+    from ..pipeline.steps.track import track_video_files
     from ..progress import progress_bar
 
     with progress_bar("tracking", 1) as cb:
@@ -20,7 +20,7 @@ def cmd_track(args) -> int:
 
 
 def cmd_markers(args) -> int:
-    from ..pipeline.marker_sheets import parse_ids, write_marker_sheets
+    from ..pipeline.maps.sheets import parse_ids, write_marker_sheets
 
     for p in write_marker_sheets(args.dict, parse_ids(args.ids), args.size_mm, args.out, args.page, args.dpi):
         print(f"wrote {p}")
@@ -60,7 +60,7 @@ def add_markers(sub) -> None:
 
 
 def cmd_map(args) -> int:
-    from ..pipeline.mapping import build_map_files, format_map_report, map_plot_path, parse_sizes
+    from ..pipeline.maps.markers import build_map_files, format_map_report, map_plot_path, parse_sizes
     from ..progress import progress_bar
 
     if args.markerless:
@@ -79,7 +79,7 @@ def cmd_map(args) -> int:
 
 
 def _cmd_markerless(args) -> int:
-    from ..pipeline.sfm import build_sfm_files, format_sfm_report
+    from ..pipeline.maps.sfm import build_sfm_files, format_sfm_report
     from ..progress import progress_bar
 
     if args.extend is not None or args.sizes or args.fixed_intrinsics:

@@ -15,7 +15,7 @@ with an optional ``group``, ``depth_tolerance_mm`` (how far in front of a solid 
 gazed point may lie and still be on it) and, for a box, sphere or mesh, ``transparent`` (a region
 of space rather than a solid object: it holds the points inside it). World frame (the marker
 map's), mm. One reader, ``read_aois``, and one writer, ``write_aois``; the areas' geometry from a
-marker map is made in ``pipeline/aoi.py``.
+marker map is made in ``pipeline/steps/aoi.py``.
 """
 
 from __future__ import annotations

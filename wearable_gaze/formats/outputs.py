@@ -1,7 +1,7 @@
 """Every file ``process`` may write into its output folder, with its format (docs/formats.md,
 "Outputs of process"): a JSON file's schema (``formats/schemas/``), a CSV's columns with the
 dtype pandas reads each as (``pandas.read_csv`` with no options), or the kind of any other file.
-``tests/test_exports.py`` checks that this list, the steps' outputs (``pipeline.steps``) and the
+``tests/test_exports.py`` checks that this list, the steps' outputs (``pipeline.process.stepcache``) and the
 table of docs/formats.md name the same files, and that a processed session's files validate.
 
 ``check_output(path)`` checks one file against its entry (a JSON file against its schema, a CSV's

@@ -3,7 +3,7 @@ Blender, MeshLab and Open3D: an ASCII PLY mesh in the world frame (the marker ma
 
 Elements: ``vertex`` (``x, y, z`` double, mm; ``red, green, blue`` uchar), ``face``
 (``vertex_indices``, triangles) and ``edge`` (``vertex1, vertex2`` int: polylines). What the
-vertices are is for the writer's caller to say in ``comments`` (``pipeline.export``: each
+vertices are is for the writer's caller to say in ``comments`` (``pipeline.steps.export``: each
 target's 95 % ellipsoid as a triangle mesh, each target's point as a lone vertex, the head path
 as a chain of edges); the header's first comments give the units and frame.
 

@@ -13,9 +13,9 @@ or null), ``crb_mm`` (or null), ``fixations`` (list of fixation indices), on a m
 only, ``moving: true``, and, where the error model gave the covariance, ``depth`` (its distance
 from where it was seen and the 68 % and 95 % intervals of it, symmetric in inverse depth:
 ``DEPTH_KEYS``), and where an assumption fixes the depth (a kappa offset taken at a distance, a
-still head: ``pipeline.errorbudget.depth_assumption``), ``depth_assumption`` (it, in words).
+still head: ``pipeline.steps.errorbudget.depth_assumption``), ``depth_assumption`` (it, in words).
 targets.json is ``{"version": 2, "method": ..., "targets": [records]}`` with, from ``process``,
-``error_model`` (the per-eye bias and where it came from: ``pipeline.errorbudget.session_bias``)
+``error_model`` (the per-eye bias and where it came from: ``pipeline.steps.errorbudget.session_bias``)
 (schema ``targets``); ``read_targets`` also reads version 1 files (flat rows, NaN for none) into
 records. targets.csv holds the same records flattened (``TARGET_CSV_COLUMNS``: ``position_mm``
 -> ``x_mm, y_mm, z_mm``; ``covariance_mm2`` -> ``cov_xx_mm2 .. cov_zz_mm2``, its six unique

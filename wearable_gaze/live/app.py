@@ -21,7 +21,7 @@ from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.eyes import load_eyes
 from ..formats.markermap import load_marker_map
-from ..pipeline.live_estimation import GazeEstimation, warm_up
+from ..pipeline.steps.live_estimation import GazeEstimation, warm_up
 from .allocator import bound_heap
 from .camera_in import FrameSource
 from .clock import SessionClock

@@ -12,7 +12,7 @@ from pathlib import Path
 from ..errors import UserError
 from ..formats.camera import load_camera
 from ..formats.markermap import load_marker_map
-from ..pipeline.live_estimation import GazeEstimation, RayEyes, warm_up
+from ..pipeline.steps.live_estimation import GazeEstimation, RayEyes, warm_up
 from . import pupil_core_in
 from .allocator import bound_heap
 from .app import run_session

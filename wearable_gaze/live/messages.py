@@ -10,7 +10,7 @@ import numpy as np
 
 from estimator.result import covariance_ellipsoid
 
-from ..pipeline.live_estimation import LiveEstimate
+from ..pipeline.steps.live_estimation import LiveEstimate
 from ..pipeline.types import Target
 
 log = logging.getLogger(__name__)

@@ -8,7 +8,7 @@ that came meanwhile waited 30-100 ms (docs/live.md, Latency).
 ``RemoteTargets.finish(done)`` thins the fixation's lines in the calling thread (the loop's target
 worker), sends them (a few kB) and waits for the target. The process keeps the merge state (the
 target ids), so fixations are made in the order they are sent, as ``process`` re-runs them
-(``pipeline.live_replay``).
+(``pipeline.steps.live_replay``).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 
-from ..pipeline.live_estimation import GazeEstimation, RayEyes, thin_fixation
+from ..pipeline.steps.live_estimation import GazeEstimation, RayEyes, thin_fixation
 
 NICE = 10
 """The target process's niceness above the session's: on a core the loop and the tracking

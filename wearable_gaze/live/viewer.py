@@ -4,7 +4,7 @@ holds up the loop (when the queue is full the oldest item is dropped, counted).
 
 It is fed the same events as the publisher (every message, for the running estimates) and
 two the JSON lines do not carry: each tracked frame's head pose, and each finished fixation's
-target with its view lines and covariance. The logging itself is ``pipeline.rerun_view``'s.
+target with its view lines and covariance. The logging itself is ``pipeline.report.rerun_view``'s.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ class RerunViewer(Subscriber):
 
     def __init__(self, dest, camera=None, marker_map=None, maxsize: int = 5000):
         super().__init__("rerun", maxsize=maxsize)
-        from ..pipeline.rerun_view import log_scene, open_recording
+        from ..pipeline.report.rerun_view import log_scene, open_recording
 
         self.rec = open_recording(dest, "wearable-gaze live")
         log_scene(self.rec, camera, marker_map)
@@ -49,8 +49,8 @@ class RerunViewer(Subscriber):
         self.put(("target", target, lines))
 
     def _send(self, batch) -> None:
-        from ..pipeline.live_estimation import lines_to_samples
-        from ..pipeline.rerun_view import log_estimate, log_head_pose, log_target
+        from ..pipeline.report.rerun_view import log_estimate, log_head_pose, log_target
+        from ..pipeline.steps.live_estimation import lines_to_samples
 
         for item in batch:
             try:
@@ -72,7 +72,7 @@ class RerunViewer(Subscriber):
 
     def _close_transport(self) -> None:
         from ..errors import UserError
-        from ..pipeline.rerun_view import close_recording
+        from ..pipeline.report.rerun_view import close_recording
 
         try:
             close_recording(self.rec, timeout_s=self.stuck_s)

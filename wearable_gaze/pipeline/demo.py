@@ -21,9 +21,9 @@ from ..formats.truth import read_truth_targets
 from ..progress import progress_bar
 from ..sim.scenario import resolve
 from ..sim.simulate import simulate
-from .process import process_session
-from .steps import format_result
-from .truth_match import TruthFrame, match_positions
+from .process.session import process_session
+from .process.stepcache import format_result
+from .report.truth_match import TruthFrame, match_positions
 
 DEMO_PREFIX = "wearable-gaze-demo-"
 

@@ -30,7 +30,7 @@ from ..formats.targets import (  # noqa: F401  (TARGET_KEYS: a record's keys)
     record_sight,
     target_record,
 )
-from .target_status import is_fixated
+from .steps.target_status import is_fixated
 
 
 @dataclass
@@ -71,7 +71,7 @@ class Target:
             version-1 targets.json, which kept only the ellipsoid's semi-axes).
         axes95_mm: (3,) semi-axes of the 95 % confidence ellipsoid, increasing, mm; NaN without
             a covariance.
-        status: its one status (``pipeline.target_status``: 'ok', 'unresolved', 'direction-only',
+        status: its one status (``pipeline.steps.target_status``: 'ok', 'unresolved', 'direction-only',
             'moving', or why it is no target, e.g. 'too-near'), the same in every output.
         n_samples: binocular samples (view lines) of its fixations.
         t_start, t_end: time of its first and last sample, s.
@@ -93,7 +93,7 @@ class Target:
             direction-only target's answer, and beside the point of a static one; None for a
             moving target.
         depth_assumption: the assumption that fixes its depth, in words
-            (``pipeline.errorbudget.depth_assumption``), or None.
+            (``pipeline.steps.errorbudget.depth_assumption``), or None.
         dwell_s: the sum of its fixations' durations (each the time its samples stand for,
             ``estimator.aoi.fixation_duration_s``: fixations.csv's ``duration_s``), s; NaN unknown.
 
@@ -143,7 +143,7 @@ class Target:
 
     @property
     def fixated(self) -> bool:
-        """Whether it counts as a fixated target (``pipeline.target_status.FIXATED``: not a
+        """Whether it counts as a fixated target (``pipeline.steps.target_status.FIXATED``: not a
         ``too-near`` point, nor an estimate that failed without a direction)."""
         return is_fixated(self.status)
 
