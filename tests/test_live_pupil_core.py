@@ -142,9 +142,13 @@ def test_a_device_killed_and_started_again_is_reconnected_and_nothing_received_i
     live, link = open_device_session(url, session / "truth" / "camera.json", session / "markers.json",
                                      record=tmp_path / "rec", stdout=False)
     done = {}
+    stop_reader = live.reader.stop
+    def reader_stopped():                                     # when the session stops reading (its end;
+        done["end"] = time.monotonic()                        # closing the recording comes after)
+        stop_reader()
+    live.reader.stop = reader_stopped
     def run():
         done["stats"] = live.run(5.5)
-        done["end"] = time.monotonic()
     th = threading.Thread(target=run)
     th.start()
     time.sleep(2.0)

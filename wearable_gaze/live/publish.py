@@ -146,8 +146,9 @@ class Subscriber:
             self.dropped += self.inflight + len(self.queue)
             self.inflight = 0
             self.queue.clear()
-        log.warning("publish: %s disconnected (%s); %d messages sent, %d dropped; the session goes on",
-                    self.name, why, self.sent, self.dropped)
+            # said before the lock is let go: whoever sees ``closed`` can also read why in the log
+            log.warning("publish: %s disconnected (%s); %d messages sent, %d dropped; the session goes on",
+                        self.name, why, self.sent, self.dropped)
 
     def close(self, timeout_s: float = 1.0) -> None:
         """Send what is waiting (for up to ``timeout_s``), then stop."""

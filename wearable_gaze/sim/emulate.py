@@ -25,6 +25,7 @@ from ..errors import UserError
 from ..formats.serial_protocol import DEFAULT_PROTOCOL, EyeRecord, LineProtocol, ParseError
 
 CONNECT_SETTLE_S = 0.05   # pyserial's socket:// clears its input buffer just after connecting
+PTY_OPEN_SETTLE_S = 0.2  # pyserial empties its input at the end of open(): the pty stream starts after
 
 
 class RecorderEmulator:
@@ -200,6 +201,9 @@ class RecorderEmulator:
             try:
                 while not self._stop.is_set():
                     if reader_attached(100):
+                        # the reader is still opening: pyserial empties its input at the end of
+                        # open(), so bytes written at once could be lost; the stream starts after
+                        self._stop.wait(PTY_OPEN_SETTLE_S)
                         self._play(write, time.monotonic())
                         self._stop.wait(0.3)
                         break
