@@ -150,8 +150,8 @@ FAULTS = (
     Fault("segment-gap-off-by-one", "step: segmentation (a time gap's boundary; may need re-anchoring "
           "after worldfix's changes to estimator/segments.py)",
           "estimator/segments.py",
-          "bounds = sorted({0, m} | {c[2] for c in cuts} | set((gaps + 1).tolist()))",
-          "bounds = sorted({0, m} | {c[2] for c in cuts} | set(gaps.tolist()))",
+          "bounds = sorted({0, n_valid} | {c[2] for c in cuts} | set((gaps + 1).tolist()))",
+          "bounds = sorted({0, n_valid} | {c[2] for c in cuts} | set(gaps.tolist()))",
           (SEG + "test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly",
            SEGCMD + "test_fixations_file_ends_a_fixation_at_a_time_gap_to_the_sample")),
     Fault("merge-test-inverted", "step: targets (a revisit merged by the likelihood-ratio test)",
