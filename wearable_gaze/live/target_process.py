@@ -13,10 +13,8 @@ target ids), so fixations are made in the order they are sent, as ``process`` re
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-
 from ..pipeline.steps.live_estimation import GazeEstimation, RayEyes, thin_fixation
+from . import served
 
 NICE = 10
 """The target process's niceness above the session's: on a core the loop and the tracking
@@ -24,16 +22,12 @@ process keep busy, the eye samples go first; a target comes a little later (it i
 made, in fixation order). At 5 it still had a quarter of the core against a loop with samples
 waiting: the two longest backlogs of a 30 s Pupil Core run at load 1.5 (97.7 and 73.3 ms) were
 fixations' ends, the loop's thread at 47-49 % of the core."""
-START_TIMEOUT_S = 60.0     # the process's imports on a loaded machine
 
 
 def _serve(conn, method: str, nice: int) -> None:
     """The target process: ``EndedFixation`` in; (target or None, ids given so far) or
     ("error", message) out, until a None."""
-    try:
-        os.nice(nice)
-    except OSError:                                  # pragma: no cover (not allowed: the same priority)
-        pass
+    served.renice(nice)
     est = GazeEstimation([RayEyes(), RayEyes()], method)
     conn.send("ready")
     while (done := conn.recv()) is not None:
@@ -51,27 +45,18 @@ class RemoteTargets:
     """
 
     def __init__(self, method: str, nice: int = NICE):
-        ctx = multiprocessing.get_context("spawn")
-        self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_serve, args=(child, method, nice), daemon=True, name="wearable-gaze-targets")
-        self.proc.start()
-        child.close()
+        self.proc, self.conn = served.start(_serve, (method, nice), "wearable-gaze-targets")
         self.n_ids = 0
 
     def ready(self) -> None:
         """Wait for the process to start.
 
         Raises:
-            RuntimeError: it did not within ``START_TIMEOUT_S``.
+            RuntimeError: it did not within ``served.START_TIMEOUT_S``.
         """
-        try:
-            ready = self.conn.poll(START_TIMEOUT_S) and self.conn.recv() == "ready"
-        except EOFError:                   # it ended: e.g. a main module that starts a session unguarded
-            ready = False
-        if not ready:
+        if not served.ready(self.conn):
             self.close()
-            raise RuntimeError("the target process did not start (a script that opens a live session must do so "
-                               "under 'if __name__ == \"__main__\":')")
+            raise RuntimeError(served.NOT_STARTED.format("target"))
 
     def finish(self, done):
         """The target (``pipeline.types.Target``) of a finished fixation (``FinishedFixation``),

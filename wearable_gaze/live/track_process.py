@@ -9,26 +9,21 @@ pose; ``TrackingThread`` calls it for the newest waiting frame, one at a time.
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-
 import numpy as np
+
+from . import served
 
 NICE = 0
 """The tracking process's niceness above the session's. 0: the scheduler already serves the eye
 samples' thread first (it sleeps between samples, and a waking task preempts one that has run
 long); at 5 the process starved under other work on the machine (load 18 on 2 cores: 55 of 379
 samples of tests/test_live_pupil_core.py's session had a pose)."""
-START_TIMEOUT_S = 60.0     # the process's imports on a loaded machine
 
 
 def _serve(conn, marker_map, camera, nice: int) -> None:
     """The tracking process: (shape) and frame bytes in; (ok, T_world_from_cam (4, 4) or None,
     markers used) out, until a None."""
-    try:
-        os.nice(nice)
-    except OSError:                                  # pragma: no cover (not allowed: the same priority)
-        pass
+    served.renice(nice)
     from tracking.markers import MarkerDetector
     from tracking.pose import MarkerPoseEstimator
 
@@ -45,24 +40,14 @@ class RemoteTracker:
     interpreter, so that no thread of this one is copied).
 
     Raises:
-        RuntimeError: the process did not start within ``START_TIMEOUT_S``.
+        RuntimeError: the process did not start within ``served.START_TIMEOUT_S``.
     """
 
     def __init__(self, marker_map, camera, nice: int = NICE):
-        ctx = multiprocessing.get_context("spawn")
-        self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_serve, args=(child, marker_map, camera, nice), daemon=True,
-                                name="wearable-gaze-tracking")
-        self.proc.start()
-        child.close()
-        try:
-            ready = self.conn.poll(START_TIMEOUT_S) and self.conn.recv() == "ready"
-        except EOFError:                   # it ended: e.g. a main module that starts a session unguarded
-            ready = False
-        if not ready:
+        self.proc, self.conn = served.start(_serve, (marker_map, camera, nice), "wearable-gaze-tracking")
+        if not served.ready(self.conn):
             self.close()
-            raise RuntimeError("the head-tracking process did not start (a script that opens a live session "
-                               "must do so under 'if __name__ == \"__main__\":')")
+            raise RuntimeError(served.NOT_STARTED.format("head-tracking"))
 
     def track(self, gray) -> tuple[bool, np.ndarray | None, int]:
         """(pose found, ``T_world_from_cam`` (4, 4) mm or None, markers used) of one grey frame
