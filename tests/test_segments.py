@@ -7,7 +7,7 @@ import pytest
 
 from estimator.likelihood import perturb_directions
 from estimator.lines import BinocularSamples
-from estimator.segments import OnlineSegmenter, SegmentConfig, cyclopean_directions, segment_fixations
+from estimator.segments import OnlineSegmenter, SegmentConfig, cyclopean_directions, cyclopean_rays, segment_fixations
 
 TARGETS = np.array([[0.0, 0.0, 650.0], [400.0, -100.0, 1500.0], [-300.0, 200.0, 3000.0], [100.0, 50.0, 800.0]])
 FIX_S = 2.0          # each target fixated this long, saccades between
@@ -32,12 +32,12 @@ def _session(seed):
 
 def _online_labels(s):
     seg = OnlineSegmenter()
-    d = cyclopean_directions(s)
+    o, d = cyclopean_rays(s)
     labels, k = np.full(len(s), -1), 0
     for i in range(len(s)):
         if not (s.left_valid[i] and s.right_valid[i]):
             continue
-        if seg.update(s.t_s[i], d[i]):
+        if seg.update(s.t_s[i], d[i], o[i]):                # as live.estimation feeds it: with the eyes' midpoint
             k += 1
         if not seg.in_saccade:
             labels[i] = k
@@ -85,23 +85,22 @@ def test_online_segmenter_ends_a_fixation_once_per_saccade_and_at_a_gap():
     assert seg.update(22 / 60 + 0.6, b) and not seg.in_saccade   # a gap: the fixation ends, the next starts
 
 
-def test_online_segmenter_takes_the_heads_walk_out_at_the_given_depth_and_still_sees_a_saccade():
+def test_online_segmenter_takes_the_heads_walk_out_and_still_sees_a_saccade():
     """A head walking sideways at 300 mm/s past a target 600 mm away turns its direction by
-    3.8 deg between the windows' middles (0.13 s): without a depth the test calls that a
-    saccade; with the target's depth, or a farther one (under-correcting), it does not, and a
-    4 deg saccade up to a point at the same depth is still seen, once."""
+    3.8 deg between the windows' middles (0.13 s): on directions alone (no origin, the eye-in-
+    world rule) that is a saccade; with the eyes' origins one still point explains both windows
+    (the test needs no depth), and a 4 deg saccade up to a point at the same depth is still
+    seen, once."""
     t = np.arange(120) / 60.0
     origin = np.column_stack([300.0 * t, np.zeros_like(t), np.zeros_like(t)])
     target = np.where((t < 1.0)[:, None], [[60.0, 0.0, 600.0]], [[60.0, -600 * np.tan(np.deg2rad(4.0)), 600.0]])
     d = target - origin
     d /= np.linalg.norm(d, axis=1, keepdims=True)
 
-    def ends(depth, upto):
+    def ends(with_origin, upto):
         seg = OnlineSegmenter()
-        return [i for i in range(upto) if seg.update(t[i], d[i], origin[i], depth)]
+        return [i for i in range(upto) if seg.update(t[i], d[i], origin[i] if with_origin else None)]
 
-    assert ends(np.inf, 60)                                  # the walk alone: a false saccade
-    assert ends(600.0, 60) == [] and ends(900.0, 60) == []
-    assert len(ends(600.0, 120)) == 1 and len(ends(900.0, 120)) == 1
-    seg = OnlineSegmenter()                                  # no origin: no correction, whatever the depth
-    assert any(seg.update(t[i], d[i], None, 600.0) for i in range(60))
+    assert ends(False, 60)                                   # directions alone: the walk is a false saccade
+    assert ends(True, 60) == []
+    assert len(ends(True, 120)) == 1
