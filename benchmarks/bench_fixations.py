@@ -157,12 +157,13 @@ def main():
             rate = scn["eyes"]["rate_hz"]
             cfg = segment_config(rate)
             r = np.array(score(found_fixations(samples, segment_view_lines(samples, cfg)), truth, cfg.min_fixation_s))
-            for key in ("all", f"{rate:g} Hz", scn["head"]["motion"]):
+            dwell = "dwell {:g}-{:g} s".format(*scn["eyes"]["fixation_s"])
+            for key in ("all", f"{rate:g} Hz", scn["head"]["motion"], dwell):
                 groups[key] += r
     print(f"fixations against the truth, {args.sessions} sessions, seed {args.seed}")
-    print(f"{'group':<8} {'recall':>16} {'precision':>16}")
+    print(f"{'group':<16} {'recall':>18} {'precision':>18}")
     for key, (hit, n_true, right, n_found) in groups.items():
-        print(f"{key:<8} {100 * hit / max(n_true, 1):6.1f} % ({hit:3d}/{n_true:3d}) "
+        print(f"{key:<16} {100 * hit / max(n_true, 1):6.1f} % ({hit:3d}/{n_true:3d}) "
               f"{100 * right / max(n_found, 1):6.1f} % ({right:3d}/{n_found:3d})")
 
 

@@ -195,58 +195,39 @@ def _peaks(score: np.ndarray, threshold: float) -> list[tuple[int, int, int]]:
     return cuts
 
 
-def saccade_samples(d: np.ndarray, cut: tuple[int, int, int], before: np.ndarray, after: np.ndarray,
-                    w: int, off_deg: float) -> tuple[int, int]:
+def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: int, off_deg: float,
+                    min_depth_mm: float) -> tuple[int, int]:
     """The saccade's samples around a run of the window test above its threshold ``cut``
-    (first, last, peak): [first, last] indices into ``d`` (M, 3), from the last sample before the
-    peak within ``off_deg`` of the before-window's direction to the first after it within
-    ``off_deg`` of the after-window's, each looked for up to ``w`` samples away; a run longer
-    than a clean jump's (about ``w`` samples) keeps its middle in the saccade too (the gaze moved
-    all along it)."""
+    (first, last, peak): [first, last] indices into the rays ``(o, d)`` (M, 3), from the last
+    sample before the peak whose ray passes within ``off_deg`` of a point of the before-window's
+    median ray (``world_jump_deg``, points at ``min_depth_mm`` or farther; the window's own
+    parallax is no saccade) to the first after it within ``off_deg`` of the after-window's,
+    each looked for up to ``w`` samples away; then once more with the windows moved off the
+    saccade's samples so found (a window holding some is pulled toward them). A run longer than
+    a clean jump's (about ``w`` samples) keeps its middle, more than ``w`` samples from either
+    end, in the saccade too (the gaze moved all along it)."""
     k0, k1, c = cut
-    end_a = c - 1
-    while end_a >= max(c - w, 0) and angle_deg(d[end_a], before[c]) > off_deg:
-        end_a -= 1
-    start_b = c
-    while start_b < min(c + w, len(d)) and angle_deg(d[start_b], after[c]) > off_deg:
-        start_b += 1
-    return min(end_a + 1, k0 + w // 2), max(start_b - 1, k1 - w // 2)
 
+    def miss(j: int, window: slice, direction: np.ndarray) -> float:
+        origin = np.median(o[window], axis=0)
+        if not (np.all(np.isfinite(origin)) and np.all(np.isfinite(o[j]))):
+            return float(angle_deg(d[j], direction))
+        return float(world_jump_deg(origin, direction, o[j], d[j], min_depth_mm)[0])
 
-def drift_cuts(o: np.ndarray, d: np.ndarray, after: np.ndarray, in_fix: np.ndarray, bounds: list, w: int,
-               threshold: float, config: SegmentConfig) -> list[int]:
-    """Where a stretch's gaze has left the point its start held (a drift the window test, which
-    compares neighbours only, lets through): the first sample whose after-window's median ray
-    misses every point of the stretch's first window's median ray (``world_jump_deg``) by more
-    than ``threshold``; the stretch goes on from there, tested against its new start.
-
-    Args:
-        o, d: (M, 3) valid samples' cyclopean origins and directions; after: (M, 3) the median
-            direction of the window from each sample (``jump_scores``).
-        in_fix: (M,) bool, not in a saccade; bounds: the stretches' starts (and the end, M).
-    """
-    out = []
-    m = len(d)
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        sel = np.arange(a, b)[in_fix[a:b]]
-        start = int(sel[0]) if len(sel) else b
-        while start + 2 * w <= b:
-            oa, da = np.median(o[start:start + w], axis=0), _unit(np.median(d[start:start + w], axis=0))
-            ks = np.arange(start + w, min(b, m - w + 1))
-            if len(ks) == 0:
-                break
-            ob = np.stack([np.median(o[k:k + w], axis=0) for k in ks])
-            if np.all(np.isfinite(oa)) and np.all(np.isfinite(ob)):
-                sc = world_jump_deg(np.tile(oa, (len(ks), 1)), np.tile(da, (len(ks), 1)), ob, after[ks],
-                                    config.min_depth_mm)
-            else:
-                sc = angle_deg(da, after[ks])
-            over = np.flatnonzero(sc > threshold)
-            if len(over) == 0:
-                break
-            start = int(ks[over[0]])
-            out.append(start)
-    return out
+    first, last = c, c - 1
+    for _ in range(2):          # again with windows clear of the saccade's samples the first pass found
+        win_a, win_b = slice(max(first - w, 0), first), slice(last + 1, last + 1 + w)
+        if win_a.stop - win_a.start < 1 or win_b.stop > len(d):
+            break
+        dir_a, dir_b = _unit(np.median(d[win_a], axis=0)), _unit(np.median(d[win_b], axis=0))
+        end_a = c - 1
+        while end_a >= max(c - w, 0) and miss(end_a, win_a, dir_a) > off_deg:
+            end_a -= 1
+        start_b = c
+        while start_b < min(c + w, len(d)) and miss(start_b, win_b, dir_b) > off_deg:
+            start_b += 1
+        first, last = end_a + 1, start_b - 1
+    return min(first, k0 + w), max(last, k1 - w)
 
 
 def segment_fixations(samples: BinocularSamples, config: SegmentConfig = SegmentConfig()) -> np.ndarray:
@@ -272,12 +253,11 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     off = SAMPLE_K * noise * np.sqrt(1.0 + MEDIAN_SD ** 2 / w) if np.isfinite(noise) else np.inf
     in_fix = np.ones(m, bool)
     for cut in cuts:
-        a, b = saccade_samples(dv, cut, before, after, w, max(off, 0.5 * threshold))
+        a, b = saccade_samples(ov, dv, cut, w, max(off, 0.5 * threshold), config.min_depth_mm)
         in_fix[a:b + 1] = False
     # each cut's peak starts a new stretch; so does a gap in time (long blinks, lost samples)
     gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s) + 1
     bounds = sorted({0, m} | {c[2] for c in cuts} | set(gaps.tolist()))
-    bounds = sorted(set(bounds) | set(drift_cuts(ov, dv, after, in_fix, bounds, w, threshold, config)))
     label = 0
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         sel = np.arange(a, b)[in_fix[a:b]]
@@ -300,14 +280,12 @@ class OnlineSegmenter:
     cyclopean ray of the ``window`` samples after it misses every point of the median ray of the
     ``window`` before it at ``min_depth_mm`` or farther (``world_jump_deg``; without origins the
     angle between the directions), against the same threshold (``SegmentConfig.threshold_deg``
-    of the per-sample noise measured on the last ``NOISE_SAMPLES`` samples;
-    twice ``jump_deg`` until ``2 window`` samples have come). Crossing it ends the fixation; the
-    samples until the test falls back under it (the saccade, as the windows see it) belong to no
-    fixation. The fixation's first window is kept (its anchor): a window after it whose ray misses
-    the anchor's by more than the threshold ends the fixation too (a drift; ``drift_cuts``), and
-    starts the next from that window, without a saccade. A gap over ``max_gap_s`` ends a fixation
-    too, and the sample after it starts the next. A still target's point stays put however the
-    head moves, so the walk's parallax is no saccade; a saccade moves the point.
+    of the per-sample noise measured on the last ``NOISE_SAMPLES`` samples; twice ``jump_deg``
+    until ``2 window`` samples have come). Crossing it ends the fixation; the samples until the
+    test falls back under it (the saccade, as the windows see it) belong to no fixation. A gap
+    over ``max_gap_s`` ends a fixation too, and the sample after it starts the next. A still
+    target's point stays put however the head moves, so the walk's parallax is no saccade; a
+    saccade moves the point.
 
     Feed it the binocular samples' cyclopean rays (one eye alone is off the cyclopean line by
     half the vergence, which is not a saccade).
@@ -320,7 +298,6 @@ class OnlineSegmenter:
         self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None)
         self.turns: deque = deque(maxlen=self.NOISE_SAMPLES)    # angle of each sample off its neighbours' mean
         self.in_saccade = False
-        self.anchor: list | None = None                         # the fixation's first window
         self.last_t: float | None = None
 
     def update(self, t_s: float, direction, origin=None) -> bool:
@@ -339,24 +316,15 @@ class OnlineSegmenter:
             self.buf.clear()
             self.buf.append(item)
             self.in_saccade = False
-            self.anchor = None
             return True
         self.buf.append(item)
         if len(self.buf) >= 3:
             self.turns.append(float(angle_deg(self.buf[-2][0], self.buf[-3][0] + self.buf[-1][0])))
         if len(self.buf) < 2 * w:
             return False
-        threshold = self.threshold_deg()
-        jumped = self._score(list(self.buf)[:w]) > threshold
+        jumped = self.score() > self.threshold_deg()
         ended = jumped and not self.in_saccade
         self.in_saccade = jumped
-        if jumped:
-            self.anchor = None
-        elif self.anchor is None:
-            self.anchor = list(self.buf)[w:]
-        elif self._score(self.anchor) > threshold:       # drifted off the point its start held
-            self.anchor = list(self.buf)[w:]
-            ended = True
         return ended
 
     def threshold_deg(self) -> float:
@@ -365,17 +333,14 @@ class OnlineSegmenter:
             return 2.0 * self.config.jump_deg
         return self.config.threshold_deg(float(np.median(self.turns)) / SECOND_DIFF_MEDIAN)
 
-    def _score(self, first: list) -> float:
-        """The window test, degrees (``world_jump_deg``), of the buffer's last ``window`` samples
-        against the samples ``first`` [(direction, origin)]: the window before them, or the
-        fixation's first window (its anchor, the drift test of ``drift_cuts``)."""
+    def score(self) -> float:
+        """The window test on the full buffer, degrees (``world_jump_deg``)."""
         w = self.config.window
-        pair = [*first, *list(self.buf)[w:]]
-        d = np.array([x[0] for x in pair])
+        d = np.array([x[0] for x in self.buf])
         da, db = _unit(np.median(d[:w], axis=0)), _unit(np.median(d[w:], axis=0))
-        if any(x[1] is None for x in pair):
+        if any(x[1] is None for x in self.buf):
             return float(angle_deg(da, db))
-        o = np.array([x[1] for x in pair])
+        o = np.array([x[1] for x in self.buf])
         return float(world_jump_deg(np.median(o[:w], axis=0), da, np.median(o[w:], axis=0), db,
                                     self.config.min_depth_mm)[0])
 
