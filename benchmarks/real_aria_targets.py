@@ -52,8 +52,8 @@ def target_rows(session: Path, out: Path, found: list) -> list[dict]:
             start += len(p.t_s)
         o = np.nanmedian(head, axis=0) if len(t) else np.full(3, np.nan)
         dev = p_g[np.isin(np.round(t_g, 4), np.round(t, 4))]
-        rows.append({"index": tg.index, "status": tg.status, "direction": tg.direction is not None,
-                     "samples": len(t), "travel": travel,
+        rows.append({"index": tg.index, "fixations": tg.fixations, "status": tg.status,
+                     "direction": tg.direction is not None, "samples": len(t), "travel": travel,
                      "ours": float(np.linalg.norm(np.asarray(tg.position_mm) - o)),
                      "ref": float(np.linalg.norm(np.nanmedian(ref, axis=0) - o)) if len(t) else np.nan,
                      "device": float(np.median(np.linalg.norm(dev, axis=1))) if len(dev) else np.nan})
@@ -74,15 +74,18 @@ def main():
             import_recording(REAL, session)
         res = process_session(session, out, overlay=False, report=False)
         rows = target_rows(session, out, res.found)
-    print(f"{'target':>6} {'status':<15} {'dir':>3} {'lines':>5} {'travel mm':>9} {'ours mm':>8} {'ref mm':>7} "
-          f"{'depth_m':>7} {'err ours':>8} {'err dev':>7}")
+        n_fix = len([s for s in read_viewlines_csv(out / "viewlines.csv") if s.key >= 0])
+    print(f"{n_fix} fixations, {len(rows)} targets")
+    print(f"{'target':>6} {'fixations':<9} {'status':<15} {'dir':>3} {'lines':>5} {'travel mm':>9} {'ours mm':>8} "
+          f"{'ref mm':>7} {'depth_m':>7} {'err ours':>8} {'err dev':>7}")
     moved = nearer = 0
     for r in rows:
         e_ours, e_dev = abs(r["ours"] - r["ref"]), abs(r["device"] - r["ref"])
         if r["travel"] >= TRAVEL_MM:
             moved += 1
             nearer += bool(e_ours < e_dev)
-        print(f"{r['index']:>6} {r['status']:<15} {'yes' if r['direction'] else 'NO':>3} {r['samples']:>5} "
+        print(f"{r['index']:>6} {','.join(map(str, r['fixations'])):<9} {r['status']:<15} "
+              f"{'yes' if r['direction'] else 'NO':>3} {r['samples']:>5} "
               f"{r['travel']:>9.0f} {r['ours']:>8.0f} {r['ref']:>7.0f} {r['device']:>7.0f} {e_ours:>8.0f} "
               f"{e_dev:>7.0f}")
     print(f"{len(rows)} targets, {sum(r['direction'] for r in rows)} with a direction; {moved} with >= "
