@@ -195,6 +195,18 @@ def _peaks(score: np.ndarray, threshold: float) -> list[tuple[int, int, int]]:
     return cuts
 
 
+def _at_gap(cut: tuple[int, int, int], t: np.ndarray) -> tuple[int, int, int]:
+    """A saccade whose run of the window test spans a gap in the samples (a blink, more than
+    twice the median interval) is put in the gap: the peak moves to the first sample after its
+    longest gap, so no fixation reaches across the blink to the saccade's other side."""
+    k0, k1, c = cut
+    if k1 <= k0 or len(t) < 2:
+        return cut
+    dt = np.diff(t[k0:k1 + 1])
+    j = int(np.argmax(dt))
+    return (k0, k1, k0 + j + 1) if dt[j] > 2 * np.median(np.diff(t)) else cut
+
+
 def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: int, off_deg: float,
                     min_depth_mm: float) -> tuple[int, int]:
     """The saccade's samples around a run of the window test above its threshold ``cut``
@@ -249,7 +261,7 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     noise = sample_noise_deg(dv)
     threshold = config.threshold_deg(noise if np.isfinite(noise) else 0.0)
     score, before, after = jump_scores(ov, dv, config)
-    cuts = _peaks(score, threshold)
+    cuts = [_at_gap(cut, tv) for cut in _peaks(score, threshold)]
     off = SAMPLE_K * noise * np.sqrt(1.0 + MEDIAN_SD ** 2 / w) if np.isfinite(noise) else np.inf
     in_fix = np.ones(m, bool)
     for cut in cuts:
