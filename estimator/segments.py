@@ -1,16 +1,29 @@
 """Gaze segmentation: which view lines belong to one fixated target.
 
-A person looks at one thing, then jumps (a saccade) to the next. In the world frame the gaze
-direction stays put while a fixed target is fixated (the head may move; the parallax is small),
-drifts smoothly while a moving one is pursued, and jumps at a saccade. Single samples carry
-about 1 deg of noise per eye, so the test is made between windows: at each sample, the angle
-between the median cyclopean direction of the ``window`` valid samples before it and of those
-after it. Peaks of that angle above ``jump_deg`` are saccades; the stretches between them are
+A person looks at one thing, then jumps (a saccade) to the next. While a still target is
+fixated the gaze ray holds on one point of the world; the head may move, and then the ray's
+direction turns by the parallax (1 deg per 17 mm sideways at 1 m: a walking wearer's near
+fixation turns by many degrees), while the eyes counter-rotate in the head. A saccade moves the
+point. Single samples carry about 1 deg of noise per eye, so the test is made between windows:
+at each sample, the median cyclopean ray (origin and direction) of the ``window`` valid samples
+before it and of those after it, and the least angle at which the after-window's ray misses a
+point of the before-window's ray at ``min_depth_mm`` or farther (``world_jump_deg``: the part
+of the turn that no still point explains). Without head motion that is the angle between the
+two directions. Peaks above the threshold are saccades; the stretches between them are
 fixations, kept when longer than ``min_fixation_s``. Blinks (both eyes invalid) are skipped,
 not treated as saccades; a gap longer than ``max_gap_s`` ends a fixation.
 
-Defaults (documented in docs/processing.md): window 8 samples (0.13 s at 60 Hz), jump 3 deg,
-minimum fixation 0.3 s, maximum gap 0.5 s.
+The threshold follows the device's noise and the eye rate: ``noise_k`` standard deviations of
+the difference of two window medians, the per-sample noise measured on the session's own
+samples (``sample_noise_deg``: each sample against the mean of its neighbours, which takes out
+a steady drift), never below ``jump_deg`` (the least saccade counted). A saccade's own samples
+(``saccade_samples``: those off both windows' directions by more than ``SAMPLE_K`` noise sd)
+belong to no fixation; the fixations on either side keep the rest, so their boundaries are the
+saccade's. Smooth pursuit of a moving target turns the gaze without a jump: it stays one
+segment, which the motion test (``estimator.motion``) finds moving.
+
+Defaults (documented in docs/processing.md, "Fixations"): window 8 samples (0.13 s at 60 Hz),
+5 sd, least saccade 1.5 deg, nearest point 250 mm, minimum fixation 0.3 s, maximum gap 0.5 s.
 """
 
 from __future__ import annotations
@@ -20,30 +33,47 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .frames import angle_deg
 from .lines import BinocularSamples
 
 log = logging.getLogger(__name__)
 
+MEDIAN_SD = 1.2533
+"""The standard deviation of the median of n normal samples over that of one sample, times
+sqrt(n) (large n: sqrt(pi / 2)); the window medians' noise."""
+SECOND_DIFF_MEDIAN = 1.4420
+"""The median angle between a sample and the mean of its two neighbours, in per-axis noise sd
+(Rayleigh with scale sqrt(1.5): sqrt(1.5) * sqrt(2 ln 2)); ``sample_noise_deg`` divides by it."""
+SAMPLE_K = 3.5
+"""A sample more than this many per-axis noise sd (Rayleigh: 0.2 % of still samples) off a
+window's direction is in a saccade (``saccade_samples``)."""
+
 
 @dataclass(frozen=True)
 class SegmentConfig:
-    """The fixation test's settings (docs/processing.md).
+    """The fixation test's settings (docs/processing.md, "Fixations").
 
     Attributes:
-        window: samples on each side whose median directions are compared.
-        jump_deg: the angle between the two medians above which a saccade is found, degrees.
+        window: samples on each side whose median rays are compared.
+        jump_deg: the least saccade found, degrees: a floor under the noise threshold.
+        noise_k: the threshold in standard deviations of the difference of two window medians
+            (the session's measured per-sample noise over the window's sqrt).
+        min_depth_mm: the nearest a fixated point can be, mm; the head's motion explains a turn
+            of the gaze by parallax to points this near or farther.
         min_fixation_s: shorter fixations are dropped, seconds.
         max_gap_s: a gap in the data longer than this ends a fixation, seconds.
-        trim_s: time cut from each end of a fixation (the saccade's tails), seconds.
+        trim_s: time cut from each end of a fixation beyond the saccade's own samples, seconds.
     """
 
     window: int = 8
-    jump_deg: float = 3.0
+    jump_deg: float = 1.5
+    noise_k: float = 5.0
+    min_depth_mm: float = 250.0
     min_fixation_s: float = 0.3
     max_gap_s: float = 0.5
-    trim_s: float = 0.05
+    trim_s: float = 0.0
 
     @classmethod
     def for_rate(cls, rate_hz: float, **settings) -> SegmentConfig:
@@ -57,18 +87,159 @@ class SegmentConfig:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
         return cls(window=min(cls.window, max(2, int(round(cls.window * rate_hz / 60.0)))), **settings)
 
+    def threshold_deg(self, noise_deg: float) -> float:
+        """The saccade threshold, degrees, for a per-sample noise of ``noise_deg`` (per axis)."""
+        return max(self.jump_deg, self.noise_k * np.sqrt(2.0) * MEDIAN_SD * noise_deg / np.sqrt(self.window))
+
 
 def cyclopean_directions(samples: BinocularSamples) -> np.ndarray:
     """(N, 3) unit mean of the valid eyes' directions (NaN where neither is valid)."""
-    d = np.zeros((len(samples), 3))
-    n = np.zeros(len(samples))
-    for dirs, valid in ((samples.left_direction, samples.left_valid), (samples.right_direction, samples.right_valid)):
+    return cyclopean_rays(samples)[1]
+
+
+def cyclopean_rays(samples: BinocularSamples) -> tuple[np.ndarray, np.ndarray]:
+    """((N, 3) origins, mm, (N, 3) unit directions) of each sample's cyclopean ray, in the samples'
+    frame: the mean of the valid eyes' origins and directions (one eye alone: its own line),
+    NaN where neither is valid."""
+    o, d, n = np.zeros((len(samples), 3)), np.zeros((len(samples), 3)), np.zeros(len(samples))
+    for org, dirs, valid in ((samples.left_origin_mm, samples.left_direction, samples.left_valid),
+                             (samples.right_origin_mm, samples.right_direction, samples.right_valid)):
+        o[valid] += org[valid]
         d[valid] += dirs[valid]
         n += valid
-    out = np.full((len(samples), 3), np.nan)
+    oo, dd = np.full((len(samples), 3), np.nan), np.full((len(samples), 3), np.nan)
     ok = n > 0
-    out[ok] = d[ok] / np.linalg.norm(d[ok], axis=1, keepdims=True)
-    return out
+    oo[ok] = o[ok] / n[ok, None]
+    dd[ok] = d[ok] / np.linalg.norm(d[ok], axis=1, keepdims=True)
+    return oo, dd
+
+
+def world_jump_deg(o_a, d_a, o_b, d_b, min_depth_mm: float) -> np.ndarray:
+    """(K,) the least angle, degrees, between directions ``d_b`` (K, 3) from origins ``o_b`` (K, 3)
+    and the directions from ``o_b`` to the points of rays ``(o_a, d_a)`` at ``min_depth_mm`` or
+    farther (world frame, mm; unit directions): how far ray b misses every point ray a could
+    have fixated. Seen from ``o_b``, those points sweep an arc of the great circle through the
+    point at ``min_depth_mm`` and ``d_a`` (at infinity); inside the arc the angle is the one off
+    its plane, else the nearer end's. With no baseline it is the angle between the directions."""
+    o_a, d_a, o_b, d_b = (np.atleast_2d(np.asarray(x, float)) for x in (o_a, d_a, o_b, d_b))
+    u0 = o_a - o_b + min_depth_mm * d_a
+    u0 /= np.linalg.norm(u0, axis=1, keepdims=True)
+    m = np.cross(u0, d_a)
+    mn = np.linalg.norm(m, axis=1)
+    ends = np.minimum(angle_deg(d_b, u0), angle_deg(d_b, d_a))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        off = np.degrees(np.arcsin(np.clip(np.abs((d_b * m).sum(1)) / mn, 0.0, 1.0)))
+    inside = ((np.cross(u0, d_b) * m).sum(1) >= 0) & ((np.cross(d_b, d_a) * m).sum(1) >= 0) & (mn > 1e-12)
+    return np.where(inside, off, ends)
+
+
+def sample_noise_deg(directions) -> float:
+    """The per-axis noise sd, degrees, of unit directions (M, 3) in time order: the median angle
+    between each and the mean of its two neighbours over ``SECOND_DIFF_MEDIAN`` (a steady turn,
+    e.g. the parallax of a walking head, cancels; saccades are too few to move the median).
+    NaN with fewer than 3."""
+    d = np.asarray(directions, float)
+    if len(d) < 3:
+        return float("nan")
+    return float(np.median(angle_deg(d[1:-1], d[:-2] + d[2:])) / SECOND_DIFF_MEDIAN)
+
+
+def _window_medians(x: np.ndarray, w: int) -> np.ndarray:
+    """(M - w + 1, 3) the median of each run of ``w`` rows of ``x`` (M, 3)."""
+    return np.median(sliding_window_view(x, w, axis=0), axis=-1)
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M,) the window test at each valid sample k (``world_jump_deg`` of the median rays of the
+    ``window`` samples before k and of those from k on; 0 where a window is incomplete), and the
+    (M, 3) median directions before and after each k (NaN where incomplete).
+
+    Args:
+        o, d: (M, 3) the valid samples' cyclopean origins (mm; NaN: unknown, then the test is
+            the angle between directions) and unit directions, time order.
+    """
+    w, m = config.window, len(d)
+    score = np.zeros(m)
+    before, after = np.full((m, 3), np.nan), np.full((m, 3), np.nan)
+    if m < 2 * w:
+        return score, before, after
+    med_d = _unit(_window_medians(d, w))                 # row j: samples j .. j + w - 1
+    med_o = _window_medians(o, w)
+    k = np.arange(w, m - w + 1)
+    before[k], after[k] = med_d[k - w], med_d[k]
+    oa, ob = med_o[k - w], med_o[k]
+    posed = np.all(np.isfinite(oa), axis=1) & np.all(np.isfinite(ob), axis=1)
+    score[k] = angle_deg(before[k], after[k])
+    if posed.any():
+        kp = k[posed]
+        score[kp] = world_jump_deg(oa[posed], before[kp], ob[posed], after[kp], config.min_depth_mm)
+    return score, before, after
+
+
+def _peaks(score: np.ndarray, threshold: float) -> list[tuple[int, int, int]]:
+    """[(first, last, peak)] of each run of ``score`` above ``threshold`` (one per saccade)."""
+    cuts, k, m = [], 0, len(score)
+    while k < m:
+        if score[k] > threshold:
+            j = k
+            while j + 1 < m and score[j + 1] > threshold:
+                j += 1
+            cuts.append((k, j, k + int(np.argmax(score[k:j + 1]))))
+            k = j + 1
+        else:
+            k += 1
+    return cuts
+
+
+def _at_gap(cut: tuple[int, int, int], t: np.ndarray) -> tuple[int, int, int]:
+    """A saccade whose run of the window test spans a gap in the samples (a blink, more than
+    twice the median interval) is put in the gap: the peak moves to the first sample after its
+    longest gap, so no fixation reaches across the blink to the saccade's other side."""
+    k0, k1, c = cut
+    if k1 <= k0 or len(t) < 2:
+        return cut
+    dt = np.diff(t[k0:k1 + 1])
+    j = int(np.argmax(dt))
+    return (k0, k1, k0 + j + 1) if dt[j] > 2 * np.median(np.diff(t)) else cut
+
+
+def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: int, off_deg: float,
+                    min_depth_mm: float) -> tuple[int, int]:
+    """The saccade's samples around a run of the window test above its threshold ``cut``
+    (first, last, peak): [first, last] indices into the rays ``(o, d)`` (M, 3), from the last
+    sample before the peak whose ray passes within ``off_deg`` of a point of the before-window's
+    median ray (``world_jump_deg``, points at ``min_depth_mm`` or farther; the window's own
+    parallax is no saccade) to the first after it within ``off_deg`` of the after-window's,
+    each looked for up to ``w`` samples away; then once more with the windows moved off the
+    saccade's samples so found (a window holding some is pulled toward them). A run longer than
+    a clean jump's (about ``w`` samples) keeps its middle, more than ``w`` samples from either
+    end, in the saccade too (the gaze moved all along it)."""
+    k0, k1, c = cut
+
+    def miss(j: int, window: slice, direction: np.ndarray) -> float:
+        origin = np.median(o[window], axis=0)
+        if not (np.all(np.isfinite(origin)) and np.all(np.isfinite(o[j]))):
+            return float(angle_deg(d[j], direction))
+        return float(world_jump_deg(origin, direction, o[j], d[j], min_depth_mm)[0])
+
+    first, last = c, c - 1
+    for _ in range(2):          # again with windows clear of the saccade's samples the first pass found
+        win_a, win_b = slice(max(first - w, 0), first), slice(last + 1, last + 1 + w)
+        if win_a.stop - win_a.start < 1 or win_b.stop > len(d):
+            break
+        dir_a, dir_b = _unit(np.median(d[win_a], axis=0)), _unit(np.median(d[win_b], axis=0))
+        end_a = c - 1
+        while end_a >= max(c - w, 0) and miss(end_a, win_a, dir_a) > off_deg:
+            end_a -= 1
+        start_b = c
+        while start_b < min(c + w, len(d)) and miss(start_b, win_b, dir_b) > off_deg:
+            start_b += 1
+        first, last = end_a + 1, start_b - 1
+    return min(first, k0 + w), max(last, k1 - w)
 
 
 def segment_fixations(samples: BinocularSamples, config: SegmentConfig = SegmentConfig()) -> np.ndarray:
@@ -76,86 +247,74 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     or broken-off stretches.
 
     Args:
-        samples: view lines in the world frame, in time order.
+        samples: view lines in the world frame (a still head's, or the head frame's: the test
+            is then the angle between directions), in time order.
     """
     n = len(samples)
     labels = np.full(n, -1)
-    d = cyclopean_directions(samples)
-    valid = np.all(np.isfinite(d), axis=1)
-    idx = np.flatnonzero(valid)
+    o, d = cyclopean_rays(samples)
+    idx = np.flatnonzero(np.all(np.isfinite(d), axis=1))
     if len(idx) == 0:
         return labels
-    dv, tv = d[idx], samples.t_s[idx]
-    w = config.window
-    m = len(idx)
-    score = np.zeros(m)
-    for k in range(w, m - w + 1):
-        a = np.median(dv[k - w:k], axis=0)
-        b = np.median(dv[k:k + w], axis=0)
-        score[k] = angle_deg(a, b)
-    # saccades: local maxima of the score above the threshold (one per jump)
-    cuts = []
-    k = 0
-    while k < m:
-        if score[k] > config.jump_deg:
-            j = k
-            while j + 1 < m and score[j + 1] > config.jump_deg:
-                j += 1
-            cuts.append((k, j, k + int(np.argmax(score[k:j + 1]))))
-            k = j + 1
-        else:
-            k += 1
-    # gaps in time (long blinks, lost samples) also end a fixation
-    gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s)
-    bounds = sorted({0, m} | {c[2] for c in cuts} | set((gaps + 1).tolist()))
+    ov, dv, tv = o[idx], d[idx], samples.t_s[idx]
+    m, w = len(idx), config.window
+    noise = sample_noise_deg(dv)
+    threshold = config.threshold_deg(noise if np.isfinite(noise) else 0.0)
+    score, before, after = jump_scores(ov, dv, config)
+    cuts = [_at_gap(cut, tv) for cut in _peaks(score, threshold)]
+    off = SAMPLE_K * noise * np.sqrt(1.0 + MEDIAN_SD ** 2 / w) if np.isfinite(noise) else np.inf
+    in_fix = np.ones(m, bool)
+    for cut in cuts:
+        a, b = saccade_samples(ov, dv, cut, w, max(off, 0.5 * threshold), config.min_depth_mm)
+        in_fix[a:b + 1] = False
+    # each cut's peak starts a new stretch; so does a gap in time (long blinks, lost samples)
+    gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s) + 1
+    bounds = sorted({0, m} | {c[2] for c in cuts} | set(gaps.tolist()))
     label = 0
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        # drop the samples inside the jump region around each cut and trim the ends
-        ta, tb = tv[a] + config.trim_s, tv[b - 1] - config.trim_s
-        sel = np.arange(a, b)
-        for c0, c1, _ in cuts:
-            sel = sel[(sel < c0 - w // 2) | (sel > c1 + w // 2)] if c0 - w // 2 <= sel.max(initial=-1) else sel
-        sel = sel[(tv[sel] >= ta) & (tv[sel] <= tb)]
+        sel = np.arange(a, b)[in_fix[a:b]]
+        if len(sel) == 0:
+            continue
+        sel = sel[(tv[sel] >= tv[sel[0]] + config.trim_s) & (tv[sel] <= tv[sel[-1]] - config.trim_s)]
         if len(sel) == 0 or tv[sel[-1]] - tv[sel[0]] < config.min_fixation_s:
             continue
         labels[idx[sel]] = label
         label += 1
-    log.info("%d fixations in %d samples (%d valid; %d saccades, %d time gaps)", label, n, m, len(cuts), len(gaps))
+    log.info("%d fixations in %d samples (%d valid; %d saccades over %.2f deg, noise %.2f deg; %d time gaps)",
+             label, n, m, len(cuts), threshold, noise, len(gaps))
     return labels
 
 
 class OnlineSegmenter:
     """``segment_fixations`` one sample at a time, for a live stream.
 
-    The same test, made as soon as the window after a sample is full: the angle between the
-    median cyclopean direction of the ``window`` samples before and of the ``window`` after.
-    Crossing ``jump_deg`` ends the fixation; the samples until the angle falls back under it
-    (the saccade, as the windows see it) belong to no fixation. A gap over ``max_gap_s`` ends a
-    fixation too, and the sample after it starts the next. The reference thus follows a target
-    whose direction drifts as the head moves, as the offline test does; only a jump counts.
+    The same test, made as soon as the window after a sample is full: how far the median
+    cyclopean ray of the ``window`` samples after it misses every point of the median ray of the
+    ``window`` before it at ``min_depth_mm`` or farther (``world_jump_deg``; without origins the
+    angle between the directions), against the same threshold (``SegmentConfig.threshold_deg``
+    of the per-sample noise measured on the last ``NOISE_SAMPLES`` samples; twice ``jump_deg``
+    until ``2 window`` samples have come). Crossing it ends the fixation; the samples until the
+    test falls back under it (the saccade, as the windows see it) belong to no fixation. A gap
+    over ``max_gap_s`` ends a fixation too, and the sample after it starts the next. A still
+    target's point stays put however the head moves, so the walk's parallax is no saccade; a
+    saccade moves the point.
 
-    Feed it the binocular samples' cyclopean directions (one eye alone is off the cyclopean line
-    by half the vergence, which is not a saccade).
+    Feed it the binocular samples' cyclopean rays (one eye alone is off the cyclopean line by
+    half the vergence, which is not a saccade).
     """
+
+    NOISE_SAMPLES = 600
 
     def __init__(self, config: SegmentConfig = SegmentConfig()):
         self.config = config
         self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None)
+        self.turns: deque = deque(maxlen=self.NOISE_SAMPLES)    # angle of each sample off its neighbours' mean
         self.in_saccade = False
         self.last_t: float | None = None
 
-    def update(self, t_s: float, direction, origin=None, depth_mm: float = np.inf) -> bool:
-        """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) (world frame).
-
-        ``origin`` (3,) (world, mm; the eyes' midpoint) and ``depth_mm`` (the fixated point's
-        distance from it, when known) take the head's translation out of the test: each
-        buffered sample's gaze is taken to the point ``depth_mm`` along it, and the directions
-        compared are to those points from the newest origin. A still target's point stays put
-        however the head moves, where its direction turns by the parallax (1 deg per 17 mm
-        sideways at 1 m), which eats into the margin below ``jump_deg``. A saccade moves the
-        point by its amplitude. The caller gives a depth no nearer than the point can be
-        (``live.estimation``: the far end of its interval): too near a depth over-corrects, too
-        far one under-corrects, down to no correction (the default, infinity).
+    def update(self, t_s: float, direction, origin=None) -> bool:
+        """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) and its origin (3,)
+        (world frame, mm; the eyes' midpoint; None: unknown, the test is then on directions).
 
         Returns:
             True when this sample ends the current fixation. Afterwards ``in_saccade`` tells
@@ -164,29 +323,36 @@ class OnlineSegmenter:
         w = self.config.window
         gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
         self.last_t = t_s
-        item = (np.asarray(direction, float), None if origin is None else np.asarray(origin, float))
+        item = (_unit(np.asarray(direction, float)), None if origin is None else np.asarray(origin, float))
         if gap:
             self.buf.clear()
             self.buf.append(item)
             self.in_saccade = False
             return True
         self.buf.append(item)
+        if len(self.buf) >= 3:
+            self.turns.append(float(angle_deg(self.buf[-2][0], self.buf[-3][0] + self.buf[-1][0])))
         if len(self.buf) < 2 * w:
             return False
-        b = self._directions(depth_mm)
-        before, after = np.median(b[:w], axis=0), np.median(b[w:], axis=0)
-        jumped = angle_deg(before, after) > self.config.jump_deg
+        jumped = self.score() > self.threshold_deg()
         ended = jumped and not self.in_saccade
         self.in_saccade = jumped
         return ended
 
-    def _directions(self, depth_mm: float) -> np.ndarray:
-        """(2 window, 3) the buffered directions, or with a finite depth and every origin known the
-        directions from the newest origin to the points ``depth_mm`` along them."""
+    def threshold_deg(self) -> float:
+        """The saccade threshold now, degrees (``SegmentConfig.threshold_deg``)."""
+        if len(self.turns) < 2 * self.config.window:
+            return 2.0 * self.config.jump_deg
+        return self.config.threshold_deg(float(np.median(self.turns)) / SECOND_DIFF_MEDIAN)
+
+    def score(self) -> float:
+        """The window test on the full buffer, degrees (``world_jump_deg``)."""
+        w = self.config.window
         d = np.array([x[0] for x in self.buf])
-        if not np.isfinite(depth_mm) or any(x[1] is None for x in self.buf):
-            return d
+        da, db = _unit(np.median(d[:w], axis=0)), _unit(np.median(d[w:], axis=0))
+        if any(x[1] is None for x in self.buf):
+            return float(angle_deg(da, db))
         o = np.array([x[1] for x in self.buf])
-        p = o + depth_mm * d / np.linalg.norm(d, axis=1, keepdims=True) - o[-1]
-        return p / np.linalg.norm(p, axis=1, keepdims=True)
+        return float(world_jump_deg(np.median(o[:w], axis=0), da, np.median(o[w:], axis=0), db,
+                                    self.config.min_depth_mm)[0])
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 from ..pipeline.live_estimation import (
     MAX_END_LINES,
     MAX_MOTION_KNOTS,
-    SEGMENT_DEPTH_SD,
     SIGMA_DEG,
     FinishedFixation,
     GazeEstimation,
@@ -19,5 +18,5 @@ from ..pipeline.live_estimation import (
     world_sample,
 )
 
-__all__ = ["MAX_END_LINES", "MAX_MOTION_KNOTS", "SEGMENT_DEPTH_SD", "SIGMA_DEG", "FinishedFixation", "GazeEstimation",
+__all__ = ["MAX_END_LINES", "MAX_MOTION_KNOTS", "SIGMA_DEG", "FinishedFixation", "GazeEstimation",
            "LiveEstimate", "RayEyes", "TargetIds", "lines_to_samples", "warm_up", "world_sample"]
