@@ -14,9 +14,10 @@ fixations, kept when longer than ``min_fixation_s``. Blinks (both eyes invalid) 
 not treated as saccades; a gap longer than ``max_gap_s`` ends a fixation.
 
 The threshold follows the device's noise and the eye rate: ``noise_k`` standard deviations of
-the difference of two window medians, the per-sample noise measured on the session's own
-samples (``sample_noise_deg``: each sample against the mean of its neighbours, which takes out
-a steady drift), never below ``jump_deg`` (the least saccade counted). A saccade's own samples
+the difference of two window medians, measured on the session's own window medians
+(``median_noise_deg``), never below ``jump_deg`` (the least saccade counted); measured, not
+derived from the per-sample noise, it holds for devices that filter their samples in time
+(a Tobii Pro Glasses 2: 0.39 deg, 0.03 from its per-sample noise). A saccade's own samples
 (``saccade_samples``: those off both windows' directions by more than ``SAMPLE_K`` noise sd)
 belong to no fixation; the fixations on either side keep the rest, so their boundaries are the
 saccade's. Smooth pursuit of a moving target turns the gaze without a jump: it stays one
@@ -42,7 +43,13 @@ log = logging.getLogger(__name__)
 
 MEDIAN_SD = 1.2533
 """The standard deviation of the median of n normal samples over that of one sample, times
-sqrt(n) (large n: sqrt(pi / 2)); the window medians' noise."""
+sqrt(n) (large n: sqrt(pi / 2)); the window medians' noise for independent samples."""
+MEDIAN_NOISE_QUANTILE = 0.25
+"""``median_noise_deg`` reads this quantile of the window medians' second differences: a
+saccade spoils the three windows around it, up to half of them where fixations are short (0.3 s
+against 0.13 s windows), which moves the median but hardly the lower quartile."""
+RAYLEIGH_Q25 = 0.7585
+"""The lower quartile of a Rayleigh distribution in its scale (sqrt(-2 ln 0.75))."""
 SECOND_DIFF_MEDIAN = 1.4420
 """The median angle between a sample and the mean of its two neighbours, in per-axis noise sd
 (Rayleigh with scale sqrt(1.5): sqrt(1.5) * sqrt(2 ln 2)); ``sample_noise_deg`` divides by it."""
@@ -59,7 +66,7 @@ class SegmentConfig:
         window: samples on each side whose median rays are compared.
         jump_deg: the least saccade found, degrees: a floor under the noise threshold.
         noise_k: the threshold in standard deviations of the difference of two window medians
-            (the session's measured per-sample noise over the window's sqrt).
+            (measured on the session's window medians, ``median_noise_deg``).
         min_depth_mm: the nearest a fixated point can be, mm; the head's motion explains a turn
             of the gaze by parallax to points this near or farther.
         min_fixation_s: shorter fixations are dropped, seconds.
@@ -87,9 +94,10 @@ class SegmentConfig:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
         return cls(window=min(cls.window, max(2, int(round(cls.window * rate_hz / 60.0)))), **settings)
 
-    def threshold_deg(self, noise_deg: float) -> float:
-        """The saccade threshold, degrees, for a per-sample noise of ``noise_deg`` (per axis)."""
-        return max(self.jump_deg, self.noise_k * np.sqrt(2.0) * MEDIAN_SD * noise_deg / np.sqrt(self.window))
+    def threshold_deg(self, diff_sd_deg: float) -> float:
+        """The saccade threshold, degrees, for a per-axis sd of the difference of two window
+        medians of ``diff_sd_deg`` (``median_noise_deg``)."""
+        return max(self.jump_deg, self.noise_k * diff_sd_deg)
 
 
 def cyclopean_directions(samples: BinocularSamples) -> np.ndarray:
@@ -144,6 +152,58 @@ def sample_noise_deg(directions) -> float:
     return float(np.median(angle_deg(d[1:-1], d[:-2] + d[2:])) / SECOND_DIFF_MEDIAN)
 
 
+def median_noise_deg(origins, directions, w: int, min_depth_mm: float) -> float:
+    """The per-axis sd, degrees, of the difference of the medians of two adjacent windows of ``w``
+    rays (M, 3) in time order (origins, mm, NaN: unknown; unit directions; world frame),
+    measured: at each sample, the angle between the median direction of the ``w`` samples from
+    it and the direction, from their median origin, to the point the median rays ``w`` samples
+    before and after point at (``_second_angles``). A steady turn cancels, and so does the
+    parallax of a head that sways or walks past a near point (a fixation's rays all pass through
+    its point). Per axis that angle is sqrt(1.5) times one median's sd where the difference of two
+    is sqrt(2) times it; its lower quartile is read as a Rayleigh quantile. For independent samples
+    it is sqrt(2) ``MEDIAN_SD`` times the per-sample sd over sqrt(w); for samples filtered in time
+    it is more. NaN with fewer than 3 windows."""
+    d = np.asarray(directions, float)
+    if len(d) < 3 * w:
+        return float("nan")
+    med_d, med_o = _unit(_window_medians(d, w)), _window_medians(np.asarray(origins, float), w)
+    return _diff_sd_deg(_second_angles(med_o[:-2 * w], med_d[:-2 * w], med_o[w:-w], med_d[w:-w],
+                                       med_o[2 * w:], med_d[2 * w:], min_depth_mm))
+
+
+def _second_angles(o0, d0, o1, d1, o2, d2, min_depth_mm: float) -> np.ndarray:
+    """(K,) degrees: the angle between directions ``d1`` (K, 3) and the direction from ``o1`` to the
+    nearest approach of rays ``(o0, d0)`` and ``(o2, d2)`` when it is ``min_depth_mm`` or farther
+    along both, else (or with NaN origins) the mean of ``d0`` and ``d2`` (``median_noise_deg``)."""
+    b, base = (d0 * d2).sum(1), o0 - o2
+    e0, e2 = (d0 * base).sum(1), (d2 * base).sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s0, s2 = (b * e2 - e0) / (1 - b * b), (e2 - b * e0) / (1 - b * b)
+        point = 0.5 * (o0 + s0[:, None] * d0 + o2 + s2[:, None] * d2)
+        ahead = np.isfinite(point).all(1) & np.isfinite(o1).all(1) & (s0 >= min_depth_mm) & (s2 >= min_depth_mm)
+    aim = d0 + d2
+    aim[ahead] = point[ahead] - o1[ahead]
+    return angle_deg(d1, aim)
+
+
+def _diff_sd_deg(second_deg) -> float:
+    """The per-axis sd, degrees, of the difference of two window medians from the angles (K,) between
+    window medians and the mean of the medians a window before and after (``median_noise_deg``)."""
+    return float(np.sqrt(2.0 / 1.5) * np.quantile(second_deg, MEDIAN_NOISE_QUANTILE) / RAYLEIGH_Q25)
+
+
+def session_noise_deg(origins, directions, w: int, min_depth_mm: float) -> tuple[float, float]:
+    """(per-sample noise sd, sd of the difference of two window medians), degrees per axis, of
+    rays (M, 3) in time order (``sample_noise_deg``, ``median_noise_deg``); with too few samples
+    for the second, it is derived from the first as for independent samples (and either is 0
+    with fewer than 3 samples)."""
+    noise, diff_sd = sample_noise_deg(directions), median_noise_deg(origins, directions, w, min_depth_mm)
+    noise = noise if np.isfinite(noise) else 0.0
+    if not np.isfinite(diff_sd):
+        diff_sd = np.sqrt(2.0) * MEDIAN_SD * noise / np.sqrt(w)
+    return noise, float(diff_sd)
+
+
 def _window_medians(x: np.ndarray, w: int) -> np.ndarray:
     """(M - w + 1, 3) the median of each run of ``w`` rows of ``x`` (M, 3)."""
     return np.median(sliding_window_view(x, w, axis=0), axis=-1)
@@ -153,7 +213,18 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
 
 
-def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def eye_rays(samples: BinocularSamples) -> tuple[np.ndarray, np.ndarray]:
+    """((2, N, 3) origins, mm, (2, N, 3) unit directions) of the left [0] and right [1] eyes'
+    lines, in the samples' frame, NaN where that eye is not valid."""
+    o, d = np.full((2, len(samples), 3), np.nan), np.full((2, len(samples), 3), np.nan)
+    for e, (org, dirs, valid) in enumerate(((samples.left_origin_mm, samples.left_direction, samples.left_valid),
+                                            (samples.right_origin_mm, samples.right_direction, samples.right_valid))):
+        o[e, valid], d[e, valid] = org[valid], dirs[valid]
+    return o, d
+
+
+def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig,
+                eyes: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(M,) the window test at each valid sample k (``world_jump_deg`` of the median rays of the
     ``window`` samples before k and of those from k on; 0 where a window is incomplete), and the
     (M, 3) median directions before and after each k (NaN where incomplete).
@@ -161,6 +232,8 @@ def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig) -> tuple[np
     Args:
         o, d: (M, 3) the valid samples' cyclopean origins (mm; NaN: unknown, then the test is
             the angle between directions) and unit directions, time order.
+        eyes: the same samples' per-eye lines (``eye_rays``); given, where the two windows do
+            not all have the same eyes the test compares like with like (``_mixed_score``).
     """
     w, m = config.window, len(d)
     score = np.zeros(m)
@@ -177,7 +250,37 @@ def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig) -> tuple[np
     if posed.any():
         kp = k[posed]
         score[kp] = world_jump_deg(oa[posed], before[kp], ob[posed], after[kp], config.min_depth_mm)
+    if eyes is not None:
+        code = np.isfinite(eyes[1][0, :, 0]) + 2 * np.isfinite(eyes[1][1, :, 0])
+        span = sliding_window_view(code, 2 * w)          # row j: samples j .. j + 2w - 1
+        for j in np.flatnonzero(span.min(axis=1) != span.max(axis=1)):
+            mixed = _mixed_score(eyes, slice(j, j + w), slice(j + w, j + 2 * w), config.min_depth_mm)
+            score[j + w] = angle_deg(before[j + w], after[j + w]) if mixed is None else mixed
     return score, before, after
+
+
+def _mixed_score(eyes: tuple[np.ndarray, np.ndarray], a: slice, b: slice, min_depth_mm: float) -> float | None:
+    """The window test between samples ``a`` and ``b`` (two windows, or a window and one sample)
+    whose samples do not all have the same eyes (``eyes``: (2, M, 3) per-eye origins and
+    directions, NaN where invalid). A cyclopean ray switching between eyes moves by up to an
+    eye's spacing (64 mm from one eye to the other) and turns by the vergence: a baseline the
+    world test would take for the head's and let explain turns of up to 14 deg at 250 mm (the
+    Tufts table's one-eye lines of both eyes were one fixation so). So each side's ray is made
+    of the same eyes: the mean of the per-eye median rays of the eyes valid in at least half of
+    each side's samples. With no such eye (one eye's lines before, the other's after) None: the
+    caller takes the angle between the cyclopean directions, no parallax allowed (the vergence
+    counts as a turn, as the eye-in-head rule counted it)."""
+    eo, ed = eyes
+    common = [e for e in range(2) if all(2 * np.isfinite(ed[e, win, 0]).sum() >= win.stop - win.start
+                                         for win in (a, b))]
+    if not common:
+        return None
+    oa, da, ob, db = (np.mean([np.nanmedian(x[e, win], axis=0) for e in common], axis=0)
+                      for win in (a, b) for x in (eo, ed))
+    da, db = _unit(da), _unit(db)
+    if not (np.all(np.isfinite(oa)) and np.all(np.isfinite(ob))):
+        return float(angle_deg(da, db))
+    return float(world_jump_deg(oa, da, ob, db, min_depth_mm)[0])
 
 
 def _peaks(score: np.ndarray, threshold: float) -> list[tuple[int, int, int]]:
@@ -208,7 +311,7 @@ def _at_gap(cut: tuple[int, int, int], t: np.ndarray) -> tuple[int, int, int]:
 
 
 def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: int, off_deg: float,
-                    min_depth_mm: float) -> tuple[int, int]:
+                    min_depth_mm: float, eyes: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[int, int]:
     """The saccade's samples around a run of the window test above its threshold ``cut``
     (first, last, peak): [first, last] indices into the rays ``(o, d)`` (M, 3), from the last
     sample before the peak whose ray passes within ``off_deg`` of a point of the before-window's
@@ -217,10 +320,16 @@ def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: 
     each looked for up to ``w`` samples away; then once more with the windows moved off the
     saccade's samples so found (a window holding some is pulled toward them). A run longer than
     a clean jump's (about ``w`` samples) keeps its middle, more than ``w`` samples from either
-    end, in the saccade too (the gaze moved all along it)."""
+    end, in the saccade too (the gaze moved all along it). ``eyes`` (``eye_rays`` of the same
+    samples): a sample whose eyes are not the window's is compared like with like
+    (``_mixed_score``)."""
     k0, k1, c = cut
+    code = None if eyes is None else np.isfinite(eyes[1][0, :, 0]) + 2 * np.isfinite(eyes[1][1, :, 0])
 
     def miss(j: int, window: slice, direction: np.ndarray) -> float:
+        if code is not None and eyes is not None and np.any(code[window] != code[j]):
+            mixed = _mixed_score(eyes, window, slice(j, j + 1), min_depth_mm)
+            return float(angle_deg(d[j], direction)) if mixed is None else mixed
         origin = np.median(o[window], axis=0)
         if not (np.all(np.isfinite(origin)) and np.all(np.isfinite(o[j]))):
             return float(angle_deg(d[j], direction))
@@ -257,15 +366,16 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     if len(idx) == 0:
         return labels
     ov, dv, tv = o[idx], d[idx], samples.t_s[idx]
+    eo, ed = eye_rays(samples)
     m, w = len(idx), config.window
-    noise = sample_noise_deg(dv)
-    threshold = config.threshold_deg(noise if np.isfinite(noise) else 0.0)
-    score, before, after = jump_scores(ov, dv, config)
+    noise, diff_sd = session_noise_deg(ov, dv, w, config.min_depth_mm)
+    threshold = config.threshold_deg(diff_sd)
+    score, _, _ = jump_scores(ov, dv, config, (eo[:, idx], ed[:, idx]))
     cuts = [_at_gap(cut, tv) for cut in _peaks(score, threshold)]
-    off = SAMPLE_K * noise * np.sqrt(1.0 + MEDIAN_SD ** 2 / w) if np.isfinite(noise) else np.inf
+    off = SAMPLE_K * np.hypot(noise, diff_sd / np.sqrt(2.0))
     in_fix = np.ones(m, bool)
     for cut in cuts:
-        a, b = saccade_samples(ov, dv, cut, w, max(off, 0.5 * threshold), config.min_depth_mm)
+        a, b = saccade_samples(ov, dv, cut, w, max(off, 0.5 * threshold), config.min_depth_mm, (eo[:, idx], ed[:, idx]))
         in_fix[a:b + 1] = False
     # each cut's peak starts a new stretch; so does a gap in time (long blinks, lost samples)
     gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s) + 1
@@ -280,8 +390,9 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
             continue
         labels[idx[sel]] = label
         label += 1
-    log.info("%d fixations in %d samples (%d valid; %d saccades over %.2f deg, noise %.2f deg; %d time gaps)",
-             label, n, m, len(cuts), threshold, noise, len(gaps))
+    log.info("%d fixations in %d samples (%d valid; %d saccades over %.2f deg; noise %.2f deg a sample, "
+             "%.2f deg between window medians; %d time gaps)", label, n, m, len(cuts), threshold, noise, diff_sd,
+             len(gaps))
     return labels
 
 
@@ -292,8 +403,9 @@ class OnlineSegmenter:
     cyclopean ray of the ``window`` samples after it misses every point of the median ray of the
     ``window`` before it at ``min_depth_mm`` or farther (``world_jump_deg``; without origins the
     angle between the directions), against the same threshold (``SegmentConfig.threshold_deg``
-    of the per-sample noise measured on the last ``NOISE_SAMPLES`` samples; twice ``jump_deg``
-    until ``2 window`` samples have come). Crossing it ends the fixation; the samples until the
+    of the window medians' noise measured as ``median_noise_deg`` measures it, on the last
+    ``NOISE_SAMPLES`` samples; twice ``jump_deg`` until ``2 window`` of those measures have
+    come). Crossing it ends the fixation; the samples until the
     test falls back under it (the saccade, as the windows see it) belong to no fixation. A gap
     over ``max_gap_s`` ends a fixation too, and the sample after it starts the next. A still
     target's point stays put however the head moves, so the walk's parallax is no saccade; a
@@ -308,6 +420,8 @@ class OnlineSegmenter:
     def __init__(self, config: SegmentConfig = SegmentConfig()):
         self.config = config
         self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None)
+        self.medians: deque = deque(maxlen=2 * config.window + 1)    # (origin, direction) medians of the last windows
+        self.seconds: deque = deque(maxlen=self.NOISE_SAMPLES)  # median_noise_deg's angle at each window
         self.turns: deque = deque(maxlen=self.NOISE_SAMPLES)    # angle of each sample off its neighbours' mean
         self.in_saccade = False
         self.last_t: float | None = None
@@ -326,12 +440,12 @@ class OnlineSegmenter:
         item = (_unit(np.asarray(direction, float)), None if origin is None else np.asarray(origin, float))
         if gap:
             self.buf.clear()
+            self.medians.clear()
             self.buf.append(item)
             self.in_saccade = False
             return True
         self.buf.append(item)
-        if len(self.buf) >= 3:
-            self.turns.append(float(angle_deg(self.buf[-2][0], self.buf[-3][0] + self.buf[-1][0])))
+        self._measure_noise()
         if len(self.buf) < 2 * w:
             return False
         jumped = self.score() > self.threshold_deg()
@@ -339,11 +453,36 @@ class OnlineSegmenter:
         self.in_saccade = jumped
         return ended
 
+    def _measure_noise(self) -> None:
+        """The noise measures after a sample: its angle off its neighbours' mean
+        (``sample_noise_deg``) and, once ``2 window + 1`` window medians have come since the
+        last gap, ``median_noise_deg``'s angle at the window ``window`` samples back."""
+        w, buf = self.config.window, self.buf
+        if len(buf) >= 3:
+            self.turns.append(float(angle_deg(buf[-2][0], buf[-3][0] + buf[-1][0])))
+        if len(buf) < w:
+            return
+        last = list(buf)[-w:]
+        origin = None if any(x[1] is None for x in last) else np.median([x[1] for x in last], axis=0)
+        self.medians.append((np.full(3, np.nan) if origin is None else origin,
+                             _unit(np.median([x[0] for x in last], axis=0))))
+        if len(self.medians) == 2 * w + 1:
+            (o0, d0), (o1, d1), (o2, d2) = (self.medians[i] for i in (0, w, 2 * w))
+            self.seconds.append(float(_second_angles(o0[None], d0[None], o1[None], d1[None], o2[None], d2[None],
+                                                     self.config.min_depth_mm)[0]))
+
     def threshold_deg(self) -> float:
-        """The saccade threshold now, degrees (``SegmentConfig.threshold_deg``)."""
-        if len(self.turns) < 2 * self.config.window:
+        """The saccade threshold now, degrees (``SegmentConfig.threshold_deg``): of the window
+        medians' noise once ``2 window`` measures of it have come, before that of the per-sample
+        noise (as for independent samples; ``session_noise_deg``), and twice ``jump_deg`` before
+        ``2 window`` samples."""
+        w = self.config.window
+        if len(self.seconds) >= 2 * w:
+            return self.config.threshold_deg(_diff_sd_deg(np.array(self.seconds)))
+        if len(self.turns) < 2 * w:
             return 2.0 * self.config.jump_deg
-        return self.config.threshold_deg(float(np.median(self.turns)) / SECOND_DIFF_MEDIAN)
+        noise = float(np.median(self.turns)) / SECOND_DIFF_MEDIAN
+        return self.config.threshold_deg(np.sqrt(2.0) * MEDIAN_SD * noise / np.sqrt(w))
 
     def score(self) -> float:
         """The window test on the full buffer, degrees (``world_jump_deg``)."""

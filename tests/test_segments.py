@@ -177,8 +177,8 @@ def test_a_saccade_while_walking_is_still_found(way, deg):
 
 def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
     """One still gaze at 50 Hz, 1 s of samples, 0.8 s without any (over ``max_gap_s``), 1 s more:
-    two fixations, each its stretch's samples less ``trim_s`` (0.05 s: 2.5 samples, so no time
-    ties) at both ends, to the sample: 3-46 and 53-96 (issue 30, planted fault
+    two fixations, each all of its stretch's samples (no ``trim_s`` by default since the world-frame
+    segmentation of issue 27), to the sample: 0-49 and 50-99 (issue 30, planted fault
     ``segment-gap-off-by-one``: the sample before a gap counted after it)."""
     t = np.concatenate([np.arange(50) * 0.02, 0.98 + 0.8 + np.arange(50) * 0.02])
     origin = np.zeros((100, 3))
@@ -188,5 +188,5 @@ def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
                                      target - (origin + half))
     labels = segment_fixations(s)
     want = np.full(100, -1)
-    want[3:47], want[53:97] = 0, 1
+    want[:50], want[50:] = 0, 1
     np.testing.assert_array_equal(labels, want)
