@@ -461,7 +461,9 @@ def test_real_sample_walk_fixations_are_found_in_the_world(sample, tmp_path):
     """Issue 27: the wearer walks (0.75 m/s) and looks down at near surfaces; the eye-in-world
     direction turns 25-40 deg/s while a point is held, so the direction rule (3 deg between
     window medians) found 2 fixations. The world test (one still point 250 mm or farther explains
-    both windows' rays) finds 4 and ``process`` answers 3 targets; every static one has its
+    both windows' rays) finds 3 (4 at a threshold from the per-sample noise, 1.76 deg, which cut
+    a 1.88 deg peak at 7.6 s; the measured window-median noise puts it at 2.19 deg; the two
+    parts were one moving target either way) and ``process`` answers 3 targets; every static one has its
     direction, and each one whose head travels 0.3 m or more over a fixation is nearer the SLAM
     surface (``surface_reference``) than Aria's own ``depth_m`` (benchmarks/real_aria_targets.py).
     Skipped without ../shared (the ``sample`` fixture)."""
@@ -473,7 +475,7 @@ def test_real_sample_walk_fixations_are_found_in_the_world(sample, tmp_path):
     run(sample, tmp_path / "s")
     res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)
     segments = {seg.key: seg.samples for seg in read_viewlines_csv(tmp_path / "out" / "viewlines.csv") if seg.key >= 0}
-    assert len(segments) >= 4 and len(res.found) >= 3
+    assert len(segments) >= 3 and len(res.found) >= 3
     assert all(t.direction is not None for t in res.found if t.status != "moving")
     poses = Poses(*read_poses_csv(tmp_path / "out" / "poses.csv"))
     cloud = aria.read_point_cloud(sample)
