@@ -1,16 +1,30 @@
 """Gaze segmentation: which view lines belong to one fixated target.
 
-A person looks at one thing, then jumps (a saccade) to the next. In the world frame the gaze
-direction stays put while a fixed target is fixated (the head may move; the parallax is small),
-drifts smoothly while a moving one is pursued, and jumps at a saccade. Single samples carry
-about 1 deg of noise per eye, so the test is made between windows: at each sample, the angle
-between the median cyclopean direction of the ``window`` valid samples before it and of those
-after it. Peaks of that angle above ``jump_deg`` are saccades; the stretches between them are
+A person looks at one thing, then jumps (a saccade) to the next. While a still target is
+fixated the gaze ray holds on one point of the world; the head may move, and then the ray's
+direction turns by the parallax (1 deg per 17 mm sideways at 1 m: a walking wearer's near
+fixation turns by many degrees), while the eyes counter-rotate in the head. A saccade moves the
+point. Single samples carry about 1 deg of noise per eye, so the test is made between windows:
+at each sample, the median cyclopean ray (origin and direction) of the ``window`` valid samples
+before it and of those after it, and the least angle at which the after-window's ray misses a
+point of the before-window's ray at ``min_depth_mm`` or farther (``world_jump_deg``: the part
+of the turn that no still point explains). Without head motion that is the angle between the
+two directions. Peaks above the threshold are saccades; the stretches between them are
 fixations, kept when longer than ``min_fixation_s``. Blinks (both eyes invalid) are skipped,
 not treated as saccades; a gap longer than ``max_gap_s`` ends a fixation.
 
-Defaults (documented in docs/processing.md): window 8 samples (0.13 s at 60 Hz), jump 3 deg,
-minimum fixation 0.3 s, maximum gap 0.5 s.
+The threshold follows the device's noise and the eye rate: ``noise_k`` standard deviations of
+the difference of two window medians, measured on the session's own window medians
+(``median_noise_deg``), never below ``jump_deg`` (the least saccade counted); measured, not
+derived from the per-sample noise, it holds for devices that filter their samples in time
+(a Tobii Pro Glasses 2: 0.39 deg, 0.03 from its per-sample noise). A saccade's own samples
+(``saccade_samples``: those off both windows' directions by more than ``SAMPLE_K`` noise sd)
+belong to no fixation; the fixations on either side keep the rest, so their boundaries are the
+saccade's. Smooth pursuit of a moving target turns the gaze without a jump: it stays one
+segment, which the motion test (``estimator.motion``) finds moving.
+
+Defaults (documented in docs/processing.md, "Fixations"): window 8 samples (0.13 s at 60 Hz),
+5 sd, least saccade 1.5 deg, nearest point 250 mm, minimum fixation 0.3 s, maximum gap 0.5 s.
 """
 
 from __future__ import annotations
@@ -20,30 +34,53 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .frames import angle_deg
 from .lines import BinocularSamples
 
 log = logging.getLogger(__name__)
 
+MEDIAN_SD = 1.2533
+"""The standard deviation of the median of n normal samples over that of one sample, times
+sqrt(n) (large n: sqrt(pi / 2)); the window medians' noise for independent samples."""
+MEDIAN_NOISE_QUANTILE = 0.25
+"""``median_noise_deg`` reads this quantile of the window medians' second differences: a
+saccade spoils the three windows around it, up to half of them where fixations are short (0.3 s
+against 0.13 s windows), which moves the median but hardly the lower quartile."""
+RAYLEIGH_Q25 = 0.7585
+"""The lower quartile of a Rayleigh distribution in its scale (sqrt(-2 ln 0.75))."""
+SECOND_DIFF_MEDIAN = 1.4420
+"""The median angle between a sample and the mean of its two neighbours, in per-axis noise sd
+(Rayleigh with scale sqrt(1.5): sqrt(1.5) * sqrt(2 ln 2)); ``sample_noise_deg`` divides by it."""
+SAMPLE_K = 3.5
+"""A sample more than this many per-axis noise sd (Rayleigh: 0.2 % of still samples) off a
+window's direction is in a saccade (``saccade_samples``)."""
+
 
 @dataclass(frozen=True)
 class SegmentConfig:
-    """The fixation test's settings (docs/processing.md).
+    """The fixation test's settings (docs/processing.md, "Fixations").
 
     Attributes:
-        window: samples on each side whose median directions are compared.
-        jump_deg: the angle between the two medians above which a saccade is found, degrees.
+        window: samples on each side whose median rays are compared.
+        jump_deg: the least saccade found, degrees: a floor under the noise threshold.
+        noise_k: the threshold in standard deviations of the difference of two window medians
+            (measured on the session's window medians, ``median_noise_deg``).
+        min_depth_mm: the nearest a fixated point can be, mm; the head's motion explains a turn
+            of the gaze by parallax to points this near or farther.
         min_fixation_s: shorter fixations are dropped, seconds.
         max_gap_s: a gap in the data longer than this ends a fixation, seconds.
-        trim_s: time cut from each end of a fixation (the saccade's tails), seconds.
+        trim_s: time cut from each end of a fixation beyond the saccade's own samples, seconds.
     """
 
     window: int = 8
-    jump_deg: float = 3.0
+    jump_deg: float = 1.5
+    noise_k: float = 5.0
+    min_depth_mm: float = 250.0
     min_fixation_s: float = 0.3
     max_gap_s: float = 0.5
-    trim_s: float = 0.05
+    trim_s: float = 0.0
 
     @classmethod
     def for_rate(cls, rate_hz: float, **settings) -> SegmentConfig:
@@ -57,18 +94,261 @@ class SegmentConfig:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
         return cls(window=min(cls.window, max(2, int(round(cls.window * rate_hz / 60.0)))), **settings)
 
+    def threshold_deg(self, diff_sd_deg: float) -> float:
+        """The saccade threshold, degrees, for a per-axis sd of the difference of two window
+        medians of ``diff_sd_deg`` (``median_noise_deg``)."""
+        return max(self.jump_deg, self.noise_k * diff_sd_deg)
+
 
 def cyclopean_directions(samples: BinocularSamples) -> np.ndarray:
     """(N, 3) unit mean of the valid eyes' directions (NaN where neither is valid)."""
-    d = np.zeros((len(samples), 3))
-    n = np.zeros(len(samples))
-    for dirs, valid in ((samples.left_direction, samples.left_valid), (samples.right_direction, samples.right_valid)):
+    return cyclopean_rays(samples)[1]
+
+
+def cyclopean_rays(samples: BinocularSamples) -> tuple[np.ndarray, np.ndarray]:
+    """((N, 3) origins, mm, (N, 3) unit directions) of each sample's cyclopean ray, in the samples'
+    frame: the mean of the valid eyes' origins and directions (one eye alone: its own line),
+    NaN where neither is valid."""
+    o, d, n = np.zeros((len(samples), 3)), np.zeros((len(samples), 3)), np.zeros(len(samples))
+    for org, dirs, valid in ((samples.left_origin_mm, samples.left_direction, samples.left_valid),
+                             (samples.right_origin_mm, samples.right_direction, samples.right_valid)):
+        o[valid] += org[valid]
         d[valid] += dirs[valid]
         n += valid
-    out = np.full((len(samples), 3), np.nan)
+    oo, dd = np.full((len(samples), 3), np.nan), np.full((len(samples), 3), np.nan)
     ok = n > 0
-    out[ok] = d[ok] / np.linalg.norm(d[ok], axis=1, keepdims=True)
-    return out
+    oo[ok] = o[ok] / n[ok, None]
+    dd[ok] = d[ok] / np.linalg.norm(d[ok], axis=1, keepdims=True)
+    return oo, dd
+
+
+def world_jump_deg(o_a, d_a, o_b, d_b, min_depth_mm: float) -> np.ndarray:
+    """(K,) the least angle, degrees, between directions ``d_b`` (K, 3) from origins ``o_b`` (K, 3)
+    and the directions from ``o_b`` to the points of rays ``(o_a, d_a)`` at ``min_depth_mm`` or
+    farther (world frame, mm; unit directions): how far ray b misses every point ray a could
+    have fixated. Seen from ``o_b``, those points sweep an arc of the great circle through the
+    point at ``min_depth_mm`` and ``d_a`` (at infinity); inside the arc the angle is the one off
+    its plane, else the nearer end's. With no baseline it is the angle between the directions."""
+    o_a, d_a, o_b, d_b = (np.atleast_2d(np.asarray(x, float)) for x in (o_a, d_a, o_b, d_b))
+    u0 = o_a - o_b + min_depth_mm * d_a
+    u0 /= np.linalg.norm(u0, axis=1, keepdims=True)
+    m = np.cross(u0, d_a)
+    mn = np.linalg.norm(m, axis=1)
+    ends = np.minimum(angle_deg(d_b, u0), angle_deg(d_b, d_a))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        off = np.degrees(np.arcsin(np.clip(np.abs((d_b * m).sum(1)) / mn, 0.0, 1.0)))
+    inside = ((np.cross(u0, d_b) * m).sum(1) >= 0) & ((np.cross(d_b, d_a) * m).sum(1) >= 0) & (mn > 1e-12)
+    return np.where(inside, off, ends)
+
+
+def sample_noise_deg(directions) -> float:
+    """The per-axis noise sd, degrees, of unit directions (M, 3) in time order: the median angle
+    between each and the mean of its two neighbours over ``SECOND_DIFF_MEDIAN`` (a steady turn,
+    e.g. the parallax of a walking head, cancels; saccades are too few to move the median).
+    NaN with fewer than 3."""
+    d = np.asarray(directions, float)
+    if len(d) < 3:
+        return float("nan")
+    return float(np.median(angle_deg(d[1:-1], d[:-2] + d[2:])) / SECOND_DIFF_MEDIAN)
+
+
+def median_noise_deg(origins, directions, w: int, min_depth_mm: float) -> float:
+    """The per-axis sd, degrees, of the difference of the medians of two adjacent windows of ``w``
+    rays (M, 3) in time order (origins, mm, NaN: unknown; unit directions; world frame),
+    measured: at each sample, the angle between the median direction of the ``w`` samples from
+    it and the direction, from their median origin, to the point the median rays ``w`` samples
+    before and after point at (``_second_angles``). A steady turn cancels, and so does the
+    parallax of a head that sways or walks past a near point (a fixation's rays all pass through
+    its point). Per axis that angle is sqrt(1.5) times one median's sd where the difference of two
+    is sqrt(2) times it; its lower quartile is read as a Rayleigh quantile. For independent samples
+    it is sqrt(2) ``MEDIAN_SD`` times the per-sample sd over sqrt(w); for samples filtered in time
+    it is more. NaN with fewer than 3 windows."""
+    d = np.asarray(directions, float)
+    if len(d) < 3 * w:
+        return float("nan")
+    med_d, med_o = _unit(_window_medians(d, w)), _window_medians(np.asarray(origins, float), w)
+    return _diff_sd_deg(_second_angles(med_o[:-2 * w], med_d[:-2 * w], med_o[w:-w], med_d[w:-w],
+                                       med_o[2 * w:], med_d[2 * w:], min_depth_mm))
+
+
+def _second_angles(o0, d0, o1, d1, o2, d2, min_depth_mm: float) -> np.ndarray:
+    """(K,) degrees: the angle between directions ``d1`` (K, 3) and the direction from ``o1`` to the
+    nearest approach of rays ``(o0, d0)`` and ``(o2, d2)`` when it is ``min_depth_mm`` or farther
+    along both, else (or with NaN origins) the mean of ``d0`` and ``d2`` (``median_noise_deg``)."""
+    b, base = (d0 * d2).sum(1), o0 - o2
+    e0, e2 = (d0 * base).sum(1), (d2 * base).sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s0, s2 = (b * e2 - e0) / (1 - b * b), (e2 - b * e0) / (1 - b * b)
+        point = 0.5 * (o0 + s0[:, None] * d0 + o2 + s2[:, None] * d2)
+        ahead = np.isfinite(point).all(1) & np.isfinite(o1).all(1) & (s0 >= min_depth_mm) & (s2 >= min_depth_mm)
+    aim = d0 + d2
+    aim[ahead] = point[ahead] - o1[ahead]
+    return angle_deg(d1, aim)
+
+
+def _diff_sd_deg(second_deg) -> float:
+    """The per-axis sd, degrees, of the difference of two window medians from the angles (K,) between
+    window medians and the mean of the medians a window before and after (``median_noise_deg``)."""
+    return float(np.sqrt(2.0 / 1.5) * np.quantile(second_deg, MEDIAN_NOISE_QUANTILE) / RAYLEIGH_Q25)
+
+
+def session_noise_deg(origins, directions, w: int, min_depth_mm: float) -> tuple[float, float]:
+    """(per-sample noise sd, sd of the difference of two window medians), degrees per axis, of
+    rays (M, 3) in time order (``sample_noise_deg``, ``median_noise_deg``); with too few samples
+    for the second, it is derived from the first as for independent samples (and either is 0
+    with fewer than 3 samples)."""
+    noise, diff_sd = sample_noise_deg(directions), median_noise_deg(origins, directions, w, min_depth_mm)
+    noise = noise if np.isfinite(noise) else 0.0
+    if not np.isfinite(diff_sd):
+        diff_sd = np.sqrt(2.0) * MEDIAN_SD * noise / np.sqrt(w)
+    return noise, float(diff_sd)
+
+
+def _window_medians(x: np.ndarray, w: int) -> np.ndarray:
+    """(M - w + 1, 3) the median of each run of ``w`` rows of ``x`` (M, 3)."""
+    return np.median(sliding_window_view(x, w, axis=0), axis=-1)
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def eye_rays(samples: BinocularSamples) -> tuple[np.ndarray, np.ndarray]:
+    """((2, N, 3) origins, mm, (2, N, 3) unit directions) of the left [0] and right [1] eyes'
+    lines, in the samples' frame, NaN where that eye is not valid."""
+    o, d = np.full((2, len(samples), 3), np.nan), np.full((2, len(samples), 3), np.nan)
+    for e, (org, dirs, valid) in enumerate(((samples.left_origin_mm, samples.left_direction, samples.left_valid),
+                                            (samples.right_origin_mm, samples.right_direction, samples.right_valid))):
+        o[e, valid], d[e, valid] = org[valid], dirs[valid]
+    return o, d
+
+
+def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig,
+                eyes: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M,) the window test at each valid sample k (``world_jump_deg`` of the median rays of the
+    ``window`` samples before k and of those from k on; 0 where a window is incomplete), and the
+    (M, 3) median directions before and after each k (NaN where incomplete).
+
+    Args:
+        o, d: (M, 3) the valid samples' cyclopean origins (mm; NaN: unknown, then the test is
+            the angle between directions) and unit directions, time order.
+        eyes: the same samples' per-eye lines (``eye_rays``); given, where the two windows do
+            not all have the same eyes the test compares like with like (``_mixed_score``).
+    """
+    w, m = config.window, len(d)
+    score = np.zeros(m)
+    before, after = np.full((m, 3), np.nan), np.full((m, 3), np.nan)
+    if m < 2 * w:
+        return score, before, after
+    med_d = _unit(_window_medians(d, w))                 # row j: samples j .. j + w - 1
+    med_o = _window_medians(o, w)
+    k = np.arange(w, m - w + 1)
+    before[k], after[k] = med_d[k - w], med_d[k]
+    oa, ob = med_o[k - w], med_o[k]
+    posed = np.all(np.isfinite(oa), axis=1) & np.all(np.isfinite(ob), axis=1)
+    score[k] = angle_deg(before[k], after[k])
+    if posed.any():
+        kp = k[posed]
+        score[kp] = world_jump_deg(oa[posed], before[kp], ob[posed], after[kp], config.min_depth_mm)
+    if eyes is not None:
+        code = np.isfinite(eyes[1][0, :, 0]) + 2 * np.isfinite(eyes[1][1, :, 0])
+        span = sliding_window_view(code, 2 * w)          # row j: samples j .. j + 2w - 1
+        for j in np.flatnonzero(span.min(axis=1) != span.max(axis=1)):
+            mixed = _mixed_score(eyes, slice(j, j + w), slice(j + w, j + 2 * w), config.min_depth_mm)
+            score[j + w] = angle_deg(before[j + w], after[j + w]) if mixed is None else mixed
+    return score, before, after
+
+
+def _mixed_score(eyes: tuple[np.ndarray, np.ndarray], a: slice, b: slice, min_depth_mm: float) -> float | None:
+    """The window test between samples ``a`` and ``b`` (two windows, or a window and one sample)
+    whose samples do not all have the same eyes (``eyes``: (2, M, 3) per-eye origins and
+    directions, NaN where invalid). A cyclopean ray switching between eyes moves by up to an
+    eye's spacing (64 mm from one eye to the other) and turns by the vergence: a baseline the
+    world test would take for the head's and let explain turns of up to 14 deg at 250 mm (the
+    Tufts table's one-eye lines of both eyes were one fixation so). So each side's ray is made
+    of the same eyes: the mean of the per-eye median rays of the eyes valid in at least half of
+    each side's samples. With no such eye (one eye's lines before, the other's after) None: the
+    caller takes the angle between the cyclopean directions, no parallax allowed (the vergence
+    counts as a turn, as the eye-in-head rule counted it)."""
+    eo, ed = eyes
+    common = [e for e in range(2) if all(2 * np.isfinite(ed[e, win, 0]).sum() >= win.stop - win.start
+                                         for win in (a, b))]
+    if not common:
+        return None
+    oa, da, ob, db = (np.mean([np.nanmedian(x[e, win], axis=0) for e in common], axis=0)
+                      for win in (a, b) for x in (eo, ed))
+    da, db = _unit(da), _unit(db)
+    if not (np.all(np.isfinite(oa)) and np.all(np.isfinite(ob))):
+        return float(angle_deg(da, db))
+    return float(world_jump_deg(oa, da, ob, db, min_depth_mm)[0])
+
+
+def _peaks(score: np.ndarray, threshold: float) -> list[tuple[int, int, int]]:
+    """[(first, last, peak)] of each run of ``score`` above ``threshold`` (one per saccade)."""
+    cuts, k, m = [], 0, len(score)
+    while k < m:
+        if score[k] > threshold:
+            j = k
+            while j + 1 < m and score[j + 1] > threshold:
+                j += 1
+            cuts.append((k, j, k + int(np.argmax(score[k:j + 1]))))
+            k = j + 1
+        else:
+            k += 1
+    return cuts
+
+
+def _at_gap(cut: tuple[int, int, int], t: np.ndarray) -> tuple[int, int, int]:
+    """A saccade whose run of the window test spans a gap in the samples (a blink, more than
+    twice the median interval) is put in the gap: the peak moves to the first sample after its
+    longest gap, so no fixation reaches across the blink to the saccade's other side."""
+    k0, k1, c = cut
+    if k1 <= k0 or len(t) < 2:
+        return cut
+    dt = np.diff(t[k0:k1 + 1])
+    j = int(np.argmax(dt))
+    return (k0, k1, k0 + j + 1) if dt[j] > 2 * np.median(np.diff(t)) else cut
+
+
+def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: int, off_deg: float,
+                    min_depth_mm: float, eyes: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[int, int]:
+    """The saccade's samples around a run of the window test above its threshold ``cut``
+    (first, last, peak): [first, last] indices into the rays ``(o, d)`` (M, 3), from the last
+    sample before the peak whose ray passes within ``off_deg`` of a point of the before-window's
+    median ray (``world_jump_deg``, points at ``min_depth_mm`` or farther; the window's own
+    parallax is no saccade) to the first after it within ``off_deg`` of the after-window's,
+    each looked for up to ``w`` samples away; then once more with the windows moved off the
+    saccade's samples so found (a window holding some is pulled toward them). A run longer than
+    a clean jump's (about ``w`` samples) keeps its middle, more than ``w`` samples from either
+    end, in the saccade too (the gaze moved all along it). ``eyes`` (``eye_rays`` of the same
+    samples): a sample whose eyes are not the window's is compared like with like
+    (``_mixed_score``)."""
+    k0, k1, c = cut
+    code = None if eyes is None else np.isfinite(eyes[1][0, :, 0]) + 2 * np.isfinite(eyes[1][1, :, 0])
+
+    def miss(j: int, window: slice, direction: np.ndarray) -> float:
+        if code is not None and eyes is not None and np.any(code[window] != code[j]):
+            mixed = _mixed_score(eyes, window, slice(j, j + 1), min_depth_mm)
+            return float(angle_deg(d[j], direction)) if mixed is None else mixed
+        origin = np.median(o[window], axis=0)
+        if not (np.all(np.isfinite(origin)) and np.all(np.isfinite(o[j]))):
+            return float(angle_deg(d[j], direction))
+        return float(world_jump_deg(origin, direction, o[j], d[j], min_depth_mm)[0])
+
+    first, last = c, c - 1
+    for _ in range(2):          # again with windows clear of the saccade's samples the first pass found
+        win_a, win_b = slice(max(first - w, 0), first), slice(last + 1, last + 1 + w)
+        if win_a.stop - win_a.start < 1 or win_b.stop > len(d):
+            break
+        dir_a, dir_b = _unit(np.median(d[win_a], axis=0)), _unit(np.median(d[win_b], axis=0))
+        end_a = c - 1
+        while end_a >= max(c - w, 0) and miss(end_a, win_a, dir_a) > off_deg:
+            end_a -= 1
+        start_b = c
+        while start_b < min(c + w, len(d)) and miss(start_b, win_b, dir_b) > off_deg:
+            start_b += 1
+        first, last = end_a + 1, start_b - 1
+    return min(first, k0 + w), max(last, k1 - w)
 
 
 def segment_fixations(samples: BinocularSamples, config: SegmentConfig = SegmentConfig()) -> np.ndarray:
@@ -76,52 +356,42 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     or broken-off stretches.
 
     Args:
-        samples: view lines in the world frame, in time order.
+        samples: view lines in the world frame (a still head's, or the head frame's: the test
+            is then the angle between directions), in time order.
     """
-    n_samples = len(samples)
-    labels = np.full(n_samples, -1)
-    directions = cyclopean_directions(samples)
-    valid = np.all(np.isfinite(directions), axis=1)
-    idx = np.flatnonzero(valid)
+    n = len(samples)
+    labels = np.full(n, -1)
+    o, d = cyclopean_rays(samples)
+    idx = np.flatnonzero(np.all(np.isfinite(d), axis=1))
     if len(idx) == 0:
         return labels
-    dv, tv = directions[idx], samples.t_s[idx]
-    window = config.window
-    n_valid = len(idx)
-    score = np.zeros(n_valid)
-    for k in range(window, n_valid - window + 1):
-        before = np.median(dv[k - window:k], axis=0)
-        after = np.median(dv[k:k + window], axis=0)
-        score[k] = angle_deg(before, after)
-    # saccades: local maxima of the score above the threshold (one per jump)
-    cuts = []
-    k = 0
-    while k < n_valid:
-        if score[k] > config.jump_deg:
-            j = k
-            while j + 1 < n_valid and score[j + 1] > config.jump_deg:
-                j += 1
-            cuts.append((k, j, k + int(np.argmax(score[k:j + 1]))))
-            k = j + 1
-        else:
-            k += 1
-    # gaps in time (long blinks, lost samples) also end a fixation
-    gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s)
-    bounds = sorted({0, n_valid} | {c[2] for c in cuts} | set((gaps + 1).tolist()))
+    ov, dv, tv = o[idx], d[idx], samples.t_s[idx]
+    eo, ed = eye_rays(samples)
+    m, w = len(idx), config.window
+    noise, diff_sd = session_noise_deg(ov, dv, w, config.min_depth_mm)
+    threshold = config.threshold_deg(diff_sd)
+    score, _, _ = jump_scores(ov, dv, config, (eo[:, idx], ed[:, idx]))
+    cuts = [_at_gap(cut, tv) for cut in _peaks(score, threshold)]
+    off = SAMPLE_K * np.hypot(noise, diff_sd / np.sqrt(2.0))
+    in_fix = np.ones(m, bool)
+    for cut in cuts:
+        a, b = saccade_samples(ov, dv, cut, w, max(off, 0.5 * threshold), config.min_depth_mm, (eo[:, idx], ed[:, idx]))
+        in_fix[a:b + 1] = False
+    # each cut's peak starts a new stretch; so does a gap in time (long blinks, lost samples)
+    gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s) + 1
+    bounds = sorted({0, m} | {c[2] for c in cuts} | set(gaps.tolist()))
     label = 0
-    for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
-        # drop the samples inside the jump region around each cut and trim the ends
-        ta, tb = tv[start] + config.trim_s, tv[stop - 1] - config.trim_s
-        sel = np.arange(start, stop)
-        for c0, c1, _ in cuts:
-            if c0 - window // 2 <= sel.max(initial=-1):
-                sel = sel[(sel < c0 - window // 2) | (sel > c1 + window // 2)]
-        sel = sel[(tv[sel] >= ta) & (tv[sel] <= tb)]
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        sel = np.arange(a, b)[in_fix[a:b]]
+        if len(sel) == 0:
+            continue
+        sel = sel[(tv[sel] >= tv[sel[0]] + config.trim_s) & (tv[sel] <= tv[sel[-1]] - config.trim_s)]
         if len(sel) == 0 or tv[sel[-1]] - tv[sel[0]] < config.min_fixation_s:
             continue
         labels[idx[sel]] = label
         label += 1
-    log.info("%d fixations in %d samples (%d valid; %d saccades, %d time gaps)", label, n_samples, n_valid, len(cuts),
+    log.info("%d fixations in %d samples (%d valid; %d saccades over %.2f deg; noise %.2f deg a sample, "
+             "%.2f deg between window medians; %d time gaps)", label, n, m, len(cuts), threshold, noise, diff_sd,
              len(gaps))
     return labels
 
@@ -129,35 +399,36 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
 class OnlineSegmenter:
     """``segment_fixations`` one sample at a time, for a live stream.
 
-    The same test, made as soon as the window after a sample is full: the angle between the
-    median cyclopean direction of the ``window`` samples before and of the ``window`` after.
-    Crossing ``jump_deg`` ends the fixation; the samples until the angle falls back under it
-    (the saccade, as the windows see it) belong to no fixation. A gap over ``max_gap_s`` ends a
-    fixation too, and the sample after it starts the next. The reference thus follows a target
-    whose direction drifts as the head moves, as the offline test does; only a jump counts.
+    The same test, made as soon as the window after a sample is full: how far the median
+    cyclopean ray of the ``window`` samples after it misses every point of the median ray of the
+    ``window`` before it at ``min_depth_mm`` or farther (``world_jump_deg``; without origins the
+    angle between the directions), against the same threshold (``SegmentConfig.threshold_deg``
+    of the window medians' noise measured as ``median_noise_deg`` measures it, on the last
+    ``NOISE_SAMPLES`` samples; twice ``jump_deg`` until ``2 window`` of those measures have
+    come). Crossing it ends the fixation; the samples until the
+    test falls back under it (the saccade, as the windows see it) belong to no fixation. A gap
+    over ``max_gap_s`` ends a fixation too, and the sample after it starts the next. A still
+    target's point stays put however the head moves, so the walk's parallax is no saccade; a
+    saccade moves the point.
 
-    Feed it the binocular samples' cyclopean directions (one eye alone is off the cyclopean line
-    by half the vergence, which is not a saccade).
+    Feed it the binocular samples' cyclopean rays (one eye alone is off the cyclopean line by
+    half the vergence, which is not a saccade).
     """
+
+    NOISE_SAMPLES = 600
 
     def __init__(self, config: SegmentConfig = SegmentConfig()):
         self.config = config
         self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None)
+        self.medians: deque = deque(maxlen=2 * config.window + 1)    # (origin, direction) medians of the last windows
+        self.seconds: deque = deque(maxlen=self.NOISE_SAMPLES)  # median_noise_deg's angle at each window
+        self.turns: deque = deque(maxlen=self.NOISE_SAMPLES)    # angle of each sample off its neighbours' mean
         self.in_saccade = False
         self.last_t: float | None = None
 
-    def update(self, t_s: float, direction, origin=None, depth_mm: float = np.inf) -> bool:
-        """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) (world frame).
-
-        ``origin`` (3,) (world, mm; the eyes' midpoint) and ``depth_mm`` (the fixated point's
-        distance from it, when known) take the head's translation out of the test: each
-        buffered sample's gaze is taken to the point ``depth_mm`` along it, and the directions
-        compared are to those points from the newest origin. A still target's point stays put
-        however the head moves, where its direction turns by the parallax (1 deg per 17 mm
-        sideways at 1 m), which eats into the margin below ``jump_deg``. A saccade moves the
-        point by its amplitude. The caller gives a depth no nearer than the point can be
-        (``live.estimation``: the far end of its interval): too near a depth over-corrects, too
-        far one under-corrects, down to no correction (the default, infinity).
+    def update(self, t_s: float, direction, origin=None) -> bool:
+        """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) and its origin (3,)
+        (world frame, mm; the eyes' midpoint; None: unknown, the test is then on directions).
 
         Returns:
             True when this sample ends the current fixation. Afterwards ``in_saccade`` tells
@@ -166,29 +437,61 @@ class OnlineSegmenter:
         w = self.config.window
         gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
         self.last_t = t_s
-        item = (np.asarray(direction, float), None if origin is None else np.asarray(origin, float))
+        item = (_unit(np.asarray(direction, float)), None if origin is None else np.asarray(origin, float))
         if gap:
             self.buf.clear()
+            self.medians.clear()
             self.buf.append(item)
             self.in_saccade = False
             return True
         self.buf.append(item)
+        self._measure_noise()
         if len(self.buf) < 2 * w:
             return False
-        b = self._directions(depth_mm)
-        before, after = np.median(b[:w], axis=0), np.median(b[w:], axis=0)
-        jumped = angle_deg(before, after) > self.config.jump_deg
+        jumped = self.score() > self.threshold_deg()
         ended = jumped and not self.in_saccade
         self.in_saccade = jumped
         return ended
 
-    def _directions(self, depth_mm: float) -> np.ndarray:
-        """(2 window, 3) the buffered directions, or with a finite depth and every origin known the
-        directions from the newest origin to the points ``depth_mm`` along them."""
+    def _measure_noise(self) -> None:
+        """The noise measures after a sample: its angle off its neighbours' mean
+        (``sample_noise_deg``) and, once ``2 window + 1`` window medians have come since the
+        last gap, ``median_noise_deg``'s angle at the window ``window`` samples back."""
+        w, buf = self.config.window, self.buf
+        if len(buf) >= 3:
+            self.turns.append(float(angle_deg(buf[-2][0], buf[-3][0] + buf[-1][0])))
+        if len(buf) < w:
+            return
+        last = list(buf)[-w:]
+        origin = None if any(x[1] is None for x in last) else np.median([x[1] for x in last], axis=0)
+        self.medians.append((np.full(3, np.nan) if origin is None else origin,
+                             _unit(np.median([x[0] for x in last], axis=0))))
+        if len(self.medians) == 2 * w + 1:
+            (o0, d0), (o1, d1), (o2, d2) = (self.medians[i] for i in (0, w, 2 * w))
+            self.seconds.append(float(_second_angles(o0[None], d0[None], o1[None], d1[None], o2[None], d2[None],
+                                                     self.config.min_depth_mm)[0]))
+
+    def threshold_deg(self) -> float:
+        """The saccade threshold now, degrees (``SegmentConfig.threshold_deg``): of the window
+        medians' noise once ``2 window`` measures of it have come, before that of the per-sample
+        noise (as for independent samples; ``session_noise_deg``), and twice ``jump_deg`` before
+        ``2 window`` samples."""
+        w = self.config.window
+        if len(self.seconds) >= 2 * w:
+            return self.config.threshold_deg(_diff_sd_deg(np.array(self.seconds)))
+        if len(self.turns) < 2 * w:
+            return 2.0 * self.config.jump_deg
+        noise = float(np.median(self.turns)) / SECOND_DIFF_MEDIAN
+        return self.config.threshold_deg(np.sqrt(2.0) * MEDIAN_SD * noise / np.sqrt(w))
+
+    def score(self) -> float:
+        """The window test on the full buffer, degrees (``world_jump_deg``)."""
+        w = self.config.window
         d = np.array([x[0] for x in self.buf])
-        if not np.isfinite(depth_mm) or any(x[1] is None for x in self.buf):
-            return d
+        da, db = _unit(np.median(d[:w], axis=0)), _unit(np.median(d[w:], axis=0))
+        if any(x[1] is None for x in self.buf):
+            return float(angle_deg(da, db))
         o = np.array([x[1] for x in self.buf])
-        p = o + depth_mm * d / np.linalg.norm(d, axis=1, keepdims=True) - o[-1]
-        return p / np.linalg.norm(p, axis=1, keepdims=True)
+        return float(world_jump_deg(np.median(o[:w], axis=0), da, np.median(o[w:], axis=0), db,
+                                    self.config.min_depth_mm)[0])
 

@@ -163,17 +163,20 @@ def test_detect_format_names_the_choices(tmp_path):
 
 
 def test_short_fixations_at_10_hz_are_found_and_estimated(rng):
-    """Aria's 10 Hz: a 0.5 s fixation has 5 samples. The default window (8 samples a side)
-    finds none; the rate's window does, and every estimator answers on 5 samples."""
+    """Aria's 10 Hz: a 0.5 s fixation has 5 samples. The rate's window finds the three 2 s
+    fixations, and every estimator answers on 5 samples. The default window, 8 samples a side,
+    does not: its noise measure (three windows, 2.4 s, against the medians' noise) has no
+    stretch clear of a saccade in 2 s fixations, so its threshold takes the saccades for noise
+    (before issue 27 it found none: a saccade took half a window and 50 ms more off each side)."""
     t = np.arange(60) / 10.0
     targets = np.repeat([[300.0, 0, 1500], [-400, 100, 2500], [0, -300, 1000]], 20, axis=0)
     heads = np.column_stack([200 * np.sin(0.8 * t), 30 * np.cos(t), 50 * t])
     lo, ro = heads - [32, 0, 0], heads + [32, 0, 0]
     s = BinocularSamples.from_arrays(t, lo, perturb_directions(targets - lo, np.deg2rad(0.5), rng), ro,
                                      perturb_directions(targets - ro, np.deg2rad(0.5), rng))
-    assert segment_fixations(s, SegmentConfig()).max() < 0
     labels = segment_fixations(s, SegmentConfig.for_rate(10.0))
     assert labels.max() + 1 == 3
+    assert segment_fixations(s, SegmentConfig()).max() + 1 < 3
     five = s.select(np.flatnonzero(labels == 0)[:5])
     for method in ("ml", "voxel", "lse", "paper"):
         e = estimate(five, method)

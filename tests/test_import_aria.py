@@ -390,10 +390,13 @@ def test_real_sample_through_process_beats_the_devices_own_depth_where_the_head_
     """Import, then ``process``: fixations are found where the gaze holds still (the rate's
     segmentation window: 2 samples at 10 Hz), every fixation of 5 or more samples has an
     estimate from both ``ml`` and ``voxel``, and where the head travels >= 300 mm during the
-    fixation (F0: 400 mm in 0.5 s) the ``ml`` depth is within 25 % of the reference and nearer it
-    than the device's own median ``depth_m``. Reference: the first surface of MPS's semi-dense
-    points (dist_std <= 20 mm) along the device's gaze direction, median over the fixation
-    (research: F0 ml 2093 mm, reference 2382 mm, depth_m 1260 mm)."""
+    fixation (F0: 400 mm in 0.5 s) the ``ml`` depth is nearer the reference than the device's own
+    median ``depth_m``, and within 25 % of it where that travel is across the line of sight
+    (parallax; a walk toward the point gives little: the fixation at 0.4-1.0 s, found since the
+    segmentation is made in the world (issue 27), travels 447 mm, 164 mm across, and its ``ml``
+    depth is 2106 mm against 3604 mm, depth_m 1123 mm). Reference: the first surface of MPS's
+    semi-dense points (dist_std <= 20 mm) along the device's gaze direction, median over the
+    fixation (research: F0 ml 2093 mm, reference 2382 mm, depth_m 1260 mm)."""
     from wearable_gaze.formats.viewlines import read_viewlines_csv
     from wearable_gaze.pipeline.process.session import process_session
     from wearable_gaze.pipeline.steps.device import surface_reference
@@ -405,7 +408,7 @@ def test_real_sample_through_process_beats_the_devices_own_depth_where_the_head_
     assert len(res.targets) >= 1 and any(len(f.samples) >= 5 for f in fixations)
     poses = Poses(*read_poses_csv(tmp_path / "out" / "poses.csv"))
     cloud = aria.read_point_cloud(sample)
-    moved = 0
+    moved = moved_across = 0
     for f in fixations:
         if len(f.samples) < 5:
             continue
@@ -421,9 +424,13 @@ def test_real_sample_through_process_beats_the_devices_own_depth_where_the_head_
         t_g, p_g = read_device_gaze(tmp_path / "s" / "device_gaze.csv")
         dev_depth = np.median(np.linalg.norm(p_g[np.isin(np.round(t_g, 4), np.round(f.samples.t_s, 4))], axis=1))
         ml_depth = np.linalg.norm(est["ml"].position_mm - o)
-        assert abs(ml_depth - ref_depth) < 0.25 * ref_depth, (ml_depth, ref_depth)
+        sight = (np.nanmedian(ref, axis=0) - o) / ref_depth
+        across = np.linalg.norm(np.cross(head[-1] - head[0], sight))
+        if across >= 300:
+            assert abs(ml_depth - ref_depth) < 0.25 * ref_depth, (ml_depth, ref_depth)
+            moved_across += 1
         assert abs(ml_depth - ref_depth) < abs(dev_depth - ref_depth), (ml_depth, dev_depth, ref_depth)
-    assert moved >= 1
+    assert moved >= 1 and moved_across >= 1
 
 
 def test_real_sample_keeps_its_point_cloud_and_the_report_draws_it(sample, tmp_path):
@@ -448,3 +455,43 @@ def test_real_sample_keeps_its_point_cloud_and_the_report_draws_it(sample, tmp_p
     head = np.asarray(scene["head"], float)
     assert len(drawn) > 1000
     assert np.all(np.abs(np.median(drawn, axis=0) - np.median(head, axis=0)) < 10000)   # around the walk
+
+
+def test_real_sample_walk_fixations_are_found_in_the_world(sample, tmp_path):
+    """Issue 27: the wearer walks (0.75 m/s) and looks down at near surfaces; the eye-in-world
+    direction turns 25-40 deg/s while a point is held, so the direction rule (3 deg between
+    window medians) found 2 fixations. The world test (one still point 250 mm or farther explains
+    both windows' rays) finds 3 (4 at a threshold from the per-sample noise, 1.76 deg, which cut
+    a 1.88 deg peak at 7.6 s; the measured window-median noise puts it at 2.19 deg; the two
+    parts were one moving target either way) and ``process`` answers 3 targets; every static one has its
+    direction, and each one whose head travels 0.3 m or more over a fixation is nearer the SLAM
+    surface (``surface_reference``) than Aria's own ``depth_m`` (benchmarks/real_aria_targets.py).
+    Skipped without ../shared (the ``sample`` fixture)."""
+    from wearable_gaze.formats.viewlines import read_viewlines_csv
+    from wearable_gaze.pipeline.device import surface_reference
+    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.types import Poses
+
+    run(sample, tmp_path / "s")
+    res = process_session(tmp_path / "s", tmp_path / "out", overlay=False, report=False)
+    segments = {seg.key: seg.samples for seg in read_viewlines_csv(tmp_path / "out" / "viewlines.csv") if seg.key >= 0}
+    assert len(segments) >= 3 and len(res.found) >= 3
+    assert all(t.direction is not None for t in res.found if t.status != "moving")
+    poses = Poses(*read_poses_csv(tmp_path / "out" / "poses.csv"))
+    cloud = aria.read_point_cloud(sample)
+    t_g, p_g = read_device_gaze(tmp_path / "s" / "device_gaze.csv")
+    moved = 0
+    for tg in res.found:
+        parts = [segments[k] for k in tg.fixations]
+        heads = [surface_reference(cloud, tmp_path / "s" / "device_gaze.csv", poses, p.t_s)[1] for p in parts]
+        if max(np.linalg.norm(h[-1] - h[0]) for h in heads) < 300 or tg.status == "moving":
+            continue
+        moved += 1
+        t = np.concatenate([p.t_s for p in parts])
+        ref, head = surface_reference(cloud, tmp_path / "s" / "device_gaze.csv", poses, t)
+        o = np.nanmedian(head, axis=0)
+        ref_depth = np.linalg.norm(np.nanmedian(ref, axis=0) - o)
+        dev_depth = np.median(np.linalg.norm(p_g[np.isin(np.round(t_g, 4), np.round(t, 4))], axis=1))
+        ours = np.linalg.norm(tg.position_mm - o)
+        assert abs(ours - ref_depth) < abs(dev_depth - ref_depth), (tg.index, ours, dev_depth, ref_depth)
+    assert moved >= 1

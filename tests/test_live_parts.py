@@ -154,21 +154,6 @@ def _walk(eyes, fixations, rate=60.0, rng=None):
     return out
 
 
-def test_the_segmenters_depth_is_the_far_end_of_the_running_estimates_interval():
-    """1/depth less 2 sd of it: 1000 mm ahead with a 100 mm sd along the line is 1250 mm; no
-    estimate, or a far end past infinity (sd 600 mm), is infinity (no correction)."""
-    from types import SimpleNamespace
-    est = GazeEstimation(_eyes(), "voxel")
-    origin = np.array([10.0, 20.0, 30.0])
-    assert est._segment_depth(origin) == np.inf
-    u = np.array([0.6, 0.0, 0.8])
-    across = np.array([0.8, 0.0, -0.6])
-    for sd, want in ((100.0, 1250.0), (600.0, np.inf)):
-        cov = sd ** 2 * np.outer(u, u) + 50.0 ** 2 * (np.outer(across, across) + np.outer([0, 1, 0], [0, 1, 0]))
-        est.last = (SimpleNamespace(position_mm=origin + 1000.0 * u, covariance_mm2=cov), 1.0)
-        assert est._segment_depth(origin) == pytest.approx(want)
-
-
 def test_estimation_finds_each_fixation_and_gives_a_target_seen_again_its_id():
     eyes = _eyes()
     A, B = np.array([100.0, -50.0, 1500.0]), np.array([-500.0, 150.0, 1200.0])

@@ -14,7 +14,6 @@ import pytest
 from wearable_gaze.cli import main
 from wearable_gaze.formats.gaze_export import read_gaze_csv
 from wearable_gaze.formats.outputs import check_output
-from wearable_gaze.formats.tables import MAX_ABS
 from wearable_gaze.formats.targets import read_target_paths, read_targets
 from wearable_gaze.pipeline.steps import fixations
 
@@ -47,8 +46,12 @@ def test_the_second_g2_recording_is_processed_with_no_failed_step(g2b, capsys):
     for p in sorted(out.iterdir()):
         if p.suffix in (".csv", ".json"):
             check_output(p)                      # every value as its writer checked it
+    # every path read back as written; the case that broke it (a knot's covariance beyond MAX_ABS,
+    # 4.9e10 mm^2 on this recording before issue 27's segmentation) depends on how the fixations
+    # fall, so it is planted in test_process_status's
+    # test_a_writer_refuses_what_its_reader_would_and_a_path_covariance_in_mm2_is_read_back
     paths = read_target_paths(out / "target_paths.csv")
-    assert max(abs(c).max() for _, _, c in paths.values()) > MAX_ABS      # the case that broke it
+    assert paths and all(np.all(np.isfinite(c)) for _, _, c in paths.values())
     assert len(read_gaze_csv(out / "gaze.csv")["sample"]) == 6048         # every eye sample kept
 
 

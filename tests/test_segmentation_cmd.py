@@ -21,7 +21,9 @@ from wearable_gaze.sim.simulate import simulate_scenario
 SCENARIO = {"base": "lab-walkabout", "duration_s": 8.0,
             "room": {"size_mm": [4500.0, 2700.0, 5500.0], "markers_per_wall": 5},
             "targets": {"random_count": 3, "random_depth_mm": [700.0, 3000.0]},
+            "eyes": {"fixation_s": [1.6, 2.4]},
             "calibration": {"camera_views": 10}}
+"""Four fixations in 8 s, the first target's seen again at the end: a revisit to merge."""
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +98,7 @@ def test_unsegmented_file_of_several_fixations_is_refused_unless_one_point(steps
     assert main(["estimate", str(vl), "--method", "ml"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "no segment column" in err and "wearable-gaze fixations" in err
-    assert "--one-point" in err and "4 fixations" in err
+    assert "--one-point" in err and "5 fixations" in err        # the truth's 5, each found
     assert main(["estimate", str(vl), "--method", "ml", "--targets"]) == 2
     assert "no segment column" in capsys.readouterr().err
     assert main(["estimate", str(vl), "--method", "ml", "--one-point", "--json"]) == 0

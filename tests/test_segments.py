@@ -7,7 +7,7 @@ import pytest
 
 from estimator.likelihood import perturb_directions
 from estimator.lines import BinocularSamples
-from estimator.segments import OnlineSegmenter, SegmentConfig, cyclopean_directions, segment_fixations
+from estimator.segments import OnlineSegmenter, SegmentConfig, cyclopean_directions, cyclopean_rays, segment_fixations
 
 TARGETS = np.array([[0.0, 0.0, 650.0], [400.0, -100.0, 1500.0], [-300.0, 200.0, 3000.0], [100.0, 50.0, 800.0]])
 FIX_S = 2.0          # each target fixated this long, saccades between
@@ -32,12 +32,12 @@ def _session(seed):
 
 def _online_labels(s):
     seg = OnlineSegmenter()
-    d = cyclopean_directions(s)
+    o, d = cyclopean_rays(s)
     labels, k = np.full(len(s), -1), 0
     for i in range(len(s)):
         if not (s.left_valid[i] and s.right_valid[i]):
             continue
-        if seg.update(s.t_s[i], d[i]):
+        if seg.update(s.t_s[i], d[i], o[i]):                # as live.estimation feeds it: with the eyes' midpoint
             k += 1
         if not seg.in_saccade:
             labels[i] = k
@@ -85,32 +85,100 @@ def test_online_segmenter_ends_a_fixation_once_per_saccade_and_at_a_gap():
     assert seg.update(22 / 60 + 0.6, b) and not seg.in_saccade   # a gap: the fixation ends, the next starts
 
 
-def test_online_segmenter_takes_the_heads_walk_out_at_the_given_depth_and_still_sees_a_saccade():
+def test_online_segmenter_takes_the_heads_walk_out_and_still_sees_a_saccade():
     """A head walking sideways at 300 mm/s past a target 600 mm away turns its direction by
-    3.8 deg between the windows' middles (0.13 s): without a depth the test calls that a
-    saccade; with the target's depth, or a farther one (under-correcting), it does not, and a
-    4 deg saccade up to a point at the same depth is still seen, once."""
+    3.8 deg between the windows' middles (0.13 s): on directions alone (no origin, the eye-in-
+    world rule) that is a saccade; with the eyes' origins one still point explains both windows
+    (the test needs no depth), and a 4 deg saccade up to a point at the same depth is still
+    seen, once."""
     t = np.arange(120) / 60.0
     origin = np.column_stack([300.0 * t, np.zeros_like(t), np.zeros_like(t)])
     target = np.where((t < 1.0)[:, None], [[60.0, 0.0, 600.0]], [[60.0, -600 * np.tan(np.deg2rad(4.0)), 600.0]])
     d = target - origin
     d /= np.linalg.norm(d, axis=1, keepdims=True)
 
-    def ends(depth, upto):
+    def ends(with_origin, upto):
         seg = OnlineSegmenter()
-        return [i for i in range(upto) if seg.update(t[i], d[i], origin[i], depth)]
+        return [i for i in range(upto) if seg.update(t[i], d[i], origin[i] if with_origin else None)]
 
-    assert ends(np.inf, 60)                                  # the walk alone: a false saccade
-    assert ends(600.0, 60) == [] and ends(900.0, 60) == []
-    assert len(ends(600.0, 120)) == 1 and len(ends(900.0, 120)) == 1
-    seg = OnlineSegmenter()                                  # no origin: no correction, whatever the depth
-    assert any(seg.update(t[i], d[i], None, 600.0) for i in range(60))
+    assert ends(False, 60)                                   # directions alone: the walk is a false saccade
+    assert ends(True, 60) == []
+    assert len(ends(True, 120)) == 1
+
+
+def _walk_past(targets, dwell_n, rate=60.0, speed_mm_s=600.0, saccade_n=2, sigma_deg=0.3, seed=0):
+    """A head walking sideways at ``speed_mm_s`` fixating ``targets`` (K, 3) in turn, ``dwell_n``
+    samples each with ``saccade_n`` samples between (the gaze sweeping straight from one point
+    to the next), ``sigma_deg`` of noise per eye: the samples and the true labels (-1 in the
+    saccades)."""
+    rng = np.random.default_rng(seed)
+    points, truth = [], []
+    for k, p in enumerate(targets):
+        if k:
+            for j in range(1, saccade_n + 1):
+                points.append(targets[k - 1] + (p - targets[k - 1]) * j / (saccade_n + 1))
+                truth.append(-1)
+        points += [p] * dwell_n
+        truth += [k] * dwell_n
+    X, t = np.array(points, float), np.arange(len(points)) / rate
+    heads = np.column_stack([speed_mm_s * t, 15 * np.sin(2 * np.pi * 1.8 * t), np.zeros_like(t)])
+    half = np.array([32.0, 0.0, 0.0])
+    ld = perturb_directions(X - (heads - half), np.deg2rad(sigma_deg), rng)
+    rd = perturb_directions(X - (heads + half), np.deg2rad(sigma_deg), rng)
+    return BinocularSamples.from_arrays(t, heads - half, ld, heads + half, rd), np.array(truth)
+
+
+def _old_rule(s, config=None):
+    """The eye-in-world rule this test replaced: world directions' window medians 3 deg apart."""
+    config = config or SegmentConfig(jump_deg=3.0, noise_k=0.0, trim_s=0.05)
+    return segment_fixations(s.__class__(s.t_s, np.full_like(s.left_origin_mm, np.nan), s.left_direction,
+                                         np.full_like(s.right_origin_mm, np.nan), s.right_direction,
+                                         s.left_valid, s.right_valid), config)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_walking_fixation_the_direction_rule_cut_is_found_whole_with_its_saccades_boundaries(seed):
+    """Walking sideways at 0.6 m/s past points 0.7-1.2 m away, the gaze direction turns by 30-50
+    deg/s while each is fixated (1 s): compared on directions (no origins: no baseline) the
+    windows see saccades all along. In the world each fixation is one point: the segmentation
+    finds the three, each its own samples from the saccade's end to the next one's start (give or
+    take the one sample next to a saccade that its noise puts 3.5 sd off), the saccades' samples
+    in none."""
+    targets = np.array([[300.0, 0.0, 700.0], [900.0, -250.0, 1200.0], [1000.0, 200.0, 900.0]])
+    s, truth = _walk_past(targets, 60, seed=seed)
+    old = _old_rule(s)
+    assert old.max() + 1 != 3 or np.sum((old >= 0) & (truth >= 0)) < 0.8 * np.sum(truth >= 0)
+    labels = segment_fixations(s)
+    assert labels.max() + 1 == 3
+    for k in range(3):
+        mine, true = np.flatnonzero(labels == k), np.flatnonzero(truth == k)
+        assert set(mine) <= set(true) and mine[0] - true[0] <= 1 and true[-1] - mine[-1] <= 1
+    assert np.sum(labels != truth) <= 2
+
+
+@pytest.mark.parametrize(("way", "deg"), [("up", 3.0), ("down", 3.0), ("along the walk", 8.0)])
+def test_a_saccade_while_walking_is_still_found(way, deg):
+    """A saccade 1 m away while walking sideways at 0.6 m/s (the gaze turning 34 deg/s in the
+    world): 3 deg up or down, off the plane of the walk, which no still point explains; 8 deg
+    along the walk, more than the parallax between the windows (80 mm apart) allows from any
+    point of the first ray 250 mm or farther (up to 4.6 deg that way, to infinity). A smaller one
+    in the plane of the walk is what a still point farther or nearer on the first ray would show:
+    one pair of windows cannot tell them apart (docs/processing.md, "Segmentation")."""
+    a = np.array([600.0, 0.0, 1000.0])
+    step = 1000 * np.tan(np.deg2rad(deg))
+    b = a + {"up": [0, -step, 0], "down": [0, step, 0], "along the walk": [step, 0, 0]}[way]
+    s, truth = _walk_past(np.array([a, b]), 45, seed=3)
+    labels = segment_fixations(s)
+    assert labels.max() == 1
+    assert _old_rule(s).max() != 1                           # the direction rule: cut all along, or none
+    for k in (0, 1):          # the saccade's first sample, 1 deg along (2.7 in the walk's plane), may join
+        assert np.sum(truth[labels == k] != k) <= 1 and np.sum((labels == k) & (truth == k)) >= np.sum(truth == k) - 1
 
 
 def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
     """One still gaze at 50 Hz, 1 s of samples, 0.8 s without any (over ``max_gap_s``), 1 s more:
-    two fixations, each its stretch's samples less ``trim_s`` (0.05 s: 2.5 samples, so no time
-    ties) at both ends, to the sample: 3-46 and 53-96 (issue 30, planted fault
+    two fixations, each all of its stretch's samples (no ``trim_s`` by default since the world-frame
+    segmentation of issue 27), to the sample: 0-49 and 50-99 (issue 30, planted fault
     ``segment-gap-off-by-one``: the sample before a gap counted after it)."""
     t = np.concatenate([np.arange(50) * 0.02, 0.98 + 0.8 + np.arange(50) * 0.02])
     origin = np.zeros((100, 3))
@@ -120,5 +188,5 @@ def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
                                      target - (origin + half))
     labels = segment_fixations(s)
     want = np.full(100, -1)
-    want[3:47], want[53:97] = 0, 1
+    want[:50], want[50:] = 0, 1
     np.testing.assert_array_equal(labels, want)

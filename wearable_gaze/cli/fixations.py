@@ -36,7 +36,8 @@ def add_fixations(sub) -> None:
     f.add_argument("--window", type=A.positive_int, metavar="N",
                    help="samples on each side compared (default: 8, fewer below 60 Hz)")
     f.add_argument("--jump-deg", type=A.positive_float, metavar="DEG",
-                   help="a saccade turns the gaze by more than this (default: 3)")
+                   help="the least saccade counted (default: 1.5; the threshold is 5 sd of the session's "
+                   "measured noise where that is more)")
     f.add_argument("--min-fixation-s", type=A.positive_float, metavar="S",
                    help="shorter fixations are dropped (default: 0.3)")
     f.add_argument("--max-gap-s", type=A.positive_float, metavar="S",

@@ -46,9 +46,6 @@ are at least ``DEFAULT_KNOT_S`` apart and at most ``MAX_MOTION_KNOTS``: the cost
 fixation end in the target worker, stays bounded (about 0.2 s for the motion test on a 2-core
 machine, against 12 s for a 20 s pursuit at 0.1 s knots)."""
 MAX_MOTION_KNOTS = 30
-SEGMENT_DEPTH_SD = 2.0
-"""The segmenter's depth for taking out the head's translation is the running estimate's, this
-many sd farther in inverse depth (``GazeEstimation._segment_depth``)."""
 
 
 @dataclass(frozen=True)
@@ -214,8 +211,8 @@ class GazeEstimation:
     ``end_fixation``: cheap, on the loop's thread), and a finished fixation's target (``finish``:
     the motion and merge tests, in the loop's target worker; docs/live.md, The loop).
 
-    Fixations are found online (``OnlineSegmenter``, on binocular samples' cyclopean
-    directions); a sample inside a saccade belongs to no target; each fixation gets a fresh
+    Fixations are found online (``OnlineSegmenter``, on binocular samples' cyclopean rays, the
+    world-frame test ``process`` makes); a sample inside a saccade belongs to no target; each fixation gets a fresh
     streaming estimator (``estimator.make_estimator(method)``), whose covariance for ``ml`` and
     ``voxel`` follows the default error model (``pipeline.steps.estimate.DEFAULT_ERROR_MODEL``).
     ``add`` and ``end_fixation`` are called from one thread, ``finish`` from one other (it alone
@@ -262,7 +259,7 @@ class GazeEstimation:
                 and sample.left_origin_mm is not None and sample.right_origin_mm is not None):
             cyc = sample.left_direction + sample.right_direction
             mid = 0.5 * (sample.left_origin_mm + sample.right_origin_mm)
-            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc), mid, self._segment_depth(mid)):
+            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc), mid):
                 # a saccade seen, or a gap
                 ended = self.end_fixation(self.segmenter.config.window if self.segmenter.in_saccade else 0)
         if self.segmenter.in_saccade:                       # between fixations: no target's line
@@ -276,24 +273,6 @@ class GazeEstimation:
             return ended, None
         self.last = (est, t_s)
         return ended, LiveEstimate(t_s, self.fixation, est.position_mm, est.covariance_mm2, self.n_samples)
-
-    def _segment_depth(self, origin) -> float:
-        """The depth, mm, from ``origin`` (3,) (world, mm) at which the segmenter takes out the
-        head's translation (``OnlineSegmenter.update``): the far end of the current estimate's
-        interval, 2 sd out in inverse depth (depth from vergence and parallax is Gaussian
-        there), so that it never over-corrects; infinity (no correction) before an estimate or
-        while the far end is unbounded."""
-        if self.last is None:
-            return np.inf
-        est = self.last[0]
-        ray = np.asarray(est.position_mm, float) - origin
-        depth = float(np.linalg.norm(ray))
-        if est.covariance_mm2 is None or depth <= 0:
-            return np.inf
-        u = ray / depth
-        sd = float(np.sqrt(max(u @ np.asarray(est.covariance_mm2, float) @ u, 0.0)))
-        inv_far = 1.0 / depth - SEGMENT_DEPTH_SD * sd / depth ** 2
-        return 1.0 / inv_far if inv_far > 0 else np.inf
 
     def end_fixation(self, saccade_lines: int = 0) -> FinishedFixation | None:
         """End the current fixation (a saccade, or the session's end); the next starts afresh.
