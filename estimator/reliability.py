@@ -10,6 +10,16 @@ from numpy.typing import ArrayLike
 
 from .likelihood import MAX_TAN2, angular_tan2, reliability_weight, reliability_weights
 
+REJECTED_SHARE = 0.5
+"""A box whose posterior weighs its kept samples at less than this share in all (the samples'
+reliability weights, the probability that each is no blink or saccade, summed) is dropped and the
+voxel estimator seeds again over every kept line. With a prior outlier fraction of
+``VoxelConfig.outlier_prob`` (2 %), a majority of outliers means that the posterior is wrong,
+not the samples: each sample is weighed when it comes, against the posterior then, so a box laid
+from a few early lines that meet where no later line goes (one eye's first lines, from one
+origin, meet near that eye; a still head's Tobii G3 fixation began so) would otherwise reject
+every later line and keep its point."""
+
 
 def reliability_weights_at(center_mm: ArrayLike, cov_mm2: ArrayLike, origins_mm: ArrayLike, directions: ArrayLike,
                            sample_index: ArrayLike, n_samples: int,

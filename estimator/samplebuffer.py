@@ -1,11 +1,32 @@
 """The voxel estimator's kept samples: growable per-sample arrays of both eyes' world lines, with
-the running line count and the line statistics that the seed test reads in O(1)."""
+the running line count, the line statistics that the seed test reads in O(1) and the sum of the
+samples' reliability weights; and the count of the work done over them (``VoxelWork``)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from .lines import BinocularSample, BinocularSamples, ViewLines
+
+
+@dataclass
+class VoxelWork:
+    """Work a ``VoxelEstimator`` did over all its kept lines (the part of the cost that grows with
+    the stream); the rest of an update is O(1).
+
+    Attributes:
+        seed_fits: ML (or LSE) fits over every kept line.
+        layouts: boxes laid, each re-evaluating every kept line.
+        lines_refit: kept lines processed by those fits and layouts, summed.
+        deferred: fits or layouts put off because the work bound was reached.
+    """
+
+    seed_fits: int = 0
+    layouts: int = 0
+    lines_refit: int = 0
+    deferred: int = 0
 
 
 class _SampleBuffer:
@@ -21,6 +42,7 @@ class _SampleBuffer:
     def __init__(self, capacity: int = 256):
         self.n = 0
         self.n_lines = 0
+        self.weight_sum = 0.0   # the sum of weight[:n], kept in step by append and set_weights
         # running sums over the valid lines (origin o, unit direction d, P = I - d d^T): the
         # least-squares point solves sum_P x = sum_Po; sum_d . x - sum_do is the summed distance
         # of x ahead of the eyes along the lines
@@ -73,6 +95,7 @@ class _SampleBuffer:
             self.d[i, eye] = d / nd
             self.valid[i, eye] = True
         self.weight[i] = 1.0
+        self.weight_sum += 1.0
         self.n += 1
         v = self.valid[i]
         if v.any():
@@ -89,10 +112,23 @@ class _SampleBuffer:
         self.d[sl, 0], self.d[sl, 1] = samples.left_direction, samples.right_direction
         self.valid[sl, 0], self.valid[sl, 1] = samples.left_valid, samples.right_valid
         self.weight[sl] = 1.0
+        self.weight_sum += m
         self.n += m
         v = self.valid[sl]
         self._add_sums(self.o[sl][v], self.d[sl][v])
         return sl
+
+    def set_weights(self, start: int, values: np.ndarray) -> None:
+        """Set the reliability weights of samples ``start ...`` to ``values`` (M,), keeping
+        ``weight_sum`` in step (O(M))."""
+        stop = start + len(values)
+        self.weight_sum += float(np.sum(values) - self.weight[start:stop].sum())
+        self.weight[start:stop] = values
+
+    def set_weight(self, i: int, value: float) -> None:
+        """``set_weights`` for one sample, in scalar arithmetic (the streaming hot path)."""
+        self.weight_sum += value - float(self.weight[i])
+        self.weight[i] = value
 
     def lines(self, sl: slice | np.ndarray = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(origins (L, 3), directions (L, 3), sample index (L,)) of the valid lines in ``sl`` (a

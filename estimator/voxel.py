@@ -31,34 +31,17 @@ from .errormodel_regions import far_side, sight_info
 from .grid import DensityGrid, _PendingBox, _quadratic_fit_local
 from .likelihood import MLConfig, angular_log_likelihood, fisher_information, ml_point
 from .lines import BinocularSample, BinocularSamples, ViewLines
-from .reliability import reliability_weight_at, reliability_weights_at
+from .reliability import REJECTED_SHARE, reliability_weight_at, reliability_weights_at
 from .result import GazeEstimate, Status, failed
-from .samplebuffer import _SampleBuffer, spread_samples
+from .samplebuffer import VoxelWork, _SampleBuffer, spread_samples
 from .triangulation import lse_point
 
 log = logging.getLogger(__name__)
 
 _LAYING = "a new box is being laid over the kept lines"
 
+
 __all__ = ["VoxelConfig", "VoxelEstimator", "VoxelWork"]
-
-
-@dataclass
-class VoxelWork:
-    """Work a ``VoxelEstimator`` did over all its kept lines (the part of the cost that grows with
-    the stream); the rest of an update is O(1).
-
-    Attributes:
-        seed_fits: ML (or LSE) fits over every kept line.
-        layouts: boxes laid, each re-evaluating every kept line.
-        lines_refit: kept lines processed by those fits and layouts, summed.
-        deferred: fits or layouts put off because the work bound was reached.
-    """
-
-    seed_fits: int = 0
-    layouts: int = 0
-    lines_refit: int = 0
-    deferred: int = 0
 
 
 @dataclass(frozen=True)
@@ -176,6 +159,7 @@ class VoxelEstimator:
         # the error model: (lines then, noise covariance then, bias floor, info, their mean origin)
         self._model: tuple[int, np.ndarray, np.ndarray, dict, np.ndarray] | None = None
         self._pending: _PendingBox | None = None   # a box being laid over several updates (streaming)
+        self._seed_failure = ""                    # why the last seed fit failed (its reason, for people)
 
     def __len__(self) -> int:
         return self._buf.n
@@ -334,16 +318,16 @@ class VoxelEstimator:
         b = self._buf
         if isinstance(sl, slice) and sl.stop - sl.start == 1:
             i = sl.start
-            b.weight[i] = reliability_weight_at(center, cov, b.o[i], b.d[i], b.valid[i], self._sigma,
-                                                self.config.outlier_prob)
+            b.set_weight(i, reliability_weight_at(center, cov, b.o[i], b.d[i], b.valid[i], self._sigma,
+                                                  self.config.outlier_prob))
             return
         o, d, si = b.lines(sl)
         if len(si) == 0:
             return
         first = int(si.min())
         m = int(si.max()) - first + 1
-        b.weight[first:first + m] = reliability_weights_at(center, cov, o, d, si - first, m, self._sigma,
-                                                           self.config.outlier_prob)
+        b.set_weights(first, reliability_weights_at(center, cov, o, d, si - first, m, self._sigma,
+                                                    self.config.outlier_prob))
 
     def _accumulate(self, sl, grid=None):
         o, d, si = self._buf.lines(sl)
@@ -358,6 +342,12 @@ class VoxelEstimator:
         n_lines = self._buf.n_lines
         if self._pending is not None:
             self._advance(cfg.layout_chunk_lines if stream else None)
+        if self._posterior_rejected():
+            # the box answers from a few early lines only (e.g. one eye's first lines, which meet
+            # near that eye): drop it and seed again from every kept line, nothing is lost
+            log.debug("voxel: the posterior rejects most of the %d kept samples; seeding again", self._buf.n)
+            self.grid = None
+            self._posterior = None
         if self.grid is None:
             failed = self._seed_box(n_lines, stream)
             if failed is not None:
@@ -402,11 +392,11 @@ class VoxelEstimator:
         if why:
             return self._fail(Status.INSUFFICIENT, f"no seed yet: {why}")
         if not self._afford(2 * n_lines):
-            return self._fail(Status.INSUFFICIENT, "no seed yet: the last fits failed; the next "
-                                                   "waits for more samples (bounded work per "
-                                                   "sample)")
+            return self._fail(Status.INSUFFICIENT, f"no seed yet: {self._seed_failure or 'the last fits failed'}; "
+                                                   "the next fit waits for more samples (bounded work per sample)")
         seed, reason = self._seed()
         if seed is None:
+            self._seed_failure = reason
             return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
         if not self._layout(*seed, stream=stream):
             return self._fail(Status.INSUFFICIENT, f"no estimate yet: {_LAYING}")
@@ -432,6 +422,13 @@ class VoxelEstimator:
         if not self._layout(*seed, stream=stream):
             return self._fail(Status.INSUFFICIENT, no_peak_here)
         return None
+
+    def _posterior_rejected(self) -> bool:
+        """Whether the box's posterior weighs the kept samples at less than ``REJECTED_SHARE`` of
+        their number (then it is wrong, not they) and a new seed and box are affordable; O(1)."""
+        b = self._buf
+        return (self.grid is not None and self._pending is None and self.config.outlier_prob > 0
+                and b.weight_sum < REJECTED_SHARE * b.n and self._allowance >= 3 * b.n_lines)
 
     def _needs_layout(self, offset_mm, cov_local) -> bool:
         """Lay a new box when the peak (box frame, mm) left the central half, or the posterior

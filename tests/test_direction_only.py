@@ -63,6 +63,38 @@ def test_one_line_per_sample_from_a_still_head_is_a_direction_with_no_depth(rng)
     assert e.direction.spread_deg == pytest.approx(0.8, rel=0.2)
 
 
+def one_eye_first(point, rng, n_first=3, near_mm=15.0):
+    """``diverging(point)`` from a still head after ``n_first`` samples of the left eye alone whose
+    lines meet ``near_mm`` in front of it, on its line to ``point``: its origin moves 0.2 mm a
+    sample, as a Tobii G3's eye centre does (the real gaze-only sample's fixation at 13.64 s began
+    with three left-eye samples that meet 15-20 mm ahead of that eye)."""
+    later = diverging(point, rng, n=66, t0=n_first / 60.0)
+    lo = later.left_origin_mm[0] + np.outer(np.arange(n_first), [0.0, 0.2, 0.0])
+    u = point - later.left_origin_mm[0]
+    d = later.left_origin_mm[0] + near_mm * u / np.linalg.norm(u) - lo
+    nan = np.full((n_first, 3), np.nan)
+    first = BinocularSamples.from_arrays(np.arange(n_first) / 60.0, lo, d, nan, nan)
+    return BinocularSamples.concatenate([first, later])
+
+
+@pytest.mark.parametrize("method", ["ml", "voxel"])
+def test_one_eyes_first_lines_meeting_near_it_do_not_hold_a_far_fixations_answer(method, rng):
+    """The voxel estimator laid its box where the first three (left-eye) lines met, 15 mm ahead
+    of that eye, and then weighed every binocular sample against that box: all were 'outliers'
+    (weight 0), the box kept its point and the fixation came out 'too-near' (no target) although
+    its 69 lines look 8 m away. A box whose posterior rejects most samples is dropped now; both
+    methods answer the far fixation by its direction."""
+    s = one_eye_first(FAR, rng)
+    e = estimate(s, method, 0.5, error_model=ErrorModel(bias_deg=0.3))
+    assert e.status is Status.DIRECTION_ONLY, (e.status, e.position_mm, e.reason)
+    assert e.direction.contains(FAR) and e.direction.depth95_mm[1] == np.inf
+    if method == "voxel":
+        est = make_estimator("voxel", 0.5)
+        for i in range(len(s)):
+            est.update(s.sample(i))
+        assert est._buf.weight_sum == pytest.approx(est.weights.sum())      # kept in step
+
+
 @pytest.mark.slow
 def test_the_cone_holds_the_true_direction_95_percent_of_the_time(rng):
     """Each eye's bias drawn from the error model's (0.2 deg per axis), noise 0.5 deg: the true
