@@ -27,7 +27,9 @@ how far. ``gaze_direction`` gives that answer from the lines themselves:
   inverse depth at 95 %, cut to the physical range (in front of the eyes, not nearer than
   ``NEAR_POINT_MM``): its far end is ``inf`` when inverse depth 0 (a point at infinity) is
   inside it, and it is (``NEAR_POINT_MM``, ``inf``) when the lines hold no depth at all (one
-  line per sample from a still head) or contradict every depth ahead.
+  line per sample from a still head; lines seen from one place, ``ONE_VIEWPOINT_MM``: one eye
+  from a still head, whose only parallax is its eye model's centre moving) or contradict every
+  depth beyond the near point.
 
 World frame, mm, radians inside; degrees at the boundary (``_deg`` names).
 """
@@ -45,7 +47,7 @@ from .errormodel import ErrorModel, _corr, eye_labels
 from .errormodel_regions import region_radius
 from .frames import tangent_basis
 from .lines import BinocularSamples, ViewLines
-from .result import NEAR_POINT_MM, GazeEstimate, Status
+from .result import NEAR_POINT_MM, ONE_VIEWPOINT_MM, GazeEstimate, Status, origin_spread_mm
 
 MIN_DIRECTION_SAMPLES = 3
 """The samples a direction needs: a mean and a 2D spread about it (2 degrees of freedom)."""
@@ -174,8 +176,11 @@ def depth_bounds(samples: BinocularSamples, origin_mm: ArrayLike, unit: ArrayLik
     ``origin_mm`` that the eye lines of ``samples`` allow (module docstring: inverse depth
     fitted about the point at infinity, symmetric in inverse depth, cut to in front of the eyes
     and beyond ``NEAR_POINT_MM``); far ``inf`` without a far end; (``NEAR_POINT_MM``, inf) when
-    the lines hold no depth or none ahead of the eyes."""
+    the lines hold no depth (seen from one place: ``ONE_VIEWPOINT_MM``) or none beyond the near
+    point."""
     lines = samples.lines()
+    if len(lines) and origin_spread_mm(lines.origins_mm) < ONE_VIEWPOINT_MM:
+        return NEAR_POINT_MM, float("inf")
     b1, b2 = (b[0] for b in tangent_basis(np.asarray(unit, float)[None]))
     dd, e = lines.directions, lines.origins_mm
     a = np.column_stack([dd @ b1, dd @ b2]) / (dd @ unit)[:, None]          # (L, 2) rad
@@ -195,7 +200,7 @@ def depth_bounds(samples: BinocularSamples, origin_mm: ArrayLike, unit: ArrayLik
     z = float(norm.ppf(0.5 + probability / 2.0))
     q, s = float(x[2]), math.sqrt(max(var_q, 0.0))
     hi, lo = min(q + z * s, 1.0 / NEAR_POINT_MM), q - z * s
-    if hi <= 0:                                # every depth ahead is rejected: the lines are off
+    if hi <= 0 or lo >= hi:          # every depth ahead (or beyond the near point) is rejected: the lines are off
         return NEAR_POINT_MM, float("inf")
     return 1.0 / hi, (1.0 / lo if lo > 0 else float("inf"))
 

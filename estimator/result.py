@@ -157,11 +157,28 @@ an estimate nearer than this, or behind the eyes, comes from wrong view lines (a
 fitted, optical instead of visual axes, swapped eyes), not from a gazed object."""
 
 
+ONE_VIEWPOINT_MM = 12.0
+"""View lines whose origins all lie within this distance of their mean were seen from one place:
+one eye's lines from a still head (a fixation the other eye lost). An eye model's centre moves by
+a millimetre or so as the eye turns, within the eyeball (radius about 12 mm: axial length 24 mm,
+Bekerman et al. 2014, Variations in eyeball diameters of the healthy adults); that motion is all
+the parallax such lines have, so where they meet near the eyes says nothing about the scene or the
+lines: ``near_point_check`` answers such a point as lines that fix no point (``Status.DEGENERATE``,
+then answered by their direction), not as wrong lines (``Status.TOO_NEAR``)."""
+
+
+def origin_spread_mm(origins_mm: np.ndarray) -> float:
+    """The largest distance, mm, of the view lines' origins (N, 3) mm (N >= 1) from their mean;
+    under ``ONE_VIEWPOINT_MM`` they were seen from one place."""
+    return float(np.max(np.linalg.norm(origins_mm - origins_mm.mean(axis=0), axis=1)))
+
+
 def near_point_check(e: GazeEstimate, origins_mm: np.ndarray, directions: np.ndarray,
                      near_mm: float = NEAR_POINT_MM) -> GazeEstimate:
     """``e`` unchanged, or, when its point lies less than ``near_mm`` in front of the view lines'
     origins (median over the lines of the distance along each line), the same estimate marked
-    ``Status.TOO_NEAR`` (not usable) with the reason.
+    ``Status.TOO_NEAR`` (not usable) with the reason; or, when those lines come from one place
+    (``ONE_VIEWPOINT_MM``), a failed estimate (``Status.DEGENERATE``: no point) saying so.
 
     Args:
         e: an estimate.
@@ -173,7 +190,12 @@ def near_point_check(e: GazeEstimate, origins_mm: np.ndarray, directions: np.nda
     d = float(np.median(along))
     if d >= near_mm:
         return e
+    spread = origin_spread_mm(origins_mm)
+    if spread < ONE_VIEWPOINT_MM:
+        return failed(e.method, Status.DEGENERATE,
+                      f"the lines meet {d:.0f} mm in front of the eyes, but they were seen from one place "
+                      f"(origins within {spread:.1f} mm: one eye, a still head): no parallax fixes a depth",
+                      e.n_samples, e.n_lines, e.info)
     return GazeEstimate(e.method, Status.TOO_NEAR, e.position_mm, e.covariance_mm2, e.n_samples, e.n_lines,
                         f"the point lies {d:.0f} mm in front of the eyes, nearer than anyone fixates ({near_mm:g} mm): "
                         "the view lines are wrong (eye model, visual axes or eye labels)", e.info)
-

@@ -95,6 +95,29 @@ def test_one_eyes_first_lines_meeting_near_it_do_not_hold_a_far_fixations_answer
         assert est._buf.weight_sum == pytest.approx(est.weights.sum())      # kept in step
 
 
+@pytest.mark.parametrize("method", ["ml", "voxel"])
+def test_one_eyes_lines_from_a_still_head_meeting_near_it_are_a_direction_not_wrong_lines(method, rng):
+    """A fixation the other eye lost, from a still head: one eye's lines, their origin moving
+    1.2 mm as an eye model's centre does, meet 15 mm in front of it. That is no parallax (the lines
+    were seen from one place), so the point says nothing about the lines being wrong: the
+    fixation is answered by its direction, not 'too-near' (which needs lines from more than one
+    place: the two eyes' lines meeting 40 mm ahead stay 'too-near', tests/test_import.py)."""
+    n = 60
+    lo = np.array([-32.0, 0, 0]) + np.outer(np.linspace(0, 1.2, n), [0.0, 1.0, 0.0])
+    near = lo[0] + 15.0 * (FAR - lo[0]) / np.linalg.norm(FAR - lo[0])
+    nan = np.full((n, 3), np.nan)
+    s = BinocularSamples.from_arrays(np.arange(n) / 60.0, lo, perturb_directions(near - lo, np.deg2rad(0.2), rng),
+                                     nan, nan)
+    e = estimate(s, method, 0.5)
+    assert e.status is Status.DIRECTION_ONLY, (e.status, e.position_mm, e.reason)
+    assert "seen from one place" in e.reason and e.direction.depth95_mm == (NEAR_POINT_MM, np.inf)
+    both = BinocularSamples.from_arrays(s.t_s, lo, s.left_direction, lo + [64.0, 0, 0],
+                                        perturb_directions(near - lo - [64.0, 0, 0], np.deg2rad(0.2), rng))
+    assert estimate(both, method, 0.5).status is Status.TOO_NEAR          # two eyes' lines meeting there
+    # their depth interval, all of it nearer than the near point, was (70 mm, 20 mm): far before near
+    assert gaze_direction(both).depth95_mm == (NEAR_POINT_MM, np.inf)
+
+
 @pytest.mark.slow
 def test_the_cone_holds_the_true_direction_95_percent_of_the_time(rng):
     """Each eye's bias drawn from the error model's (0.2 deg per axis), noise 0.5 deg: the true
