@@ -224,7 +224,8 @@ UNANSWERED = ("degenerate", "insufficient-data", "behind")
 """The statuses of an estimate whose lines did not fix a point ahead of the eyes (parallel or
 diverging rays, a density with no bounded peak, too few lines for a point): such a fixation is
 answered by its direction (``with_direction``). ``too-near`` is not among them: its lines are
-wrong (eye model, visual axes), not merely far."""
+wrong (eye model, visual axes), not merely far; a near point of lines seen from one place is
+``degenerate`` (``result.near_point_check``): no parallax, not wrong lines."""
 
 
 def with_direction(e: GazeEstimate, samples: BinocularSamples, model: ErrorModel | None = None) -> GazeEstimate:
