@@ -40,7 +40,6 @@ log = logging.getLogger(__name__)
 
 _LAYING = "a new box is being laid over the kept lines"
 
-
 __all__ = ["VoxelConfig", "VoxelEstimator", "VoxelWork"]
 
 
