@@ -162,9 +162,10 @@ ONE_VIEWPOINT_MM = 12.0
 one eye's lines from a still head (a fixation the other eye lost). An eye model's centre moves by
 a millimetre or so as the eye turns, within the eyeball (radius about 12 mm: axial length 24 mm,
 Bekerman et al. 2014, Variations in eyeball diameters of the healthy adults); that motion is all
-the parallax such lines have, so where they meet near the eyes says nothing about the scene or the
-lines: ``near_point_check`` answers such a point as lines that fix no point (``Status.DEGENERATE``,
-then answered by their direction), not as wrong lines (``Status.TOO_NEAR``)."""
+the parallax such lines have, so where they meet says nothing about the scene or the lines, near or
+far: ``near_point_check`` answers any point of such lines as lines that fix no point
+(``Status.DEGENERATE``, then answered by their direction), and a near one not as wrong lines
+(``Status.TOO_NEAR``)."""
 
 
 def origin_spread_mm(origins_mm: np.ndarray) -> float:
@@ -178,7 +179,9 @@ def near_point_check(e: GazeEstimate, origins_mm: np.ndarray, directions: np.nda
     """``e`` unchanged, or, when its point lies less than ``near_mm`` in front of the view lines'
     origins (median over the lines of the distance along each line), the same estimate marked
     ``Status.TOO_NEAR`` (not usable) with the reason; or, when those lines come from one place
-    (``ONE_VIEWPOINT_MM``), a failed estimate (``Status.DEGENERATE``: no point) saying so.
+    (``ONE_VIEWPOINT_MM``), a failed estimate (``Status.DEGENERATE``: no point) saying so, wherever
+    the point lies: such lines fix no depth, near or far (their crossing is the eye's own motion
+    and the noise).
 
     Args:
         e: an estimate.
@@ -188,14 +191,14 @@ def near_point_check(e: GazeEstimate, origins_mm: np.ndarray, directions: np.nda
         return e
     along = np.einsum("ij,ij->i", np.asarray(e.position_mm, float) - origins_mm, directions)
     d = float(np.median(along))
-    if d >= near_mm:
-        return e
     spread = origin_spread_mm(origins_mm)
     if spread < ONE_VIEWPOINT_MM:
         return failed(e.method, Status.DEGENERATE,
                       f"the lines meet {d:.0f} mm in front of the eyes, but they were seen from one place "
                       f"(origins within {spread:.1f} mm: one eye, a still head): no parallax fixes a depth",
                       e.n_samples, e.n_lines, e.info)
+    if d >= near_mm:
+        return e
     return GazeEstimate(e.method, Status.TOO_NEAR, e.position_mm, e.covariance_mm2, e.n_samples, e.n_lines,
                         f"the point lies {d:.0f} mm in front of the eyes, nearer than anyone fixates ({near_mm:g} mm): "
                         "the view lines are wrong (eye model, visual axes or eye labels)", e.info)

@@ -118,6 +118,22 @@ def test_one_eyes_lines_from_a_still_head_meeting_near_it_are_a_direction_not_wr
     assert gaze_direction(both).depth95_mm == (NEAR_POINT_MM, np.inf)
 
 
+@pytest.mark.parametrize("method", ["ml", "voxel"])
+def test_one_eyes_lines_from_a_still_head_give_no_point_however_far_they_meet(method, rng):
+    """The same one-eye fan whose lines cross 180 mm ahead (beyond the near point, where a point
+    used to pass as 'ok'): seen from one place, their crossing is the eye centre's motion and
+    the noise, no depth; the fixation is answered by its direction."""
+    n = 60
+    lo = np.array([-32.0, 0, 0]) + np.outer(np.linspace(0, 1.2, n), [0.0, 1.0, 0.0])
+    near = lo[0] + 180.0 * (FAR - lo[0]) / np.linalg.norm(FAR - lo[0])
+    nan = np.full((n, 3), np.nan)
+    s = BinocularSamples.from_arrays(np.arange(n) / 60.0, lo, perturb_directions(near - lo, np.deg2rad(0.2), rng),
+                                     nan, nan)
+    e = estimate(s, method, 0.5)
+    assert e.status is Status.DIRECTION_ONLY, (e.status, e.position_mm, e.reason)
+    assert "seen from one place" in e.reason
+
+
 @pytest.mark.slow
 def test_the_cone_holds_the_true_direction_95_percent_of_the_time(rng):
     """Each eye's bias drawn from the error model's (0.2 deg per axis), noise 0.5 deg: the true
