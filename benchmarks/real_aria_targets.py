@@ -24,9 +24,9 @@ from wearable_gaze.formats.devices import aria
 from wearable_gaze.formats.eye_rays import read_device_gaze
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.viewlines import read_viewlines_csv
-from wearable_gaze.pipeline.steps.device import surface_reference
 from wearable_gaze.pipeline.importer import import_recording
 from wearable_gaze.pipeline.process.session import process_session
+from wearable_gaze.pipeline.steps.device import surface_reference
 from wearable_gaze.pipeline.types import Poses
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "aria_mps_sample_gen1"
