@@ -19,6 +19,7 @@ World frame, mm; angles in degrees where the name says ``_deg``.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .frames import angle_deg
 
@@ -58,7 +59,8 @@ def line_terms(origins: np.ndarray, directions: np.ndarray, center: np.ndarray) 
     return P.sum(0), Po.sum(0), np.einsum("emi,emi->em", o0, Po).sum(0), valid.sum(0)
 
 
-def depth_bounds(sums: tuple, o_a: np.ndarray, d_a: np.ndarray, noise_deg: float, min_depth_mm: float):
+def depth_bounds(sums: tuple, o_a: np.ndarray, d_a: np.ndarray, noise_deg: float,
+                 min_depth_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """((K,) near, (K,) far) depths, mm, along before-rays ``(o_a, d_a)`` (K, 3) (origins relative
     to the sums' center) of the point the lines summed in ``sums`` ((K, 3, 3), (K, 3), (K,), (K,)
     as ``line_terms`` gives, summed) fix: least squares on the lines, its distance from ``o_a``
@@ -108,7 +110,7 @@ class LineSums:
     """``line_terms`` summed over a stream of samples (``OnlineSegmenter``): O(1) a sample,
     relative to the first line's origin."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.reset()
 
     def reset(self) -> None:
@@ -135,7 +137,8 @@ class LineSums:
         return float(near[0]), float(far[0])
 
 
-def world_jump_deg(o_a, d_a, o_b, d_b, min_depth_mm, max_depth_mm=np.inf) -> np.ndarray:
+def world_jump_deg(o_a: ArrayLike, d_a: ArrayLike, o_b: ArrayLike, d_b: ArrayLike, min_depth_mm: ArrayLike,
+                   max_depth_mm: ArrayLike = np.inf) -> np.ndarray:
     """(K,) the least angle, degrees, between directions ``d_b`` (K, 3) from origins ``o_b`` (K, 3)
     and the directions from ``o_b`` to the points of rays ``(o_a, d_a)`` from ``min_depth_mm`` to
     ``max_depth_mm`` along them (scalars or (K,); world frame, mm; unit directions): how far ray
@@ -183,7 +186,7 @@ def mixed_positions(directions: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
-def stretches(cuts: list, gaps, m: int, w: int) -> list[tuple[int, int]]:
+def stretches(cuts: list, gaps: np.ndarray, m: int, w: int) -> list[tuple[int, int]]:
     """[(first, end)] of the runs of samples (M = ``m``) between the runs of the window test
     above its threshold (``cuts``: (first, last, peak)) and the time gaps (the first sample
     after each), long enough for two windows of ``w``."""
