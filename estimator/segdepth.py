@@ -201,8 +201,8 @@ def refine_cuts(o: np.ndarray, d: np.ndarray, eyes: tuple, spans: list, w: int, 
     valid samples' cyclopean rays ``(o, d)`` (M, 3) (``stretches``): at each k, the after-window's
     median ray against the before-window's between the depths the stretch's lines from its start
     (or from the end of the last saccade found in it) to k - 1 fix (``depth_bounds``; ``eyes``:
-    per-eye origins and directions (2, M, 3), NaN where invalid). Each new run above
-    ``threshold`` is a saccade [(first, last, peak)], and the lines start again after it, as
+    per-eye origins and directions (2, M, 3), NaN where invalid). A new crossing of ``threshold``
+    starts a saccade [(first, last, peak)] (``run_end``), and the lines start again after it, as
     ``OnlineSegmenter`` does. Positions whose windows mix eyes, or without origins, keep the
     first pass's test (0 here)."""
     if len(d) < 2 * w:
@@ -217,17 +217,45 @@ def refine_cuts(o: np.ndarray, d: np.ndarray, eyes: tuple, spans: list, w: int, 
         start = a
         while e - start >= 2 * w:
             k = np.arange(start + w, e - w + 1)
-            sums = tuple(x[k - start] for x in prefix_sums(terms, start - a, e - a))
-            near, far = depth_bounds(sums, med_o[k - w] - center, med_d[k - w], noise_deg, min_depth_mm)
             use = ~skip[k] & np.isfinite(med_o[k - w]).all(1) & np.isfinite(med_o[k]).all(1)
-            score = np.zeros(len(k))
-            if use.any():
-                score[use] = world_jump_deg(med_o[k - w][use], med_d[k - w][use], med_o[k][use], med_d[k][use],
-                                            near[use], far[use])
-            runs = peaks(score, threshold)
-            if not runs:
+            prefix = prefix_sums(terms, start - a, e - a)
+            score = _bounded(med_o, med_d, k, use, tuple(x[k - start] for x in prefix), center, w, noise_deg,
+                             min_depth_mm)
+            above = np.flatnonzero(score > threshold)
+            if not len(above):
                 break
-            r0, r1, pk = runs[0]
-            cuts.append((int(k[r0]), int(k[r1]), int(k[pk])))
-            start = int(k[r1]) + 1
+            r0 = int(above[0])
+            frozen = _bounded(med_o, med_d, k[r0:], use[r0:], tuple(np.repeat(x[k[r0] - start][None], len(k) - r0, 0)
+                                                                   for x in prefix), center, w, noise_deg, min_depth_mm)
+            free = _bounded(med_o, med_d, k[r0:], use[r0:], None, center, w, noise_deg, min_depth_mm)
+            n = run_end(frozen, free, threshold, w)
+            cuts.append((int(k[r0]), int(k[r0 + n - 1]), int(k[r0 + int(np.argmax(frozen[:n]))])))
+            start = int(k[r0 + n - 1]) + 1
     return cuts
+
+
+def run_end(frozen: np.ndarray, free: np.ndarray, threshold: float, w: int) -> int:
+    """How many positions a saccade's run lasts from its crossing (position 0): while the test
+    with the lines frozen at the crossing (``frozen`` (K,), degrees) stays over ``threshold``, for
+    at most ``w`` positions (by then the windows have both passed the jump; the old fixation's
+    depth does not hold for the new one's rays), and as long as the test without depth bounds
+    (``free``) does."""
+    j = np.arange(len(frozen))
+    on = (free > threshold) | ((frozen > threshold) & (j < w))
+    on[0] = True
+    return int(np.argmin(on)) if not on.all() else len(on)
+
+
+def _bounded(med_o: np.ndarray, med_d: np.ndarray, k: np.ndarray, use: np.ndarray, sums: tuple | None,
+             center: np.ndarray, w: int, noise_deg: float, min_depth_mm: float) -> np.ndarray:
+    """(K,) the window test at positions ``k`` (``use``: else 0) between window medians
+    ``(med_o, med_d)``, the points of the before-ray limited to the depths ``sums`` fix
+    (``depth_bounds``; None: from ``min_depth_mm`` to infinity)."""
+    score = np.zeros(len(k))
+    if not use.any():
+        return score
+    oa, da, ob, db = med_o[k - w][use], med_d[k - w][use], med_o[k][use], med_d[k][use]
+    near, far = (min_depth_mm, np.inf) if sums is None else \
+        depth_bounds(tuple(x[use] for x in sums), oa - center, da, noise_deg, min_depth_mm)
+    score[use] = world_jump_deg(oa, da, ob, db, near, far)
+    return score

@@ -74,6 +74,10 @@ class SegmentConfig:
         min_fixation_s: shorter fixations are dropped, seconds.
         max_gap_s: a gap in the data longer than this ends a fixation, seconds.
         trim_s: time cut from each end of a fixation beyond the saccade's own samples, seconds.
+        settle_s: time cut from a fixation's ends next to a saccade, seconds, in whole samples
+            (rounded: none at 10 Hz, 10 at 200 Hz): the saccade's onset and the eye's settling
+            after it (post-saccadic oscillation, 10-40 ms), which the window test does not resolve
+            at the noise of a single sample (docs/processing.md, "Segmentation").
     """
 
     window: int = 8
@@ -83,6 +87,7 @@ class SegmentConfig:
     min_fixation_s: float = 0.3
     max_gap_s: float = 0.5
     trim_s: float = 0.0
+    settle_s: float = 0.05
 
     @classmethod
     def for_rate(cls, rate_hz: float, **settings) -> SegmentConfig:
@@ -351,10 +356,13 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
         a, b = saccade_samples(ov, dv, cut, w, max(off, 0.5 * threshold), config.min_depth_mm, (eo[:, idx], ed[:, idx]))
         in_fix[a:b + 1] = False
     # each cut's peak starts a new stretch; so does a gap in time (long blinks, lost samples)
-    bounds = sorted({0, m} | {c[2] for c in cuts} | set(gaps.tolist()))
+    peaks = {c[2] for c in cuts}
+    bounds = sorted({0, m} | peaks | set(gaps.tolist()))
+    settle = int(round(config.settle_s / np.median(np.diff(tv)))) if m > 1 else 0
     label = 0
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         sel = np.arange(a, b)[in_fix[a:b]]
+        sel = sel[settle if a in peaks else 0:len(sel) - (settle if b in peaks else 0)]
         if len(sel) == 0:
             continue
         sel = sel[(tv[sel] >= tv[sel[0]] + config.trim_s) & (tv[sel] <= tv[sel[-1]] - config.trim_s)]
@@ -398,6 +406,7 @@ class OnlineSegmenter:
         self.turns: deque = deque(maxlen=self.NOISE_SAMPLES)    # angle of each sample off its neighbours' mean
         self.sums = LineSums()          # the current fixation's lines before the after-window
         self.in_saccade = False
+        self.run = 0                    # positions since the current saccade's crossing
         self.last_t: float | None = None
 
     def update(self, t_s: float, direction, origin=None, lines=None) -> bool:
@@ -425,14 +434,19 @@ class OnlineSegmenter:
             return True
         self.buf.append(item)
         self._measure_noise()
-        if len(self.buf) > w and self.buf[-w - 1][2] is not None:
+        if len(self.buf) > w and not self.in_saccade and self.buf[-w - 1][2] is not None:
             self.sums.add(*self.buf[-w - 1][2])           # it has left the after-window
         if len(self.buf) < 2 * w:
             return False
-        jumped = self.score() > self.threshold_deg()
+        threshold = self.threshold_deg()
+        if not self.in_saccade:
+            jumped, self.run = self.score() > threshold, 0
+        else:                                            # the lines frozen at its start (segdepth.run_end)
+            self.run += 1
+            jumped = self.score(bounded=False) > threshold or (self.run < w and self.score() > threshold)
+            if not jumped:                               # the saccade is over: the next fixation's lines start
+                self.sums.reset()
         ended = jumped and not self.in_saccade
-        if self.in_saccade and not jumped:               # the saccade is over: the next fixation's lines start
-            self.sums.reset()
         self.in_saccade = jumped
         return ended
 
@@ -472,9 +486,9 @@ class OnlineSegmenter:
         noise = self.noise_deg()
         return 2.0 * self.config.jump_deg if noise is None else self.config.threshold_deg(noise[1])
 
-    def score(self) -> float:
+    def score(self, bounded: bool = True) -> float:
         """The window test on the full buffer, degrees (``world_jump_deg`` between the depths the
-        fixation's lines fix, ``LineSums.bounds``)."""
+        fixation's lines fix, ``LineSums.bounds``; not ``bounded``: from ``min_depth_mm`` on)."""
         w = self.config.window
         d = np.array([x[0] for x in self.buf])
         da, db = _unit(np.median(d[:w], axis=0)), _unit(np.median(d[w:], axis=0))
@@ -483,6 +497,6 @@ class OnlineSegmenter:
         o = np.array([x[1] for x in self.buf])
         oa = np.median(o[:w], axis=0)
         noise = self.noise_deg()
-        near, far = (self.config.min_depth_mm, np.inf) if noise is None else \
+        near, far = (self.config.min_depth_mm, np.inf) if noise is None or not bounded else \
             self.sums.bounds(oa, da, line_noise_deg(*noise, w), self.config.min_depth_mm)
         return float(world_jump_deg(oa, da, np.median(o[w:], axis=0), db, near, far)[0])

@@ -10,6 +10,7 @@ from estimator.lines import BinocularSamples
 from estimator.segments import OnlineSegmenter, SegmentConfig, cyclopean_directions, cyclopean_rays, segment_fixations
 
 TARGETS = np.array([[0.0, 0.0, 650.0], [400.0, -100.0, 1500.0], [-300.0, 200.0, 3000.0], [100.0, 50.0, 800.0]])
+SETTLE = round(SegmentConfig().settle_s * 60.0)    # samples left out next to a saccade at 60 Hz
 FIX_S = 2.0          # each target fixated this long, saccades between
 BLINK = (6.7, 7.35)  # both eyes closed for 0.65 s while the last target is looked at: two fixations
 
@@ -143,7 +144,7 @@ def test_a_walking_fixation_the_direction_rule_cut_is_found_whole_with_its_sacca
     windows see saccades all along. In the world each fixation is one point: the segmentation
     finds the three, each its own samples from the saccade's end to the next one's start (give or
     take the one sample next to a saccade that its noise puts 3.5 sd off), the saccades' samples
-    in none."""
+    in none), less ``settle_s`` (3 samples at 60 Hz) next to each saccade."""
     targets = np.array([[300.0, 0.0, 700.0], [900.0, -250.0, 1200.0], [1000.0, 200.0, 900.0]])
     s, truth = _walk_past(targets, 60, seed=seed)
     old = _old_rule(s)
@@ -152,8 +153,9 @@ def test_a_walking_fixation_the_direction_rule_cut_is_found_whole_with_its_sacca
     assert labels.max() + 1 == 3
     for k in range(3):
         mine, true = np.flatnonzero(labels == k), np.flatnonzero(truth == k)
-        assert set(mine) <= set(true) and mine[0] - true[0] <= 1 and true[-1] - mine[-1] <= 1
-    assert np.sum(labels != truth) <= 2
+        assert set(mine) <= set(true)
+        assert mine[0] - true[0] <= 1 + (SETTLE if k > 0 else 0) and true[-1] - mine[-1] <= 1 + (SETTLE if k < 2 else 0)
+    assert np.sum(labels != truth) <= 2 + 4 * SETTLE
 
 
 @pytest.mark.parametrize(("way", "deg"), [("up", 3.0), ("down", 3.0), ("along the walk", 8.0)])
@@ -172,7 +174,8 @@ def test_a_saccade_while_walking_is_still_found(way, deg):
     assert labels.max() == 1
     assert _old_rule(s).max() != 1                           # the direction rule: cut all along, or none
     for k in (0, 1):          # the saccade's first sample, 1 deg along (2.7 in the walk's plane), may join
-        assert np.sum(truth[labels == k] != k) <= 1 and np.sum((labels == k) & (truth == k)) >= np.sum(truth == k) - 1
+        assert np.sum(truth[labels == k] != k) <= 1
+        assert np.sum((labels == k) & (truth == k)) >= np.sum(truth == k) - 1 - SETTLE
 
 
 def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
