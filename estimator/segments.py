@@ -75,7 +75,7 @@ class SegmentConfig:
         max_gap_s: a gap in the data longer than this ends a fixation, seconds.
         trim_s: time cut from each end of a fixation beyond the saccade's own samples, seconds.
         settle_s: time cut from a fixation's ends next to a saccade, seconds, in whole samples
-            (rounded: none at 10 Hz, 10 at 200 Hz): the saccade's onset and the eye's settling
+            (rounded down: none at 10 Hz, 1 at 30 Hz, 10 at 200 Hz): the saccade's onset and the eye's settling
             after it (post-saccadic oscillation, 10-40 ms), which the window test does not resolve
             at the noise of a single sample (docs/processing.md, "Segmentation").
     """
@@ -358,16 +358,16 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     # each cut's peak starts a new stretch; so does a gap in time (long blinks, lost samples)
     peaks = {c[2] for c in cuts}
     bounds = sorted({0, m} | peaks | set(gaps.tolist()))
-    settle = int(round(config.settle_s / np.median(np.diff(tv)))) if m > 1 else 0
+    settle = int(np.floor(config.settle_s / np.median(np.diff(tv)) + 1e-6)) if m > 1 else 0    # whole samples
     label = 0
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         sel = np.arange(a, b)[in_fix[a:b]]
-        sel = sel[settle if a in peaks else 0:len(sel) - (settle if b in peaks else 0)]
         if len(sel) == 0:
             continue
         sel = sel[(tv[sel] >= tv[sel[0]] + config.trim_s) & (tv[sel] <= tv[sel[-1]] - config.trim_s)]
         if len(sel) == 0 or tv[sel[-1]] - tv[sel[0]] < config.min_fixation_s:
             continue
+        sel = sel[settle if a in peaks else 0:len(sel) - (settle if b in peaks else 0)]     # long enough: settled
         labels[idx[sel]] = label
         label += 1
     log.info("%d fixations in %d samples (%d valid; %d saccades over %.2f deg, %d of them within the depth "
