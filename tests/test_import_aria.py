@@ -468,8 +468,8 @@ def test_real_sample_walk_fixations_are_found_in_the_world(sample, tmp_path):
     surface (``surface_reference``) than Aria's own ``depth_m`` (benchmarks/real_aria_targets.py).
     Skipped without ../shared (the ``sample`` fixture)."""
     from wearable_gaze.formats.viewlines import read_viewlines_csv
-    from wearable_gaze.pipeline.device import surface_reference
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
+    from wearable_gaze.pipeline.steps.device import surface_reference
     from wearable_gaze.pipeline.types import Poses
 
     run(sample, tmp_path / "s")
