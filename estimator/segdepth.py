@@ -81,15 +81,15 @@ def depth_bounds(sums: tuple, o_a: np.ndarray, d_a: np.ndarray, noise_deg: float
     rss = np.maximum(np.einsum("ki,kij,kj->k", X, A, X) - 2 * (X * b).sum(1) + c, 0.0)
     v = X - o_a
     rho = np.linalg.norm(v, axis=1)
-    u = v / rho[:, None]
-    g = np.sqrt(np.maximum((u * np.linalg.solve(A + reg, u[..., None])[..., 0]).sum(1), 0.0)) / rho
     sigma, bias = np.deg2rad(noise_deg), np.deg2rad(BIAS_DEG)
-    inflate = np.maximum(1.0, rss / (sigma * rho) ** 2 / np.maximum(2 * n - 3, 1))
-    half = g * (DEPTH_K * sigma * np.sqrt(inflate) + bias * np.sqrt(n))
-    q = 1.0 / rho
-    ahead = np.isfinite(rho) & ((v * d_a).sum(1) > 0) & np.isfinite(half)
-    sub_near = np.where(ahead, np.maximum(min_depth_mm, 1.0 / (q + half)), min_depth_mm)
-    with np.errstate(divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):     # a point at the origin, or none: not ahead
+        u = v / rho[:, None]
+        g = np.sqrt(np.maximum((u * np.linalg.solve(A + reg, np.nan_to_num(u)[..., None])[..., 0]).sum(1), 0.0)) / rho
+        inflate = np.maximum(1.0, rss / (sigma * rho) ** 2 / np.maximum(2 * n - 3, 1))
+        half = g * (DEPTH_K * sigma * np.sqrt(inflate) + bias * np.sqrt(n))
+        q = 1.0 / rho
+        ahead = (rho > 0) & np.isfinite(rho) & ((v * d_a).sum(1) > 0) & np.isfinite(half)
+        sub_near = np.where(ahead, np.maximum(min_depth_mm, 1.0 / (q + half)), min_depth_mm)
         sub_far = np.where(ahead & (q > half), 1.0 / (q - half), np.inf)
     near[ok], far[ok] = sub_near, np.maximum(sub_far, sub_near)
     return near, far
