@@ -259,3 +259,15 @@ def _bounded(med_o: np.ndarray, med_d: np.ndarray, k: np.ndarray, use: np.ndarra
         depth_bounds(tuple(x[use] for x in sums), oa - center, da, noise_deg, min_depth_mm)
     score[use] = world_jump_deg(oa, da, ob, db, near, far)
     return score
+
+
+def at_gap(cut: tuple[int, int, int], t: np.ndarray) -> tuple[int, int, int]:
+    """A saccade whose run of the window test spans a gap in the samples (a blink, more than
+    twice the median interval) is put in the gap: the peak moves to the first sample after its
+    longest gap, so no fixation reaches across the blink to the saccade's other side."""
+    k0, k1, c = cut
+    if k1 <= k0 or len(t) < 2:
+        return cut
+    dt = np.diff(t[k0:k1 + 1])
+    j = int(np.argmax(dt))
+    return (k0, k1, k0 + j + 1) if dt[j] > 2 * np.median(np.diff(t)) else cut

@@ -8,7 +8,8 @@ point. Single samples carry about 1 deg of noise per eye, so the test is made be
 at each sample, the median cyclopean ray (origin and direction) of the ``window`` valid samples
 before it and of those after it, and the least angle at which the after-window's ray misses a
 point of the before-window's ray at ``min_depth_mm`` or farther (``world_jump_deg``: the part
-of the turn that no still point explains). Without head motion that is the angle between the
+of the turn that no still point explains), and then, within each stretch, only at the depths
+its own lines fix (``estimator.segdepth``). Without head motion that is the angle between the
 two directions. Peaks above the threshold are saccades; the stretches between them are
 fixations, kept when longer than ``min_fixation_s``. Blinks (both eyes invalid) are skipped,
 not treated as saccades; a gap longer than ``max_gap_s`` ends a fixation.
@@ -39,6 +40,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from .frames import angle_deg
 from .lines import BinocularSamples
 from .segdepth import LineSums, line_noise_deg, refine_cuts, stretches, world_jump_deg
+from .segdepth import at_gap as _at_gap
 from .segdepth import peaks as _peaks
 
 log = logging.getLogger(__name__)
@@ -269,18 +271,6 @@ def _mixed_score(eyes: tuple[np.ndarray, np.ndarray], a: slice, b: slice, min_de
     if not (np.all(np.isfinite(oa)) and np.all(np.isfinite(ob))):
         return float(angle_deg(da, db))
     return float(world_jump_deg(oa, da, ob, db, min_depth_mm)[0])
-
-
-def _at_gap(cut: tuple[int, int, int], t: np.ndarray) -> tuple[int, int, int]:
-    """A saccade whose run of the window test spans a gap in the samples (a blink, more than
-    twice the median interval) is put in the gap: the peak moves to the first sample after its
-    longest gap, so no fixation reaches across the blink to the saccade's other side."""
-    k0, k1, c = cut
-    if k1 <= k0 or len(t) < 2:
-        return cut
-    dt = np.diff(t[k0:k1 + 1])
-    j = int(np.argmax(dt))
-    return (k0, k1, k0 + j + 1) if dt[j] > 2 * np.median(np.diff(t)) else cut
 
 
 def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: int, off_deg: float,
