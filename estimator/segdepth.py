@@ -124,8 +124,11 @@ class LineSums:
             return
         if self.center is None:
             self.center = o[np.isfinite(o).all(-1)][0].copy()
-        P, Po, oPo, n = line_terms(o[:, None], np.asarray(directions, float)[:, None], self.center)
-        self.A, self.b, self.c, self.n = self.A + P[0], self.b + Po[0], self.c + oPo[0], self.n + int(n[0])
+        for oe, de in zip(o - self.center, np.asarray(directions, float), strict=True):    # line_terms, per line
+            if np.isfinite(oe).all() and np.isfinite(de).all():
+                P = np.eye(3) - np.outer(de, de)
+                Po = P @ oe
+                self.A, self.b, self.c, self.n = self.A + P, self.b + Po, self.c + float(oe @ Po), self.n + 1
 
     def bounds(self, o_a: np.ndarray, d_a: np.ndarray, noise_deg: float, min_depth_mm: float) -> tuple[float, float]:
         """(near, far) depths, mm, along the ray ``(o_a, d_a)`` (world) (``depth_bounds``)."""

@@ -428,12 +428,13 @@ class OnlineSegmenter:
             self.sums.add(*self.buf[-w - 1][2])           # it has left the after-window
         if len(self.buf) < 2 * w:
             return False
-        threshold = self.threshold_deg()
+        noise = self.noise_deg()
+        threshold = 2.0 * self.config.jump_deg if noise is None else self.config.threshold_deg(noise[1])
         if not self.in_saccade:
-            jumped, self.run = self.score() > threshold, 0
+            jumped, self.run = self.score(noise) > threshold, 0
         else:                                            # the lines frozen at its start (segdepth.run_end)
             self.run += 1
-            jumped = self.score(bounded=False) > threshold or (self.run < w and self.score() > threshold)
+            jumped = self.score(None) > threshold or (self.run < w and self.score(noise) > threshold)
             if not jumped:                               # the saccade is over: the next fixation's lines start
                 self.sums.reset()
         ended = jumped and not self.in_saccade
@@ -476,9 +477,10 @@ class OnlineSegmenter:
         noise = self.noise_deg()
         return 2.0 * self.config.jump_deg if noise is None else self.config.threshold_deg(noise[1])
 
-    def score(self, bounded: bool = True) -> float:
+    def score(self, noise: tuple[float, float] | None) -> float:
         """The window test on the full buffer, degrees (``world_jump_deg`` between the depths the
-        fixation's lines fix, ``LineSums.bounds``; not ``bounded``: from ``min_depth_mm`` on)."""
+        fixation's lines fix, ``LineSums.bounds``, at the ``noise_deg`` given; None: from
+        ``min_depth_mm`` on)."""
         w = self.config.window
         d = np.array([x[0] for x in self.buf])
         da, db = _unit(np.median(d[:w], axis=0)), _unit(np.median(d[w:], axis=0))
@@ -486,7 +488,6 @@ class OnlineSegmenter:
             return float(angle_deg(da, db))
         o = np.array([x[1] for x in self.buf])
         oa = np.median(o[:w], axis=0)
-        noise = self.noise_deg()
-        near, far = (self.config.min_depth_mm, np.inf) if noise is None or not bounded else \
+        near, far = (self.config.min_depth_mm, np.inf) if noise is None else \
             self.sums.bounds(oa, da, line_noise_deg(*noise, w), self.config.min_depth_mm)
         return float(world_jump_deg(oa, da, np.median(o[w:], axis=0), db, near, far)[0])
