@@ -8,7 +8,8 @@ point. Single samples carry about 1 deg of noise per eye, so the test is made be
 at each sample, the median cyclopean ray (origin and direction) of the ``window`` valid samples
 before it and of those after it, and the least angle at which the after-window's ray misses a
 point of the before-window's ray at ``min_depth_mm`` or farther (``world_jump_deg``: the part
-of the turn that no still point explains). Without head motion that is the angle between the
+of the turn that no still point explains), and then, within each stretch, only at the depths
+its own lines fix (``estimator.segdepth``). Without head motion that is the angle between the
 two directions. Peaks above the threshold are saccades; the stretches between them are
 fixations, kept when longer than ``min_fixation_s``. Blinks (both eyes invalid) are skipped,
 not treated as saccades; a gap longer than ``max_gap_s`` ends a fixation.
@@ -38,6 +39,9 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from .frames import angle_deg
 from .lines import BinocularSamples
+from .segdepth import LineSums, line_noise_deg, refine_cuts, stretches, world_jump_deg
+from .segdepth import at_gap as _at_gap
+from .segdepth import peaks as _peaks
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +76,10 @@ class SegmentConfig:
         min_fixation_s: shorter fixations are dropped, seconds.
         max_gap_s: a gap in the data longer than this ends a fixation, seconds.
         trim_s: time cut from each end of a fixation beyond the saccade's own samples, seconds.
+        settle_s: time cut from a fixation's ends next to a saccade, seconds, in whole samples
+            (rounded down: none at 10 Hz, 1 at 30 Hz, 10 at 200 Hz): the saccade's onset and the eye's settling
+            after it (post-saccadic oscillation, 10-40 ms), which the window test does not resolve
+            at the noise of a single sample (docs/processing.md, "Segmentation").
     """
 
     window: int = 8
@@ -81,6 +89,7 @@ class SegmentConfig:
     min_fixation_s: float = 0.3
     max_gap_s: float = 0.5
     trim_s: float = 0.0
+    settle_s: float = 0.05
 
     @classmethod
     def for_rate(cls, rate_hz: float, **settings) -> SegmentConfig:
@@ -120,25 +129,6 @@ def cyclopean_rays(samples: BinocularSamples) -> tuple[np.ndarray, np.ndarray]:
     oo[ok] = o[ok] / n[ok, None]
     dd[ok] = d[ok] / np.linalg.norm(d[ok], axis=1, keepdims=True)
     return oo, dd
-
-
-def world_jump_deg(o_a, d_a, o_b, d_b, min_depth_mm: float) -> np.ndarray:
-    """(K,) the least angle, degrees, between directions ``d_b`` (K, 3) from origins ``o_b`` (K, 3)
-    and the directions from ``o_b`` to the points of rays ``(o_a, d_a)`` at ``min_depth_mm`` or
-    farther (world frame, mm; unit directions): how far ray b misses every point ray a could
-    have fixated. Seen from ``o_b``, those points sweep an arc of the great circle through the
-    point at ``min_depth_mm`` and ``d_a`` (at infinity); inside the arc the angle is the one off
-    its plane, else the nearer end's. With no baseline it is the angle between the directions."""
-    o_a, d_a, o_b, d_b = (np.atleast_2d(np.asarray(x, float)) for x in (o_a, d_a, o_b, d_b))
-    u0 = o_a - o_b + min_depth_mm * d_a
-    u0 /= np.linalg.norm(u0, axis=1, keepdims=True)
-    m = np.cross(u0, d_a)
-    mn = np.linalg.norm(m, axis=1)
-    ends = np.minimum(angle_deg(d_b, u0), angle_deg(d_b, d_a))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        off = np.degrees(np.arcsin(np.clip(np.abs((d_b * m).sum(1)) / mn, 0.0, 1.0)))
-    inside = ((np.cross(u0, d_b) * m).sum(1) >= 0) & ((np.cross(d_b, d_a) * m).sum(1) >= 0) & (mn > 1e-12)
-    return np.where(inside, off, ends)
 
 
 def sample_noise_deg(directions) -> float:
@@ -283,33 +273,6 @@ def _mixed_score(eyes: tuple[np.ndarray, np.ndarray], a: slice, b: slice, min_de
     return float(world_jump_deg(oa, da, ob, db, min_depth_mm)[0])
 
 
-def _peaks(score: np.ndarray, threshold: float) -> list[tuple[int, int, int]]:
-    """[(first, last, peak)] of each run of ``score`` above ``threshold`` (one per saccade)."""
-    cuts, k, m = [], 0, len(score)
-    while k < m:
-        if score[k] > threshold:
-            j = k
-            while j + 1 < m and score[j + 1] > threshold:
-                j += 1
-            cuts.append((k, j, k + int(np.argmax(score[k:j + 1]))))
-            k = j + 1
-        else:
-            k += 1
-    return cuts
-
-
-def _at_gap(cut: tuple[int, int, int], t: np.ndarray) -> tuple[int, int, int]:
-    """A saccade whose run of the window test spans a gap in the samples (a blink, more than
-    twice the median interval) is put in the gap: the peak moves to the first sample after its
-    longest gap, so no fixation reaches across the blink to the saccade's other side."""
-    k0, k1, c = cut
-    if k1 <= k0 or len(t) < 2:
-        return cut
-    dt = np.diff(t[k0:k1 + 1])
-    j = int(np.argmax(dt))
-    return (k0, k1, k0 + j + 1) if dt[j] > 2 * np.median(np.diff(t)) else cut
-
-
 def saccade_samples(o: np.ndarray, d: np.ndarray, cut: tuple[int, int, int], w: int, off_deg: float,
                     min_depth_mm: float, eyes: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[int, int]:
     """The saccade's samples around a run of the window test above its threshold ``cut``
@@ -372,14 +335,20 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
     threshold = config.threshold_deg(diff_sd)
     score, _, _ = jump_scores(ov, dv, config, (eo[:, idx], ed[:, idx]))
     cuts = [_at_gap(cut, tv) for cut in _peaks(score, threshold)]
+    gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s) + 1
+    # the second pass: the parallax each stretch's own lines allow (estimator.segdepth)
+    more = refine_cuts(ov, dv, (eo[:, idx], ed[:, idx]), stretches(cuts, gaps, m, w), w, threshold,
+                       line_noise_deg(noise, diff_sd, w), config.min_depth_mm)
+    cuts = sorted(cuts + [_at_gap(cut, tv) for cut in more], key=lambda c: c[2])
     off = SAMPLE_K * np.hypot(noise, diff_sd / np.sqrt(2.0))
     in_fix = np.ones(m, bool)
     for cut in cuts:
         a, b = saccade_samples(ov, dv, cut, w, max(off, 0.5 * threshold), config.min_depth_mm, (eo[:, idx], ed[:, idx]))
         in_fix[a:b + 1] = False
     # each cut's peak starts a new stretch; so does a gap in time (long blinks, lost samples)
-    gaps = np.flatnonzero(np.diff(tv) > config.max_gap_s) + 1
-    bounds = sorted({0, m} | {c[2] for c in cuts} | set(gaps.tolist()))
+    peaks = {c[2] for c in cuts}
+    bounds = sorted({0, m} | peaks | set(gaps.tolist()))
+    settle = int(np.floor(config.settle_s / np.median(np.diff(tv)) + 1e-6)) if m > 1 else 0    # whole samples
     label = 0
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         sel = np.arange(a, b)[in_fix[a:b]]
@@ -388,11 +357,12 @@ def segment_fixations(samples: BinocularSamples, config: SegmentConfig = Segment
         sel = sel[(tv[sel] >= tv[sel[0]] + config.trim_s) & (tv[sel] <= tv[sel[-1]] - config.trim_s)]
         if len(sel) == 0 or tv[sel[-1]] - tv[sel[0]] < config.min_fixation_s:
             continue
+        sel = sel[settle if a in peaks else 0:len(sel) - (settle if b in peaks else 0)]     # long enough: settled
         labels[idx[sel]] = label
         label += 1
-    log.info("%d fixations in %d samples (%d valid; %d saccades over %.2f deg; noise %.2f deg a sample, "
-             "%.2f deg between window medians; %d time gaps)", label, n, m, len(cuts), threshold, noise, diff_sd,
-             len(gaps))
+    log.info("%d fixations in %d samples (%d valid; %d saccades over %.2f deg, %d of them within the depth "
+             "the lines showed; noise %.2f deg a sample, %.2f deg between window medians; %d time gaps)", label, n,
+             m, len(cuts), threshold, len(more), noise, diff_sd, len(gaps))
     return labels
 
 
@@ -401,34 +371,39 @@ class OnlineSegmenter:
 
     The same test, made as soon as the window after a sample is full: how far the median
     cyclopean ray of the ``window`` samples after it misses every point of the median ray of the
-    ``window`` before it at ``min_depth_mm`` or farther (``world_jump_deg``; without origins the
-    angle between the directions), against the same threshold (``SegmentConfig.threshold_deg``
-    of the window medians' noise measured as ``median_noise_deg`` measures it, on the last
-    ``NOISE_SAMPLES`` samples; twice ``jump_deg`` until ``2 window`` of those measures have
-    come). Crossing it ends the fixation; the samples until the
-    test falls back under it (the saccade, as the windows see it) belong to no fixation. A gap
-    over ``max_gap_s`` ends a fixation too, and the sample after it starts the next. A still
-    target's point stays put however the head moves, so the walk's parallax is no saccade; a
-    saccade moves the point.
+    ``window`` before it between the depths the fixation's lines so far fix (``LineSums``, running
+    sums since the fixation began, ``estimator.segdepth``; ``min_depth_mm`` to infinity while they
+    fix none; ``world_jump_deg``; without origins the angle between the directions), against the
+    same threshold (``SegmentConfig.threshold_deg`` of the window medians' noise measured as
+    ``median_noise_deg`` measures it, on the last ``NOISE_SAMPLES`` samples; twice ``jump_deg``
+    until ``2 window`` of those measures have come). Crossing it ends the fixation; the samples
+    until the test falls back under it (the saccade, as the windows see it) belong to no
+    fixation, and the next fixation's lines start where it clears. A gap over ``max_gap_s`` ends a
+    fixation too, and the sample after it starts the next. A still target's point stays put
+    however the head moves, so the walk's parallax is no saccade; a saccade moves the point.
 
     Feed it the binocular samples' cyclopean rays (one eye alone is off the cyclopean line by
-    half the vergence, which is not a saccade).
+    half the vergence, which is not a saccade), and the eyes' own lines for the depth.
     """
 
     NOISE_SAMPLES = 600
 
     def __init__(self, config: SegmentConfig = SegmentConfig()):
         self.config = config
-        self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None)
+        self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None, lines)
         self.medians: deque = deque(maxlen=2 * config.window + 1)    # (origin, direction) medians of the last windows
         self.seconds: deque = deque(maxlen=self.NOISE_SAMPLES)  # median_noise_deg's angle at each window
         self.turns: deque = deque(maxlen=self.NOISE_SAMPLES)    # angle of each sample off its neighbours' mean
+        self.sums = LineSums()          # the current fixation's lines before the after-window
         self.in_saccade = False
+        self.run = 0                    # positions since the current saccade's crossing
         self.last_t: float | None = None
 
-    def update(self, t_s: float, direction, origin=None) -> bool:
+    def update(self, t_s: float, direction, origin=None, lines=None) -> bool:
         """Add a sample at time ``t_s`` (s) with unit cyclopean direction (3,) and its origin (3,)
-        (world frame, mm; the eyes' midpoint; None: unknown, the test is then on directions).
+        (world frame, mm; the eyes' midpoint; None: unknown, the test is then on directions),
+        and its eyes' lines (origins (E, 3), mm, and unit directions (E, 3), world; None: the
+        cyclopean ray alone).
 
         Returns:
             True when this sample ends the current fixation. Afterwards ``in_saccade`` tells
@@ -437,18 +412,31 @@ class OnlineSegmenter:
         w = self.config.window
         gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
         self.last_t = t_s
-        item = (_unit(np.asarray(direction, float)), None if origin is None else np.asarray(origin, float))
+        d = _unit(np.asarray(direction, float))
+        o = None if origin is None else np.asarray(origin, float)
+        item = (d, o, (None if o is None else (o[None], d[None])) if lines is None else lines)
         if gap:
             self.buf.clear()
             self.medians.clear()
+            self.sums.reset()
             self.buf.append(item)
             self.in_saccade = False
             return True
         self.buf.append(item)
         self._measure_noise()
+        if len(self.buf) > w and not self.in_saccade and self.buf[-w - 1][2] is not None:
+            self.sums.add(*self.buf[-w - 1][2])           # it has left the after-window
         if len(self.buf) < 2 * w:
             return False
-        jumped = self.score() > self.threshold_deg()
+        noise = self.noise_deg()
+        threshold = 2.0 * self.config.jump_deg if noise is None else self.config.threshold_deg(noise[1])
+        if not self.in_saccade:
+            jumped, self.run = self.score(noise) > threshold, 0
+        else:                                            # the lines frozen at its start (segdepth.run_end)
+            self.run += 1
+            jumped = self.score(None) > threshold or (self.run < w and self.score(noise) > threshold)
+            if not jumped:                               # the saccade is over: the next fixation's lines start
+                self.sums.reset()
         ended = jumped and not self.in_saccade
         self.in_saccade = jumped
         return ended
@@ -471,27 +459,35 @@ class OnlineSegmenter:
             self.seconds.append(float(_second_angles(o0[None], d0[None], o1[None], d1[None], o2[None], d2[None],
                                                      self.config.min_depth_mm)[0]))
 
-    def threshold_deg(self) -> float:
-        """The saccade threshold now, degrees (``SegmentConfig.threshold_deg``): of the window
-        medians' noise once ``2 window`` measures of it have come, before that of the per-sample
-        noise (as for independent samples; ``session_noise_deg``), and twice ``jump_deg`` before
-        ``2 window`` samples."""
+    def noise_deg(self) -> tuple[float, float] | None:
+        """(per-sample noise, sd of the difference of two window medians), degrees, as measured
+        so far (``session_noise_deg``: the second derived from the first until ``2 window``
+        measures of it have come); None before ``2 window`` samples."""
         w = self.config.window
-        if len(self.seconds) >= 2 * w:
-            return self.config.threshold_deg(_diff_sd_deg(np.array(self.seconds)))
         if len(self.turns) < 2 * w:
-            return 2.0 * self.config.jump_deg
+            return None
         noise = float(np.median(self.turns)) / SECOND_DIFF_MEDIAN
-        return self.config.threshold_deg(np.sqrt(2.0) * MEDIAN_SD * noise / np.sqrt(w))
+        if len(self.seconds) >= 2 * w:
+            return noise, _diff_sd_deg(np.array(self.seconds))
+        return noise, float(np.sqrt(2.0) * MEDIAN_SD * noise / np.sqrt(w))
 
-    def score(self) -> float:
-        """The window test on the full buffer, degrees (``world_jump_deg``)."""
+    def threshold_deg(self) -> float:
+        """The saccade threshold now, degrees (``SegmentConfig.threshold_deg`` of ``noise_deg``'s
+        second figure), twice ``jump_deg`` before ``2 window`` samples."""
+        noise = self.noise_deg()
+        return 2.0 * self.config.jump_deg if noise is None else self.config.threshold_deg(noise[1])
+
+    def score(self, noise: tuple[float, float] | None) -> float:
+        """The window test on the full buffer, degrees (``world_jump_deg`` between the depths the
+        fixation's lines fix, ``LineSums.bounds``, at the ``noise_deg`` given; None: from
+        ``min_depth_mm`` on)."""
         w = self.config.window
         d = np.array([x[0] for x in self.buf])
         da, db = _unit(np.median(d[:w], axis=0)), _unit(np.median(d[w:], axis=0))
         if any(x[1] is None for x in self.buf):
             return float(angle_deg(da, db))
         o = np.array([x[1] for x in self.buf])
-        return float(world_jump_deg(np.median(o[:w], axis=0), da, np.median(o[w:], axis=0), db,
-                                    self.config.min_depth_mm)[0])
-
+        oa = np.median(o[:w], axis=0)
+        near, far = (self.config.min_depth_mm, np.inf) if noise is None else \
+            self.sums.bounds(oa, da, line_noise_deg(*noise, w), self.config.min_depth_mm)
+        return float(world_jump_deg(oa, da, np.median(o[w:], axis=0), db, near, far)[0])

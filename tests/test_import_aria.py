@@ -460,16 +460,16 @@ def test_real_sample_keeps_its_point_cloud_and_the_report_draws_it(sample, tmp_p
 def test_real_sample_walk_fixations_are_found_in_the_world(sample, tmp_path):
     """Issue 27: the wearer walks (0.75 m/s) and looks down at near surfaces; the eye-in-world
     direction turns 25-40 deg/s while a point is held, so the direction rule (3 deg between
-    window medians) found 2 fixations. The world test (one still point 250 mm or farther explains
-    both windows' rays) finds 3 (4 at a threshold from the per-sample noise, 1.76 deg, which cut
-    a 1.88 deg peak at 7.6 s; the measured window-median noise puts it at 2.19 deg; the two
-    parts were one moving target either way) and ``process`` answers 3 targets; every static one has its
+    window medians) found 2 fixations. The world test (one still point explains both windows'
+    rays, at a depth the fixation's own lines allow) finds 4 (the lines of 1.9-7.5 s fix a point
+    1.3-1.4 m away, which the after-window at 7.6 s misses by 2.4 deg, over the 2.19 deg
+    threshold; the two parts are one moving target) and ``process`` answers 3 targets; every static one has its
     direction, and each one whose head travels 0.3 m or more over a fixation is nearer the SLAM
     surface (``surface_reference``) than Aria's own ``depth_m`` (benchmarks/real_aria_targets.py).
     Skipped without ../shared (the ``sample`` fixture)."""
     from wearable_gaze.formats.viewlines import read_viewlines_csv
-    from wearable_gaze.pipeline.device import surface_reference
-    from wearable_gaze.pipeline.process import process_session
+    from wearable_gaze.pipeline.process.session import process_session
+    from wearable_gaze.pipeline.steps.device import surface_reference
     from wearable_gaze.pipeline.types import Poses
 
     run(sample, tmp_path / "s")

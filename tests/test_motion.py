@@ -223,3 +223,22 @@ def test_a_static_point_seen_through_a_biased_calibration_from_a_walking_head_is
             arrays += [o, perturb_directions(d / np.linalg.norm(d, axis=1, keepdims=True), np.deg2rad(1.0), rng)]
         kinds.append(classify_lines(BinocularSamples.from_arrays(t, *arrays), 1.0).kind)
     assert kinds.count(STATIC) == 30, kinds
+
+
+def test_a_split_leaves_no_part_shorter_than_a_fixation():
+    """A fixation of two points whose first lasts 0.15 s (9 samples at 60 Hz: enough to split,
+    ``MIN_SPLIT_SAMPLES``) and whose second lasts 1.2 s: that first part is not a fixation of
+    its own (Neon's demo: a 0.05 s tail of a saccade had become a target), its samples in none;
+    the second is one. With the minimum at 0.1 s, both are."""
+    from wearable_gaze.pipeline.steps.fixations import split_two_point_fixations
+
+    near, far = np.array([100.0, 0.0, 600.0]), np.array([300.0, 0.0, 2500.0])
+
+    def path(t):
+        return np.where((t < 0.15)[:, None], near, far)
+
+    s = _samples(path, duration_s=1.35, seed=3)
+    labels, motion = split_two_point_fixations(s, np.zeros(len(s), int), 1.0, 0.3)
+    assert motion == [STATIC] and np.all(labels[s.t_s < 0.1] == -1) and np.all(labels[s.t_s > 0.3] == 0)
+    labels, motion = split_two_point_fixations(s, np.zeros(len(s), int), 1.0, 0.1)
+    assert motion == [STATIC, STATIC] and np.all(labels[s.t_s < 0.1] == 0) and np.all(labels[s.t_s > 0.3] == 1)

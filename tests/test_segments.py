@@ -10,6 +10,7 @@ from estimator.lines import BinocularSamples
 from estimator.segments import OnlineSegmenter, SegmentConfig, cyclopean_directions, cyclopean_rays, segment_fixations
 
 TARGETS = np.array([[0.0, 0.0, 650.0], [400.0, -100.0, 1500.0], [-300.0, 200.0, 3000.0], [100.0, 50.0, 800.0]])
+SETTLE = round(SegmentConfig().settle_s * 60.0)    # samples left out next to a saccade at 60 Hz
 FIX_S = 2.0          # each target fixated this long, saccades between
 BLINK = (6.7, 7.35)  # both eyes closed for 0.65 s while the last target is looked at: two fixations
 
@@ -143,7 +144,7 @@ def test_a_walking_fixation_the_direction_rule_cut_is_found_whole_with_its_sacca
     windows see saccades all along. In the world each fixation is one point: the segmentation
     finds the three, each its own samples from the saccade's end to the next one's start (give or
     take the one sample next to a saccade that its noise puts 3.5 sd off), the saccades' samples
-    in none."""
+    in none), less ``settle_s`` (3 samples at 60 Hz) next to each saccade."""
     targets = np.array([[300.0, 0.0, 700.0], [900.0, -250.0, 1200.0], [1000.0, 200.0, 900.0]])
     s, truth = _walk_past(targets, 60, seed=seed)
     old = _old_rule(s)
@@ -152,8 +153,9 @@ def test_a_walking_fixation_the_direction_rule_cut_is_found_whole_with_its_sacca
     assert labels.max() + 1 == 3
     for k in range(3):
         mine, true = np.flatnonzero(labels == k), np.flatnonzero(truth == k)
-        assert set(mine) <= set(true) and mine[0] - true[0] <= 1 and true[-1] - mine[-1] <= 1
-    assert np.sum(labels != truth) <= 2
+        assert set(mine) <= set(true)
+        assert mine[0] - true[0] <= 1 + (SETTLE if k > 0 else 0) and true[-1] - mine[-1] <= 1 + (SETTLE if k < 2 else 0)
+    assert np.sum(labels != truth) <= 2 + 4 * SETTLE
 
 
 @pytest.mark.parametrize(("way", "deg"), [("up", 3.0), ("down", 3.0), ("along the walk", 8.0)])
@@ -172,7 +174,8 @@ def test_a_saccade_while_walking_is_still_found(way, deg):
     assert labels.max() == 1
     assert _old_rule(s).max() != 1                           # the direction rule: cut all along, or none
     for k in (0, 1):          # the saccade's first sample, 1 deg along (2.7 in the walk's plane), may join
-        assert np.sum(truth[labels == k] != k) <= 1 and np.sum((labels == k) & (truth == k)) >= np.sum(truth == k) - 1
+        assert np.sum(truth[labels == k] != k) <= 1
+        assert np.sum((labels == k) & (truth == k)) >= np.sum(truth == k) - 1 - SETTLE
 
 
 def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
@@ -190,3 +193,60 @@ def test_a_time_gap_ends_a_fixation_at_its_last_sample_exactly():
     want = np.full(100, -1)
     want[:50], want[50:] = 0, 1
     np.testing.assert_array_equal(labels, want)
+
+
+def _sway_then(points, rate=60.0, dur_s=1.5, seed=5):
+    """A head swaying 300 mm sideways (150 mm amplitude, one sway a point) looking at each point
+    (K, 3) for ``dur_s``, 0.2 deg of noise per eye: the samples and the true labels."""
+    rng = np.random.default_rng(seed)
+    n = int(dur_s * rate)
+    t = np.arange(n * len(points)) / rate
+    heads = np.column_stack([150.0 * np.sin(2 * np.pi * t / dur_s), np.zeros_like(t), np.zeros_like(t)])
+    X = np.repeat(np.asarray(points, float), n, axis=0)
+    half = np.array([32.0, 0.0, 0.0])
+    ld = perturb_directions(X - (heads - half), np.deg2rad(0.2), rng)
+    rd = perturb_directions(X - (heads + half), np.deg2rad(0.2), rng)
+    return BinocularSamples.from_arrays(t, heads - half, ld, heads + half, rd), np.repeat(np.arange(len(points)), n)
+
+
+def _eye_lines(s, i):
+    """Sample ``i``'s two lines, as ``live`` feeds them: ((2, 3) origins, (2, 3) directions)."""
+    return np.array([s.left_origin_mm[i], s.right_origin_mm[i]]), np.array([s.left_direction[i], s.right_direction[i]])
+
+
+def test_a_saccade_the_sway_could_explain_from_250_mm_on_is_found_within_the_depth_the_lines_fix():
+    """A at 2.4 m, then B 4.5 deg off it and 5 m away, the head swaying in the saccade's plane
+    (the saccade at the sway's fastest, 630 mm/s): parallax to a point of A's ray 250 mm away or
+    farther explains the turn, so the first pass alone finds one fixation; A's own lines fix its
+    depth to about 2-3 m (``estimator.segdepth.depth_bounds``), where no point explains it: two,
+    offline and online (as ``live`` feeds it: the eyes' lines too), each of its own samples."""
+    from estimator import segments
+    from estimator.segdepth import LineSums
+
+    A = np.array([300.0, 0.0, 2400.0])
+    u = A / np.linalg.norm(A)
+    side = np.cross(u, [0.0, 1.0, 0.0])
+    B = 5000.0 * (np.cos(np.deg2rad(4.5)) * u + np.sin(np.deg2rad(4.5)) * side / np.linalg.norm(side))
+    s, truth = _sway_then([A, B])
+    labels = segment_fixations(s)
+    assert labels.max() + 1 == 2
+    for k in (0, 1):
+        assert np.all(truth[labels == k] == k)
+        assert np.sum(labels == k) >= np.sum(truth == k) - 2 * SegmentConfig().window
+    first_pass = segments.refine_cuts
+    try:
+        segments.refine_cuts = lambda *a, **kw: []
+        assert segment_fixations(s).max() + 1 == 1
+    finally:
+        segments.refine_cuts = first_pass
+    seg, ends = OnlineSegmenter(), []
+    o, d = cyclopean_rays(s)
+    for i in range(len(s)):
+        if seg.update(s.t_s[i], d[i], o[i], _eye_lines(s, i)):
+            ends.append(i)
+    assert len(ends) == 1 and abs(ends[0] - np.argmax(truth == 1)) <= SegmentConfig().window
+    sums = LineSums()                    # A's lines: an interval about its depth, neither 250 mm nor infinity
+    for i in np.flatnonzero(truth == 0):
+        sums.add(*_eye_lines(s, i))
+    near, far = sums.bounds(np.zeros(3), u, 0.3, 250.0)
+    assert 1000.0 < near < np.linalg.norm(A) < far < 10000.0

@@ -17,6 +17,7 @@ from estimator.errormodel import DEFAULT_BIAS_DEG, ErrorModel
 from estimator.frames import angle_deg
 from estimator.motion import MOVING, STATIC, TWO_POINTS, Trajectory, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
+from estimator.segments import SegmentConfig
 
 from ...formats.targets import (
     ESTIMATE_COLUMNS,
@@ -37,7 +38,8 @@ MIN_SPLIT_SAMPLES = 5
 
 
 def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sigma_deg: float,
-                 progress=None, error_model: ErrorModel | None = None) -> TargetsResult:
+                 progress=None, error_model: ErrorModel | None = None,
+                 min_fixation_s: float = SegmentConfig.min_fixation_s) -> TargetsResult:
     """Test each fixation of view lines (N,) segmented into fixations for motion, estimate the
     static ones (their running estimates too), merge the static fixations of one target and
     estimate each target from all its lines; a moving fixation is a moving target of its own,
@@ -45,8 +47,9 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
     ``direction_only_groups``), so that every fixation with a direction is answered.
 
     A fixation of two points (a switch the segmenter missed) is split at the switch into two
-    fixations, the labels renumbered in time order (``split_two_point_fixations``); a moving one
-    gets its path (``estimator.motion.smooth_trajectory``).
+    fixations, the labels renumbered in time order, a part shorter than ``min_fixation_s`` (the
+    segmentation's) in none (``split_two_point_fixations``); a moving one gets its path
+    (``estimator.motion.smooth_trajectory``).
 
     Args:
         samples: world view lines, in time order.
@@ -57,7 +60,7 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
         error_model: the covariances' error model for ``ml`` and ``voxel`` (running estimates,
             fixations, merges and targets); None: the inverse Fisher information.
     """
-    labels, motion = split_two_point_fixations(samples, labels, sigma_deg)
+    labels, motion = split_two_point_fixations(samples, labels, sigma_deg, min_fixation_s)
     n_seg = len(motion)
     fixations = []
     running: dict[str, list] = {k: [] for k in ESTIMATE_COLUMNS}
@@ -168,10 +171,13 @@ def _continues(before, after, samples: BinocularSamples, first: int) -> bool:
     return bool(angle_deg(before.positions_mm[-1] - o, after.positions_mm[0] - o) <= PURSUIT_JOIN_DEG)
 
 
-def split_two_point_fixations(samples: BinocularSamples, labels: np.ndarray,
-                              sigma_deg: float) -> tuple[np.ndarray, list]:
+def split_two_point_fixations(samples: BinocularSamples, labels: np.ndarray, sigma_deg: float,
+                              min_fixation_s: float = SegmentConfig.min_fixation_s) -> tuple[np.ndarray, list]:
     """Each fixation's motion test (``estimator.motion.classify_lines``); a fixation of two
-    points split at its switch time into two (when each part keeps ``MIN_SPLIT_SAMPLES``).
+    points split at its switch time into two (when each part keeps ``MIN_SPLIT_SAMPLES``). A part
+    lasting less than ``min_fixation_s`` is no fixation (-1), as the segmentation drops one:
+    on Neon's demo it was the tail of a saccade the segmenter left on the next fixation (0.05 s,
+    11 samples, which became a target of its own); both parts that short: not split.
     Returns the new (N,) labels, numbered 0, 1, ... in time order (-1 kept), and each new
     fixation's motion, 'static' or 'moving'."""
     n_seg = int(labels.max()) + 1 if (labels >= 0).any() else 0
@@ -186,7 +192,7 @@ def split_two_point_fixations(samples: BinocularSamples, labels: np.ndarray,
         if test.kind == TWO_POINTS:
             before = samples.t_s[idx] < test.split_t
             if min(before.sum(), (~before).sum()) >= MIN_SPLIT_SAMPLES:
-                parts = [idx[before], idx[~before]]
+                parts = [p for p in (idx[before], idx[~before]) if np.ptp(samples.t_s[p]) >= min_fixation_s] or [idx]
         for part in parts:
             out[part] = len(motion)
             motion.append(MOVING if test.kind == MOVING else STATIC)

@@ -259,7 +259,9 @@ class GazeEstimation:
                 and sample.left_origin_mm is not None and sample.right_origin_mm is not None):
             cyc = sample.left_direction + sample.right_direction
             mid = 0.5 * (sample.left_origin_mm + sample.right_origin_mm)
-            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc), mid):
+            lines = (np.array([sample.left_origin_mm, sample.right_origin_mm]),
+                     np.array([sample.left_direction, sample.right_direction]))
+            if self.segmenter.update(t_s, cyc / np.linalg.norm(cyc), mid, lines):
                 # a saccade seen, or a gap
                 ended = self.end_fixation(self.segmenter.config.window if self.segmenter.in_saccade else 0)
         if self.segmenter.in_saccade:                       # between fixations: no target's line
