@@ -44,6 +44,17 @@ eyes' per-fixation offsets varied by 0.1-0.3 deg between fixations, vertically c
 MERGE_FIXATION_DEG = 0.1
 """... and on each eye's offset in one fixation beyond it (the calibration's error differs with
 where the eye looks, which the head changes between revisits)."""
+STILL_HEAD_MERGE_S = 3.0
+"""Without head poses (the head taken as still, its frame as the world) a revisit joins a target
+only if it begins within this many seconds of that target's last fixation. The still head is an
+assumption that holds for a while, not a session: a head-worn tracker's wearer who is not on a
+chin rest turns the head with most gaze shifts beyond about 20 deg and drifts between them, and 1
+deg of head turn moves a point 2 m away by 35 mm in the head's frame, which the merge test (no
+pose offset for such sessions) cannot tell from a revisit. A documented conservative value (no
+published figure for how long a free head stays within the merge test's tolerance): a return
+after one or two fixations is merged; on the second Tobii Pro Glasses 2 recording, fixations of
+the Validate episode's poster 16 and 42 s apart landed on one head-frame point and were merged
+into one target across the session before it."""
 
 
 RELINEARIZE_GROWTH = 1.5
@@ -96,12 +107,17 @@ class TargetMerger:
         pose_deg: the sd per axis of the head pose's error over one fixation, degrees (an offset
             shared by both eyes' lines; ``MERGE_POSE_DEG`` for poses tracked in the scene video,
             0 for a device's own SLAM poses).
+        within_s: a fixation is tested only against groups whose last fixation ended at most
+            this many seconds before it begins (``STILL_HEAD_MERGE_S`` without head poses;
+            default: any).
     """
 
-    def __init__(self, pooled: Callable[[], PooledEstimate], sigma_deg: float = 1.0, pose_deg: float = 0.0):
+    def __init__(self, pooled: Callable[[], PooledEstimate], sigma_deg: float = 1.0, pose_deg: float = 0.0,
+                 within_s: float = np.inf):
         self.pooled = pooled
         self.sigma_deg = float(sigma_deg)
         self.pose_deg = float(pose_deg)
+        self.within_s = float(within_s)
         self.groups: list[MergeGroup] = []
         self._points = np.zeros((0, 3))           # each group's estimate (rows beyond the groups: room to grow)
 
@@ -122,6 +138,8 @@ class TargetMerger:
         origin = lines.origin_mm(0)
         scored: list[tuple] = []
         near = angle_deg(estimate.position_mm - origin, self._points[:len(self.groups)] - origin) <= MERGE_MAX_DEG
+        if np.isfinite(self.within_s):
+            near &= np.array([lines.t_s[0] - g.parts[-1].t_s[-1] <= self.within_s for g in self.groups], bool)
         for k in np.flatnonzero(near):                     # one array op over the groups, however many
             g = self.groups[k]
             lr = form_statistic(g.form, lines, estimate.position_mm, self.sigma_deg, self.pose_deg)

@@ -181,7 +181,9 @@ def near_point_check(e: GazeEstimate, origins_mm: np.ndarray, directions: np.nda
     ``Status.TOO_NEAR`` (not usable) with the reason; or, when those lines come from one place
     (``ONE_VIEWPOINT_MM``), a failed estimate (``Status.DEGENERATE``: no point) saying so, wherever
     the point lies: such lines fix no depth, near or far (their crossing is the eye's own motion
-    and the noise).
+    and the noise); and the same when the near point lies within ``ONE_VIEWPOINT_MM`` of most
+    lines' origins (the centre of the eye they come from, where one eye's lines all meet: a
+    fixation of mostly one eye's lines with a few of the other's that do not fit them).
 
     Args:
         e: an estimate.
@@ -199,6 +201,12 @@ def near_point_check(e: GazeEstimate, origins_mm: np.ndarray, directions: np.nda
                       e.n_samples, e.n_lines, e.info)
     if d >= near_mm:
         return e
+    apex = float(np.median(np.linalg.norm(origins_mm - np.asarray(e.position_mm, float), axis=1)))
+    if apex < ONE_VIEWPOINT_MM:         # most lines' own eye centre: where one eye's lines all meet
+        return failed(e.method, Status.DEGENERATE,
+                      f"the lines meet at the eye most of them come from ({apex:.1f} mm from their origins): "
+                      "one eye's lines from a still head fix no depth, and the other eye's few do not fit them",
+                      e.n_samples, e.n_lines, e.info)
     return GazeEstimate(e.method, Status.TOO_NEAR, e.position_mm, e.covariance_mm2, e.n_samples, e.n_lines,
                         f"the point lies {d:.0f} mm in front of the eyes, nearer than anyone fixates ({near_mm:g} mm): "
                         "the view lines are wrong (eye model, visual axes or eye labels)", e.info)

@@ -10,7 +10,7 @@ from estimator import BinocularSamples, Status, estimate, make_estimator, pertur
 from estimator.direction import GazeDirection, gaze_direction
 from estimator.errormodel import ErrorModel
 from estimator.frames import rotation_about_axis
-from estimator.result import NEAR_POINT_MM
+from estimator.result import NEAR_POINT_MM, GazeEstimate, near_point_check
 from wearable_gaze.formats.jsonio import validate
 from wearable_gaze.pipeline.types import Target
 
@@ -132,6 +132,27 @@ def test_one_eyes_lines_from_a_still_head_give_no_point_however_far_they_meet(me
     e = estimate(s, method, 0.5)
     assert e.status is Status.DIRECTION_ONLY, (e.status, e.position_mm, e.reason)
     assert "seen from one place" in e.reason
+
+
+def test_a_near_point_at_the_centre_of_the_eye_most_lines_come_from_is_no_point_not_wrong_lines(rng):
+    """The real G3 gaze-only sample's last fixation: 16 left-eye lines from a still head (its
+    centre moving 0.2 mm a sample) and 3 right-eye lines 18 deg below them; ``voxel``'s peak was
+    the left eye's own centre, 6 mm ahead of it, where its lines all meet: no depth, and no sign
+    of wrong lines. Such a point is no point (answered by the direction); a point 40 mm ahead of
+    both eyes (swapped eyes) stays 'too-near'."""
+    n = 16
+    lo = np.array([-32.0, 0, 0]) + np.outer(np.arange(n) * 0.2, [0.0, 1.0, 0.0])
+    ld = perturb_directions(FAR - lo, np.deg2rad(0.3), rng)
+    ro = np.full((3, 3), [32.0, 0, 0])
+    rd = perturb_directions(np.tile(FAR - [32.0, 0, 0] + [0, 2600.0, 0], (3, 1)), np.deg2rad(1.5), rng)
+    origins, directions = np.concatenate([lo, ro]), np.concatenate([ld, rd])
+    for point, want in ((lo.mean(axis=0) + [0, 0, 6.0], Status.DEGENERATE), ([0.0, 0.0, 40.0], Status.TOO_NEAR)):
+        e = GazeEstimate("voxel", Status.OK, np.array(point), np.eye(3), n + 3, n + 3)
+        checked = near_point_check(e, origins, directions)
+        assert checked.status is want, (point, checked.status, checked.reason)
+    assert "the eye most of them come from" in near_point_check(
+        GazeEstimate("voxel", Status.OK, lo.mean(axis=0) + [0, 0, 6.0], np.eye(3), n + 3, n + 3),
+        origins, directions).reason
 
 
 @pytest.mark.slow

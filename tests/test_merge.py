@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from estimator import BinocularSamples, PooledEstimate, estimate, perturb_directions
-from estimator.merge import MERGE_LR_THRESHOLD, MERGE_POSE_DEG, TargetMerger, merge_statistic
+from estimator.merge import MERGE_LR_THRESHOLD, MERGE_POSE_DEG, STILL_HEAD_MERGE_S, TargetMerger, merge_statistic
 from estimator.result import Status, failed
 from tests.helpers import same_target
 from tests.test_live_parts import _eyes, _pose, _record
@@ -89,6 +89,19 @@ def test_a_revisit_joins_its_target_which_is_estimated_again_and_a_poorly_fixed_
     assert merger.groups[0].estimate.position_mm == pytest.approx(_est(pooled).position_mm)
     assert merger.groups[1].estimate is ests[1]
     assert np.linalg.norm(merger.groups[0].estimate.position_mm - A) < 30.0
+
+
+def test_without_head_poses_a_revisit_joins_only_a_target_seen_within_the_still_head_time():
+    """A still head's frame is the world only for a while (``STILL_HEAD_MERGE_S``): A, B, then A
+    again 1.5 s after A's fixation ended joins A; the same revisit 10 s later starts a target of
+    its own; with no bound (head poses) it joins A whenever it comes."""
+    rng = np.random.default_rng(3)
+    a1, b = _fixation(A, 0.0, rng, still=True), _fixation(_off(A, 8.0, 1500.0), 1.6, rng, still=True)
+    soon, late = _fixation(A, 3.0, rng, still=True), _fixation(A, 11.5, rng, still=True)
+    for revisit, within_s, want in ((soon, STILL_HEAD_MERGE_S, [0, 1, 0]), (late, STILL_HEAD_MERGE_S, [0, 1, 2]),
+                                    (late, np.inf, [0, 1, 0])):
+        merger = TargetMerger(_Spy(), SIGMA_DEG, within_s=within_s)
+        assert [merger.add(x, _est(x), key=k) for k, x in enumerate((a1, b, revisit))] == want
 
 
 def test_a_fixation_whose_pooled_estimate_fails_starts_its_own_group_and_an_unusable_one_is_refused():

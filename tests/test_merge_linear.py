@@ -27,11 +27,13 @@ POSE_DEG = DEFAULT_ERROR_MODEL.pose_offset_deg
 OPTIONS = model_options("voxel", DEFAULT_ERROR_MODEL)
 
 
-def full_rerun_groups(fixations, samples, method="voxel", sigma_deg=SIGMA_DEG, error_model=DEFAULT_ERROR_MODEL):
-    """The merge as it was before issue 27: each fixation tested against every group with
-    ``merge_statistic`` over all the group's lines and, on joining, the group estimated again by
-    ``run_estimator`` over all its lines (``method``, ``sigma_deg``, ``error_model`` as
-    ``merge_fixations``'s). Returns [(members, estimate)] per group."""
+def full_rerun_groups(fixations, samples, method="voxel", sigma_deg=SIGMA_DEG, error_model=DEFAULT_ERROR_MODEL,
+                      within_s=np.inf):
+    """The merge as it was before issue 27: each fixation tested against every group (seen
+    ``within_s`` seconds before it) with ``merge_statistic`` over all the group's lines and, on
+    joining, the group estimated again by ``run_estimator`` over all its lines (``method``,
+    ``sigma_deg``, ``error_model`` as ``merge_fixations``'s). Returns [(members, estimate)] per
+    group."""
     pose_deg = error_model.pose_offset_deg if error_model is not None else 0.0
     options = model_options(method, error_model)
     groups = []                                            # [parts, members, estimate]
@@ -42,6 +44,8 @@ def full_rerun_groups(fixations, samples, method="voxel", sigma_deg=SIGMA_DEG, e
         o = lines.origin_mm(0)
         scored = []
         for k, (parts, _, e) in enumerate(groups):
+            if lines.t_s[0] - parts[-1].t_s[-1] > within_s:
+                continue
             v1, v2 = f.estimate.position_mm - o, e.position_mm - o
             if np.degrees(np.arccos(np.clip(v1 @ v2 / np.linalg.norm(v1) / np.linalg.norm(v2), -1, 1))) > MERGE_MAX_DEG:
                 continue

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from estimator.merge import STILL_HEAD_MERGE_S
 from wearable_gaze.cli import main
 from wearable_gaze.formats.gaze_export import read_gaze_csv
 from wearable_gaze.formats.outputs import check_output
@@ -91,9 +92,10 @@ def test_the_linear_merge_gives_the_full_reruns_groups_on_the_recording(g2b):
     from tests.test_merge_linear import _sd_frame_error, full_rerun_groups
 
     assert len(MERGE_INPUTS) == 1
-    fixes, samples, method, sigma_deg, error_model = MERGE_INPUTS[0]
-    ref = full_rerun_groups(fixes, samples, method, sigma_deg, error_model)
-    groups = fixations.merge_fixations(fixes, samples, method, sigma_deg, error_model)
+    fixes, samples, method, sigma_deg, error_model, within_s = MERGE_INPUTS[0]
+    assert within_s == STILL_HEAD_MERGE_S                # no head poses: revisits merged within it only
+    ref = full_rerun_groups(fixes, samples, method, sigma_deg, error_model, within_s)
+    groups = fixations.merge_fixations(fixes, samples, method, sigma_deg, error_model, within_s)
     assert [g.fixations for g in groups] == [m for m, _ in ref]
     for g, (_, e) in zip(groups, ref, strict=True):
         assert np.all(_sd_frame_error(g.estimate.position_mm, e.position_mm, e.covariance_mm2) < 0.1)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from functools import partial
 from pathlib import Path
 
@@ -309,8 +310,9 @@ def _targets_step(steps: Steps, cache: SessionCache, conf: ProcessConfig,
     rep = read_import_report(f.import_report) if f.import_report is not None else None
     prior = session_prior(f.eye_rays is not None, cache.eyes_path, rep)
     base = pose_model(f.eye_rays is None or f.pose_source not in ("device", "still_head"))
-    tconf = conf.targets_conf()
+    tconf = conf.targets_conf(still_head=f.pose_source == "still_head")
     params = {"method": tconf.method, "sigma": tconf.sigma_deg, "seg": tconf.segment.__dict__,
+              **({"merge_within_s": tconf.merge_within_s} if math.isfinite(tconf.merge_within_s) else {}),
               "error_model": dataclasses.asdict(base), "bias_prior": dataclasses.asdict(prior),
               "bias": "seen", **({"replay": "live"} if f.live_poses is not None else {})}
     inputs = partial(cache.targets_inputs, prior, base, depth_assumption(rep, f.pose_source))

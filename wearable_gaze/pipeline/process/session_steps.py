@@ -241,7 +241,8 @@ def run_targets(conf: TargetsConfig, inputs: TargetsInputs, progress: Progress |
         labels = segment_view_lines(samples, conf.segment)
         budget = session_bias(inputs.prior, seen_bias(samples, labels))     # sized from the lines
         result = find_targets(samples, labels, conf.method, conf.sigma_deg, progress,
-                              with_bias(inputs.error_model, budget), conf.segment.min_fixation_s)
+                              with_bias(inputs.error_model, budget), conf.segment.min_fixation_s,
+                              conf.merge_within_s)
     write_targets_step(out, result, conf.method, budget, inputs.depth_assumption)
     write_fixations_step(out, result)
     if inputs.device_gaze is not None:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from estimator.deprecation import renamed_kwargs
+from estimator.merge import STILL_HEAD_MERGE_S
 from estimator.segments import SegmentConfig
 from tracking.timeline import MAX_POSE_GAP_S
 
@@ -77,11 +78,14 @@ class ExportConfig:
 @dataclass(frozen=True)
 class TargetsConfig:
     """The targets step: the estimator ``method`` ('voxel', 'ml', 'paper', 'lse'), the angular
-    noise of a view line it assumes (``sigma_deg``) and the fixation ``segment`` settings."""
+    noise of a view line it assumes (``sigma_deg``), the fixation ``segment`` settings, and how
+    long before a revisit the target it joins must have been seen (``merge_within_s``:
+    ``estimator.merge.STILL_HEAD_MERGE_S`` without head poses; infinity: any time)."""
 
     method: str = "voxel"
     sigma_deg: float = 1.0
     segment: SegmentConfig = field(default_factory=SegmentConfig)
+    merge_within_s: float = float("inf")
 
 
 @dataclass(frozen=True)
@@ -141,8 +145,10 @@ class ProcessConfig:
         seg = SegmentConfig.for_rate(eye_rate_hz) if eye_rate_hz else SegmentConfig()
         return dataclasses.replace(self, segment_config=seg)
 
-    def targets_conf(self) -> TargetsConfig:
-        return TargetsConfig(self.method, self.sigma_deg, self.segment_config or SegmentConfig())
+    def targets_conf(self, still_head: bool = False) -> TargetsConfig:
+        """``still_head``: the session has no head poses (its head taken as still)."""
+        return TargetsConfig(self.method, self.sigma_deg, self.segment_config or SegmentConfig(),
+                             STILL_HEAD_MERGE_S if still_head else float("inf"))
 
     def tracking_conf(self) -> TrackingConfig:
         return TrackingConfig(self.track_every, self.build_map)

@@ -37,15 +37,17 @@ MODEL_METHODS = ("ml", "voxel")
 """The estimators whose covariance follows an ``ErrorModel`` (``estimator.errormodel``)."""
 
 
-def target_merger(method: str, sigma_deg: float, error_model: ErrorModel | None) -> TargetMerger:
+def target_merger(method: str, sigma_deg: float, error_model: ErrorModel | None,
+                  within_s: float = float("inf")) -> TargetMerger:
     """The merge test's groups (``estimator.merge.TargetMerger``) as ``process`` and the live
     session run it: a joined group's pooled lines estimated by ``method`` with ``sigma_deg``
     (``estimator.api.PooledEstimate``: as ``run_estimator`` over all of them), its covariance
     following ``error_model`` (``model_options``), the pose offset ``error_model.pose_offset_deg``
-    (0 without one)."""
+    (0 without one); a revisit joins only a group seen ``within_s`` seconds before it
+    (``estimator.merge.STILL_HEAD_MERGE_S`` for a session without head poses)."""
     options = model_options(method, error_model)
     return TargetMerger(lambda: PooledEstimate(method, sigma_deg, **options), sigma_deg,
-                        error_model.pose_offset_deg if error_model is not None else 0.0)
+                        error_model.pose_offset_deg if error_model is not None else 0.0, within_s)
 
 
 def model_options(method: str, error_model: ErrorModel | None) -> dict:

@@ -39,7 +39,8 @@ MIN_SPLIT_SAMPLES = 5
 
 def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sigma_deg: float,
                  progress=None, error_model: ErrorModel | None = None,
-                 min_fixation_s: float = SegmentConfig.min_fixation_s) -> TargetsResult:
+                 min_fixation_s: float = SegmentConfig.min_fixation_s,
+                 merge_within_s: float = float("inf")) -> TargetsResult:
     """Test each fixation of view lines (N,) segmented into fixations for motion, estimate the
     static ones (their running estimates too), merge the static fixations of one target and
     estimate each target from all its lines; a moving fixation is a moving target of its own,
@@ -59,6 +60,8 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
         progress: called as progress(done, total) after each fixation.
         error_model: the covariances' error model for ``ml`` and ``voxel`` (running estimates,
             fixations, merges and targets); None: the inverse Fisher information.
+        merge_within_s: a revisit is merged only with a target seen this many seconds before
+            it (``estimator.merge.STILL_HEAD_MERGE_S`` without head poses; default: any).
     """
     labels, motion = split_two_point_fixations(samples, labels, sigma_deg, min_fixation_s)
     n_seg = len(motion)
@@ -69,7 +72,7 @@ def find_targets(samples: BinocularSamples, labels: np.ndarray, method: str, sig
         fixations.append(_fixation(samples, k, idx, motion[k], method, sigma_deg, running, error_model))
         if progress:
             progress(k + 1, n_seg + 1)
-    groups = merge_fixations(fixations, samples, method, sigma_deg, error_model)
+    groups = merge_fixations(fixations, samples, method, sigma_deg, error_model, merge_within_s)
     groups += join_pursuits(fixations, samples, sigma_deg, error_model)
     groups += direction_only_groups(fixations)
     groups.sort(key=lambda g: g.fixations[0])
@@ -228,14 +231,14 @@ class _Group:
 
 
 def merge_fixations(fixations: list, samples: BinocularSamples, method: str, sigma_deg: float,
-                    error_model: ErrorModel | None = None) -> list:
+                    error_model: ErrorModel | None = None, within_s: float = float("inf")) -> list:
     """Static fixations of one target merged and estimated again from all their lines, one
     fixation at a time in order, by ``estimator.merge.TargetMerger`` (the test the live session
     runs too): a fixation joins the group whose pooled lines fit one point with its own, else
     starts a group; fixations without a usable estimate are left out; merged estimates (from
     ``method`` with ``sigma_deg``) have covariances that follow ``error_model``. Returns the
     groups in order of first fixation, each with its sorted view-line indices (N,) and parts."""
-    merger = target_merger(method, sigma_deg, error_model)
+    merger = target_merger(method, sigma_deg, error_model, within_s)
     by_index = {}
     for f in fixations:
         if f.usable:
