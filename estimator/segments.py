@@ -378,7 +378,7 @@ class OnlineSegmenter:
 
     The same test, made as soon as the window after a sample is full: how far the median
     cyclopean ray of the ``window`` samples after it misses every point of the median ray of the
-    ``window`` before it between the depths the fixation's lines so far fix (``LineSums``, running
+    ``window`` before it between the depths the fixation's lines so far fix (``LineSums3``, running
     sums since the fixation began, ``estimator.segdepth``; ``min_depth_mm`` to infinity while they
     fix none; ``world_jump_deg``; without origins the angle between the directions), against the
     same threshold (``SegmentConfig.threshold_deg`` of the window medians' noise measured as
@@ -482,7 +482,7 @@ class OnlineSegmenter:
 
     def score(self, noise: tuple[float, float] | None) -> float:
         """The window test on the full buffer, degrees (``world_jump_deg`` between the depths the
-        fixation's lines fix, ``LineSums.bounds``, at the ``noise_deg`` given; None: from
+        fixation's lines fix, ``LineSums3.bounds``, at the ``noise_deg`` given; None: from
         ``min_depth_mm`` on). Its two windows' medians are the latest and the one ``window``
         samples before (kept by ``_measure_noise``; not kept for window 1 just after a gap)."""
         w = self.config.window
