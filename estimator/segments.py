@@ -31,16 +31,18 @@ Defaults (documented in docs/processing.md, "Fixations"): window 8 samples (0.13
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from . import segscalar as sc
 from .frames import angle_deg
 from .lines import BinocularSamples
-from .segdepth import LineSums, line_noise_deg, refine_cuts, stretches, world_jump_deg
 from .segdepth import at_gap as _at_gap
+from .segdepth import line_noise_deg, refine_cuts, stretches, world_jump_deg
 from .segdepth import peaks as _peaks
 
 log = logging.getLogger(__name__)
@@ -179,7 +181,12 @@ def _second_angles(o0, d0, o1, d1, o2, d2, min_depth_mm: float) -> np.ndarray:
 def _diff_sd_deg(second_deg) -> float:
     """The per-axis sd, degrees, of the difference of two window medians from the angles (K,) between
     window medians and the mean of the medians a window before and after (``median_noise_deg``)."""
-    return float(np.sqrt(2.0 / 1.5) * np.quantile(second_deg, MEDIAN_NOISE_QUANTILE) / RAYLEIGH_Q25)
+    return _diff_sd_of_quantile(float(np.quantile(second_deg, MEDIAN_NOISE_QUANTILE)))
+
+
+def _diff_sd_of_quantile(q_deg: float) -> float:
+    """``_diff_sd_deg`` of angles whose ``MEDIAN_NOISE_QUANTILE`` quantile is ``q_deg``."""
+    return float(np.sqrt(2.0 / 1.5) * q_deg / RAYLEIGH_Q25)
 
 
 def session_noise_deg(origins, directions, w: int, min_depth_mm: float) -> tuple[float, float]:
@@ -371,7 +378,7 @@ class OnlineSegmenter:
 
     The same test, made as soon as the window after a sample is full: how far the median
     cyclopean ray of the ``window`` samples after it misses every point of the median ray of the
-    ``window`` before it between the depths the fixation's lines so far fix (``LineSums``, running
+    ``window`` before it between the depths the fixation's lines so far fix (``LineSums3``, running
     sums since the fixation began, ``estimator.segdepth``; ``min_depth_mm`` to infinity while they
     fix none; ``world_jump_deg``; without origins the angle between the directions), against the
     same threshold (``SegmentConfig.threshold_deg`` of the window medians' noise measured as
@@ -390,11 +397,11 @@ class OnlineSegmenter:
 
     def __init__(self, config: SegmentConfig = SegmentConfig()):
         self.config = config
-        self.buf: deque = deque(maxlen=2 * config.window)      # (direction (3,), origin (3,) or None, lines)
-        self.medians: deque = deque(maxlen=2 * config.window + 1)    # (origin, direction) medians of the last windows
-        self.seconds: deque = deque(maxlen=self.NOISE_SAMPLES)  # median_noise_deg's angle at each window
-        self.turns: deque = deque(maxlen=self.NOISE_SAMPLES)    # angle of each sample off its neighbours' mean
-        self.sums = LineSums()          # the current fixation's lines before the after-window
+        self.buf: deque = deque(maxlen=2 * config.window)      # (direction, origin or None, lines or None)
+        self.medians: deque = deque(maxlen=2 * config.window + 1)    # (origin or None, direction) of the last windows
+        self.seconds = sc.SlidingQuantile(self.NOISE_SAMPLES)   # median_noise_deg's angle at each window
+        self.turns = sc.SlidingQuantile(self.NOISE_SAMPLES)     # angle of each sample off its neighbours' mean
+        self.sums = sc.LineSums3()      # the current fixation's lines before the after-window
         self.in_saccade = False
         self.run = 0                    # positions since the current saccade's crossing
         self.last_t: float | None = None
@@ -412,9 +419,9 @@ class OnlineSegmenter:
         w = self.config.window
         gap = self.last_t is not None and t_s - self.last_t > self.config.max_gap_s
         self.last_t = t_s
-        d = _unit(np.asarray(direction, float))
-        o = None if origin is None else np.asarray(origin, float)
-        item = (d, o, (None if o is None else (o[None], d[None])) if lines is None else lines)
+        d = sc.unit3(sc.vec3(direction))    # plain float 3-tuples (estimator.segscalar)
+        o = None if origin is None else sc.vec3(origin)
+        item = (d, o, (None if o is None else ((o, d),)) if lines is None else sc.lines3(*lines))
         if gap:
             self.buf.clear()
             self.medians.clear()
@@ -425,7 +432,7 @@ class OnlineSegmenter:
         self.buf.append(item)
         self._measure_noise()
         if len(self.buf) > w and not self.in_saccade and self.buf[-w - 1][2] is not None:
-            self.sums.add(*self.buf[-w - 1][2])           # it has left the after-window
+            self.sums.add(self.buf[-w - 1][2])            # it has left the after-window
         if len(self.buf) < 2 * w:
             return False
         noise = self.noise_deg()
@@ -447,17 +454,13 @@ class OnlineSegmenter:
         last gap, ``median_noise_deg``'s angle at the window ``window`` samples back."""
         w, buf = self.config.window, self.buf
         if len(buf) >= 3:
-            self.turns.append(float(angle_deg(buf[-2][0], buf[-3][0] + buf[-1][0])))
+            self.turns.append(sc.angle3_deg(buf[-2][0], sc.add3(buf[-3][0], buf[-1][0])))
         if len(buf) < w:
             return
-        last = list(buf)[-w:]
-        origin = None if any(x[1] is None for x in last) else np.median([x[1] for x in last], axis=0)
-        self.medians.append((np.full(3, np.nan) if origin is None else origin,
-                             _unit(np.median([x[0] for x in last], axis=0))))
+        self.medians.append(sc.window_median(list(buf)[-w:]))
         if len(self.medians) == 2 * w + 1:
             (o0, d0), (o1, d1), (o2, d2) = (self.medians[i] for i in (0, w, 2 * w))
-            self.seconds.append(float(_second_angles(o0[None], d0[None], o1[None], d1[None], o2[None], d2[None],
-                                                     self.config.min_depth_mm)[0]))
+            self.seconds.append(sc.second_angle3_deg(o0, d0, o1, d1, o2, d2, self.config.min_depth_mm))
 
     def noise_deg(self) -> tuple[float, float] | None:
         """(per-sample noise, sd of the difference of two window medians), degrees, as measured
@@ -466,9 +469,9 @@ class OnlineSegmenter:
         w = self.config.window
         if len(self.turns) < 2 * w:
             return None
-        noise = float(np.median(self.turns)) / SECOND_DIFF_MEDIAN
+        noise = self.turns.median() / SECOND_DIFF_MEDIAN
         if len(self.seconds) >= 2 * w:
-            return noise, _diff_sd_deg(np.array(self.seconds))
+            return noise, _diff_sd_of_quantile(self.seconds.quantile(MEDIAN_NOISE_QUANTILE))
         return noise, float(np.sqrt(2.0) * MEDIAN_SD * noise / np.sqrt(w))
 
     def threshold_deg(self) -> float:
@@ -479,15 +482,14 @@ class OnlineSegmenter:
 
     def score(self, noise: tuple[float, float] | None) -> float:
         """The window test on the full buffer, degrees (``world_jump_deg`` between the depths the
-        fixation's lines fix, ``LineSums.bounds``, at the ``noise_deg`` given; None: from
-        ``min_depth_mm`` on)."""
+        fixation's lines fix, ``LineSums3.bounds``, at the ``noise_deg`` given; None: from
+        ``min_depth_mm`` on). Its two windows' medians are the latest and the one ``window``
+        samples before (kept by ``_measure_noise``; not kept for window 1 just after a gap)."""
         w = self.config.window
-        d = np.array([x[0] for x in self.buf])
-        da, db = _unit(np.median(d[:w], axis=0)), _unit(np.median(d[w:], axis=0))
-        if any(x[1] is None for x in self.buf):
-            return float(angle_deg(da, db))
-        o = np.array([x[1] for x in self.buf])
-        oa = np.median(o[:w], axis=0)
-        near, far = (self.config.min_depth_mm, np.inf) if noise is None else \
+        ob, db = self.medians[-1]
+        oa, da = self.medians[-1 - w] if len(self.medians) > w else sc.window_median(list(self.buf)[:w])
+        if oa is None or ob is None:
+            return sc.angle3_deg(da, db)
+        near, far = (self.config.min_depth_mm, math.inf) if noise is None else \
             self.sums.bounds(oa, da, line_noise_deg(*noise, w), self.config.min_depth_mm)
-        return float(world_jump_deg(oa, da, np.median(o[w:], axis=0), db, near, far)[0])
+        return sc.world_jump3_deg(oa, da, ob, db, near, far)
