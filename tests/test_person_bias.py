@@ -44,12 +44,28 @@ def _session(base, name, bias, seed):
     return root
 
 
-def _rms_error_mm(res, root):
+def _pairs(res, root):
     truth = json.loads((root / "truth" / "targets.json").read_text())["targets"]
     fixated = [t for t in truth if sum(b - a for a, b in t["fixations_s"]) >= 1.0]
     pairs = match_targets(res.targets, fixated)
     assert len(pairs) == len(fixated) and all(f is not None for _, f in pairs)
-    err = [np.linalg.norm(np.array(f["position_mm"]) - tt["position_mm"]) for tt, f in pairs]
+    return pairs
+
+
+def _rms_error_mm(res, root):
+    err = [np.linalg.norm(np.array(f["position_mm"]) - tt["position_mm"]) for tt, f in _pairs(res, root)]
+    return float(np.sqrt(np.mean(np.square(err))))
+
+
+def _rms_direction_error_deg(res, root):
+    """RMS over the fixated targets of the angle, seen from where the target's lines were seen
+    (its ``direction.seen_from_mm``), between the estimate and the true target: what an eye's
+    angular bias turns, apart from the depth (mostly noise from a metre on)."""
+    err = []
+    for tt, f in _pairs(res, root):
+        seen = np.array(f["direction"]["seen_from_mm"])
+        a, b = np.array(f["position_mm"]) - seen, np.array(tt["position_mm"]) - seen
+        err.append(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
     return float(np.sqrt(np.mean(np.square(err))))
 
 
@@ -146,8 +162,11 @@ def _imported(session, work):
 def test_an_imported_sessions_eye_rays_learn_and_take_the_correction(person_p, tmp_path):
     """The device-ray path: learned from an imported validation session (its eye rays, no eye
     calibration), applied to an imported later session. Figures: learned left (-1.20, +0.87),
-    right (-0.97, +1.10) deg; the imported later session's RMS target error 68 mm without, 39 mm
-    with the correction (its other errors, e.g. the head poses tracked in the scene video, stay)."""
+    right (-0.97, +1.10) deg; the imported later session's targets' direction error (RMS, seen
+    from their lines) 1.41 deg without, 0.10 deg with the correction; in mm 58 without, 51 with:
+    its two fixated targets are 0.94 m away (32 -> 3 mm) and 2.4 m away (76 -> 72 mm, the depth's
+    noise, which a turn of the lines does not remove, and which four samples more or fewer at the
+    fixation's edges move by 10 mm: 68 -> 39 mm with issue 26's segmentation)."""
     val, _, later, _, _ = person_p
     imp_val = _imported(val, tmp_path / "v")
     process_session(imp_val, method="ml", overlay=False, report=False)
@@ -161,8 +180,10 @@ def test_an_imported_sessions_eye_rays_learn_and_take_the_correction(person_p, t
     plain = process_session(imp_later, tmp_path / "plain", method="ml", overlay=False, report=False)
     fixed = process_session(imp_later, tmp_path / "fixed", method="ml", overlay=False, report=False, person=person)
     without, with_ = _rms_error_mm(plain, later), _rms_error_mm(fixed, later)
-    print(f"imported later session RMS target error: {without:.0f} mm without, {with_:.0f} mm with the correction")
-    assert with_ < 0.75 * without
+    turned = _rms_direction_error_deg(plain, later), _rms_direction_error_deg(fixed, later)
+    print(f"imported later session RMS target error: {without:.0f} mm without, {with_:.0f} mm with the correction; "
+          f"direction {turned[0]:.2f} deg without, {turned[1]:.2f} deg with")
+    assert turned[1] < 0.5 * turned[0] and with_ < without
 
 
 def test_viewlines_turns_each_eye_by_its_correction(person_p, tmp_path):
