@@ -95,6 +95,18 @@ def test_one_eyes_first_lines_meeting_near_it_do_not_hold_a_far_fixations_answer
         assert est._buf.weight_sum == pytest.approx(est.weights.sum())      # kept in step
 
 
+def one_eye_fan(meet_mm, rng, n=60):
+    """(samples, (n, 3) origins mm, the point mm): ``n`` samples at 60 Hz of the left eye alone
+    from a still head, its origin moving 1.2 mm as an eye model's centre does, whose lines (0.2 deg
+    of noise) meet ``meet_mm`` in front of it on its line to ``FAR``."""
+    lo = np.array([-32.0, 0, 0]) + np.outer(np.linspace(0, 1.2, n), [0.0, 1.0, 0.0])
+    near = lo[0] + meet_mm * (FAR - lo[0]) / np.linalg.norm(FAR - lo[0])
+    nan = np.full((n, 3), np.nan)
+    s = BinocularSamples.from_arrays(np.arange(n) / 60.0, lo, perturb_directions(near - lo, np.deg2rad(0.2), rng),
+                                     nan, nan)
+    return s, lo, near
+
+
 @pytest.mark.parametrize("method", ["ml", "voxel"])
 def test_one_eyes_lines_from_a_still_head_meeting_near_it_are_a_direction_not_wrong_lines(method, rng):
     """A fixation the other eye lost, from a still head: one eye's lines, their origin moving
@@ -102,12 +114,7 @@ def test_one_eyes_lines_from_a_still_head_meeting_near_it_are_a_direction_not_wr
     were seen from one place), so the point says nothing about the lines being wrong: the
     fixation is answered by its direction, not 'too-near' (which needs lines from more than one
     place: the two eyes' lines meeting 40 mm ahead stay 'too-near', tests/test_import.py)."""
-    n = 60
-    lo = np.array([-32.0, 0, 0]) + np.outer(np.linspace(0, 1.2, n), [0.0, 1.0, 0.0])
-    near = lo[0] + 15.0 * (FAR - lo[0]) / np.linalg.norm(FAR - lo[0])
-    nan = np.full((n, 3), np.nan)
-    s = BinocularSamples.from_arrays(np.arange(n) / 60.0, lo, perturb_directions(near - lo, np.deg2rad(0.2), rng),
-                                     nan, nan)
+    s, lo, near = one_eye_fan(15.0, rng)
     e = estimate(s, method, 0.5)
     assert e.status is Status.DIRECTION_ONLY, (e.status, e.position_mm, e.reason)
     assert "seen from one place" in e.reason and e.direction.depth95_mm == (NEAR_POINT_MM, np.inf)
@@ -123,13 +130,7 @@ def test_one_eyes_lines_from_a_still_head_give_no_point_however_far_they_meet(me
     """The same one-eye fan whose lines cross 180 mm ahead (beyond the near point, where a point
     used to pass as 'ok'): seen from one place, their crossing is the eye centre's motion and
     the noise, no depth; the fixation is answered by its direction."""
-    n = 60
-    lo = np.array([-32.0, 0, 0]) + np.outer(np.linspace(0, 1.2, n), [0.0, 1.0, 0.0])
-    near = lo[0] + 180.0 * (FAR - lo[0]) / np.linalg.norm(FAR - lo[0])
-    nan = np.full((n, 3), np.nan)
-    s = BinocularSamples.from_arrays(np.arange(n) / 60.0, lo, perturb_directions(near - lo, np.deg2rad(0.2), rng),
-                                     nan, nan)
-    e = estimate(s, method, 0.5)
+    e = estimate(one_eye_fan(180.0, rng)[0], method, 0.5)
     assert e.status is Status.DIRECTION_ONLY, (e.status, e.position_mm, e.reason)
     assert "seen from one place" in e.reason
 
