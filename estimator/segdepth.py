@@ -33,7 +33,9 @@ over the lines: an eye calibration's offset differs between the eyes (vergence: 
 the 0.5 deg per-eye offset prior of the merge test (``estimator.merge.MERGE_BIAS_DEG``) and of
 the simulated sessions' biases (up to 0.5 deg)."""
 MEDIAN_SD = 1.2533
-"""``estimator.segments.MEDIAN_SD`` (the median's sd over the mean's, times sqrt(n))."""
+"""The standard deviation of the median of n normal samples over that of one sample, times
+sqrt(n) (large n: sqrt(pi / 2)); the window medians' noise for independent samples (here and in
+``estimator.segments``)."""
 
 
 def line_noise_deg(sample_noise: float, diff_sd: float, w: int) -> float:
@@ -164,6 +166,11 @@ def world_jump_deg(o_a: ArrayLike, d_a: ArrayLike, o_b: ArrayLike, d_b: ArrayLik
     return np.where(inside, off, ends)
 
 
+def window_medians(x: np.ndarray, w: int) -> np.ndarray:
+    """(M - w + 1, 3) the median of each run of ``w`` rows of ``x`` (M, 3); row j: rows j .. j + w - 1."""
+    return np.median(np.lib.stride_tricks.sliding_window_view(x, w, axis=0), axis=-1)
+
+
 def _unit(x: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         return x / np.linalg.norm(x, axis=-1, keepdims=True)
@@ -210,8 +217,7 @@ def refine_cuts(o: np.ndarray, d: np.ndarray, eyes: tuple, spans: list, w: int, 
     first pass's test (0 here)."""
     if len(d) < 2 * w:
         return []
-    med_d = _unit(np.median(np.lib.stride_tricks.sliding_window_view(d, w, axis=0), axis=-1))
-    med_o = np.median(np.lib.stride_tricks.sliding_window_view(o, w, axis=0), axis=-1)
+    med_d, med_o = _unit(window_medians(d, w)), window_medians(o, w)
     skip = mixed_positions(eyes[1], w)
     cuts = []
     for a, e in spans:

@@ -36,20 +36,16 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from . import segscalar as sc
 from .frames import angle_deg
 from .lines import BinocularSamples
+from .segdepth import MEDIAN_SD, line_noise_deg, mixed_positions, refine_cuts, stretches, window_medians, world_jump_deg
 from .segdepth import at_gap as _at_gap
-from .segdepth import line_noise_deg, refine_cuts, stretches, world_jump_deg
 from .segdepth import peaks as _peaks
 
 log = logging.getLogger(__name__)
 
-MEDIAN_SD = 1.2533
-"""The standard deviation of the median of n normal samples over that of one sample, times
-sqrt(n) (large n: sqrt(pi / 2)); the window medians' noise for independent samples."""
 MEDIAN_NOISE_QUANTILE = 0.25
 """``median_noise_deg`` reads this quantile of the window medians' second differences: a
 saccade spoils the three windows around it, up to half of them where fixations are short (0.3 s
@@ -158,7 +154,7 @@ def median_noise_deg(origins, directions, w: int, min_depth_mm: float) -> float:
     d = np.asarray(directions, float)
     if len(d) < 3 * w:
         return float("nan")
-    med_d, med_o = _unit(_window_medians(d, w)), _window_medians(np.asarray(origins, float), w)
+    med_d, med_o = _unit(window_medians(d, w)), window_medians(np.asarray(origins, float), w)
     return _diff_sd_deg(_second_angles(med_o[:-2 * w], med_d[:-2 * w], med_o[w:-w], med_d[w:-w],
                                        med_o[2 * w:], med_d[2 * w:], min_depth_mm))
 
@@ -201,11 +197,6 @@ def session_noise_deg(origins, directions, w: int, min_depth_mm: float) -> tuple
     return noise, float(diff_sd)
 
 
-def _window_medians(x: np.ndarray, w: int) -> np.ndarray:
-    """(M - w + 1, 3) the median of each run of ``w`` rows of ``x`` (M, 3)."""
-    return np.median(sliding_window_view(x, w, axis=0), axis=-1)
-
-
 def _unit(x: np.ndarray) -> np.ndarray:
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
 
@@ -237,8 +228,8 @@ def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig,
     before, after = np.full((m, 3), np.nan), np.full((m, 3), np.nan)
     if m < 2 * w:
         return score, before, after
-    med_d = _unit(_window_medians(d, w))                 # row j: samples j .. j + w - 1
-    med_o = _window_medians(o, w)
+    med_d = _unit(window_medians(d, w))                 # row j: samples j .. j + w - 1
+    med_o = window_medians(o, w)
     k = np.arange(w, m - w + 1)
     before[k], after[k] = med_d[k - w], med_d[k]
     oa, ob = med_o[k - w], med_o[k]
@@ -248,11 +239,9 @@ def jump_scores(o: np.ndarray, d: np.ndarray, config: SegmentConfig,
         kp = k[posed]
         score[kp] = world_jump_deg(oa[posed], before[kp], ob[posed], after[kp], config.min_depth_mm)
     if eyes is not None:
-        code = np.isfinite(eyes[1][0, :, 0]) + 2 * np.isfinite(eyes[1][1, :, 0])
-        span = sliding_window_view(code, 2 * w)          # row j: samples j .. j + 2w - 1
-        for j in np.flatnonzero(span.min(axis=1) != span.max(axis=1)):
-            mixed = _mixed_score(eyes, slice(j, j + w), slice(j + w, j + 2 * w), config.min_depth_mm)
-            score[j + w] = angle_deg(before[j + w], after[j + w]) if mixed is None else mixed
+        for j in np.flatnonzero(mixed_positions(eyes[1], w)):     # windows j - w .. j + w - 1
+            mixed = _mixed_score(eyes, slice(j - w, j), slice(j, j + w), config.min_depth_mm)
+            score[j] = angle_deg(before[j], after[j]) if mixed is None else mixed
     return score, before, after
 
 
