@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -48,6 +49,9 @@ from .errormodel_regions import region_radius
 from .frames import tangent_basis
 from .lines import BinocularSamples, ViewLines
 from .result import NEAR_POINT_MM, ONE_VIEWPOINT_MM, GazeEstimate, Status, origin_spread_mm
+
+if TYPE_CHECKING:                      # motion imports merge; at run time only the path's attributes are read
+    from .motion import Trajectory
 
 MIN_DIRECTION_SAMPLES = 3
 """The samples a direction needs: a mean and a 2D spread about it (2 degrees of freedom)."""
@@ -153,6 +157,44 @@ def gaze_direction(samples: BinocularSamples, model: ErrorModel | None = None) -
     spread_deg = math.degrees(math.sqrt(max(float(np.trace(spread)) / 2.0, 0.0)))
     return GazeDirection(origin, unit, cone, depth_bounds(samples.select(np.flatnonzero(keep)), origin, unit, model),
                          spread_deg, n)
+
+
+def path_direction(samples: BinocularSamples, path: Trajectory, probability: float = CONE_P) -> GazeDirection | None:
+    """A moving target's direction (its ``path``, ``estimator.motion.Trajectory``, fitted to
+    ``samples`` (N,), world frame, time order): where the gaze pointed at the path's middle knot.
+    Seen from the samples' cyclopean origin at that knot's time (interpolated), toward the knot's
+    point; the cone is the ``probability`` radius (2 degrees of freedom) of the knot's covariance
+    across the line of sight, as an angle; the depth interval is its covariance along the line
+    of sight, symmetric in inverse depth and cut at ``NEAR_POINT_MM`` (far ``inf`` when inverse
+    depth 0 is inside it); ``spread_deg``: the samples' RMS angular offset per axis from the
+    path's point at their own times. None with fewer than ``MIN_DIRECTION_SAMPLES`` samples
+    carrying a line or a point at the origin."""
+    o, d = cyclopean(samples)
+    keep = np.all(np.isfinite(d), axis=1)
+    if keep.sum() < MIN_DIRECTION_SAMPLES:
+        return None
+    t = np.asarray(samples.t_s, float)[keep]
+    o, d = o[keep], d[keep]
+    point, cov = (np.asarray(v, float) for v in path.middle())
+    t_mid = float(path.t_s[path.middle_knot()])
+    origin = np.array([np.interp(t_mid, t, o[:, j]) for j in range(3)])
+    v = point - origin
+    r = float(np.linalg.norm(v))
+    if not math.isfinite(r) or r <= 0:
+        return None
+    u = v / r
+    b1, b2 = (b[0] for b in tangent_basis(u[None]))
+    B = np.stack([b1, b2])                                          # (2, 3)
+    top = max(float(np.linalg.eigvalsh(B @ cov @ B.T)[-1]), 0.0) / (r * r)
+    cone = math.degrees(math.sqrt(top) * region_radius(probability, 2))
+    z = float(norm.ppf(0.5 + probability / 2.0))
+    q, s = 1.0 / r, math.sqrt(max(float(u @ cov @ u), 0.0)) / (r * r)
+    hi, lo = min(q + z * s, 1.0 / NEAR_POINT_MM), q - z * s
+    depth = (1.0 / hi, 1.0 / lo if lo > 0 else float("inf"))
+    seen = path.at(t) - o
+    seen /= np.linalg.norm(seen, axis=1, keepdims=True)
+    off = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", seen, d), -1.0, 1.0)))
+    return GazeDirection(origin, u, cone, depth, float(np.sqrt(np.mean(off ** 2) / 2.0)), len(d))
 
 
 def _systematic(samples: BinocularSamples, model: ErrorModel | None) -> tuple[float, float]:

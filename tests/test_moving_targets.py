@@ -68,6 +68,9 @@ def test_the_moving_target_is_reported_as_a_path_near_the_true_one(moving):
     np.testing.assert_allclose(row["position_mm"], pos[mid], atol=0.1)
     tg = Target.from_row(row)
     assert tg.moving and not tg.ok
+    # it has a direction: where the gaze pointed at the middle knot, the knot inside its cone
+    g = tg.direction
+    assert g is not None and g.contains(pos[mid]) and g.cone95_deg < 10.0, g
 
 
 def test_targets_csv_says_which_target_moves(moving):

@@ -13,6 +13,7 @@ import numpy as np
 
 from estimator import BinocularSamples, GazeEstimate, Status
 from estimator.aoi import fixation_durations_s
+from estimator.direction import path_direction
 from estimator.errormodel import DEFAULT_BIAS_DEG, ErrorModel
 from estimator.frames import angle_deg
 from estimator.motion import MOVING, STATIC, TWO_POINTS, Trajectory, classify_lines, smooth_trajectory
@@ -205,7 +206,8 @@ def split_two_point_fixations(samples: BinocularSamples, labels: np.ndarray, sig
 
 def moving_target(index: int, samples: BinocularSamples, group, method: str) -> Target:
     """The moving target of one moving fixation (``group``: its view lines and path): its point
-    is the path's position at the middle knot, with that knot's covariance, status 'moving'."""
+    is the path's position at the middle knot, with that knot's covariance, status 'moving', and
+    its direction there (``estimator.direction.path_direction``)."""
     tr = group.trajectory
     pos, cov = tr.middle()
     idx = group.samples
@@ -215,7 +217,7 @@ def moving_target(index: int, samples: BinocularSamples, group, method: str) -> 
                   axes95_mm=radii, status=target_status(MOVING, pos, radii, samples.select(idx)),
                   n_samples=len(idx), t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in group.fixations), method=method, crb_mm=float("nan"),
-                  samples=idx, moving=True, trajectory=tr)
+                  samples=idx, moving=True, trajectory=tr, direction=path_direction(samples.select(idx), tr))
 
 
 @dataclass

@@ -25,7 +25,7 @@ from estimator import (
     make_estimator,
     view_lines_to_world,
 )
-from estimator.direction import gaze_direction, with_direction
+from estimator.direction import gaze_direction, path_direction, with_direction
 from estimator.motion import DEFAULT_KNOT_S, MIN_LINES, MOVING, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter
@@ -348,7 +348,8 @@ class GazeEstimation:
         """The target of the finished fixation ``done`` when its (thinned) lines ``samples``
         (world frame, time order) are of a moving point, else None: its path
         (``estimator.motion.smooth_trajectory``) in ``trajectory``, its point the path's at the
-        middle knot with that knot's covariance, status 'moving' (or why not, as
+        middle knot with that knot's covariance and its direction there
+        (``estimator.direction.path_direction``), status 'moving' (or why not, as
         ``pipeline.steps.target_status.target_status`` says), as ``process`` reports one."""
         if len(samples) < MIN_LINES:
             return None
@@ -363,7 +364,8 @@ class GazeEstimation:
         return Target(index=self.targets.new_own(), position_mm=np.asarray(pos, float), covariance_mm2=cov,
                       axes95_mm=radii, status=target_status(MOVING, pos, radii, samples), n_samples=done.n_samples,
                       t_start=done.t_start, t_end=t_end, fixations=(done.fixation,),
-                      method=self.method, crb_mm=float("nan"), moving=True, trajectory=path)
+                      method=self.method, crb_mm=float("nan"), moving=True, trajectory=path,
+                      direction=path_direction(samples, path))
 
 
 @dataclass(frozen=True)
