@@ -159,28 +159,30 @@ def gaze_direction(samples: BinocularSamples, model: ErrorModel | None = None) -
                          spread_deg, n)
 
 
-def path_direction(samples: BinocularSamples, path: Trajectory, probability: float = CONE_P) -> GazeDirection | None:
-    """A moving target's direction (its ``path``, ``estimator.motion.Trajectory``, fitted to
-    ``samples`` (N,), world frame, time order): where the gaze pointed at the path's middle knot.
-    Seen from the samples' cyclopean origin at that knot's time (interpolated), toward the knot's
-    point; the cone is the ``probability`` radius (2 degrees of freedom) of the knot's covariance
-    across the line of sight, as an angle; the depth interval is its covariance along the line
-    of sight, symmetric in inverse depth and cut at ``NEAR_POINT_MM`` (far ``inf`` when inverse
-    depth 0 is inside it); ``spread_deg``: the samples' RMS angular offset per axis from the
-    path's point at their own times. None with fewer than ``MIN_DIRECTION_SAMPLES`` samples
-    carrying a line or a point at the origin."""
+def point_direction(samples: BinocularSamples, point_mm: ArrayLike, covariance_mm2: ArrayLike,
+                    origin_mm: ArrayLike | None = None, points_mm: ArrayLike | None = None,
+                    probability: float = CONE_P) -> GazeDirection | None:
+    """The direction of a point with its covariance, as its lines ``samples`` (N,) (world frame,
+    time order) saw it: from ``origin_mm`` (3,) (None: the mean of the samples' cyclopean
+    origins) toward ``point_mm`` (3,); the cone is the ``probability`` radius (2 degrees of
+    freedom) of ``covariance_mm2`` (3, 3) across the line of sight, as an angle; the depth
+    interval is the covariance along the line of sight, symmetric in inverse depth and cut at
+    ``NEAR_POINT_MM`` (far ``inf`` when inverse depth 0 is inside it); ``spread_deg``: the
+    samples' RMS angular offset per axis from ``points_mm`` (N, 3) (None: the point), each seen
+    from its own cyclopean origin. A target with a point is answered by it; its direction is
+    then where that point lies, not the mean of directions that a walking head turned by tens of
+    degrees (on the Aria walk the mean's cone was 45-90 deg). None with fewer than
+    ``MIN_DIRECTION_SAMPLES`` samples carrying a line, or a point at the origin."""
     o, d = cyclopean(samples)
     keep = np.all(np.isfinite(d), axis=1)
     if keep.sum() < MIN_DIRECTION_SAMPLES:
         return None
-    t = np.asarray(samples.t_s, float)[keep]
     o, d = o[keep], d[keep]
-    point, cov = (np.asarray(v, float) for v in path.middle())
-    t_mid = float(path.t_s[path.middle_knot()])
-    origin = np.array([np.interp(t_mid, t, o[:, j]) for j in range(3)])
+    point, cov = np.asarray(point_mm, float), np.asarray(covariance_mm2, float)
+    origin = o.mean(axis=0) if origin_mm is None else np.asarray(origin_mm, float)
     v = point - origin
     r = float(np.linalg.norm(v))
-    if not math.isfinite(r) or r <= 0:
+    if not (math.isfinite(r) and r > 0 and np.all(np.isfinite(cov))):
         return None
     u = v / r
     b1, b2 = (b[0] for b in tangent_basis(u[None]))
@@ -191,10 +193,27 @@ def path_direction(samples: BinocularSamples, path: Trajectory, probability: flo
     q, s = 1.0 / r, math.sqrt(max(float(u @ cov @ u), 0.0)) / (r * r)
     hi, lo = min(q + z * s, 1.0 / NEAR_POINT_MM), q - z * s
     depth = (1.0 / hi, 1.0 / lo if lo > 0 else float("inf"))
-    seen = path.at(t) - o
-    seen /= np.linalg.norm(seen, axis=1, keepdims=True)
+    seen = (point if points_mm is None else np.asarray(points_mm, float)[keep]) - o
+    seen = seen / np.linalg.norm(seen, axis=1, keepdims=True)
     off = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", seen, d), -1.0, 1.0)))
     return GazeDirection(origin, u, cone, depth, float(np.sqrt(np.mean(off ** 2) / 2.0)), len(d))
+
+
+def path_direction(samples: BinocularSamples, path: Trajectory, probability: float = CONE_P) -> GazeDirection | None:
+    """A moving target's direction (its ``path``, ``estimator.motion.Trajectory``, fitted to
+    ``samples`` (N,), world frame, time order): where the gaze pointed at the path's middle knot
+    (``point_direction`` of that knot's point and covariance, seen from the samples' cyclopean
+    origin at the knot's time, interpolated; ``spread_deg`` about the path at each sample's
+    time). None as ``point_direction``."""
+    o, d = cyclopean(samples)
+    keep = np.all(np.isfinite(d), axis=1)
+    if keep.sum() < MIN_DIRECTION_SAMPLES:
+        return None
+    t = np.asarray(samples.t_s, float)
+    t_mid = float(path.t_s[path.middle_knot()])
+    origin = np.array([np.interp(t_mid, t[keep], o[keep, j]) for j in range(3)])
+    point, cov = path.middle()
+    return point_direction(samples, point, cov, origin, path.at(t), probability)
 
 
 def _systematic(samples: BinocularSamples, model: ErrorModel | None) -> tuple[float, float]:

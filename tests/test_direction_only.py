@@ -342,3 +342,32 @@ def test_the_live_session_publishes_the_status_process_gives(rng):
     lines = tuple(s.sample(i) for i in range(len(s)))
     target = GazeEstimation(None, "voxel").finish(FinishedFixation(0, lines, e, 0.0, 1.0, len(s)))
     assert target.status == estimate_status(e, s) == "too-near" and not target.fixated
+
+
+def test_a_point_seen_while_walking_around_it_has_the_direction_of_the_point(rng):
+    """An ``ok`` target's direction is toward its point, its cone from the point's covariance
+    (``estimate.static_direction``, ``estimator.direction.point_direction``): a head walking 80 deg
+    around a point 1.5 m away turns the gaze by 80 deg, so the mean of the gaze directions (the
+    direction of a target without a point) has a cone of tens of degrees that says nothing."""
+    from wearable_gaze.pipeline.steps.estimate import static_direction
+    from wearable_gaze.pipeline.steps.target_status import estimate_status
+
+    P = np.array([0.0, 800.0, 1500.0])
+    t = np.arange(0, 5.0, 0.1)
+    ang = np.deg2rad(-40 + 16 * t)
+    head = P + np.column_stack([-1500 * np.sin(ang), -800 + 0 * t, -1500 * np.cos(ang)])
+    arrays = []
+    for dx in (-32.0, 32.0):
+        o = head + np.column_stack([dx * np.cos(ang), 0 * t, -dx * np.sin(ang)])
+        arrays += [o, perturb_directions((P - o) / np.linalg.norm(P - o, axis=1, keepdims=True), np.deg2rad(1.0), rng)]
+    s = BinocularSamples.from_arrays(t, *arrays)
+    model = ErrorModel(bias_deg=0.3)
+    e = estimate(s, "ml", 1.0, error_model=model)
+    status = estimate_status(e, s)
+    assert status == "ok", status
+    g = static_direction(e, s, status, model)
+    mean = gaze_direction(s, model)
+    assert g.contains(P) and g.cone95_deg < 3.0, g
+    assert mean.cone95_deg > 20.0, mean
+    near, far = g.depth95_mm
+    assert near < np.linalg.norm(P - g.origin_mm) < far < 2 * near

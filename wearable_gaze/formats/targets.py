@@ -74,8 +74,10 @@ DEPTH_COLUMN = "depth"
 DIRECTION_COLUMN = "direction"
 """A record's ``direction`` (``estimator.direction.GazeDirection.to_dict``): the cyclopean gaze
 direction seen from the mean of its lines' cyclopean origins, its 95 % cone's half-angle, the 95 %
-depth interval along it (far null: no far end); every static target with enough lines has one,
-and it is a ``direction-only`` target's whole answer (its ``position_mm`` is null)."""
+depth interval along it (far null: no far end); every target with enough lines has one (an
+``ok`` target's toward its point, a moving one's toward its path's middle knot:
+``pipeline.steps.estimate.static_direction``, ``estimator.direction.path_direction``), and it is a
+``direction-only`` target's whole answer (its ``position_mm`` is null)."""
 DEPTH_ASSUMPTION = "depth_assumption"
 DWELL = "dwell_s"
 """A record's dwell time: the sum of its fixations' durations (each the time its samples stand for,

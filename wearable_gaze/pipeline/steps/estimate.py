@@ -19,7 +19,7 @@ from estimator import (
     near_point_check,
     run_estimator,
 )
-from estimator.direction import gaze_direction, with_direction
+from estimator.direction import GazeDirection, gaze_direction, point_direction, with_direction
 from estimator.errormodel import ErrorModel
 from estimator.merge import MERGE_POSE_DEG, TargetMerger
 
@@ -28,7 +28,7 @@ from ...formats.atomic import atomic_path
 from ...formats.viewlines import read_viewlines_csv
 from ..types import Target
 from .segmentation import NO_FIXATION, measured_rate_hz, read_in_time_order, segment_config, segment_view_lines
-from .target_status import UNRESOLVED, estimate_status, target_status  # noqa: F401  (their home: target_status)
+from .target_status import OK, UNRESOLVED, estimate_status, target_status  # noqa: F401  (their home: target_status)
 
 DEFAULT_ERROR_MODEL = ErrorModel(pose_offset_deg=MERGE_POSE_DEG)
 """The error model of ``estimate`` and of the live session: the defaults, with the merge test's
@@ -101,13 +101,29 @@ def estimate_target(index: int, samples: BinocularSamples, idx: np.ndarray, fixa
     t = samples.t_s[idx]
     lines = samples.select(idx)
     crb = _crb(lines, e.position_mm, sigma_deg) if e.ok else None
-    direction = e.direction if e.direction is not None else gaze_direction(lines, error_model)
+    status = estimate_status(e, lines)
     return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=e.covariance_mm2, sight=e.sight(),
-                  axes95_mm=np.asarray(radii, float), status=estimate_status(e, lines), n_samples=len(idx),
+                  axes95_mm=np.asarray(radii, float), status=status, n_samples=len(idx),
                   t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in fixations), method=method,
                   crb_mm=float(np.sqrt(np.trace(crb))) if crb is not None else float("nan"), samples=idx,
-                  direction=direction)
+                  direction=static_direction(e, lines, status, error_model))
+
+
+def static_direction(e: GazeEstimate, samples: BinocularSamples, status: str,
+                     error_model: ErrorModel | None = None) -> GazeDirection | None:
+    """A static target's direction from its estimate ``e`` and view lines ``samples`` (N,), world
+    frame: a direction-only estimate's own; an ``ok`` point's (``estimator.direction.
+    point_direction``: toward the point from the lines' mean cyclopean origin, its cone and depth
+    interval from the point's covariance); else the lines' mean cyclopean direction with its cone
+    from ``error_model`` (``gaze_direction``). ``process`` and the live session both use it."""
+    if e.direction is not None:
+        return e.direction
+    if status == OK and e.position_mm is not None and e.covariance_mm2 is not None:
+        g = point_direction(samples, e.position_mm, e.covariance_mm2)
+        if g is not None:
+            return g
+    return gaze_direction(samples, error_model)
 
 
 def _crb(samples: BinocularSamples, point_mm, sigma_deg: float):

@@ -25,13 +25,13 @@ from estimator import (
     make_estimator,
     view_lines_to_world,
 )
-from estimator.direction import gaze_direction, path_direction, with_direction
+from estimator.direction import path_direction, with_direction
 from estimator.motion import DEFAULT_KNOT_S, MIN_LINES, MOVING, classify_lines, smooth_trajectory
 from estimator.result import covariance_ellipsoid
 from estimator.segments import OnlineSegmenter
 
 from ..types import Target
-from .estimate import DEFAULT_ERROR_MODEL, model_options, target_merger
+from .estimate import DEFAULT_ERROR_MODEL, model_options, static_direction, target_merger
 from .target_status import estimate_status, target_status
 
 log = logging.getLogger(__name__)
@@ -323,12 +323,13 @@ class GazeEstimation:
         r = est.ellipsoid(0.95)
         index = (self.targets.new_own() if samples is None
                  else self.targets.id_for(samples, est, key=done.fixation))
+        status = estimate_status(est, samples) if samples is not None else str(est.status.value)
         return Target(index=index, position_mm=est.position_mm, covariance_mm2=est.covariance_mm2,
-                      axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm,
-                      status=estimate_status(est, samples) if samples is not None else str(est.status.value),
+                      axes95_mm=np.full(3, np.nan) if r is None else r.radii_mm, status=status,
                       n_samples=done.n_samples, t_start=done.t_start, t_end=done.t_end, fixations=(done.fixation,),
                       method=self.method, crb_mm=float("nan"), sight=est.sight(),
-                      direction=None if samples is None else gaze_direction(samples, DEFAULT_ERROR_MODEL))
+                      direction=None if samples is None else static_direction(est, samples, status,
+                                                                              DEFAULT_ERROR_MODEL))
 
     def direction_target(self, done: EndedFixation, samples: BinocularSamples | None) -> Target | None:
         """The target of a finished static fixation without a usable point: direction-only
