@@ -430,6 +430,13 @@ def _smooth_fit(L: _Lines, sigma: float, accel_mm_s2: float, knot_s: float, x_st
     return (knots, X, cov), chi, edf
 
 
+def _converged(fits: _Fits) -> _Fits:
+    """The fits that reached their optimum: a rougher prior's fits at least as well as a stiffer
+    one's, so one worse than the stiffest ran off from its start (tests/test_motion.py)."""
+    stiffest = fits[min(fits)][1]
+    return {k: f for k, f in fits.items() if f[1] <= stiffest * (1.0 + 1e-6) + 1e-9}
+
+
 def smooth_trajectory(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: float | None = None,
                       knot_s: float = DEFAULT_KNOT_S, start_mm=None, error_model: ErrorModel | None = None
                       ) -> Trajectory:
@@ -470,12 +477,7 @@ def smooth_trajectory(samples: BinocularSamples, sigma_deg: float, accel_mm_s2: 
     x0 = _start_point(L) if start_mm is None else np.asarray(start_mm, float)
     Xs, _, _ = _fit_knots(L, np.zeros(1), sigma, x0)
     grid = ACCEL_GRID_MM_S2 if accel_mm_s2 is None else (accel_mm_s2,)
-    fits: _Fits = {(q, None): _smooth_fit(L, sigma, q, knot_s, Xs[0]) for q in sorted(grid)}
-    # a rougher prior's optimum fits the data at least as well as a stiffer one's: a fit worse than
-    # the stiffest ran off from its start (one in 12 sweeps of tests/test_motion.py did, with a
-    # chi2 of 1e10 that scaled every knot's covariance by 3e7) and is no candidate
-    stiffest = fits[min(fits)][1]
-    fits = {k: f for k, f in fits.items() if f[1] <= stiffest * (1.0 + 1e-6) + 1e-9}
+    fits = _converged({(q, None): _smooth_fit(L, sigma, q, knot_s, Xs[0]) for q in sorted(grid)})
     _, chi_rough, edf_rough = fits[max(fits)]
     scatter = max(chi_rough / max(2 * len(L) - edf_rough, 1.0), 1e-3)     # the data's own, for choosing
     dispersion = max(1.0, scatter)                                       # never below sigma, for covariances
