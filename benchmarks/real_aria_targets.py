@@ -10,6 +10,11 @@ device's own gaze direction (``pipeline.device.surface_reference``, ``tracking.s
 over the target's samples; depths from the median head position over them. Done when (issue 27):
 6 or more targets, every one with a direction, and every one with 0.3 m of head travel nearer the
 reference than ``depth_m``.
+
+Then what the walk holds (``eye_in_head_places``): the dispersion rule on the eye-in-head
+direction that the issue counted "about 9 fixations" with, and where on the SLAM surface each of
+those fixations looked: on this sample all of them lie within 0.3 m of one place, one object the
+wearer walks around, so they are one world target seen from many places, not nine.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from wearable_gaze.formats.devices import aria
-from wearable_gaze.formats.eye_rays import read_device_gaze
+from wearable_gaze.formats.eye_rays import read_device_gaze, read_eye_rays
 from wearable_gaze.formats.poses import read_poses_csv
 from wearable_gaze.formats.viewlines import read_viewlines_csv
 from wearable_gaze.pipeline.importer import import_recording
@@ -60,6 +65,43 @@ def target_rows(session: Path, out: Path, found: list) -> list[dict]:
     return rows
 
 
+IDT_DEG, IDT_MIN, PLACE_MM = 2.0, 5, 300.0
+
+
+def eye_in_head_places(session: Path, out: Path) -> tuple[list, list]:
+    """What the walk holds, by the rule issue 27 counted "about 9 fixations" with: a dispersion
+    rule (I-DT) on the eye-in-head cyclopean direction, ``IDT_DEG`` and ``IDT_MIN`` samples, each
+    run's median SLAM surface point along the device's gaze (``surface_reference``); then the
+    places: those points greedily grouped within ``PLACE_MM`` of a group's first. Returns
+    ([(t0, t1, n, point (3,) mm)], [[run indices] per place])."""
+    rays = read_eye_rays(session / "eye_rays.csv")
+    d = rays.left_direction + rays.right_direction
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = rays.t_s
+    poses = Poses(*read_poses_csv(out / "poses.csv"))
+    ref, _ = surface_reference(aria.read_point_cloud(REAL), session / "device_gaze.csv", poses, t)
+
+    def spread(i, j):
+        m = d[i:j].mean(axis=0)
+        return float(np.degrees(np.arccos(np.clip(d[i:j] @ (m / np.linalg.norm(m)), -1, 1))).max())
+
+    runs, i = [], 0
+    while i + IDT_MIN <= len(t):
+        if spread(i, i + IDT_MIN) > IDT_DEG:
+            i += 1
+            continue
+        j = i + IDT_MIN
+        while j < len(t) and spread(i, j + 1) <= IDT_DEG:
+            j += 1
+        runs.append((float(t[i]), float(t[j - 1]), j - i, np.nanmedian(ref[i:j], axis=0)))
+        i = j
+    places: list[list[int]] = []
+    for k, r in enumerate(runs):
+        home = next((p for p in places if np.linalg.norm(runs[p[0]][3] - r[3]) < PLACE_MM), None)
+        home.append(k) if home is not None else places.append([k])
+    return runs, places
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=None, help="a folder to work in, kept (default: a temporary one)")
@@ -75,6 +117,7 @@ def main():
         res = process_session(session, out, overlay=False, report=False)
         rows = target_rows(session, out, res.found)
         n_fix = len([s for s in read_viewlines_csv(out / "viewlines.csv") if s.key >= 0])
+        runs, places = eye_in_head_places(session, out)
     print(f"{n_fix} fixations, {len(rows)} targets")
     print(f"{'target':>6} {'fixations':<9} {'status':<15} {'dir':>3} {'lines':>5} {'travel mm':>9} {'ours mm':>8} "
           f"{'ref mm':>7} {'depth_m':>7} {'err ours':>8} {'err dev':>7}")
@@ -91,6 +134,11 @@ def main():
     print(f"{len(rows)} targets, {sum(r['direction'] for r in rows)} with a direction; {moved} with >= "
           f"{TRAVEL_MM / 1000:g} m of head travel over a fixation, {nearer} of them nearer the SLAM surface than "
           f"depth_m")
+    print(f"\nthe eye-in-head rule ({IDT_DEG:g} deg, >= {IDT_MIN} samples): {len(runs)} fixations; their SLAM surface "
+          f"points (median over each) fall in {len(places)} place(s) at least {PLACE_MM / 1000:g} m apart (world frame, m):")
+    for k, (t0, t1, n, p) in enumerate(runs):
+        place = next(i for i, pl in enumerate(places) if k in pl)
+        print(f"  {t0:5.1f}-{t1:5.1f} s {n:>3} samples, surface point {np.round(p / 10) / 100} m, place {place}")
 
 
 if __name__ == "__main__":
