@@ -134,8 +134,9 @@ def main():
     print(f"{len(rows)} targets, {sum(r['direction'] for r in rows)} with a direction; {moved} with >= "
           f"{TRAVEL_MM / 1000:g} m of head travel over a fixation, {nearer} of them nearer the SLAM surface than "
           f"depth_m")
-    print(f"\nthe eye-in-head rule ({IDT_DEG:g} deg, >= {IDT_MIN} samples): {len(runs)} fixations; their SLAM surface "
-          f"points (median over each) fall in {len(places)} place(s) at least {PLACE_MM / 1000:g} m apart (world frame, m):")
+    print(f"\nthe eye-in-head rule ({IDT_DEG:g} deg, >= {IDT_MIN} samples): {len(runs)} fixations; their SLAM "
+          f"surface points (median over each) fall in {len(places)} place(s) at least {PLACE_MM / 1000:g} m apart "
+          f"(world frame, m):")
     for k, (t0, t1, n, p) in enumerate(runs):
         place = next(i for i, pl in enumerate(places) if k in pl)
         print(f"  {t0:5.1f}-{t1:5.1f} s {n:>3} samples, surface point {np.round(p / 10) / 100} m, place {place}")
