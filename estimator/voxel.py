@@ -231,6 +231,7 @@ class VoxelEstimator:
         log.debug("voxel: box %d laid at %s mm, voxel %s mm, over %d kept lines", self.work.layouts + 1,
                   np.round(center, 1).tolist(), np.round(spacing, 2).tolist(), self._buf.n_lines)
         self.work.layouts += 1
+        self._chain += 1
         self._pending = _PendingBox(DensityGrid(center, V, spacing, cfg.grid_size), std, center, cov)
         return self._advance()
 
@@ -314,7 +315,6 @@ class VoxelEstimator:
                 failed = self._relay_without_peak(grid, idx, n_lines)
                 if failed is not None:
                     return failed
-                self._chain += 1
                 continue
             offset, cov_local = fit
             point = grid.center_mm + grid.axes @ offset
@@ -323,7 +323,6 @@ class VoxelEstimator:
             # re-laid (refined or re-centred) but the work bound defers it, or it is being laid
             needs = self._pending is None and self._needs_layout(offset, cov_local)
             if needs and self._afford(n_lines):
-                self._chain += 1
                 if self._layout(point, cov):
                     continue
             elif not needs and self._pending is None:
@@ -354,12 +353,13 @@ class VoxelEstimator:
             return self._fail(Status.INSUFFICIENT, f"no seed yet: {self._seed_failure or 'the last fits failed'}; "
                                                    "the next fit waits for more samples (bounded work per sample)")
         self._spend(2 * self._fit_lines())
-        self._chain = 0
         seed, reason = self._seed()
         if seed is None:
             self._seed_failure = reason
             return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
-        if not self._layout(*seed):
+        laid = self._layout(*seed)
+        self._chain = 0                               # boxes laid from this seed on count
+        if not laid:
             return self._fail(Status.INSUFFICIENT, f"no estimate yet: {_LAYING}")
         return None
 
