@@ -8,7 +8,8 @@ serves): its measured rays with the true head poses go through the live estimati
 estimator takes is given to two streaming ``VoxelEstimator`` s, a new pair at each fixation: one
 with the default ``VoxelConfig``, one with ``--against`` (default: the settings of before, a box
 re-laid over up to 1,024 lines in one update and the seed fits and error model over up to 2,048
-samples), which goes first alternating. Timed: each ``update``, the thread's CPU time.
+samples), which goes first alternating. Timed: each ``update``, the thread's CPU time (the objects of
+before the session frozen for the garbage collector, as the live session freezes them).
 
     python benchmarks/bench_voxel_updates.py [--seconds 60] [--against layout_chunk_lines=1024,update_fit_samples=2048]
 
@@ -20,6 +21,7 @@ answered, in the new one's sd: the two give the same targets).
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import tempfile
 import time
@@ -61,8 +63,10 @@ def run(root: Path, against: dict) -> None:
     configs = {"default": VoxelConfig(error_model=DEFAULT_ERROR_MODEL),
                "against": VoxelConfig(error_model=DEFAULT_ERROR_MODEL, **against)}
     warm_up("voxel")
+    gc.freeze()              # as ``LiveSession.run`` does: the collector scans only what the session makes
     est = GazeEstimation([RayEyes(), RayEyes()], "voxel")       # the segmentation (its own estimator untimed)
     cpu: dict = {k: [] for k in configs}
+    nth: list = []                                               # each update's sample count in its fixation
     apart, fixation, pair, k = [], -1, {}, 0
     for t, rec, T in _records(root):
         est.add(t, rec, T)
@@ -76,6 +80,7 @@ def run(root: Path, against: dict) -> None:
             out[name] = pair[name].update(sample)
             cpu[name].append(time.thread_time() - c0)
         k += 1
+        nth.append(len(pair["default"]))
         a, b = out["default"], out["against"]
         if a.ok and b.ok:
             d = a.position_mm - b.position_mm
@@ -87,7 +92,8 @@ def run(root: Path, against: dict) -> None:
         label = "default" if name == "default" else ", ".join(f"{key}={v}" for key, v in against.items())
         print(f"  {label}: CPU per update p50 {np.percentile(x, 50):.2f} ms, p95 {np.percentile(x, 95):.2f}, "
               f"p99 {np.percentile(x, 99):.2f}, max {x.max():.1f} ms; over 3 ms {int((x > 3).sum())}, over 5 ms "
-              f"{int((x > 5).sum())}; total {x.sum() / 1e3:.2f} s")
+              f"{int((x > 5).sum())}; total {x.sum() / 1e3:.2f} s (the max at update {int(np.argmax(x))}, "
+              f"its fixation's sample {nth[int(np.argmax(x))]})")
     ap = np.array(apart)
     print(f"  estimates apart (both answered, {len(ap)} updates), in the default's sd: p50 "
           f"{np.percentile(ap, 50):.3f}, p95 {np.percentile(ap, 95):.3f}, max {ap.max():.2f}")
