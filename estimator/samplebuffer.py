@@ -21,12 +21,15 @@ class VoxelWork:
         layouts: boxes laid, each re-evaluating every kept line.
         lines_refit: kept lines processed by those fits and layouts, summed.
         deferred: fits or layouts put off because the work bound was reached.
+        postponed: in streaming, heavy steps (a seed fit, a part of a box's layout, an error-model
+            refit) put off to a later update because this one had done its ``update_steps``.
     """
 
     seed_fits: int = 0
     layouts: int = 0
     lines_refit: int = 0
     deferred: int = 0
+    postponed: int = 0
 
 
 class _SampleBuffer:

@@ -22,11 +22,10 @@ The paper's method (``paper``) is in ``estimator.paper_voxel``.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 
 import numpy as np
 
-from .errormodel import ErrorModel, model_covariance
+from .errormodel import model_covariance
 from .errormodel_regions import far_side, sight_info
 from .grid import DensityGrid, _PendingBox, _quadratic_fit_local
 from .likelihood import MLConfig, angular_log_likelihood, fisher_information, ml_point
@@ -35,97 +34,13 @@ from .reliability import REJECTED_SHARE, reliability_weight_at, reliability_weig
 from .result import GazeEstimate, Status, failed
 from .samplebuffer import VoxelWork, _SampleBuffer, spread_samples
 from .triangulation import lse_point
+from .voxelconfig import VoxelConfig
 
 log = logging.getLogger(__name__)
 
 _LAYING = "a new box is being laid over the kept lines"
 
 __all__ = ["VoxelConfig", "VoxelEstimator", "VoxelWork"]
-
-
-@dataclass(frozen=True)
-class VoxelConfig:
-    """Settings of the Bayesian voxel estimator (``voxel``).
-
-    Attributes:
-        sigma_deg: angular noise std per tangent axis, degrees.
-        grid_size: voxels per box axis (n; the box has n^3 voxels).
-        coverage_sigmas: the box spans +- this many posterior standard deviations per axis.
-        refine_factor: re-lay the box when a posterior std along a box axis changed by this factor.
-        seed_samples: fewest binocular samples before a seed is tried (default 1: the seed waits for
-            the lines to fix a point ahead of the eyes, with a well-conditioned ML fit, not for a count).
-        seed_method: ``ml`` or ``lse`` (the paper's seed; biased toward the head at depth: the box
-            then has to travel, which it does without losing anything).
-        outlier_prob: prior probability that a sample is a blink or saccade (reliability
-            weighting); 0 turns the weighting off.
-        min_spacing_mm: smallest voxel edge, mm.
-        max_extent_mm: largest box edge, mm (a bound on the search volume early on).
-        max_relayouts: box re-layouts allowed within one update before the peak is declared
-            unbounded (lines nearly parallel).
-        work_per_line: the bound on work over all kept lines (seed fits, box layouts): each line
-            added allows this many line re-evaluations; over any stream they total at most
-            ``work_initial + work_per_line * lines added``. A fit or layout beyond the allowance is
-            deferred until enough samples have come in (``VoxelEstimator.work``).
-        work_initial: line re-evaluations allowed before any line is added.
-        work_burst: the allowance saved up is at most this many times the kept lines (and at
-            least ``work_initial``), so one update makes at most about this many passes over them.
-        error_model: the reported covariance's error model (``estimator.errormodel``); None reports
-            the grid's Laplace covariance (the angular noise ``sigma_deg`` alone). The model is
-            evaluated over all kept lines when their number has grown by ``model_growth`` since
-            the last time (so O(1) per line, amortised); in between, its noise part shrinks as
-            1/lines and its bias floor stays. The grid, the seed and the reliability weights keep
-            the plain likelihood of ``sigma_deg``.
-        model_growth: see ``error_model``.
-        fit_samples: the seed fits after the first box and the error model are evaluated over at
-            most this many kept samples (``samplebuffer.spread_samples``: runs of consecutive
-            samples spread over the stream), the model's noise part scaled to all of them: the
-            cost of one update stays bounded however long a fixation lasts.
-        layout_chunk_lines: in streaming (``update``), a new box over more kept lines than this is
-            laid over several updates, this many lines each; the old box answers meanwhile (the
-            batch ``add`` lays every box at once).
-    """
-
-    sigma_deg: float = 1.0
-    grid_size: int = 12
-    coverage_sigmas: float = 3.0
-    refine_factor: float = 2.0
-    seed_samples: int = 1
-    seed_method: str = "ml"
-    outlier_prob: float = 0.02
-    min_spacing_mm: float = 1e-3
-    max_extent_mm: float = 40000.0
-    max_relayouts: int = 12
-    work_per_line: float = 16.0
-    work_initial: float = 0.0
-    work_burst: float = 4.0
-    error_model: ErrorModel | None = None
-    model_growth: float = 1.1
-    fit_samples: int = 2048
-    layout_chunk_lines: int = 1024
-
-    def __post_init__(self):
-        if not self.sigma_deg > 0:
-            raise ValueError(f"sigma_deg must be positive, got {self.sigma_deg}")
-        if self.grid_size < 5:
-            raise ValueError(f"grid_size must be at least 5, got {self.grid_size}")
-        if self.seed_method not in ("ml", "lse"):
-            raise ValueError(f"seed_method must be 'ml' or 'lse', got {self.seed_method!r}")
-        if self.seed_samples < 1:
-            raise ValueError(f"seed_samples must be at least 1, got {self.seed_samples}")
-        if not (self.work_per_line >= 4 and self.work_initial >= 0 and self.work_burst >= 2):
-            raise ValueError(f"work_per_line must be at least 4, work_initial non-negative and work_burst at least 2, "
-                             f"got {self.work_per_line}, {self.work_initial} and {self.work_burst}")
-        if not self.refine_factor > 1:
-            raise ValueError(f"refine_factor must exceed 1, got {self.refine_factor}")
-        if not 0 <= self.outlier_prob < 1:
-            raise ValueError(f"outlier_prob must be in [0, 1), got {self.outlier_prob}")
-        if self.error_model is not None and not isinstance(self.error_model, ErrorModel):
-            raise ValueError(f"error_model must be an ErrorModel or None, got {type(self.error_model).__name__}")
-        if not self.model_growth > 1:
-            raise ValueError(f"model_growth must exceed 1, got {self.model_growth}")
-        if self.fit_samples < 64 or self.layout_chunk_lines < 2:
-            raise ValueError(f"fit_samples must be at least 64 and layout_chunk_lines at least 2, "
-                             f"got {self.fit_samples} and {self.layout_chunk_lines}")
 
 
 class VoxelEstimator:
@@ -144,7 +59,8 @@ class VoxelEstimator:
         """Boxes laid so far (the same count as ``work.layouts``)."""
         return self.work.layouts
 
-    def __init__(self, config: VoxelConfig = VoxelConfig()):
+    def __init__(self, config: VoxelConfig | None = None):
+        config = VoxelConfig() if config is None else config
         self.config = config
         self._sigma = np.deg2rad(config.sigma_deg)
         self._buf = _SampleBuffer()
@@ -159,24 +75,28 @@ class VoxelEstimator:
         self._model: tuple[int, np.ndarray, np.ndarray, dict, np.ndarray] | None = None
         self._pending: _PendingBox | None = None   # a box being laid over several updates (streaming)
         self._seed_failure = ""                    # why the last seed fit failed (its reason, for people)
+        self._budget: int | None = None            # lines this streaming update may still re-evaluate (None: batch)
+        self._chain = 0                            # boxes laid since the peak last settled (``max_relayouts``)
 
     def __len__(self) -> int:
         return self._buf.n
 
     def update(self, sample: BinocularSample) -> GazeEstimate:
         """Add one binocular sample (world frame) and return the current estimate."""
+        self._budget = self.config.layout_chunk_lines
         i = self._buf.append_one(sample)
         self._allow(int(self._buf.valid[i].sum()))
         if self.grid is not None:
             self._set_weights(slice(i, i + 1))
             self._accumulate(slice(i, i + 1))
-        self._last = self._settle(stream=True)
+        self._last = self._settle()
         return self._last
 
     def add(self, samples: BinocularSamples) -> GazeEstimate:
         """Add many samples at once (the batch API) and return the estimate after all of them."""
         if samples.frame != "world":
             raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
+        self._budget, self._chain = None, 0
         sl = self._buf.append(samples)
         self._allow(int(self._buf.valid[sl].sum()))
         if self.grid is not None:
@@ -220,6 +140,30 @@ class VoxelEstimator:
         cap = max(cfg.work_initial, cfg.work_burst * self._buf.n_lines)
         self._allowance = min(self._allowance + cfg.work_per_line * new_lines, cap)
 
+    def _fits_budget(self, n_lines: int) -> bool:
+        """Whether this streaming update may still re-evaluate ``n_lines`` kept lines (a seed fit
+        counts twice its lines): its first such work always, more within its
+        ``layout_chunk_lines`` (the batch ``add``: always). Work that may not is postponed to a
+        later update (counted), the last box and error model answering meanwhile."""
+        b = self._budget
+        if b is None or b >= self.config.layout_chunk_lines or n_lines <= b:
+            return True
+        self.work.postponed += 1
+        return False
+
+    def _spend(self, n_lines: int) -> None:
+        if self._budget is not None:
+            self._budget -= n_lines
+
+    def _fit_samples(self) -> int:
+        """The most kept samples a seed fit or the error model sees (streaming: fewer)."""
+        cfg = self.config
+        return cfg.fit_samples if self._budget is None else min(cfg.fit_samples, cfg.update_fit_samples)
+
+    def _fit_lines(self) -> int:
+        """About the lines a seed fit or the error model sees."""
+        return min(self._buf.n_lines, 2 * self._fit_samples())
+
     def _afford(self, n_lines: int) -> bool:
         """Take ``n_lines`` line re-evaluations from the allowance, or say the work must wait."""
         if n_lines > self._allowance:
@@ -253,7 +197,7 @@ class VoxelEstimator:
         cfg = self.config
         # at most ``fit_samples`` of the kept samples, the information scaled to all of them: a
         # seed, not the answer (the box's peak is, over every kept line)
-        o, d, si = self._buf.lines(spread_samples(self._buf.n, cfg.fit_samples))
+        o, d, si = self._buf.lines(spread_samples(self._buf.n, self._fit_samples()))
         lines = ViewLines(o, d, "world", si)
         self.work.seed_fits += 1
         if x0 is not None or cfg.seed_method == "ml":
@@ -271,10 +215,11 @@ class VoxelEstimator:
             return None, "the view lines do not yet fix a point"
         return (est.position_mm, np.linalg.inv(F)), ""
 
-    def _layout(self, center, cov, stream: bool = False) -> bool:
+    def _layout(self, center, cov) -> bool:
         """Lay a new box for posterior N(center, cov) and re-evaluate every kept sample into it:
-        at once (True), or, ``stream`` with more kept lines than ``layout_chunk_lines``, over this
-        and the next updates (False: ``_pending``, until ``_advance`` has filled it)."""
+        at once (True), or in streaming, with more kept lines than the update's budget
+        (``_fits_budget``), over this and the next updates (False: ``_pending``, until
+        ``_advance`` has filled it)."""
         cfg = self.config
         w, V = np.linalg.eigh(0.5 * (cov + cov.T))
         if np.linalg.det(V) < 0:
@@ -286,18 +231,26 @@ class VoxelEstimator:
         log.debug("voxel: box %d laid at %s mm, voxel %s mm, over %d kept lines", self.work.layouts + 1,
                   np.round(center, 1).tolist(), np.round(spacing, 2).tolist(), self._buf.n_lines)
         self.work.layouts += 1
+        self._chain += 1
         self._pending = _PendingBox(DensityGrid(center, V, spacing, cfg.grid_size), std, center, cov)
-        return self._advance(None if not stream or self._buf.n_lines <= cfg.layout_chunk_lines
-                             else cfg.layout_chunk_lines)
+        return self._advance()
 
-    def _advance(self, most_lines: int | None) -> bool:
-        """Evaluate the next kept samples (about ``most_lines`` lines; None: all) into the pending
-        box, under its posterior's weights; once every kept sample is in, it replaces the box
-        (True). Samples added meanwhile are in the old box and come to the new one in turn."""
+    def _advance(self) -> bool:
+        """Evaluate the next kept samples into the pending box, under its posterior's weights: all
+        of them (batch), or about as many lines as this streaming update's budget has left; once
+        every kept sample is in, it replaces the box (True). Samples added meanwhile are in the
+        old box and come to the new one in turn."""
         p = self._pending
         assert p is not None                          # called while a box is being laid
-        stop = self._buf.n if most_lines is None else min(self._buf.n, p.done + max(most_lines // 2, 1))
+        stop = self._buf.n
+        if self._budget is not None:
+            most = min(self._budget, self.config.layout_chunk_lines)
+            if most < 2:
+                self.work.postponed += 1
+                return False
+            stop = min(stop, p.done + most // 2)
         sl = slice(p.done, stop)
+        self._spend(int(self._buf.valid[sl].sum()))
         self._set_weights(sl, p.center, p.cov)
         self._accumulate(sl, p.grid)
         p.done = stop
@@ -334,13 +287,13 @@ class VoxelEstimator:
         assert target is not None                     # a box laid or being laid
         target.add_lines(o, d, self._buf.weight[si] * (-0.5 / self._sigma**2))
 
-    def _settle(self, stream: bool = False) -> GazeEstimate:
-        """The estimate after the samples added: seed and lay boxes as needed (``stream``: a box
+    def _settle(self) -> GazeEstimate:
+        """The estimate after the samples added: seed and lay boxes as needed (in streaming, a box
         over many lines is laid over several updates, ``_layout``)."""
         cfg = self.config
         n_lines = self._buf.n_lines
         if self._pending is not None:
-            self._advance(cfg.layout_chunk_lines if stream else None)
+            self._advance()
         if self._posterior_rejected():
             # the box answers from a few early lines only (e.g. one eye's first lines, which meet
             # near that eye): drop it and seed again from every kept line, nothing is lost
@@ -348,10 +301,10 @@ class VoxelEstimator:
             self.grid = None
             self._posterior = None
         if self.grid is None:
-            failed = self._seed_box(n_lines, stream)
+            failed = self._seed_box(n_lines)
             if failed is not None:
                 return failed
-        for _ in range(cfg.max_relayouts):
+        while self._chain < cfg.max_relayouts:
             grid = self.grid
             assert grid is not None                   # seeded above, or re-laid before ``continue``
             idx = grid.argmax()
@@ -359,7 +312,7 @@ class VoxelEstimator:
             if idx.min() > 0 and idx.max() < grid.n - 1:
                 fit = _quadratic_fit_local(grid, idx)
             if fit is None:
-                failed = self._relay_without_peak(grid, idx, n_lines, stream)
+                failed = self._relay_without_peak(grid, idx, n_lines)
                 if failed is not None:
                     return failed
                 continue
@@ -368,17 +321,20 @@ class VoxelEstimator:
             cov = grid.axes @ cov_local @ grid.axes.T
             # a peak inside the box with a valid fit is an answer even when the box would be
             # re-laid (refined or re-centred) but the work bound defers it, or it is being laid
-            if (self._pending is None and self._needs_layout(offset, cov_local)
-                    and self._afford(n_lines)):
-                if self._layout(point, cov, stream=stream):
+            needs = self._pending is None and self._needs_layout(offset, cov_local)
+            if needs and self._afford(n_lines):
+                if self._layout(point, cov):
                     continue
+            elif not needs and self._pending is None:
+                self._chain = 0                       # the peak settled in its box
             return self._result(point, cov)
         self.grid = self._pending = None      # back to the O(1) seed test (nothing is lost: see above)
+        self._chain = 0
         log.debug("voxel: no bounded maximum after %d re-layouts; back to seeding", cfg.max_relayouts)
         return self._fail(Status.DEGENERATE, "the density has no bounded maximum: the view lines are "
                                              "nearly parallel (target too far for this head motion)")
 
-    def _seed_box(self, n_lines: int, stream: bool) -> GazeEstimate | None:
+    def _seed_box(self, n_lines: int) -> GazeEstimate | None:
         """Without a box: seed one and lay it when the samples allow (``_seed_gate``, the work
         bound over the ``n_lines`` kept lines); the failure to return, or None once it is laid."""
         cfg = self.config
@@ -390,35 +346,42 @@ class VoxelEstimator:
         why = self._seed_gate()
         if why:
             return self._fail(Status.INSUFFICIENT, f"no seed yet: {why}")
+        if not self._fits_budget(2 * self._fit_lines()):
+            return self._fail(Status.INSUFFICIENT, "no seed yet: the fit waits for the next update "
+                                                   "(bounded work per update)")
         if not self._afford(2 * n_lines):
             return self._fail(Status.INSUFFICIENT, f"no seed yet: {self._seed_failure or 'the last fits failed'}; "
                                                    "the next fit waits for more samples (bounded work per sample)")
+        self._spend(2 * self._fit_lines())
         seed, reason = self._seed()
         if seed is None:
             self._seed_failure = reason
             return self._fail(Status.INSUFFICIENT, f"no seed yet: {reason}")
-        if not self._layout(*seed, stream=stream):
+        laid = self._layout(*seed)
+        self._chain = 0                               # boxes laid from this seed on count
+        if not laid:
             return self._fail(Status.INSUFFICIENT, f"no estimate yet: {_LAYING}")
         return None
 
-    def _relay_without_peak(self, grid, idx, n_lines: int, stream: bool) -> GazeEstimate | None:
+    def _relay_without_peak(self, grid, idx, n_lines: int) -> GazeEstimate | None:
         """The box's maximum (voxel ``idx``) is at its border, or not a peak at this voxel size:
         lay the box anew from the continuous optimum over every kept line (nothing is lost);
         the failure to return, or None when the new box is laid."""
         no_peak_here = f"the density has no clear peak in this box; {_LAYING}"
-        if self._pending is not None:      # the new box comes in the next updates
+        if self._pending is not None or not self._fits_budget(2 * self._fit_lines()):   # in the next updates
             return self._fail(Status.INSUFFICIENT, no_peak_here)
         if not self._afford(2 * n_lines):
             return self._fail(Status.INSUFFICIENT, "the density has no clear peak yet; the box is "
                                                    "laid anew once more samples have come in "
                                                    "(bounded work per sample)")
+        self._spend(2 * self._fit_lines())
         seed, reason = self._seed(x0=grid.index_to_world(idx)[0])
         if seed is None:
             # back to seeding: the O(1) test waits for lines that fix a point, and the next
             # box is evaluated from every kept line, so dropping this one loses nothing
             self.grid = None
             return self._fail(Status.INSUFFICIENT, f"the density has no clear peak yet: {reason}")
-        if not self._layout(*seed, stream=stream):
+        if not self._layout(*seed):
             return self._fail(Status.INSUFFICIENT, no_peak_here)
         return None
 
@@ -427,7 +390,8 @@ class VoxelEstimator:
         their number (then it is wrong, not they) and a new seed and box are affordable; O(1)."""
         b = self._buf
         return (self.grid is not None and self._pending is None and self.config.outlier_prob > 0
-                and b.weight_sum < REJECTED_SHARE * b.n and self._allowance >= 3 * b.n_lines)
+                and b.weight_sum < REJECTED_SHARE * b.n and self._allowance >= 3 * b.n_lines
+                and self._fits_budget(2 * self._fit_lines()))
 
     def _needs_layout(self, offset_mm, cov_local) -> bool:
         """Lay a new box when the peak (box frame, mm) left the central half, or the posterior
@@ -447,11 +411,13 @@ class VoxelEstimator:
         if model is None:
             return cov
         L = self._buf.n_lines
-        if self._model is None or L >= self.config.model_growth * self._model[0]:
+        if self._model is None or (L >= self.config.model_growth * self._model[0]
+                                   and self._fits_budget(self._fit_lines())):
+            self._spend(self._fit_lines())
             # over at most ``fit_samples`` kept samples (O(1) per update): the noise part shrinks
             # as 1 / the lines' summed weight, the bias floor does not depend on their number
             b = self._buf
-            o, d, si = b.lines(spread_samples(b.n, self.config.fit_samples))
+            o, d, si = b.lines(spread_samples(b.n, self._fit_samples()))
             C, minfo = model_covariance(point, ViewLines(o, d, "world", si), self._sigma, model, b.weight[si])
             if C is None:
                 return cov

@@ -92,3 +92,49 @@ def test_spread_samples_are_runs_of_consecutive_samples_over_the_whole_stream():
     idx = spread_samples(10000, 128, runs=16)
     assert len(idx) == 128 and idx[0] == 0 and idx[-1] == 9999
     assert np.all(np.diff(idx) > 0) and np.sum(np.diff(idx) == 1) == 128 - 16
+
+
+def test_no_streaming_update_stacks_work_over_the_kept_lines(monkeypatch):
+    """With the default settings (issue 29: bursts in the live loop), once the kept lines exceed
+    one update's budget (``layout_chunk_lines``) an update does at most one piece of work over
+    them: a seed fit, a part of a box's layout (at most the budget's lines), or an error-model
+    refit (over at most ``update_fit_samples`` samples); the rest waits for the next updates."""
+    cfg = VoxelConfig(error_model=ErrorModel())
+    # about a millisecond of CPU a piece: a line into a box costs ~8.5 us (12^3 voxels), a fit or
+    # model over 256 samples 1.3-2.7 ms (before: boxes over 1,024 lines, fits over 2,048 samples)
+    assert cfg.layout_chunk_lines <= 128 and cfg.update_fit_samples <= 256
+    samples = walkabout_samples(TARGET, np.random.default_rng(7), n=1500)
+    seen = _counting(monkeypatch)
+    est = VoxelEstimator(cfg)
+    stacked = pieces = 0
+    for i in range(len(samples)):
+        e = est.update(samples.sample(i))
+        layout = [n for n in seen["grid"] if n > 2]              # the new sample's own lines aside
+        assert sum(layout) <= cfg.layout_chunk_lines
+        assert all(n <= 2 * cfg.update_fit_samples for n in seen["fit"] + seen["model"])
+        work = len(seen["fit"]) + len(seen["model"]) + bool(layout)
+        if len(est.view_lines()) > cfg.layout_chunk_lines:
+            stacked += work > 1
+            pieces += work
+        for v in seen.values():
+            v.clear()
+    assert e.ok and est.work.layouts >= 3 and pieces > 20     # boxes laid and models refitted late too
+    assert stacked == 0
+    assert est.work.postponed > 0                             # some work did wait for a later update
+
+
+def test_the_default_streaming_estimate_is_the_offline_one():
+    """The streamed estimate with the default settings (boxes laid over several updates, the
+    error model over ``update_fit_samples``) against the batch one (every box at once, the model
+    over ``fit_samples``): within a tenth of its sd, the sds within 10 %."""
+    cfg = VoxelConfig(error_model=ErrorModel())
+    samples = walkabout_samples(TARGET, np.random.default_rng(8), n=1500)
+    est = VoxelEstimator(cfg)
+    for i in range(len(samples)):
+        e = est.update(samples.sample(i))
+    off = _offline(samples, cfg)
+    assert e.ok and off.ok
+    d = e.position_mm - off.position_mm
+    assert np.sqrt(d @ np.linalg.solve(off.covariance_mm2, d)) < 0.1
+    sd, sd_off = np.sqrt(np.diag(e.covariance_mm2)), np.sqrt(np.diag(off.covariance_mm2))
+    assert np.all(np.abs(sd / sd_off - 1) < 0.1)
