@@ -24,9 +24,11 @@ class VoxelConfig:
             weighting); 0 turns the weighting off.
         min_spacing_mm: smallest voxel edge, mm.
         max_extent_mm: largest box edge, mm (a bound on the search volume early on).
-        max_relayouts: box re-layouts allowed before the peak settles (within one batch ``add``;
-            in streaming, over the updates they take) before it is declared unbounded (lines
-            nearly parallel).
+        max_relayouts: box re-layouts allowed within one ``add`` or ``update`` before the peak
+            is declared unbounded (lines nearly parallel). Counted over the updates a box takes,
+            it ended a far target's stream on the paper path (1.5, 0.5, 5 m) as unbounded in
+            some trials of benchmarks/accuracy_vs_crb.py: a peak that moves as lines come is
+            re-laid many times over a stream.
         work_per_line: the bound on work over all kept lines (seed fits, box layouts): each line
             added allows this many line re-evaluations; over any stream they total at most
             ``work_initial + work_per_line * lines added``. A fit or layout beyond the allowance is
