@@ -369,20 +369,22 @@ class VoxelEstimator:
         lay the box anew from the continuous optimum over every kept line (nothing is lost);
         the failure to return, or None when the new box is laid."""
         # without a peak the box has no answer to give while another is laid over the next
-        # updates (a stream could end there: 1 paper-path trial in 200 of benchmarks/
-        # accuracy_vs_crb.py did), so this update does the whole work, as a batch ``add`` does
-        budget, self._budget = self._budget, None
+        # updates (a stream could end there), so over few lines this update does the whole work
+        budget = self._budget
+        if n_lines <= self.config.relay_lines:
+            self._budget = None
         try:
             return self._relay_now(grid, idx, n_lines)
         finally:
             self._budget = budget
 
     def _relay_now(self, grid, idx, n_lines: int) -> GazeEstimate | None:
-        """``_relay_without_peak``'s work, with no per-update budget."""
+        """``_relay_without_peak``'s work, under the update's budget if it has one."""
         no_peak_here = f"the density has no clear peak in this box; {_LAYING}"
-        if self._pending is not None:
-            self._advance()                           # the box being laid: finished now, then looked at
-            return None
+        if self._pending is not None:             # the box being laid: looked at once finished
+            return None if self._advance() else self._fail(Status.INSUFFICIENT, no_peak_here)
+        if not self._fits_budget(2 * self._fit_lines()):               # in the next updates
+            return self._fail(Status.INSUFFICIENT, no_peak_here)
         if not self._afford(2 * n_lines):
             return self._fail(Status.INSUFFICIENT, "the density has no clear peak yet; the box is "
                                                    "laid anew once more samples have come in "

@@ -56,6 +56,10 @@ class VoxelConfig:
             far leaves too few (the last box and model answer meanwhile; an update's first such
             work always runs, and so does the model's first fit): no update holds a stream up
             for more than about one such piece of work.
+        relay_lines: a box whose density has no peak inside it has no answer to give while
+            another is laid, so with at most this many kept lines it is laid anew within the
+            update (a paper-path stream of 400 lines once ended mid-layout, without an answer,
+            in benchmarks/accuracy_vs_crb.py); with more, over several updates as above.
     """
 
     sigma_deg: float = 1.0
@@ -76,6 +80,7 @@ class VoxelConfig:
     fit_samples: int = 2048
     update_fit_samples: int = 256
     layout_chunk_lines: int = 128
+    relay_lines: int = 1024
 
     def __post_init__(self) -> None:
         if not self.sigma_deg > 0:
