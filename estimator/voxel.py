@@ -96,7 +96,7 @@ class VoxelEstimator:
         """Add many samples at once (the batch API) and return the estimate after all of them."""
         if samples.frame != "world":
             raise ValueError(f"samples must be in the world frame, got {samples.frame!r}")
-        self._budget, self._chain = None, 0
+        self._budget = None
         sl = self._buf.append(samples)
         self._allow(int(self._buf.valid[sl].sum()))
         if self.grid is not None:
@@ -322,15 +322,12 @@ class VoxelEstimator:
             cov = grid.axes @ cov_local @ grid.axes.T
             # a peak inside the box with a valid fit is an answer even when the box would be
             # re-laid (refined or re-centred) but the work bound defers it, or it is being laid
-            needs = self._pending is None and self._needs_layout(offset, cov_local)
-            if needs and self._afford(n_lines):
+            if (self._pending is None and self._needs_layout(offset, cov_local)
+                    and self._afford(n_lines)):
                 if self._layout(point, cov):
                     continue
-            elif not needs and self._pending is None:
-                self._chain = 0                       # the peak settled in its box
             return self._result(point, cov)
         self.grid = self._pending = None      # back to the O(1) seed test (nothing is lost: see above)
-        self._chain = 0
         log.debug("voxel: no bounded maximum after %d re-layouts; back to seeding", cfg.max_relayouts)
         return self._fail(Status.DEGENERATE, "the density has no bounded maximum: the view lines are "
                                              "nearly parallel (target too far for this head motion)")
