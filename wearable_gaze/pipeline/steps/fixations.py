@@ -211,13 +211,14 @@ def moving_target(index: int, samples: BinocularSamples, group, method: str) -> 
     tr = group.trajectory
     pos, cov = tr.middle()
     idx = group.samples
+    lines = samples.select(idx)
     t = samples.t_s[idx]
     radii = np.asarray(covariance_ellipsoid(pos, cov, 0.95).radii_mm, float)
     return Target(index=index, position_mm=np.asarray(pos, float), covariance_mm2=cov,
-                  axes95_mm=radii, status=target_status(MOVING, pos, radii, samples.select(idx)),
+                  axes95_mm=radii, status=target_status(MOVING, pos, radii, lines),
                   n_samples=len(idx), t_start=float(t.min()), t_end=float(t.max()),
                   fixations=tuple(int(f) for f in group.fixations), method=method, crb_mm=float("nan"),
-                  samples=idx, moving=True, trajectory=tr, direction=path_direction(samples.select(idx), tr))
+                  samples=idx, moving=True, trajectory=tr, direction=path_direction(lines, tr))
 
 
 @dataclass
